@@ -1,0 +1,24 @@
+"""Shared fixtures. ``shared_dir`` finds ../shared (beside the checkout); tests that need it skip
+with a reason when it is absent, unless CALIBGRAPH_SHARED_REQUIRED=1 (CI), where they fail."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> Path:
+    candidates = [REPO.parent / "shared", REPO / "shared"]
+    env = os.environ.get("CALIBGRAPH_SHARED")
+    if env:
+        candidates.insert(0, Path(env))
+    for c in candidates:
+        if (c / "datasets").is_dir():
+            return c
+    msg = "../shared (real datasets) is not beside this checkout"
+    if os.environ.get("CALIBGRAPH_SHARED_REQUIRED") == "1":
+        pytest.fail(msg + " and CALIBGRAPH_SHARED_REQUIRED=1")
+    pytest.skip(msg)
