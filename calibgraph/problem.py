@@ -106,7 +106,9 @@ class SolverOptions:
         pixel_sigma_px: assumed corner noise. ``None`` estimates it from the residuals (a
             posteriori variance factor), which is what the covariances are then scaled with.
         loss: corner-level robust loss, 'huber' (default), 'cauchy' or 'none'.
-        loss_scale: threshold of the loss in units of pixel sigma (Huber: 1.345).
+        loss_scale: threshold of the loss on a corner's residual *norm*, in units of the per-axis
+            pixel sigma. 2.45 keeps 95% of Gaussian corners at full weight (a 2-D residual norm
+            exceeds 1.345 sigma 40% of the time, so the 1-D Huber constant would downweight inliers).
         outlier_sigmas: corners whose residual exceeds this many sigmas after the robust solve
             are rejected and listed; views losing most corners are rejected as a whole.
         min_views_per_camera: below this a camera is refused with an observability error.
@@ -118,7 +120,7 @@ class SolverOptions:
     fk_sigma_rotation_rad: float = float(np.radians(0.01))
     pixel_sigma_px: float | None = None
     loss: str = "huber"
-    loss_scale: float = 1.345
+    loss_scale: float = 2.45
     outlier_sigmas: float = 5.0
     min_views_per_camera: int = 3
     max_iterations: int = 100

@@ -15,6 +15,8 @@
   and ``covariance`` (6x6, rotation first, in frame a's axes).
 - ``board_mount``: covariance and sigmas of the board mount.
 - ``solver``: converged, iterations, final cost, pixel sigma used, time, settings.
+- ``residuals.<camera>.<capture>``: ``ids``, ``uv_detected_px`` (N,2), ``residual_px`` (N,2) =
+  reprojected - detected, ``rejected`` (whole view), ``corner_rejected`` (N,) booleans.
 """
 
 from __future__ import annotations
@@ -65,7 +67,8 @@ class CameraResult:
     corners_used: int = 0
     corners_rejected: int = 0
     T_mount_board: np.ndarray | None = None  # own board mount in 'single' mode
-    residuals_px: dict = field(default_factory=dict, repr=False)  # capture -> (ids, residual uv (N,2))
+    # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
+    residuals_px: dict = field(default_factory=dict, repr=False)
 
     @property
     def sigma_translation_mm(self) -> np.ndarray:
@@ -189,6 +192,19 @@ class Result:
                 {"camera": c, "capture": k, "id": i, "residual_px": r} for (c, k, i, r) in self.rejected_corners
             ],
             "robot_flange_poses_refined": {str(k): T.tolist() for k, T in self.T_base_flange_est.items()},
+            "residuals": {
+                name: {
+                    str(k): {
+                        "ids": np.asarray(r["ids"]).astype(int).tolist(),
+                        "uv_detected_px": np.round(np.asarray(r["uv_detected_px"]), 4).tolist(),
+                        "residual_px": np.round(np.asarray(r["residual_px"]), 5).tolist(),
+                        "rejected": bool(r["rejected"]),
+                        "corner_rejected": (np.asarray(r["weight"]) == 0).tolist(),
+                    }
+                    for k, r in c.residuals_px.items()
+                }
+                for name, c in self.cameras.items()
+            },
         }
         if self.T_mount_board is not None:
             d[mount_key] = self.T_mount_board.tolist()

@@ -1,0 +1,92 @@
+"""The view factor: every detected corner of one view is a reprojection residual.
+
+Model (generic over modes; "static" S is the robot base in eye-to-hand and the flange in
+eye-in-hand, "moving" M the other one):
+
+    p_cam = T_S_cam^-1 @ T_S_M[k] @ T_M_board @ p_board          (project_chain)
+    r_i   = sqrt(w_i) / sigma_px * (project(p_cam_i) - uv_i)       (2 rows per corner)
+
+One ``gtsam.CustomFactor`` per view with vectorised numpy keeps the corner as the unit of
+observation (each corner has its own robust weight ``w_i`` and its own two rows) while being ~20x
+faster than one Python factor per corner. Jacobians are analytic, in GTSAM's Pose3 tangent
+(right perturbation ``T @ Exp(xi)``, ``xi = [omega, v]``).
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from .camera import Intrinsics
+
+_MIN_DEPTH_M = 1e-3
+
+
+def project_chain(T_S_cam: np.ndarray, T_S_M: np.ndarray, T_M_board: np.ndarray, p_board_m: np.ndarray,
+                  intr: Intrinsics) -> np.ndarray:
+    """Pure model: board points (N, 3) -> pixels (N, 2) through the kinematic chain."""
+    T_cam_board = np.linalg.inv(T_S_cam) @ T_S_M @ T_M_board
+    p_cam = p_board_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    return intr.project(p_cam)
+
+
+def _cross_rows(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """cross(a[n, r], p[n]) for a (N, 2, 3) and p (N, 3), without np.cross's axis shuffling."""
+    px, py, pz = p[:, None, 0], p[:, None, 1], p[:, None, 2]
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    return np.stack([ay * pz - az * py, az * px - ax * pz, ax * py - ay * px], axis=-1)
+
+
+def view_residual(T_S_cam, T_S_M, T_M_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w, want_jacobians=True):
+    """Residual (2N,) and Jacobians (2N, 6) w.r.t. camera, robot pose and mount.
+
+    ``sqrt_w`` (N,) already includes 1 / sigma_px.
+    """
+    R_sc, t_sc = T_S_cam[:3, :3], T_S_cam[:3, 3]
+    R_sm, t_sm = T_S_M[:3, :3], T_S_M[:3, 3]
+    R_mb, t_mb = T_M_board[:3, :3], T_M_board[:3, 3]
+    p_m = p_board_m @ R_mb.T + t_mb
+    p_s = p_m @ R_sm.T + t_sm
+    p_c = (p_s - t_sc) @ R_sc  # R_sc^T (p_s - t_sc), row-wise
+    # Keep the residual finite when a corner falls behind the camera during iterations.
+    p_c_safe = p_c.copy()
+    p_c_safe[:, 2] = np.maximum(p_c_safe[:, 2], _MIN_DEPTH_M)
+    if not want_jacobians:
+        uv = intr.project(p_c_safe)
+        return ((uv - uv_px) * sqrt_w[:, None]).reshape(-1), None
+    uv, Jp = intr.project(p_c_safe, with_jacobian=True)  # (N,2), (N,2,3)
+    e = ((uv - uv_px) * sqrt_w[:, None]).reshape(-1)
+    Jp = Jp * sqrt_w[:, None, None]
+    n = p_board_m.shape[0]
+    # Row vector a^T [p]x equals cross(a, p), so every "J @ skew(p)" below is a batched cross product.
+    # camera (right perturbation of T_S_cam): d p_c = [p_c]x omega - v
+    H_c = np.concatenate([_cross_rows(Jp, p_c), -Jp], axis=2)
+    # robot pose: d p_s = R_sm(-[p_m]x omega + v), d p_c = R_sc^T d p_s
+    R_cs_sm = R_sc.T @ R_sm
+    JF = Jp @ R_cs_sm
+    H_f = np.concatenate([-_cross_rows(JF, p_m), JF], axis=2)
+    # mount: d p_m = R_mb(-[p_b]x omega + v)
+    JB = JF @ R_mb
+    H_b = np.concatenate([-_cross_rows(JB, p_board_m), JB], axis=2)
+    H_c, H_f, H_b = (H.reshape(2 * n, 6) for H in (H_c, H_f, H_b))
+    return e, (H_c, H_f, H_b)
+
+
+def make_view_factor(key_cam, key_robot, key_mount, p_board_m: np.ndarray, uv_px: np.ndarray, intr: Intrinsics,
+                     sqrt_w: np.ndarray) -> gtsam.CustomFactor:
+    """A CustomFactor for one view (keys: camera pose, robot pose, board mount)."""
+    p_board_m = np.ascontiguousarray(p_board_m, float)
+    uv_px = np.ascontiguousarray(uv_px, float)
+    sqrt_w = np.ascontiguousarray(sqrt_w, float)
+    model = gtsam.noiseModel.Unit.Create(2 * p_board_m.shape[0])
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
+        T_sc = values.atPose3(key_cam).matrix()
+        T_sm = values.atPose3(key_robot).matrix()
+        T_mb = values.atPose3(key_mount).matrix()
+        e, J = view_residual(T_sc, T_sm, T_mb, p_board_m, uv_px, intr, sqrt_w, want_jacobians=H is not None)
+        if H is not None:
+            H[0], H[1], H[2] = J
+        return e
+
+    return gtsam.CustomFactor(model, [key_cam, key_robot, key_mount], error_func)

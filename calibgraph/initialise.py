@@ -1,0 +1,282 @@
+"""Initial guesses that never fall into the planar-pose ambiguity.
+
+A small planar board seen from far has two near-equal PnP poses (IPPE returns both); single-view
+PnP picks the mirrored one in ~20% of views at 3 m. Every closed-form AX = ZB method fed with those
+poses inherits the error. Here each view keeps *both* IPPE candidates and the choice is made by
+consensus across views:
+
+1. Per camera, RANSAC over minimal sets of 3 views and candidate choices solves the rotation part
+   ``R_Z B_k = A_k R_Y`` linearly (18 unknowns, null space) and counts the views whose best
+   candidate agrees within a few degrees.
+2. The board mount rotation comes from the camera(s) with the strongest consensus (all agreeing
+   cameras re-solved jointly in 'joint' mode); translations follow from the linear system
+   ``t_Z + R_Z t_Bk = R_Ak t_Y + t_Ak``, solved robustly.
+3. Every camera pose is then re-derived from the shared mount: each view proposes
+   ``Z = A_k Y B_k^-1`` for each candidate; the largest agreeing cluster wins.
+
+Generic notation: Z = pose of the camera in the static frame, Y = board mount in the moving frame,
+A_k = robot pose of capture k (static <- moving), B_k = T_cam_board from PnP.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .camera import Intrinsics
+from .errors import ObservabilityError
+from .transforms import inv, log_so3, make_T, project_to_so3
+
+ROT_INLIER_DEG = 5.0
+
+
+@dataclass(frozen=True)
+class ViewCandidates:
+    """PnP candidates of one view: rotations (m, 3, 3), translations (m, 3), rms (m,)."""
+
+    camera: str
+    capture: int
+    A: np.ndarray  # (4, 4) robot pose, static <- moving
+    R: np.ndarray
+    t: np.ndarray
+    rms_px: np.ndarray
+
+
+def pnp_candidates(p_board_m: np.ndarray, uv_px: np.ndarray, intr: Intrinsics, max_rms_px: float = 20.0):
+    """Both IPPE solutions of a planar view (fewer when degenerate). Returns (R (m,3,3), t (m,3), rms (m,))."""
+    if len(uv_px) < 4:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0)
+    obj = np.ascontiguousarray(p_board_m[:, :3], dtype=np.float64).reshape(-1, 1, 3)
+    img = np.ascontiguousarray(uv_px, dtype=np.float64).reshape(-1, 1, 2)
+    try:
+        n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, intr.K, intr.dist, flags=cv2.SOLVEPNP_IPPE)
+    except cv2.error:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0)
+    Rs, ts, rms = [], [], []
+    for i in range(n):
+        R, _ = cv2.Rodrigues(rvecs[i])
+        t = np.asarray(tvecs[i], float).reshape(3)
+        e = float(np.asarray(errs).reshape(-1)[i]) if errs is not None else 0.0
+        if t[2] <= 0 or not np.isfinite(e) or e > max_rms_px:
+            continue
+        Rs.append(R)
+        ts.append(t)
+        rms.append(e)
+    return np.array(Rs).reshape(-1, 3, 3), np.array(ts).reshape(-1, 3), np.array(rms)
+
+
+def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
+    """Angle between rotations, batched over leading dims."""
+    c = (np.einsum("...ij,...ij->...", Ra, Rb) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def _solve_rotations(rows_by_cam: dict, n_cams: int):
+    """Linear least squares for R_Z (one per camera slot) and shared R_Y.
+
+    rows_by_cam: slot -> list of (A_rot, B_rot). Equation R_Z B - A R_Y = 0, row-major vec.
+    """
+    nu = 9 * (n_cams + 1)
+    blocks = []
+    I3 = np.eye(3)
+    for slot, pairs in rows_by_cam.items():
+        for A, Bm in pairs:
+            M = np.zeros((9, nu))
+            M[:, 9 * slot: 9 * slot + 9] = np.kron(I3, Bm.T)
+            M[:, 9 * n_cams:] = -np.kron(A, I3)
+            blocks.append(M)
+    M = np.vstack(blocks)
+    _, s, Vt = np.linalg.svd(M, full_matrices=False)
+    v = Vt[-1]
+    RY_raw = v[9 * n_cams:].reshape(3, 3)
+    if np.linalg.det(RY_raw) < 0:
+        v = -v
+        RY_raw = -RY_raw
+    scale = np.cbrt(max(np.linalg.det(RY_raw), 1e-300))
+    RY = project_to_so3(RY_raw / scale)
+    RZ = [project_to_so3(v[9 * i: 9 * i + 9].reshape(3, 3) / scale) for i in range(n_cams)]
+    cond = s[-2] / max(s[0], 1e-300) if len(s) > 1 else 0.0
+    return RZ, RY, cond
+
+
+def _stack(views):
+    """Flatten all candidates: (R (M,3,3), A_rot (M,3,3), owner view (M,), index within view (M,))."""
+    R = np.concatenate([v.R for v in views]) if views else np.zeros((0, 3, 3))
+    A = np.concatenate([np.broadcast_to(v.A[:3, :3], (len(v.R), 3, 3)) for v in views]) if views else R
+    owner = np.concatenate([np.full(len(v.R), i) for i, v in enumerate(views)]).astype(int) if views else np.zeros(0, int)
+    j = np.concatenate([np.arange(len(v.R)) for v in views]).astype(int) if views else np.zeros(0, int)
+    return R, A, owner, j
+
+
+def _best_candidate_errors(RZ, RY, views, stacked=None):
+    """For each view: (best angle error deg, index of best candidate); vectorised over candidates."""
+    R, A, owner, j = stacked if stacked is not None else _stack(views)
+    a = _angle_deg(RZ @ R, A @ RY)
+    errs = np.full(len(views), np.inf)
+    idx = np.full(len(views), -1)
+    order = np.argsort(-a)  # write larger errors first so the smallest per view wins
+    errs[owner[order]] = a[order]
+    idx[owner[order]] = j[order]
+    return errs, idx
+
+
+def ransac_camera(views: list, rng: np.random.Generator, iterations: int = 300):
+    """RANSAC rotation consensus for one camera. Returns (RZ, RY, inlier mask, chosen candidate idx)."""
+    usable = [i for i, v in enumerate(views) if len(v.R) > 0]
+    if len(usable) < 3:
+        return None
+    best = None
+    stacked = _stack(views)
+    needed, it = 30, 0
+    while it < max(needed, 30) and it < iterations:
+        it += 1
+        pick = rng.choice(usable, size=3, replace=False)
+        A_rots = [views[i].A[:3, :3] for i in pick]
+        # skip samples with (nearly) no relative robot rotation: the system is then degenerate
+        if max(_angle_deg(A_rots[0], A_rots[1]), _angle_deg(A_rots[0], A_rots[2])) < 3.0:
+            continue
+        # IPPE ranks its two solutions by reprojection error; the better one is right most of the time
+        choice = [0 if (len(views[i].R) == 1 or rng.uniform() < 0.75) else 1 for i in pick]
+        rows = {0: [(views[i].A[:3, :3], views[i].R[c]) for i, c in zip(pick, choice)]}
+        RZ, RY, _ = _solve_rotations(rows, 1)
+        errs, idx = _best_candidate_errors(RZ[0], RY, views, stacked)
+        inl = errs < ROT_INLIER_DEG
+        score = (inl.sum(), -np.sum(np.minimum(errs, ROT_INLIER_DEG)))
+        if best is None or score > best[0]:
+            best = (score, RZ[0], RY, inl, idx)
+            # adaptive stopping: P(all 3 picks inliers with the right candidates) >= (eps * 0.5)^3
+            p = (inl.sum() / len(usable) * 0.5) ** 3
+            needed = int(np.ceil(np.log(1e-3) / np.log(max(1 - p, 1e-12)))) if p > 0 else iterations
+    if best is None:
+        return None
+    _, RZ, RY, inl, idx = best
+    # refit on all inliers, then re-select
+    for _ in range(2):
+        if inl.sum() < 3:
+            break
+        rows = {0: [(views[i].A[:3, :3], views[i].R[idx[i]]) for i in np.flatnonzero(inl)]}
+        RZ1, RY1, _ = _solve_rotations(rows, 1)
+        errs, idx = _best_candidate_errors(RZ1[0], RY1, views)
+        inl = errs < ROT_INLIER_DEG
+        RZ, RY = RZ1[0], RY1
+    return RZ, RY, inl, idx
+
+
+def _solve_translations(entries: list, n_cams: int, RZ: list):
+    """Least squares for t_Z (per slot) and shared t_Y from (slot, A, R_B, t_B) entries."""
+    rows, rhs = [], []
+    for slot, A, RB, tB in entries:
+        M = np.zeros((3, 3 * (n_cams + 1)))
+        M[:, 3 * slot: 3 * slot + 3] = np.eye(3)
+        M[:, 3 * n_cams:] = -A[:3, :3]
+        rows.append(M)
+        rhs.append(A[:3, 3] - RZ[slot] @ tB)
+    x, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)
+    return [x[3 * i: 3 * i + 3] for i in range(n_cams)], x[3 * n_cams:]
+
+
+def _robust_translations(entries, n_cams, RZ):
+    tZ, tY = _solve_translations(entries, n_cams, RZ)
+    for _ in range(3):
+        res = np.array([np.linalg.norm(tZ[s] + RZ[s] @ tB - A[:3, :3] @ tY - A[:3, 3]) for s, A, RB, tB in entries])
+        thr = max(3.0 * np.median(res), 0.01)
+        keep = [e for e, r in zip(entries, res) if r <= thr]
+        if len(keep) == len(entries) or len(keep) < 3:
+            break
+        entries = keep
+        tZ, tY = _solve_translations(entries, n_cams, RZ)
+    return tZ, tY
+
+
+def camera_from_mount(views: list, T_M_board: np.ndarray):
+    """Camera pose (static frame) by consensus over views given the board mount. Returns (T, n_agree)."""
+    props = []
+    for v in views:
+        for j in range(len(v.R)):
+            props.append(v.A @ T_M_board @ inv(make_T(v.R[j], v.t[j])))
+    if not props:
+        return None, 0
+    props = np.array(props)
+    Rs = props[:, :3, :3]
+    ang = _angle_deg(Rs[:, None], Rs[None, :])
+    counts = (ang < ROT_INLIER_DEG).sum(axis=1)
+    best = int(np.argmax(counts))
+    members = ang[best] < ROT_INLIER_DEG
+    R = project_to_so3(Rs[members].sum(axis=0))
+    t = np.median(props[members, :3, 3], axis=0)
+    return make_T(R, t), int(counts[best])
+
+
+def initialise(cameras: list, views_by_cam: dict, joint: bool, seed: int = 0):
+    """Initial camera poses and board mount(s).
+
+    Args:
+        cameras: camera names in slot order.
+        views_by_cam: name -> list of ViewCandidates.
+        joint: one shared mount (True) or one mount per camera (False).
+    Returns:
+        (T_S_cam dict, mounts dict: slot -> T_M_board, where slot is 0 in joint mode or the camera
+        name in single mode).
+    Raises:
+        ObservabilityError when no camera has a consistent set of views.
+    """
+    rng = np.random.default_rng(seed)
+    per_cam = {}
+    for name in cameras:
+        r = ransac_camera(views_by_cam.get(name, []), rng)
+        if r is not None and r[2].sum() >= 3:
+            per_cam[name] = r
+    if not per_cam:
+        raise ObservabilityError(
+            "no camera has 3 or more mutually consistent views with different board orientations; "
+            "add robot poses that tilt the board (rotations of 15-40 deg about different axes)."
+        )
+    T_S_cam, mounts = {}, {}
+    if not joint:
+        for name in cameras:
+            if name not in per_cam:
+                continue
+            RZ, RY, inl, idx = per_cam[name]
+            vs = views_by_cam[name]
+            entries = [(0, vs[i].A, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
+            tZ, tY = _robust_translations(entries, 1, [RZ])
+            mounts[name] = make_T(RY, tY)
+            T, _ = camera_from_mount(vs, mounts[name])
+            T_S_cam[name] = T if T is not None else make_T(RZ, tZ[0])
+        return T_S_cam, mounts
+    # joint: seed the mount rotation with the camera of strongest consensus, keep agreeing cameras
+    order = sorted(per_cam, key=lambda n: -per_cam[n][2].sum())
+    RY_seed = per_cam[order[0]][1]
+    agreeing = [n for n in order if _angle_deg(per_cam[n][1], RY_seed) < 2 * ROT_INLIER_DEG]
+    rows, entries = {}, []
+    for slot, name in enumerate(agreeing):
+        RZ, RY, inl, idx = per_cam[name]
+        vs = views_by_cam[name]
+        rows[slot] = [(vs[i].A[:3, :3], vs[i].R[idx[i]]) for i in np.flatnonzero(inl)]
+        entries += [(slot, vs[i].A, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
+    RZs, RY, _ = _solve_rotations(rows, len(agreeing))
+    tZs, tY = _robust_translations(entries, len(agreeing), RZs)
+    T_M_board = make_T(RY, tY)
+    mounts[0] = T_M_board
+    for name in cameras:
+        T, n_agree = camera_from_mount(views_by_cam.get(name, []), T_M_board)
+        if T is not None:
+            T_S_cam[name] = T
+    return T_S_cam, mounts
+
+
+def rotation_spread_deg(A_list) -> tuple[float, float]:
+    """(largest, second-largest) principal spread of the robot rotations, degrees.
+
+    The rotation vectors of ``A_0^T A_k`` are stacked; their singular values measure how much the
+    motion rotates about the dominant and the second axis. Used by the observability check.
+    """
+    if len(A_list) < 2:
+        return 0.0, 0.0
+    R0 = A_list[0][:3, :3]
+    W = np.array([log_so3(R0.T @ A[:3, :3]) for A in A_list[1:]])
+    s = np.linalg.svd(W, compute_uv=False) / np.sqrt(len(W))
+    s = np.concatenate([s, [0.0, 0.0]])
+    return float(np.degrees(s[0])), float(np.degrees(s[1]))
