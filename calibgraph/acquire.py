@@ -1,0 +1,699 @@
+"""Live capture: drive the robot through a trajectory and record every camera's view of the board.
+
+The acquisition state machine (thesis Fig. 4.5, made robust)::
+
+    START -> MOVE -> SETTLE -> ACQUIRE -> NEXT -> MOVE -> ... -> NEXT -> END
+
+START   read every camera's intrinsics, write (or, on resume, check) ``dataset.yaml``, plan the
+        whole trajectory against the safety limits and print what would be skipped.
+MOVE    re-check the motion from the robot's *actual* joints to the pose (joint limits, workspace
+        box along the joint path, speed cap), then ``robot.move_to_joints``. An unsafe or
+        unreachable pose is skipped with a message; it never stops the run.
+SETTLE  wait until ``robot.is_settled()`` (plus an optional dwell): no image is taken while
+        the arm moves. A robot that does not settle in time costs that pose, not the run.
+ACQUIRE read the flange pose and joints, grab every live camera, read the pose again (a pose
+        that moved during the grab is discarded), detect and filter each frame on the spot and
+        write the accepted views: images first (tmp + rename), then ``captures/NNNNNN.json``
+        (atomic), then the journal. Only then does the robot move again.
+NEXT    progress line (views accepted per camera, and the incremental solver's current 1-sigma
+        when ``on_capture`` is given), then the next pending pose or END.
+
+Crash safety. Pose ``i`` of the trajectory becomes capture ``i``; the capture file is the proof
+that the pose is done. ``acquisition.json`` (the journal, rewritten atomically after each pose)
+records skipped poses and the trajectory's SHA-256. After a kill at any instant the folder
+holds whole captures only: a pose whose capture file is missing is redone on ``resume`` (its
+half-written images are removed first), a pose whose capture file exists is never redone, so
+nothing is lost and nothing is duplicated.
+
+Cameras. A camera that raises :class:`~calibgraph.interfaces.DeviceError` (or anything else),
+times out or returns a stale frame is reported; after ``max_camera_failures`` failures in a row it
+is declared lost and the run continues with the others.
+
+Trajectory YAML (``calibgraph-trajectory/1``)::
+
+    format: calibgraph-trajectory/1
+    speed_scale: 0.2                   # fraction of the robot's maximum joint velocity
+    poses:
+      - q_rad: [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]
+        T_base_flange: [[...4x4...]]   # optional: planned flange pose (used when no FK exists)
+      - [0.1, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]   # a bare joint vector is fine too
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+import json
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .camera import Intrinsics
+from .dataset import capture_path, image_relpath, write_capture, write_header
+from .errors import CalibgraphError, InputError
+from .interfaces import DeviceError, UnreachableError
+from .problem import Capture, Detection
+from .safety import SafetyLimits, check_motion, check_speed, fk_function
+from .targets import Target
+
+TRAJECTORY_FORMAT = "calibgraph-trajectory/1"
+JOURNAL_FORMAT = "calibgraph-acquisition/1"
+JOURNAL_NAME = "acquisition.json"
+
+
+class State(enum.Enum):
+    START = "START"
+    MOVE = "MOVE"
+    SETTLE = "SETTLE"
+    ACQUIRE = "ACQUIRE"
+    NEXT = "NEXT"
+    END = "END"
+
+
+# -- trajectory --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TrajectoryPose:
+    """One pose of a trajectory: joint target ``q_rad`` (n,) and, optionally, the planned
+    ``T_base_flange`` (4, 4)."""
+
+    q_rad: np.ndarray
+    T_base_flange: np.ndarray | None = None
+
+    def __post_init__(self):
+        q = np.asarray(self.q_rad, float).reshape(-1)
+        if q.size == 0 or not np.all(np.isfinite(q)):
+            raise InputError(f"trajectory pose: q_rad must be a finite joint vector, got {np.asarray(self.q_rad).tolist()}.")
+        object.__setattr__(self, "q_rad", q)
+        if self.T_base_flange is not None:
+            from .transforms import check_pose
+
+            object.__setattr__(self, "T_base_flange", check_pose(self.T_base_flange, "trajectory pose T_base_flange"))
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Robot poses to visit in order, and the speed to move at."""
+
+    poses: tuple
+    speed_scale: float = 0.2
+
+    def __post_init__(self):
+        poses = tuple(p if isinstance(p, TrajectoryPose) else TrajectoryPose(q_rad=p) for p in self.poses)
+        if not poses:
+            raise InputError("trajectory: no poses.")
+        n = {p.q_rad.size for p in poses}
+        if len(n) != 1:
+            raise InputError(f"trajectory: poses have different joint counts {sorted(n)}.")
+        object.__setattr__(self, "poses", poses)
+        if not (np.isfinite(self.speed_scale) and 0 < self.speed_scale <= 1):
+            raise InputError(f"trajectory: speed_scale must be in (0, 1], got {self.speed_scale}.")
+
+    def to_dict(self) -> dict:
+        ps = []
+        for p in self.poses:
+            d = {"q_rad": p.q_rad.tolist()}
+            if p.T_base_flange is not None:
+                d["T_base_flange"] = p.T_base_flange.tolist()
+            ps.append(d)
+        return {"format": TRAJECTORY_FORMAT, "speed_scale": float(self.speed_scale), "poses": ps}
+
+    @classmethod
+    def from_dict(cls, d, where: str = "trajectory") -> "Trajectory":
+        if isinstance(d, list):
+            d = {"poses": d}
+        if not isinstance(d, dict) or "poses" not in d:
+            raise InputError(f"{where}: expected a mapping with 'poses' (see calibgraph.acquire docstring).")
+        poses = []
+        for k, p in enumerate(d["poses"] or []):
+            try:
+                if isinstance(p, dict):
+                    poses.append(TrajectoryPose(q_rad=p["q_rad"], T_base_flange=p.get("T_base_flange")))
+                else:
+                    poses.append(TrajectoryPose(q_rad=p))
+            except (KeyError, TypeError, ValueError) as e:
+                raise InputError(f"{where}: pose {k}: {e}") from None
+        return cls(poses=tuple(poses), speed_scale=float(d.get("speed_scale", 0.2)))
+
+    def sha256(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+
+
+def load_trajectory(path) -> Trajectory:
+    """Read a trajectory YAML (or JSON) file."""
+    import yaml
+
+    p = Path(path)
+    try:
+        d = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise InputError(f"{p}: cannot read trajectory: {e}") from None
+    return Trajectory.from_dict(d, where=str(p))
+
+
+def save_trajectory(traj: Trajectory, path) -> Path:
+    import yaml
+
+    p = Path(path)
+    _atomic_write_bytes(p, yaml.safe_dump(traj.to_dict(), sort_keys=False).encode())
+    return p
+
+
+# -- report ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PoseOutcome:
+    """What happened at one trajectory pose.
+
+    status: 'captured' | 'no_views' | 'skipped_unsafe' | 'skipped_unreachable' | 'not_settled' |
+        'moved_during_grab' | 'planned' (dry run) | 'done_before' (resume).
+    """
+
+    index: int
+    status: str
+    message: str = ""
+    accepted: tuple = ()
+    rejected: tuple = ()
+
+
+@dataclass(frozen=True)
+class AcquisitionReport:
+    """Result of :func:`run_acquisition`.
+
+    Attributes:
+        out_dir: dataset folder.
+        n_poses: poses in the trajectory.
+        outcomes: one :class:`PoseOutcome` per pose handled in this run (and 'done_before' ones).
+        accepted_per_camera / rejected_per_camera: view counts over the whole dataset so far.
+        camera_errors: camera -> messages of failed grabs in this run.
+        lost_cameras: cameras declared lost (too many failures in a row) in this run.
+        stopped_reason: why the run ended before the trajectory did (None when it completed).
+        elapsed_s: wall time of this run; ``captures_per_s`` derived from it.
+        trace: state transitions ``(state, pose_index)`` of this run.
+        last_estimate: the last value returned by ``on_capture``.
+    """
+
+    out_dir: Path
+    n_poses: int
+    dry_run: bool
+    resumed: bool
+    outcomes: tuple
+    accepted_per_camera: dict
+    rejected_per_camera: dict
+    camera_errors: dict
+    lost_cameras: tuple
+    stopped_reason: str | None
+    elapsed_s: float
+    trace: tuple = ()
+    last_estimate: object = None
+
+    def count(self, status: str) -> int:
+        return sum(o.status == status for o in self.outcomes)
+
+    @property
+    def captured(self) -> int:
+        return self.count("captured")
+
+    @property
+    def skipped(self) -> list:
+        return [(o.index, o.status, o.message) for o in self.outcomes if o.status.startswith("skipped")
+                or o.status in ("not_settled", "moved_during_grab")]
+
+    @property
+    def captures_per_s(self) -> float:
+        return self.captured / self.elapsed_s if self.elapsed_s > 0 else 0.0
+
+    @property
+    def complete(self) -> bool:
+        return self.stopped_reason is None
+
+    def summary(self) -> str:
+        lines = [f"{'dry run' if self.dry_run else 'capture'} of {self.n_poses} poses into {self.out_dir}"
+                 f"{' (resumed)' if self.resumed else ''}: {self.captured} captured, "
+                 f"{self.count('no_views')} without accepted views, {len(self.skipped)} skipped, "
+                 f"{self.count('done_before')} done before, {self.count('planned')} planned; {self.elapsed_s:.1f} s"]
+        for cam in sorted(set(self.accepted_per_camera) | set(self.rejected_per_camera)):
+            lines.append(f"  {cam}: {self.accepted_per_camera.get(cam, 0)} views accepted, "
+                         f"{self.rejected_per_camera.get(cam, 0)} rejected"
+                         f"{', LOST' if cam in self.lost_cameras else ''}"
+                         f"{f', {len(self.camera_errors[cam])} grab errors' if self.camera_errors.get(cam) else ''}")
+        for i, status, msg in self.skipped:
+            lines.append(f"  pose {i}: {status}: {msg}")
+        if self.stopped_reason:
+            lines.append(f"  stopped: {self.stopped_reason}")
+        return "\n".join(lines)
+
+
+# -- helpers -----------------------------------------------------------------------------------------
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def write_image_atomic(path, image: np.ndarray) -> None:
+    """Encode ``image`` as PNG and write it atomically (tmp + rename)."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image))
+    if not ok:
+        raise CalibgraphError(f"{path}: could not encode the image as PNG.")
+    _atomic_write_bytes(Path(path), buf.tobytes())
+
+
+def _default_detector(target: Target):
+    try:
+        from .detect import detect_image
+    except ImportError:
+        raise InputError("no detector available: calibgraph.detect.detect_image is missing; pass detector=.") from None
+    return detect_image
+
+
+def _normalise_detection(res):
+    """(ids, uv_px) or (None, reason) from what a detector returned."""
+    if res is None:
+        return None, "target not found"
+    if isinstance(res, tuple) and len(res) == 2 and not hasattr(res, "ok"):
+        return (np.asarray(res[0]), np.asarray(res[1], float)), None
+    if not getattr(res, "ok", True):
+        return None, str(getattr(res, "reason", "") or "target not found")
+    return (np.asarray(res.ids), np.asarray(res.uv_px, float)), None
+
+
+def _format_estimate(est) -> str:
+    """Per-camera 1-sigma text from what an incremental solver returned: a mapping camera ->
+    sigma (metres), or an object with ``sigma_translation_m`` (mapping) or ``per_camera_sigma_m``."""
+    if est is None:
+        return ""
+    m = est if isinstance(est, dict) else getattr(est, "sigma_translation_m", None) or getattr(est, "per_camera_sigma_m", None)
+    if isinstance(m, dict):
+        parts = []
+        for c, v in sorted(m.items()):
+            try:
+                parts.append(f"{c} {1e3 * float(v):.2f} mm")
+            except (TypeError, ValueError):
+                parts.append(f"{c} {v}")
+        return "1σ " + ", ".join(parts)
+    return str(est)
+
+
+def _pose_diff(T0, T1):
+    from .transforms import pose_error
+
+    return pose_error(T0, T1)
+
+
+class _Journal:
+    def __init__(self, root: Path, traj_sha: str, n_poses: int):
+        self.path = root / JOURNAL_NAME
+        self.d = {"format": JOURNAL_FORMAT, "trajectory_sha256": traj_sha, "n_poses": n_poses, "poses": {},
+                  "runs": []}
+
+    @classmethod
+    def load(cls, root: Path):
+        p = root / JOURNAL_NAME
+        if not p.is_file():
+            return None
+        try:
+            d = json.loads(p.read_text())
+        except (OSError, ValueError) as e:
+            raise InputError(f"{p}: journal unreadable ({e}); move it aside to resume from the capture files alone.") from None
+        j = cls(root, d.get("trajectory_sha256", ""), int(d.get("n_poses", 0)))
+        j.d.update(d)
+        return j
+
+    def set(self, index: int, status: str, message: str = "", **extra) -> None:
+        self.d["poses"][str(index)] = {"status": status, "message": message, **extra}
+
+    def status(self, index: int):
+        e = self.d["poses"].get(str(index))
+        return None if e is None else e["status"]
+
+    def save(self) -> None:
+        _atomic_write_bytes(self.path, json.dumps(self.d, indent=1).encode())
+
+
+# -- the state machine -------------------------------------------------------------------------------
+def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detector=None, resume: bool = False,
+                    safety: SafetyLimits | None = None, on_capture=None, progress=True, dry_run: bool = False,
+                    mode: str = "eye_to_hand", settle_timeout_s: float = 10.0, settle_dwell_s: float = 0.0,
+                    settle_poll_s: float = 0.01, max_camera_failures: int = 3, grab_retries: int = 1,
+                    min_corners: int = 6, arrival_tolerance_rad: float = 0.01,
+                    still_tolerance_m: float = 5e-4, still_tolerance_deg: float = 0.05) -> AcquisitionReport:
+    """Run the acquisition state machine (see the module docstring).
+
+    Args:
+        robot: a :class:`~calibgraph.interfaces.Robot` (may be None for ``dry_run``).
+        cameras: Camera objects (list, or mapping name -> Camera).
+        trajectory: :class:`Trajectory`, a path to a trajectory YAML, or a list of joint vectors.
+        out_dir: dataset folder to create (or to continue with ``resume=True``).
+        target: the board.
+        detector: ``detector(image, target, intrinsics)`` returning an object with ``ok, ids,
+            uv_px, reason`` or a tuple ``(ids, uv_px)`` or None; default
+            :func:`calibgraph.detect.detect_image`.
+        resume: continue a dataset whose run was interrupted. Without it an existing dataset
+            folder is refused.
+        safety: limits checked before every motion (default: no box, speed cap 0.3, the robot's
+            own joint limits when it exposes ``joint_limits()``).
+        on_capture: ``on_capture(capture, detections) -> estimate`` called after each capture is
+            on disk (e.g. ``IncrementalSolver.add_capture``); its estimate feeds the progress line.
+        progress: True prints progress lines to stderr; a callable receives them instead; False is quiet.
+        dry_run: plan and check every pose, never move, grab or write.
+        mode: 'eye_to_hand' or 'eye_in_hand', stored in dataset.yaml.
+        min_corners: views with fewer detected points are rejected.
+    Returns:
+        :class:`AcquisitionReport`.
+    """
+    t_start = time.monotonic()
+    out = Path(out_dir)
+    log = _make_log(progress)
+    safety = safety or SafetyLimits()
+    if not isinstance(trajectory, Trajectory):
+        trajectory = load_trajectory(trajectory) if isinstance(trajectory, (str, os.PathLike)) else Trajectory(tuple(trajectory))
+    check_speed(trajectory.speed_scale, safety)
+    cams = dict(cameras) if isinstance(cameras, dict) else {c.name: c for c in cameras}
+    if len(cams) == 0:
+        raise InputError("capture: no cameras configured.")
+    if robot is None and not dry_run:
+        raise InputError("capture: no robot given (only a dry run can plan without one).")
+    if detector is None and not dry_run:
+        detector = _default_detector(target)
+    fk = fk_function(robot, safety)
+    robot_limits = robot.joint_limits() if robot is not None and callable(getattr(robot, "joint_limits", None)) else None
+    traj_sha = trajectory.sha256()
+    trace = []
+
+    def enter(state, i=None):
+        trace.append((state.value, i))
+
+    # ---- START --------------------------------------------------------------------------------
+    enter(State.START)
+    journal = None
+    if not dry_run:
+        if out.exists() and (out / "dataset.yaml").exists() and not resume:
+            raise InputError(f"{out}: a dataset already exists here; pass --resume to continue it or choose a new --out.")
+        if resume and (out / "dataset.yaml").exists():
+            journal = _Journal.load(out)
+            if journal is not None and journal.d.get("trajectory_sha256") not in ("", traj_sha):
+                raise InputError(f"{out}: this dataset was captured with a different trajectory (SHA-256 differs); "
+                                 f"resume with the original one ({out / 'trajectory.yaml'}) or start a new dataset.")
+    resumed = journal is not None or (resume and (out / "dataset.yaml").exists())
+    if journal is None:
+        journal = _Journal(out, traj_sha, len(trajectory.poses))
+
+    camera_errors = {c: [] for c in cams}
+    fails_in_row = {c: 0 for c in cams}
+    lost = []
+    intr = {}
+    for name, cam in cams.items():
+        try:
+            intr[name] = cam.intrinsics()
+        except Exception as e:  # a camera that cannot even report intrinsics is lost, the others go on
+            camera_errors[name].append(f"intrinsics: {e}")
+            lost.append(name)
+            log(f"camera {name}: LOST at start ({type(e).__name__}: {e}); continuing without it")
+    live = [c for c in cams if c not in lost]
+    if not live:
+        raise DeviceError("capture: no camera could be opened: " + "; ".join(f"{c}: {m[-1]}" for c, m in camera_errors.items()))
+
+    # Plan everything once before anything moves: what would be skipped, and why.
+    plan_q = robot.joint_positions() if robot is not None else None
+    plan = []
+    for i, pose in enumerate(trajectory.poses):
+        v = check_motion(plan_q, pose.q_rad, safety, fk=fk, T_goal_stated=pose.T_base_flange, robot_limits=robot_limits)
+        plan.append(v)
+        if v.ok:
+            plan_q = pose.q_rad
+    n_bad = sum(not v.ok for v in plan)
+    log(f"plan: {len(plan) - n_bad}/{len(plan)} poses pass the safety checks"
+        + (f"; {n_bad} will be skipped" if n_bad else "") + f"; speed scale {trajectory.speed_scale:g}")
+
+    outcomes = []
+    accepted = {c: 0 for c in cams}
+    rejected = {c: 0 for c in cams}
+    if dry_run:
+        for i, v in enumerate(plan):
+            enter(State.MOVE, i)
+            outcomes.append(PoseOutcome(i, "planned" if v.ok else "skipped_unsafe", v.message))
+            if not v.ok:
+                log(f"pose {i}: would be skipped: {v.message}")
+        enter(State.END)
+        return AcquisitionReport(out, len(trajectory.poses), True, False, tuple(outcomes), accepted, rejected,
+                                 {c: tuple(m) for c, m in camera_errors.items()}, tuple(lost), None,
+                                 time.monotonic() - t_start, tuple(trace))
+
+    out.mkdir(parents=True, exist_ok=True)
+    _write_or_check_header(out, target, intr, mode, resumed)
+    if not (out / "trajectory.yaml").exists():
+        save_trajectory(trajectory, out / "trajectory.yaml")
+    # Counts over the whole dataset, and cleanup of what an interrupted pose left behind.
+    done = set()
+    for i in range(len(trajectory.poses)):
+        cp = capture_path(out, i)
+        if cp.exists():
+            done.add(i)
+            try:
+                views = json.loads(cp.read_text()).get("views", {})
+            except (OSError, ValueError):
+                views = {}
+            for c in views:
+                accepted[c] = accepted.get(c, 0) + 1
+        else:  # skipped or interrupted poses are tried again (the safety check re-runs first)
+            for c in cams:
+                p = out / image_relpath(c, i)
+                if p.exists():
+                    p.unlink()  # half-written pose: it is redone, so its images must not linger
+    for c, n in (journal.d.get("rejected_per_camera") or {}).items():
+        rejected[c] = rejected.get(c, 0) + int(n)
+    for tmp in list((out / "images").glob("*/.*.tmp*")) + list((out / "captures").glob(".*.tmp*")):
+        tmp.unlink()
+    journal.d["runs"].append({"started_unix_s": time.time(), "resume": bool(resumed)})
+    journal.save()
+    pending = [i for i in range(len(trajectory.poses)) if i not in done]
+    for i in sorted(done):
+        outcomes.append(PoseOutcome(i, "done_before", journal.d["poses"].get(str(i), {}).get("message", "")))
+    if resumed:
+        log(f"resume: {len(done)} poses done before, {len(pending)} to go")
+
+    stopped = None
+    last_estimate = None
+    try:
+        for i in pending:
+            pose = trajectory.poses[i]
+            live = [c for c in cams if c not in lost]
+            if not live:
+                stopped = "every camera is lost; fix the cameras and resume with --resume"
+                break
+            # ---- MOVE ---------------------------------------------------------------------------
+            enter(State.MOVE, i)
+            q_now = robot.joint_positions()
+            v = check_motion(q_now, pose.q_rad, safety, fk=fk, T_goal_stated=pose.T_base_flange, robot_limits=robot_limits)
+            if not v.ok:
+                _skip(journal, outcomes, log, i, "skipped_unsafe", v.message)
+                continue
+            try:
+                robot.move_to_joints(pose.q_rad, speed_scale=trajectory.speed_scale)
+            except UnreachableError as e:
+                _skip(journal, outcomes, log, i, "skipped_unreachable", str(e))
+                continue
+            except DeviceError as e:
+                stopped = f"robot failed at pose {i}: {e}; check the robot and resume with --resume"
+                break
+            # ---- SETTLE -------------------------------------------------------------------------
+            enter(State.SETTLE, i)
+            if not _wait_settled(robot, settle_timeout_s, settle_poll_s):
+                _skip(journal, outcomes, log, i, "not_settled", f"the robot was still moving after {settle_timeout_s:g} s")
+                continue
+            if settle_dwell_s > 0:
+                time.sleep(settle_dwell_s)
+            q_rad = np.asarray(robot.joint_positions(), float)
+            if np.max(np.abs(q_rad - pose.q_rad)) > arrival_tolerance_rad:
+                _skip(journal, outcomes, log, i, "skipped_unreachable",
+                      f"the robot stopped {np.max(np.abs(q_rad - pose.q_rad)):.4f} rad from the target "
+                      f"(tolerance {arrival_tolerance_rad:g} rad)")
+                continue
+            # ---- ACQUIRE ------------------------------------------------------------------------
+            enter(State.ACQUIRE, i)
+            T0 = np.asarray(robot.flange_pose(), float)
+            stamp_s = time.time()
+            frames = {}
+            for c in live:
+                fr = _grab(cams[c], c, grab_retries, camera_errors, fails_in_row, log, i)
+                if fr is not None:
+                    frames[c] = fr
+                elif fails_in_row[c] >= max_camera_failures and c not in lost:
+                    lost.append(c)
+                    log(f"camera {c}: LOST after {fails_in_row[c]} failed grabs in a row; continuing with the others")
+            T1 = np.asarray(robot.flange_pose(), float)
+            dt_m, dr_deg = _pose_diff(T0, T1)
+            if dt_m > still_tolerance_m or dr_deg > still_tolerance_deg:
+                _skip(journal, outcomes, log, i, "moved_during_grab",
+                      f"the flange moved {1e3 * dt_m:.2f} mm / {dr_deg:.3f} deg while the cameras grabbed")
+                continue
+            views, dets, rej = {}, [], []
+            for c, fr in frames.items():
+                ok, why = _detect_and_filter(detector, fr.image, target, intr[c], min_corners, c, i)
+                if ok is None:
+                    rej.append((c, why))
+                    rejected[c] = rejected.get(c, 0) + 1
+                    continue
+                ids, uv = ok
+                rel = image_relpath(c, i)
+                write_image_atomic(out / rel, fr.image)
+                views[c] = dict(image=rel, stamp_s=float(fr.stamp_s), ids=ids, uv_px=uv)
+                dets.append(Detection(camera=c, capture=i, ids=ids, uv_px=uv, image=str(out / rel)))
+            journal.d["rejected_per_camera"] = dict(rejected)
+            if not views:
+                msg = "; ".join(f"{c}: {w}" for c, w in rej) or "no camera delivered a frame"
+                journal.set(i, "no_views", msg, rejected=[c for c, _ in rej])
+                journal.save()
+                outcomes.append(PoseOutcome(i, "no_views", msg, (), tuple(c for c, _ in rej)))
+                enter(State.NEXT, i)
+                log(_progress_line(i, len(trajectory.poses), {}, rej, accepted, lost, last_estimate))
+                continue
+            cap = Capture(index=i, T_base_flange=T0, q_rad=q_rad, stamp_s=stamp_s)
+            write_capture(out, cap, views)  # the capture file is the commit point of this pose
+            for c in views:
+                accepted[c] = accepted.get(c, 0) + 1
+            journal.set(i, "captured", "", accepted=sorted(views), rejected=[c for c, _ in rej])
+            journal.save()
+            outcomes.append(PoseOutcome(i, "captured", "", tuple(sorted(views)), tuple(c for c, _ in rej)))
+            # ---- NEXT ---------------------------------------------------------------------------
+            enter(State.NEXT, i)
+            if on_capture is not None:
+                try:
+                    last_estimate = on_capture(cap, dets)
+                except CalibgraphError as e:  # the estimate is advisory; data is already safe on disk
+                    log(f"incremental estimate unavailable after pose {i}: {e}")
+            log(_progress_line(i, len(trajectory.poses), views, rej, accepted, lost, last_estimate))
+    except KeyboardInterrupt:
+        journal.d["runs"][-1]["stopped"] = "interrupted"
+        journal.save()
+        raise
+    journal.d["runs"][-1]["stopped"] = stopped
+    journal.d["runs"][-1]["lost_cameras"] = list(lost)
+    journal.save()
+    enter(State.END)
+    if stopped:
+        log(f"stopped: {stopped}")
+    return AcquisitionReport(out, len(trajectory.poses), False, resumed, tuple(sorted(outcomes, key=lambda o: o.index)),
+                             accepted, rejected, {c: tuple(m) for c, m in camera_errors.items()}, tuple(lost), stopped,
+                             time.monotonic() - t_start, tuple(trace), last_estimate)
+
+
+def _make_log(progress):
+    if callable(progress):
+        return progress
+    if progress:
+        return lambda s: print(s, file=sys.stderr, flush=True)
+    return lambda s: None
+
+
+def _skip(journal, outcomes, log, i, status, msg):
+    journal.set(i, status, msg)
+    journal.save()
+    outcomes.append(PoseOutcome(i, status, msg))
+    log(f"pose {i}: {status.replace('_', ' ')}: {msg}")
+
+
+def _wait_settled(robot, timeout_s, poll_s) -> bool:
+    t_end = time.monotonic() + timeout_s
+    while True:
+        if robot.is_settled():
+            return True
+        if time.monotonic() > t_end:
+            return False
+        time.sleep(poll_s)
+
+
+def _grab(cam, name, retries, errors, fails_in_row, log, i):
+    """One fresh frame or None; failures are counted per camera."""
+    last = getattr(cam, "_calibgraph_last_stamp", None)
+    for attempt in range(retries + 1):
+        try:
+            fr = cam.grab()
+            if fr is None or getattr(fr, "image", None) is None:
+                raise DeviceError("no frame")
+            img = np.asarray(fr.image)
+            if img.dtype != np.uint8 or img.ndim not in (2, 3) or img.size == 0:
+                raise DeviceError(f"unusable frame (dtype {img.dtype}, shape {img.shape})")
+            if last is not None and fr.stamp_s <= last:
+                raise DeviceError(f"stale frame (timestamp {fr.stamp_s} not after the previous {last})")
+            try:
+                cam._calibgraph_last_stamp = float(fr.stamp_s)
+            except AttributeError:
+                pass
+            fails_in_row[name] = 0
+            return fr
+        except Exception as e:  # any driver failure costs this camera's view, never the run
+            msg = f"pose {i}: grab failed ({type(e).__name__}: {e})"
+            errors[name].append(msg)
+            log(f"camera {name}: {msg}" + (" ; retrying" if attempt < retries else ""))
+    fails_in_row[name] += 1
+    return None
+
+
+def _detect_and_filter(detector, image, target, intr, min_corners, cam, i):
+    try:
+        got, why = _normalise_detection(detector(image, target, intr))
+    except CalibgraphError as e:
+        return None, f"detection failed: {e}"
+    if got is None:
+        return None, why
+    ids, uv = got
+    ids = np.asarray(ids).reshape(-1)
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    if ids.size < min_corners:
+        return None, f"only {ids.size} points detected (< {min_corners})"
+    try:
+        Detection(camera=cam, capture=i, ids=ids, uv_px=uv)
+    except InputError as e:
+        return None, f"invalid detection: {e}"
+    if ids.min() < 0 or ids.max() >= target.n_points:
+        return None, f"point id {int(ids.max())} is not on the target"
+    if intr.width_px and not np.all(intr.in_image(uv)):
+        return None, "detected points outside the image"
+    return (ids.astype(int), uv), None
+
+
+def _progress_line(i, n, views, rej, accepted, lost, est) -> str:
+    seen = ", ".join(f"{c} ✓" for c in sorted(views)) or "no view"
+    rj = "".join(f", {c} ✗ ({w})" for c, w in rej)
+    tot = ", ".join(f"{c} {k}" + (" LOST" if c in lost else "") for c, k in sorted(accepted.items()))
+    e = _format_estimate(est)
+    return f"pose {i + 1}/{n}: {seen}{rj} | views: {tot}" + (f" | {e}" if e else "")
+
+
+def _write_or_check_header(out: Path, target: Target, intr: dict, mode: str, resumed: bool) -> None:
+    import yaml
+
+    head = out / "dataset.yaml"
+    if not head.exists():
+        write_header(out, target, intr, mode=mode)
+        return
+    d = yaml.safe_load(head.read_text()) or {}
+    old_t = Target.from_dict(d.get("target", {}))
+    if old_t != target:
+        raise InputError(f"{head}: the dataset was captured with target {old_t.to_dict()}, not {target.to_dict()}; "
+                         "use the original target or a new --out.")
+    cams = {}
+    for c, v in (d.get("cameras") or {}).items():
+        cams[c] = Intrinsics.from_dict(v)
+    changed = False
+    for c, k in intr.items():
+        if c in cams:
+            if not (np.allclose(cams[c].K, k.K, rtol=1e-6, atol=1e-6) and cams[c].width_px == k.width_px
+                    and cams[c].height_px == k.height_px):
+                raise InputError(f"{head}: camera {c!r} now reports different intrinsics than when the dataset was started; "
+                                 "resolution or device changed: start a new dataset.")
+        else:
+            cams[c] = k  # a camera that was lost at the first start joins now
+            changed = True
+    if changed:
+        write_header(out, target, cams, mode=d.get("mode", mode))
