@@ -1,0 +1,114 @@
+"""Inverse kinematics and collision checks on the simulated arm (MuJoCo model).
+
+Damped least squares on MuJoCo's site Jacobian of the flange, with joint limits enforced by
+clamping (a margin keeps solutions off the hard stops), restarted from several seeds. A
+configuration is accepted only when MuJoCo's collision detection finds no contact between the arm
+(links, mount, board) and anything but the pedestal it stands on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..transforms import log_so3
+
+LIMIT_MARGIN_RAD = 0.05
+
+
+def _fk(world, q):
+    world.data.qpos[world.qadr] = q
+    world.mujoco.mj_kinematics(world.model, world.data)
+    return world.T_base_flange()
+
+
+def solve_ik(world, T_base_flange_target: np.ndarray, q_seed, max_iter: int = 150, tol_m: float = 1e-5,
+             tol_rad: float = 1e-5, damping: float = 0.05):
+    """Joint angles reaching ``T_base_flange_target`` from ``q_seed``, or None.
+
+    Args:
+        world: a :class:`calibgraph.sim.render.SimWorld` (only its model/data are used).
+        T_base_flange_target: (4, 4) target flange pose.
+        q_seed: (7,) start configuration.
+    Returns:
+        q_rad (7,) within the joint limits (minus a margin), or None when it did not converge.
+    """
+    mj = world.mujoco
+    m, d = world.model, world.data
+    lo, hi = world.q_lo + LIMIT_MARGIN_RAD, world.q_hi - LIMIT_MARGIN_RAD
+    q = np.clip(np.asarray(q_seed, float), lo, hi)
+    jacp = np.zeros((3, m.nv))
+    jacr = np.zeros((3, m.nv))
+    cols = np.array([m.jnt_dofadr[m.joint(f"fr3_joint{i}").id] for i in range(1, 8)])
+    R_t = T_base_flange_target[:3, :3]
+    p_t = T_base_flange_target[:3, 3]
+    for _ in range(max_iter):
+        T = _fk(world, q)
+        e_p = p_t - T[:3, 3]
+        e_r = log_so3(R_t @ T[:3, :3].T)  # world-frame rotation error, matches jacr
+        if np.linalg.norm(e_p) < tol_m and np.linalg.norm(e_r) < tol_rad:
+            return q
+        mj.mj_comPos(m, d)
+        mj.mj_jacSite(m, d, jacp, jacr, world.flange_site)
+        J = np.vstack([jacp[:, cols], jacr[:, cols]])
+        e = np.concatenate([e_p, e_r])
+        # cap the step so linearisation holds far from the solution
+        n = np.linalg.norm(e)
+        if n > 0.2:
+            e *= 0.2 / n
+        dq = J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(6), e)
+        q = np.clip(q + dq, lo, hi)
+    T = _fk(world, q)
+    if np.linalg.norm(p_t - T[:3, 3]) < 10 * tol_m and np.linalg.norm(log_so3(R_t @ T[:3, :3].T)) < 10 * tol_rad:
+        return q
+    return None
+
+
+def arm_geom_ids(world) -> set:
+    """Geoms that move with the arm (links, mount, board): collisions involving them matter."""
+    m = world.model
+    base = m.body("fr3_link0").id
+    ids = set()
+    for g in range(m.ngeom):
+        b = m.geom_bodyid[g]
+        if b != 0 and b != base:
+            ids.add(g)
+    return ids
+
+
+def in_collision(world, q) -> list:
+    """Contacts (name pairs) at ``q`` that involve a moving part of the arm, the board or its mount;
+    empty when the configuration is free."""
+    mj = world.mujoco
+    m, d = world.model, world.data
+    d.qpos[world.qadr] = q
+    mj.mj_fwdPosition(m, d)
+    moving = getattr(world, "_moving_geoms", None)
+    if moving is None:
+        moving = world._moving_geoms = arm_geom_ids(world)
+    ped = {m.geom("pedestal").id} if _has_geom(m, "pedestal") else set()
+    link1 = m.body("fr3_link1").id
+    hits = []
+    for i in range(d.ncon):
+        c = d.contact[i]
+        g1, g2 = int(c.geom1), int(c.geom2)
+        if g1 not in moving and g2 not in moving:
+            continue
+        # link1 sits on the pedestal by design
+        pair = {g1, g2}
+        if pair & ped and any(m.geom_bodyid[g] == link1 for g in pair):
+            continue
+        hits.append((_name(m, g1), _name(m, g2)))
+    return hits
+
+
+def _has_geom(m, name) -> bool:
+    try:
+        m.geom(name)
+        return True
+    except KeyError:
+        return False
+
+
+def _name(m, g) -> str:
+    n = m.geom(g).name
+    return n or f"geom{g}@{m.body(m.geom_bodyid[g]).name}"

@@ -1,0 +1,167 @@
+"""Rendering a workcell camera, and the image degradations that make it look like a sensor.
+
+:class:`SimWorld` owns the MuJoCo model, its state and an offscreen renderer; the simulated robot
+and cameras (:mod:`calibgraph.sim.devices`) share one world. :func:`degrade` turns the ideal
+render into a sensor image: exposure, distortion, defocus and motion blur, read and shot noise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .scene import ARM_JOINTS, SimulatorError, build_model, import_mujoco
+from .workcell import Realism, Workcell
+
+
+class SimWorld:
+    """MuJoCo model + data + renderer of a workcell.
+
+    Attributes:
+        cell: the :class:`Workcell`.
+        model, data: MuJoCo model and state (qpos holds the 7 arm joints).
+    """
+
+    def __init__(self, cell: Workcell):
+        self.mujoco = import_mujoco()
+        self.cell = cell
+        self.model = build_model(cell)
+        self.data = self.mujoco.MjData(self.model)
+        self.qadr = np.array([self.model.jnt_qposadr[self.model.joint(j).id] for j in ARM_JOINTS])
+        self.q_lo = np.array([self.model.jnt_range[self.model.joint(j).id][0] for j in ARM_JOINTS])
+        self.q_hi = np.array([self.model.jnt_range[self.model.joint(j).id][1] for j in ARM_JOINTS])
+        self.flange_site = self.model.site("flange").id
+        self.board_body = self.model.body("board").id
+        self._renderers = {}
+        self.mujoco.mj_forward(self.model, self.data)
+        self._distortion_maps = {}
+        self.rng = np.random.default_rng(cell.seed)
+
+    # -- state -------------------------------------------------------------------------------------
+    def set_q(self, q_rad) -> None:
+        q = np.asarray(q_rad, float).reshape(-1)
+        if q.shape != (7,) or not np.all(np.isfinite(q)):
+            raise InputError(f"simulated robot: expected 7 finite joint angles, got {q.tolist()}.")
+        self.data.qpos[self.qadr] = q
+        self.mujoco.mj_kinematics(self.model, self.data)
+        self.mujoco.mj_camlight(self.model, self.data)  # camera poses live here, not in kinematics
+
+    def q(self) -> np.ndarray:
+        return self.data.qpos[self.qadr].copy()
+
+    def T_base_flange(self) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = self.data.site_xmat[self.flange_site].reshape(3, 3)
+        T[:3, 3] = self.data.site_xpos[self.flange_site]
+        return T
+
+    def T_base_board(self) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = self.data.xmat[self.board_body].reshape(3, 3)
+        T[:3, 3] = self.data.xpos[self.board_body]
+        return T
+
+    # -- rendering ---------------------------------------------------------------------------------
+    def _renderer(self, w: int, h: int):
+        key = (w, h)
+        if key not in self._renderers:
+            try:
+                self._renderers[key] = self.mujoco.Renderer(self.model, height=h, width=w)
+            except Exception as e:
+                raise SimulatorError(
+                    f"cannot open a headless OpenGL context ({e}); install libegl1 (MUJOCO_GL=egl) or "
+                    "libosmesa6 (MUJOCO_GL=osmesa)."
+                ) from None
+        return self._renderers[key]
+
+    def render_ideal(self, camera: str) -> np.ndarray:
+        """Noise-free RGB render (H, W, 3) uint8 of ``camera`` at the current state, pinhole, no
+        distortion; supersampled renders are area-averaged back to the sensor size."""
+        spec = self.cell.camera(camera)
+        s = self.cell.realism.supersample
+        w, h = spec.intrinsics.width_px, spec.intrinsics.height_px
+        r = self._renderer(w * s, h * s)
+        r.update_scene(self.data, camera=camera)
+        img = r.render()
+        if s > 1:
+            # Averaging s x s blocks keeps the principal point at ((W-1)/2, (H-1)/2): block k
+            # covers fine pixels [k s, (k+1) s), whose centre maps to k exactly.
+            img = img.reshape(h, s, w, s, 3).mean(axis=(1, 3)).astype(np.uint8)
+        return img
+
+    def render(self, camera: str, rng=None) -> np.ndarray:
+        """Sensor-like grey image (H, W) uint8 of ``camera``: ideal render + :func:`degrade`.
+
+        Grey because corner detection works on grey and it keeps noise synthesis 3x cheaper.
+        """
+        import cv2
+
+        ideal = cv2.cvtColor(self.render_ideal(camera), cv2.COLOR_RGB2GRAY)
+        spec = self.cell.camera(camera)
+        maps = None
+        if self.cell.realism.distortion:
+            maps = self._distortion_maps.get(camera)
+            if maps is None:
+                maps = self._distortion_maps[camera] = distortion_maps(spec.intrinsics)
+        return degrade(ideal, self.cell.realism, self.rng if rng is None else rng, maps)
+
+    def close(self) -> None:
+        for r in self._renderers.values():
+            try:
+                r.close()
+            except Exception:
+                pass
+        self._renderers.clear()
+
+
+def distortion_maps(intr):
+    """cv2.remap maps that turn an ideal pinhole image (same K) into one seen through ``intr.dist``.
+
+    For every distorted output pixel we need the ideal pixel it shows: undistort the pixel grid.
+    """
+    import cv2
+
+    w, h = intr.width_px, intr.height_px
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pts = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6)
+    und = cv2.undistortPointsIter(pts, intr.K, intr.dist, None, intr.K, crit).reshape(h, w, 2)
+    return und[..., 0].astype(np.float32), und[..., 1].astype(np.float32)
+
+
+def degrade(img: np.ndarray, realism: Realism, rng, maps=None) -> np.ndarray:
+    """Apply exposure, distortion, defocus/motion blur and sensor noise to an ideal image
+    ((H, W) grey or (H, W, 3)); returns uint8 of the same shape."""
+    import cv2
+
+    x = img.astype(np.float32)
+    if realism.exposure != 1.0:
+        x *= float(realism.exposure)
+    if maps is not None:
+        x = cv2.remap(x, maps[0], maps[1], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if realism.blur_sigma_px > 0:
+        x = cv2.GaussianBlur(x, (0, 0), float(realism.blur_sigma_px))
+    if realism.motion_blur_px > 0:
+        L = float(realism.motion_blur_px)
+        n = int(np.ceil(L)) | 1
+        k = np.zeros((n, n), np.float32)
+        a = rng.uniform(0, np.pi)
+        c = (n - 1) / 2
+        for t in np.linspace(-L / 2, L / 2, 4 * n):
+            k[int(round(c + t * np.sin(a))), int(round(c + t * np.cos(a)))] += 1
+        x = cv2.filter2D(x, -1, k / k.sum())
+    np.clip(x, 0, 255, out=x)
+    if realism.shot_noise or realism.noise_sigma_dn > 0:
+        # read noise + photon noise of a sensor with a ~4000 e- full well mapped to 255 DN, drawn
+        # as one Gaussian with the summed variance
+        import cv2
+
+        gain = np.float32(255.0 / 4000.0) if realism.shot_noise else np.float32(0.0)
+        sigma = cv2.sqrt(x * gain + np.float32(float(realism.noise_sigma_dn) ** 2))
+        # cv2's generator is ~5x faster than numpy's here; seed it from the world's generator so
+        # a seeded run renders identical images
+        cv2.setRNGSeed(int(rng.integers(0, 2**31 - 1)))
+        noise = cv2.randn(np.empty_like(x), 0.0, 1.0)
+        x += noise * sigma
+        np.clip(x, 0, 255, out=x)
+    return cv2.convertScaleAbs(x)  # saturating round to uint8

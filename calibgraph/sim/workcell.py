@@ -1,0 +1,306 @@
+"""The simulated workcell as data: robot, board mount, cameras and image realism.
+
+A workcell is read from YAML (``datasets/workcells/*.yaml``) or built by
+:func:`ring_workcell`. Every pose uses the robot base as the world frame
+(``T_base_cam``: OpenCV optical frame of the camera in the base frame, metres). The robot stands
+on a pedestal whose top is the base frame; the floor is at ``floor_z_m`` (negative), so a camera
+``height_above_floor_m = 1.6`` sits at ``z = floor_z_m + 1.6`` in the base frame.
+
+YAML::
+
+    name: default
+    board: a4_54                  # a4_54 | thesis | {kind: checkerboard, rows: 6, cols: 9, pitch_m: 0.025}
+    floor_z_m: -0.8
+    mount: {translation_m: [0.01, -0.015, 0.06], rotvec_rad: [0.0, 3.14159, 0.0]}   # T_flange_board (optional)
+    realism: {noise_sigma_dn: 2.0, blur_sigma_px: 0.6, exposure: 1.0, motion_blur_px: 0.0,
+              distortion: false}
+    ring: {distances_m: [3.0, 3.0, 3.0], height_above_floor_m: 1.6, spread_deg: 360, start_deg: 0,
+           presets: [l515]}     # cameras on a ring around the robot base ...
+    cameras:                    # ... and/or explicit ones
+      side: {preset: d455, position_m: [2.0, 1.0, 0.8], look_at_m: [0.5, 0.0, 0.4]}
+
+``ring.spread_deg: 360`` spreads cameras evenly around the robot; a smaller spread puts them on
+one side (the thesis's one-side layout), centred on ``start_deg`` (0 = in front of the robot,
+along base x).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Intrinsics, preset
+from ..errors import InputError
+from ..targets import Target, a4_board_54, thesis_board
+from ..transforms import exp_so3, look_at, make_T
+
+# Where the robot presents the board, relative to a camera's azimuth: radius from the base z axis
+# and height in the base frame. Cameras aim here, so the board lands near their image centre.
+PRESENT_RADIUS_M = 0.5
+PRESENT_HEIGHT_M = 0.45
+
+
+@dataclass(frozen=True)
+class Realism:
+    """Image degradations applied to every rendered frame.
+
+    Attributes:
+        noise_sigma_dn: Gaussian read noise, in 8-bit digital numbers.
+        shot_noise: add signal-dependent (Poisson-like) noise as well.
+        blur_sigma_px: Gaussian defocus blur sigma (0 = sharp).
+        motion_blur_px: length of a linear motion-blur kernel in a random direction per frame.
+        exposure: gain on the rendered radiance (1 = nominal; < 1 darker, > 1 brighter, clipped).
+        distortion: render through OpenCV radial/tangential distortion (coefficients in
+            ``distortion_coeffs``); the intrinsics reported by the camera include them.
+        distortion_coeffs: (k1, k2, p1, p2, k3) used when ``distortion`` is on.
+        supersample: render at this integer factor and area-average down (anti-aliasing).
+    """
+
+    noise_sigma_dn: float = 2.0
+    shot_noise: bool = True
+    blur_sigma_px: float = 0.6
+    motion_blur_px: float = 0.0
+    exposure: float = 1.0
+    distortion: bool = False
+    distortion_coeffs: tuple = (0.08, -0.12, 0.0005, -0.0004, 0.03)
+    supersample: int = 1
+
+    def __post_init__(self):
+        for name in ("noise_sigma_dn", "blur_sigma_px", "motion_blur_px"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise InputError(f"workcell realism: {name} must be >= 0, got {getattr(self, name)}.")
+        if not (self.exposure > 0):
+            raise InputError(f"workcell realism: exposure must be > 0, got {self.exposure}.")
+        if int(self.supersample) < 1 or int(self.supersample) > 4:
+            raise InputError(f"workcell realism: supersample must be 1..4, got {self.supersample}.")
+        object.__setattr__(self, "supersample", int(self.supersample))
+        object.__setattr__(self, "distortion_coeffs", tuple(float(x) for x in self.distortion_coeffs))
+        if len(self.distortion_coeffs) not in (4, 5, 8):
+            raise InputError("workcell realism: distortion_coeffs needs 4, 5 or 8 values (k1 k2 p1 p2 [k3 ...]).")
+
+
+@dataclass(frozen=True)
+class SimCameraSpec:
+    """One fixed camera of the cell.
+
+    Attributes:
+        name: camera name (dataset key).
+        T_base_cam: (4, 4) OpenCV optical frame in the robot base frame.
+        intrinsics: ideal pinhole intrinsics (plus distortion when the realism asks for it).
+        preset: preset name it came from ('' when explicit).
+    """
+
+    name: str
+    T_base_cam: np.ndarray
+    intrinsics: Intrinsics
+    preset: str = ""
+
+
+def default_T_flange_board(target: Target) -> np.ndarray:
+    """Board mount used when a workcell does not give one.
+
+    The board's printed face looks along the flange z axis (board z = -flange z), 6 cm out from
+    the flange, its centre slightly off the flange axis (an asymmetric mount exercises the solver
+    better than a perfectly centred one).
+    """
+    centre_b = target.points_board_m.mean(axis=0)
+    R_fb = exp_so3([0.0, np.pi, 0.0]) @ exp_so3([0.0, 0.0, np.radians(7.0)])
+    # choose t so that the board centre lands at (0.01, -0.015, 0.06) in the flange frame
+    t = np.array([0.01, -0.015, 0.06]) - R_fb @ centre_b
+    return make_T(R_fb, t)
+
+
+@dataclass(frozen=True)
+class Workcell:
+    """A simulated cell: cameras, target and its mount on the flange, image realism.
+
+    Attributes:
+        name: label.
+        target: the board (checkerboard).
+        T_flange_board: (4, 4) board mount.
+        cameras: tuple of :class:`SimCameraSpec`.
+        realism: :class:`Realism`.
+        floor_z_m: floor height in the base frame (the robot stands on a pedestal).
+        seed: seed of the image noise.
+    """
+
+    name: str
+    target: Target
+    T_flange_board: np.ndarray
+    cameras: tuple
+    realism: Realism = field(default_factory=Realism)
+    floor_z_m: float = -0.8
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.target.kind != "checkerboard":
+            raise InputError(f"workcell {self.name!r}: the simulator renders checkerboards only, got {self.target.kind!r}.")
+        names = [c.name for c in self.cameras]
+        if not names:
+            raise InputError(f"workcell {self.name!r}: no cameras; add a 'ring' or 'cameras' section.")
+        if len(set(names)) != len(names):
+            raise InputError(f"workcell {self.name!r}: duplicate camera names {names}.")
+        object.__setattr__(self, "cameras", tuple(self.cameras))
+
+    @property
+    def camera_names(self) -> list:
+        return [c.name for c in self.cameras]
+
+    def camera(self, name: str) -> SimCameraSpec:
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        raise InputError(f"workcell {self.name!r}: no camera {name!r}; cameras are {self.camera_names}.")
+
+    def intrinsics(self) -> dict:
+        """name -> Intrinsics the cameras report (distortion included when rendered with it)."""
+        return {c.name: c.intrinsics for c in self.cameras}
+
+    def with_(self, **changes) -> "Workcell":
+        return replace(self, **changes)
+
+
+def board_by_name(spec) -> Target:
+    """'a4_54' (7x10 squares of 25 mm), 'thesis' (5x4 squares of 46 mm) or a Target dict."""
+    if isinstance(spec, Target):
+        return spec
+    if isinstance(spec, dict):
+        return Target.from_dict(spec)
+    key = str(spec).lower()
+    if key in ("a4_54", "a4", "54"):
+        return a4_board_54()
+    if key in ("thesis", "thesis_46", "5x4"):
+        return thesis_board()
+    raise InputError(f"unknown board {spec!r}; use 'a4_54', 'thesis' or a target mapping (kind, rows, cols, pitch_m).")
+
+
+def _camera_intrinsics(preset_name: str, realism: Realism) -> Intrinsics:
+    intr = preset(preset_name)
+    if realism.distortion:
+        intr = Intrinsics(K=intr.K, dist=np.asarray(realism.distortion_coeffs), width_px=intr.width_px,
+                          height_px=intr.height_px)
+    return intr
+
+
+def ring_cameras(distances_m, height_above_floor_m: float = 1.6, presets=("l515",), spread_deg: float = 360.0,
+                 start_deg: float = 0.0, floor_z_m: float = -0.8, realism: Realism | None = None) -> tuple:
+    """Cameras on a ring around the robot base z axis at horizontal ``distances_m``, each aimed at
+    the point where the robot presents the board towards it."""
+    realism = realism or Realism()
+    n = len(distances_m)
+    specs = []
+    for i, d in enumerate(distances_m):
+        if spread_deg >= 360:
+            az = start_deg + 360.0 * i / n
+        else:
+            az = start_deg - spread_deg / 2 + spread_deg * i / max(n - 1, 1)
+        a = np.radians(az)
+        u = np.array([np.cos(a), np.sin(a), 0.0])
+        eye = float(d) * u
+        eye[2] = floor_z_m + height_above_floor_m
+        aim = PRESENT_RADIUS_M * u + np.array([0, 0, PRESENT_HEIGHT_M])
+        p = presets[i % len(presets)]
+        specs.append(SimCameraSpec(name=f"cam{i}", T_base_cam=look_at(eye, aim), intrinsics=_camera_intrinsics(p, realism),
+                                   preset=p))
+    return tuple(specs)
+
+
+def ring_workcell(n_cameras: int = 3, distance_m: float = 3.0, preset_name: str = "l515", board="a4_54",
+                  spread_deg: float = 360.0, height_above_floor_m: float = 1.6, realism: Realism | None = None,
+                  distances_m=None, name: str = "ring", seed: int = 0) -> Workcell:
+    """A cell with ``n_cameras`` of one preset on a ring at ``distance_m`` (or per-camera ``distances_m``)."""
+    if n_cameras < 1:
+        raise InputError("a workcell needs at least one camera (--cameras >= 1).")
+    if not (0.8 <= distance_m <= 8.0):
+        raise InputError(f"camera distance {distance_m} m is outside the simulated range 0.8..8 m.")
+    realism = realism or Realism()
+    target = board_by_name(board)
+    d = list(distances_m) if distances_m is not None else [distance_m] * n_cameras
+    cams = ring_cameras(d, height_above_floor_m, (preset_name,), spread_deg, 0.0, -0.8, realism)
+    return Workcell(name=name, target=target, T_flange_board=default_T_flange_board(target), cameras=cams,
+                    realism=realism, seed=seed)
+
+
+def _pose_from_spec(d: dict, what: str) -> np.ndarray:
+    if "T" in d:
+        from ..transforms import check_pose
+
+        return check_pose(np.asarray(d["T"], float), what)
+    t = np.asarray(d.get("translation_m", [0, 0, 0]), float)
+    R = exp_so3(np.asarray(d.get("rotvec_rad", [0, 0, 0]), float))
+    if "rpy_deg" in d:
+        r, p, y = np.radians(np.asarray(d["rpy_deg"], float))
+        R = exp_so3([0, 0, y]) @ exp_so3([0, p, 0]) @ exp_so3([r, 0, 0])
+    return make_T(R, t)
+
+
+def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
+    """Build a :class:`Workcell` from its YAML mapping (see the module docstring)."""
+    if not isinstance(d, dict):
+        raise InputError(f"{where}: must be a mapping.")
+    known = {"name", "board", "floor_z_m", "mount", "realism", "ring", "cameras", "seed", "description"}
+    unknown = set(d) - known
+    if unknown:
+        raise InputError(f"{where}: unknown keys {sorted(unknown)}; allowed: {sorted(known)}.")
+    try:
+        realism = Realism(**(d.get("realism") or {}))
+    except TypeError as e:
+        raise InputError(f"{where}: realism: {e}") from None
+    target = board_by_name(d.get("board", "a4_54"))
+    floor_z = float(d.get("floor_z_m", -0.8))
+    cams = []
+    ring = d.get("ring")
+    if ring:
+        try:
+            cams.extend(ring_cameras(ring["distances_m"], float(ring.get("height_above_floor_m", 1.6)),
+                                     tuple(ring.get("presets", ["l515"])), float(ring.get("spread_deg", 360.0)),
+                                     float(ring.get("start_deg", 0.0)), floor_z, realism))
+        except KeyError as e:
+            raise InputError(f"{where}: ring needs {e} (list of horizontal distances in metres).") from None
+    for name, c in (d.get("cameras") or {}).items():
+        p = c.get("preset", "l515")
+        if "T_base_cam" in c:
+            from ..transforms import check_pose
+
+            T = check_pose(np.asarray(c["T_base_cam"], float), f"{where}: camera {name}: T_base_cam")
+        elif "position_m" in c:
+            T = look_at(np.asarray(c["position_m"], float),
+                        np.asarray(c.get("look_at_m", [PRESENT_RADIUS_M, 0, PRESENT_HEIGHT_M]), float))
+        else:
+            raise InputError(f"{where}: camera {name!r} needs position_m (+ look_at_m) or T_base_cam.")
+        cams.append(SimCameraSpec(name=str(name), T_base_cam=T, intrinsics=_camera_intrinsics(p, realism), preset=p))
+    mount = d.get("mount")
+    T_fb = _pose_from_spec(mount, f"{where}: mount") if mount else default_T_flange_board(target)
+    return Workcell(name=str(d.get("name", Path(where).stem)), target=target, T_flange_board=T_fb, cameras=tuple(cams),
+                    realism=realism, floor_z_m=floor_z, seed=int(d.get("seed", 0)))
+
+
+def load_workcell(path) -> Workcell:
+    """Read a workcell YAML file."""
+    import yaml
+
+    p = Path(path)
+    try:
+        d = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise InputError(f"{p}: cannot read workcell file: {e}") from None
+    return workcell_from_dict(d, str(p))
+
+
+def workcell_to_dict(cell: Workcell) -> dict:
+    """Explicit (camera poses spelled out) YAML mapping of a workcell; round-trips through
+    :func:`workcell_from_dict`."""
+    from dataclasses import asdict
+
+    return {
+        "name": cell.name,
+        "board": cell.target.to_dict(),
+        "floor_z_m": cell.floor_z_m,
+        "mount": {"T": np.asarray(cell.T_flange_board).tolist()},
+        "realism": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cell.realism).items()},
+        "cameras": {c.name: {"preset": c.preset or "l515", "T_base_cam": np.asarray(c.T_base_cam).tolist()}
+                    for c in cell.cameras},
+        "seed": cell.seed,
+    }
