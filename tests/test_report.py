@@ -1,0 +1,254 @@
+"""Commissioning report: built from a solved simulated workcell; numbers checked against result.json;
+rendered in headless Chromium.
+
+``make_sim_result`` is also used by test_rerun.py and test_exports.py.
+"""
+
+import html.parser
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibgraph import solve
+from calibgraph.dataset import load_dataset, write_capture, write_header
+from calibgraph.problem import Detection
+from calibgraph.report import compute_residuals, load_tolerances, residuals_section, write_report
+from calibgraph.result import load_result_dict
+from calibgraph.synth import make_scene
+from calibgraph.targets import a4_board_54
+
+OUTLIER_VIEW = 5        # detection index whose corners are all garbage -> a rejected view
+OUTLIER_CORNERS = 2     # detection index with 3 corners moved by 25 px -> rejected corners
+
+
+@lru_cache(maxsize=4)
+def _solved(seed: int, mode: str):
+    scene = make_scene(n_poses=24, seed=seed, mode=mode)
+    prob = scene.problem
+    dets = list(prob.detections)
+    rng = np.random.default_rng(seed + 100)
+    d = dets[OUTLIER_CORNERS]
+    uv = d.uv_px.copy()
+    uv[[3, 10, 20]] += 25.0
+    dets[OUTLIER_CORNERS] = Detection(d.camera, d.capture, d.ids, uv)
+    if mode == "eye_to_hand":
+        d = dets[OUTLIER_VIEW]
+        dets[OUTLIER_VIEW] = Detection(d.camera, d.capture, d.ids, d.uv_px + rng.normal(scale=40.0, size=d.uv_px.shape))
+    prob = prob.with_(detections=tuple(dets))
+    return scene, prob, solve(prob)
+
+
+def make_sim_result(seed: int = 0, mode: str = "eye_to_hand", intrinsics: bool = True, residuals: bool = True):
+    """(result dict as read back from result.json, scene, problem, Result) of a solved simulated cell
+    with injected outliers. Adds the 'residuals' (and 'intrinsics') sections the report reads when
+    Result.to_dict does not write them yet."""
+    scene, prob, res = _solved(seed, mode)
+    d = res.to_dict()
+    if residuals and "residuals" not in d:
+        d["residuals"] = residuals_section(res)
+    if not residuals:
+        d.pop("residuals", None)
+    for n, c in d["cameras"].items():
+        if intrinsics:
+            c.setdefault("intrinsics", prob.cameras[n].to_dict())
+        else:
+            c.pop("intrinsics", None)
+    d["dataset"] = "simulated (calibgraph.synth.make_scene seed %d)" % seed
+    return json.loads(json.dumps(d)), scene, prob, res
+
+
+def write_sim_dataset(root: Path, prob) -> Path:
+    """Write a problem as a calibgraph dataset folder (detections stored, no images)."""
+    write_header(root, a4_board_54(), dict(prob.cameras), mode=prob.mode)
+    by_cap = {}
+    for d in prob.detections:
+        by_cap.setdefault(d.capture, {})[d.camera] = {"image": None, "ids": d.ids, "uv_px": d.uv_px}
+    for c in prob.captures:
+        write_capture(root, c, by_cap.get(c.index, {}))
+    return root
+
+
+class _Spans(html.parser.HTMLParser):
+    """Collect data-value numbers per table row marked with data-camera / data-pair, and element ids."""
+
+    def __init__(self):
+        super().__init__()
+        self.rows = {}
+        self._row = None
+        self.ids = set()
+        self.script = None
+        self._in_script = False
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if "id" in a:
+            self.ids.add(a["id"])
+        if tag == "tr" and ("data-camera" in a or "data-pair" in a):
+            self._row = (a.get("data-camera") or a.get("data-pair"), self._table)
+            self.rows.setdefault(self._row, [])
+        if tag == "table":
+            self._table = a.get("id")
+        if tag == "span" and "data-value" in a and self._row is not None:
+            self.rows[self._row].append(float(a["data-value"]))
+        if tag == "script" and a.get("id") == "calibgraph-result":
+            self._in_script = True
+            self.script = ""
+
+    _table = None
+
+    def handle_endtag(self, tag):
+        if tag == "tr":
+            self._row = None
+        if tag == "script":
+            self._in_script = False
+
+    def handle_data(self, data):
+        if self._in_script:
+            self.script += data
+
+
+def test_report_numbers_equal_result_json(tmp_path):
+    d, scene, prob, res = make_sim_result()
+    res_path = tmp_path / "result.json"
+    res_path.write_text(json.dumps(d))
+    d = load_result_dict(res_path)
+    out = write_report(d, tmp_path / "report.html", result_path=res_path)
+    text = out.read_text()
+    p = _Spans()
+    p.feed(text)
+    # the embedded copy of the result is the result
+    assert json.loads(p.script) == d
+    for n, c in d["cameras"].items():
+        vals = p.rows[(n, "summary")]
+        T = np.asarray(c["T_base_cam"])
+        expect = [*T[:3, 3], None, None, None, *c["sigma_translation_mm"], *c["sigma_rotation_deg"],
+                  c["reprojection_rms_px"], c["reprojection_max_px"], c["views_used"], len(c["views_rejected"])]
+        assert len(vals) == len(expect)
+        for got, want in zip(vals, expect):
+            if want is not None:
+                assert got == want  # exact: data-value carries repr(float)
+        assert f">{c['reprojection_rms_px']:.3f}<" in text
+    for key, pr in d["camera_pairs"].items():
+        vals = p.rows[(key, "pairs")]
+        T = np.asarray(pr[f"T_{pr['a']}_{pr['b']}"])
+        assert vals[:3] == T[:3, 3].tolist()
+        assert vals[-6:] == pr["sigma_translation_mm"] + pr["sigma_rotation_deg"]
+    for sect in ("summary", "pairs", "workspace", "provenance", "verdict"):
+        assert sect in p.ids
+    # the injected outliers show up: a rejected view with its reason, rejected corners in the plot legend
+    rejected = [v for c in d["cameras"].values() for v in c["views_rejected"]]
+    assert rejected, "the garbage view should have been rejected by the solver"
+    assert all(v["reason"] in text for v in rejected)
+    assert "rejected corner" in text and "weakest" in text.lower()
+
+
+def test_pass_fail_follows_tolerances(tmp_path):
+    d, *_ = make_sim_result()
+    names = list(d["cameras"])
+    worst_t = {n: max(c["sigma_translation_mm"]) for n, c in d["cameras"].items()}
+    # cam limits straddle the values: the first camera passes the translation check, the last fails it
+    lo, hi = min(worst_t.values()), max(worst_t.values())
+    cfg = {"defaults": {"max_sigma_translation_mm": (lo + hi) / 2, "max_sigma_rotation_deg": None,
+                        "max_reprojection_rms_px": 10.0, "max_reprojection_max_px": 100.0, "min_views_used": 1,
+                        "max_workspace_sigma_mm": None}}
+    text = write_report(d, tmp_path / "r.html", config=cfg).read_text()
+    failing = [n for n in names if worst_t[n] > (lo + hi) / 2]
+    assert failing and len(failing) < len(names)
+    assert "Overall: FAIL" in text and f"failing: {', '.join(failing)}" in text
+    cfg["defaults"]["max_sigma_translation_mm"] = hi * 1.01
+    assert "Overall: PASS" in write_report(d, tmp_path / "r2.html", config=cfg).read_text()
+
+
+def test_tolerance_file_errors_are_clear(tmp_path):
+    bad = tmp_path / "tol.yaml"
+    bad.write_text("defaults: {max_sigma_mm: 1}\n")
+    from calibgraph.errors import InputError
+
+    with pytest.raises(InputError, match="unknown tolerance 'max_sigma_mm'"):
+        load_tolerances(bad)
+    assert load_tolerances()["defaults"]["max_reprojection_rms_px"] == 0.5  # datasets/tolerances/default.yaml
+
+
+def test_report_from_file_alone_and_with_dataset(tmp_path):
+    d, scene, prob, res = make_sim_result(intrinsics=False, residuals=False)
+    text = write_report(d, tmp_path / "bare.html").read_text()
+    assert "No per-corner residuals" in text and "no detections available" in text
+    ds = write_sim_dataset(tmp_path / "ds", prob)
+    # recomputed residuals agree with the solver's own (same chain, same sign convention)
+    rec = compute_residuals(d, load_dataset(ds))
+    sol = residuals_section(res)
+    for n in sol:
+        for k, v in sol[n].items():
+            assert np.allclose(rec[n][k]["residual_px"], v["residual_px"], atol=1e-6)
+            assert rec[n][k]["rejected"] == v["rejected"]
+    text = write_report(d, tmp_path / "ds.html", dataset=ds).read_text()
+    assert "recomputed from the dataset" in text and "image coverage (" in text
+
+
+def test_report_eye_in_hand(tmp_path):
+    d, *_ = make_sim_result(mode="eye_in_hand")
+    text = write_report(d, tmp_path / "eih.html").read_text()
+    assert "T_flange_cam" in text and "depth, camera z (m)" in text
+
+
+def test_cli_report(tmp_path):
+    from calibgraph.cli import main
+
+    d, *_ = make_sim_result()
+    (tmp_path / "result.json").write_text(json.dumps(d))
+    assert main(["report", str(tmp_path / "result.json"), "--out", str(tmp_path / "x.html")]) == 0
+    assert (tmp_path / "x.html").stat().st_size > 10000
+    assert main(["report", str(tmp_path / "missing.json")]) == 2
+
+
+# -- real browser --------------------------------------------------------------------------------------
+def chromium_binary():
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+def run_chromium(args: list, timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+    """Headless Chromium with a fresh profile, no network chatter, as root-safe flags."""
+    exe = chromium_binary()
+    with tempfile.TemporaryDirectory() as prof:
+        cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+               "--disable-background-networking", "--disable-component-update", "--disable-sync",
+               "--hide-scrollbars", f"--user-data-dir={prof}", *args]
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+
+
+@pytest.mark.skipif(chromium_binary() is None and os.environ.get("CALIBGRAPH_SHARED_REQUIRED") != "1",
+                    reason="chromium not installed (apt-get install chromium)")
+def test_report_renders_in_headless_chromium(tmp_path):
+    d, *_ = make_sim_result()
+    out = write_report(d, tmp_path / "report.html")
+    png = tmp_path / "shot.png"
+    r = run_chromium([f"--screenshot={png}", "--window-size=1280,2000", out.resolve().as_uri()])
+    assert png.is_file(), r.stderr[-2000:]
+    import cv2
+
+    img = cv2.imread(str(png))
+    assert img is not None and img.shape[0] >= 1000 and img.shape[1] >= 1000
+    assert img.std() > 20, "screenshot is blank"
+    # the verdict banner was styled (CSS applied): green PASS or red FAIL pixels near the top
+    top = img[:400].reshape(-1, 3).astype(int)  # BGR
+    green = np.all(np.abs(top - [0x3a, 0x8a, 0x2a]) < 12, axis=1).sum()
+    red = np.all(np.abs(top - [0x28, 0x28, 0xc6]) < 12, axis=1).sum()
+    assert green + red > 2000
+    # the DOM the browser built contains the report, not an error page
+    dom = run_chromium(["--dump-dom", out.resolve().as_uri()]).stdout
+    assert "calibgraph commissioning report" in dom and "ERR_" not in dom
+    for n, c in d["cameras"].items():
+        assert f'data-camera="{n}"' in dom
+        assert f">{c['reprojection_rms_px']:.3f}<" in dom
+    assert dom.count("<svg") >= 3 * len(d["cameras"])
