@@ -102,12 +102,16 @@ def board_texture(target: Target, sheet_m=(0.297, 0.210), texels_per_square: int
     """
     if target.kind != "checkerboard":
         raise InputError(f"cannot render a {target.kind} target; the simulator renders checkerboards.")
+    if texels_per_square & (texels_per_square - 1) or texels_per_square < 8:
+        raise InputError("texels_per_square must be a power of two >= 8.")
     n = int(texels_per_square)
     sx, sy = target.squares_x, target.squares_y
     texel = target.pitch_m / n
-    W = max(int(np.ceil(sheet_m[0] / texel)), sx * n + 2 * n // 4)
-    H = max(int(np.ceil(sheet_m[1] / texel)), sy * n + 2 * n // 4)
-    # margins in whole texels so square edges stay on texel boundaries
+    # Sheet size in whole multiples of 64 texels (and n a power of two): every mipmap level down
+    # to 1/64 then averages whole texel blocks that never straddle a square edge, so the edges
+    # (hence the corners) stay exactly in place when the board is seen small.
+    W = 64 * int(np.ceil(max(sheet_m[0] / texel, sx * n + n // 2) / 64))
+    H = 64 * int(np.ceil(max(sheet_m[1] / texel, sy * n + n // 2) / 64))
     mx, my = (W - sx * n) // 2, (H - sy * n) // 2
     img = np.full((H, W, 3), 255, np.uint8)
     r = np.arange(sy * n) // n
