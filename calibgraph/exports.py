@@ -118,7 +118,7 @@ def _header_lines(result: dict) -> list:
         f"(mode {result.get('mode')}, method {result.get('method')}, dataset {result.get('dataset') or 'n/a'}).",
         f"Frames: parent = robot {ref} frame; child = <camera>_optical_frame (OpenCV optical: x right, y down, z forward).",
         f"The transform is T_{ref}_cam: it maps points from the camera optical frame to the {ref} frame (p_{ref} = T @ p_cam).",
-        "Units: translation metres, angles radians, quaternion (x, y, z, w).",
+        "Units: translation metres, angles radians, quaternion (x, y, z, w); a name ending in _mm or _deg is in mm or degrees.",
     ]
 
 

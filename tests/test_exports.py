@@ -1,0 +1,104 @@
+"""Standard outputs: URDF round trip, ROS 2 launch file, OpenCV FileStorage round trip, YAML."""
+
+import ast
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from calibgraph.exports import (R_to_rpy, export, parse_urdf_joints, read_opencv_yaml, rpy_to_R, urdf_snippet,
+                                write_opencv_yaml)
+from calibgraph.transforms import exp_so3, quat_xyzw_to_R
+from test_report import make_sim_result
+
+
+def test_rpy_round_trip_including_gimbal_lock():
+    rng = np.random.default_rng(0)
+    Rs = [exp_so3(rng.normal(size=3) * 2) for _ in range(200)]
+    Rs += [rpy_to_R([0.3, np.pi / 2, -1.0]), rpy_to_R([0.3, -np.pi / 2, 2.0]), np.eye(3), exp_so3([np.pi, 0, 0])]
+    for R in Rs:
+        assert np.allclose(rpy_to_R(R_to_rpy(R)), R, atol=1e-12)
+    # the URDF convention: rpy = (r, 0, 0) is a rotation about x by r, applied before pitch and yaw
+    assert np.allclose(rpy_to_R([0.2, 0, 0]), exp_so3([0.2, 0, 0]))
+    assert np.allclose(rpy_to_R([0.1, 0.2, 0.3]), exp_so3([0, 0, 0.3]) @ exp_so3([0, 0.2, 0]) @ exp_so3([0.1, 0, 0]))
+
+
+@pytest.mark.parametrize("mode", ["eye_to_hand", "eye_in_hand"])
+def test_urdf_round_trips(tmp_path, mode):
+    d, *_ = make_sim_result(mode=mode)
+    ref = "base" if mode == "eye_to_hand" else "flange"
+    text = urdf_snippet(d)
+    assert f"T_{ref}_cam" in text and "metres" in text and "radians" in text
+    joints = parse_urdf_joints(text.replace("$(arg parent)", "PARENT"))
+    assert len(joints) == len(d["cameras"])
+    for n, c in d["cameras"].items():
+        parent, T = joints[f"{n}_optical_frame"]
+        assert parent == "PARENT"
+        assert np.abs(T - np.asarray(c[f"T_{ref}_cam"])).max() < 1e-9
+    plain = parse_urdf_joints(urdf_snippet(d, parent="world", xacro=False))
+    assert {p for p, _ in plain.values()} == {"world"}
+    paths = export(d, "urdf", tmp_path)
+    assert paths[0].name == "calibgraph_cameras.urdf.xacro" and paths[0].read_text() == text
+
+
+def test_ros2_launch_file(tmp_path):
+    d, *_ = make_sim_result()
+    (path,) = export(d, "ros2-launch", tmp_path)
+    src = path.read_text()
+    tree = ast.parse(src)  # valid Python
+    assert "static_transform_publisher" in src and "tf2_ros" in src and "--child-frame-id" in src
+    assert "metres" in src and "quaternion (x, y, z, w)" in src
+    cams = next(n.value for n in tree.body if isinstance(n, ast.Assign) and n.targets[0].id == "CAMERAS")
+    table = ast.literal_eval(cams)
+    for n, c in d["cameras"].items():
+        x, y, z, qx, qy, qz, qw, parent, child = table[n]
+        T = np.asarray(c["T_base_cam"])
+        assert parent == "base_link" and child == f"{n}_optical_frame"
+        assert np.allclose([x, y, z], T[:3, 3], atol=1e-12)
+        assert np.allclose(quat_xyzw_to_R([qx, qy, qz, qw]), T[:3, :3], atol=1e-9)
+
+
+def test_opencv_filestorage_round_trip(tmp_path):
+    d, scene, prob, _ = make_sim_result()
+    paths = write_opencv_yaml(d, tmp_path)
+    assert len(paths) == len(d["cameras"])
+    for p in paths:
+        back = read_opencv_yaml(p)
+        n = back["camera_name"]
+        c = d["cameras"][n]
+        intr = prob.cameras[n]
+        assert np.array_equal(back["camera_matrix"], intr.K)
+        assert np.array_equal(back["distortion_coefficients"].ravel(), intr.dist)
+        assert back["image_width"] == intr.width_px and back["image_height"] == intr.height_px
+        assert np.array_equal(back["T_base_cam"], np.asarray(c["T_base_cam"]))
+        assert np.array_equal(back["sigma_translation_mm"].ravel(), np.asarray(c["sigma_translation_mm"]))
+        assert np.array_equal(back["sigma_rotation_deg"].ravel(), np.asarray(c["sigma_rotation_deg"]))
+        assert np.array_equal(back["covariance"], np.asarray(c["covariance"]))
+        assert back["frame_parent"] == "base" and back["frame_child"] == f"{n}_optical_frame"
+        text = p.read_text()
+        assert text.startswith("%YAML") and "metres" in text and "optical" in text
+
+
+def test_opencv_yaml_without_intrinsics_says_so(tmp_path):
+    d, *_ = make_sim_result(intrinsics=False)
+    p = write_opencv_yaml(d, tmp_path)[0]
+    back = read_opencv_yaml(p)
+    assert "camera_matrix" not in back and "T_base_cam" in back
+    assert "intrinsics unknown" in p.read_text()
+
+
+def test_yaml_and_json_outputs_and_cli(tmp_path):
+    from calibgraph.cli import main
+
+    d, *_ = make_sim_result()
+    (tmp_path / "result.json").write_text(json.dumps(d))
+    rc = main(["export", str(tmp_path / "result.json"), "--format", "yaml", "--format", "urdf",
+               "--format", "ros2-launch", "--format", "opencv-yaml", "--out", str(tmp_path / "out")])
+    assert rc == 0
+    y = (tmp_path / "out" / "result.yaml").read_text()
+    assert y.startswith("# calibgraph result. T_a_b maps points")
+    assert yaml.safe_load(y) == d
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(
+        ["result.yaml", "calibgraph_cameras.urdf.xacro", "calibgraph_cameras.launch.py"] + [f"{n}.yaml" for n in d["cameras"]])
+    assert main(["export", str(tmp_path / "nope.json"), "--format", "urdf", "--out", str(tmp_path)]) == 2
