@@ -280,3 +280,60 @@ def rotation_spread_deg(A_list) -> tuple[float, float]:
     s = np.linalg.svd(W, compute_uv=False) / np.sqrt(len(W))
     s = np.concatenate([s, [0.0, 0.0]])
     return float(np.degrees(s[0])), float(np.degrees(s[1]))
+
+
+def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_S_cam: dict, T_M_board: np.ndarray,
+                        p_board_by_view: dict, uv_by_view: dict):
+    """Translations of all cameras and of the mount from every corner, given the rotations.
+
+    With rotations fixed, ``p_cam = q + M_Y t_Y + M_Z t_Z`` is linear in the translations and each
+    corner gives two linear equations ``x_n z - x = 0``, ``y_n z - y = 0`` (normalised, undistorted
+    image coordinates). Far better conditioned than averaging per-view PnP depths. Views whose
+    rotation disagrees with the consensus are left out; the worst views are trimmed once.
+    Returns new (T_S_cam, T_M_board).
+    """
+    names = [n for n in T_S_cam if n in views_by_cam]
+    slot = {n: i for i, n in enumerate(names)}
+    nu = 3 * (len(names) + 1)
+    RY = T_M_board[:3, :3]
+    blocks = []  # (A rows, b, view key)
+    for n in names:
+        RZ = T_S_cam[n][:3, :3]
+        intr = intr_by_cam[n]
+        for v in views_by_cam[n]:
+            err = _angle_deg(RZ @ v.R, (v.A[:3, :3] @ RY)[None]).min() if len(v.R) else np.inf
+            if err > ROT_INLIER_DEG:
+                continue
+            key = (n, v.capture)
+            pb = p_board_by_view[key]
+            xy = cv2.undistortPoints(uv_by_view[key].reshape(-1, 1, 2).astype(np.float64), intr.K, intr.dist).reshape(-1, 2)
+            RA, tA = v.A[:3, :3], v.A[:3, 3]
+            q = (pb @ (RA @ RY).T + tA - 0.0) @ RZ  # R_Z^T (R_A R_Y p + t_A)
+            MY = RZ.T @ RA
+            MZ = -RZ.T
+            rows, rhs = [], []
+            for c, xn in ((0, xy[:, 0]), (1, xy[:, 1])):
+                # (xn e3 - e_c)^T p_cam = 0
+                coef_q = xn * q[:, 2] - q[:, c]
+                a_Y = xn[:, None] * MY[2] - MY[c]
+                a_Z = xn[:, None] * MZ[2] - MZ[c]
+                R_ = np.zeros((len(xn), nu))
+                R_[:, 3 * slot[n]: 3 * slot[n] + 3] = a_Z
+                R_[:, 3 * len(names):] = a_Y
+                rows.append(R_)
+                rhs.append(-coef_q)
+            blocks.append((np.vstack(rows), np.concatenate(rhs), key))
+    if len(blocks) < 3:
+        return T_S_cam, T_M_board
+    use = list(range(len(blocks)))
+    for _ in range(2):
+        A = np.vstack([blocks[i][0] for i in use])
+        b = np.concatenate([blocks[i][1] for i in use])
+        x, *_ = np.linalg.lstsq(A, b, rcond=None)
+        res = np.array([np.sqrt(np.mean((blocks[i][0] @ x - blocks[i][1]) ** 2)) for i in range(len(blocks))])
+        keep = [i for i in range(len(blocks)) if res[i] <= 4.0 * np.median(res) + 1e-9]
+        if keep == use or len(keep) < 3:
+            break
+        use = keep
+    out = {n: make_T(T_S_cam[n][:3, :3], x[3 * slot[n]: 3 * slot[n] + 3]) if n in slot else T_S_cam[n] for n in T_S_cam}
+    return out, make_T(RY, x[3 * len(names):])

@@ -25,7 +25,7 @@ import numpy as np
 
 from .errors import InputError, ObservabilityError, SolverError
 from .factors import make_view_factor, project_chain
-from .initialise import ViewCandidates, initialise, pnp_candidates
+from .initialise import ViewCandidates, initialise, pnp_candidates, refine_translations
 from .keys import B, C, F
 from .observability import check_after_solve, check_before_solve
 from .problem import Problem
@@ -246,13 +246,8 @@ def _pair_covariance(T_a: np.ndarray, T_b: np.ndarray, cov_joint_body: np.ndarra
         d = np.zeros(12)
         d[i] = eps
         J[:, i] = (f(d[:6], d[6:]) - f(-d[:6], -d[6:])) / (2 * eps)
-    # express in a's axes (f gives base/reference axes)
-    Ra = inv(T_a)[:3, :3]
-    G = np.zeros((6, 6))
-    G[:3, :3] = Ra
-    G[3:, 3:] = Ra
-    Jr = G @ J
-    return Jr @ cov_joint_body @ Jr.T
+    # f's rotation vector (left error of R_a_b) and translation (t_a_b) are both in a's axes already
+    return J @ cov_joint_body @ J.T
 
 
 def _prepare_views(problem: Problem):
@@ -308,6 +303,15 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
     names = list(problem.cameras)
     joint = problem.method == "joint"
     T0, mounts0 = initialise(names, cands, joint=joint, seed=seed)
+    p_by_view = {(v.camera, v.capture): v.p_board for v in views}
+    uv_by_view = {(v.camera, v.capture): v.uv for v in views}
+    if joint:
+        T0, mounts0[0] = refine_translations(cands, problem.cameras, T0, mounts0[0], p_by_view, uv_by_view)
+    else:
+        for n in list(mounts0):
+            Tn, mounts0[n] = refine_translations({n: cands.get(n, [])}, problem.cameras, {n: T0[n]}, mounts0[n],
+                                                 p_by_view, uv_by_view)
+            T0[n] = Tn[n]
     missing = [n for n in names if n not in T0]
     if missing:
         raise ObservabilityError(
