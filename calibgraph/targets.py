@@ -152,6 +152,16 @@ class Target:
         return np.column_stack([i, j])
 
     @property
+    def line_ij(self) -> np.ndarray:
+        """(N, 2) integer (line, position) indices in which straight rows/columns of points share
+        the first/second index and neighbours along a line differ by 1 step of ``pitch_m``
+        (equals ``grid_ij`` except for asymmetric grids, whose columns hold every other row)."""
+        ij = self.grid_ij
+        if self.kind == "acircles":
+            return np.column_stack([ij[:, 0], 2 * ij[:, 1] + ij[:, 0] % 2])
+        return ij
+
+    @property
     def extent_m(self) -> tuple:
         """(x_min, y_min, x_max, y_max) of the printed pattern in the board frame, metres
         (outer squares of boards of squares, circle edges of grids)."""
