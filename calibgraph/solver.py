@@ -417,3 +417,31 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
         rejected_views=tuple(rv for c in cam_results.values() for rv in c.views_rejected),
         rejected_corners=tuple(all_rejected_corners), T_base_flange_est=A_est, settings=settings,
     )
+
+
+def crlb(problem: Problem, T_ref_cam: dict, T_mount_board, pixel_sigma_px: float, T_base_flange_true: dict | None = None,
+         mounts_single: dict | None = None) -> dict:
+    """Cramer-Rao bound of every camera pose: the inverse Fisher information from the Jacobian at the
+    true values, with the true pixel sigma and the problem's FK prior sigmas.
+
+    Returns name -> 6x6 covariance (rotation first, reference-frame axes, as in the results).
+    In 'single' mode pass ``mounts_single`` (name -> true mount) or the shared true mount is used for each.
+    """
+    views, _ = _prepare_views(problem)
+    for v in views:
+        v.w = np.ones(len(v.ids))
+    true_A = {}
+    if T_base_flange_true:
+        true_A = {k: (T if problem.mode == "eye_to_hand" else inv(T)) for k, T in T_base_flange_true.items()}
+    groups = [list(problem.cameras)] if problem.method == "joint" else [[n] for n in problem.cameras]
+    out = {}
+    for names in groups:
+        vs = [v for v in views if v.camera in names]
+        mount = T_mount_board if problem.method == "joint" or not mounts_single else mounts_single[names[0]]
+        est = _Estimate(T_S_cam={n: T_ref_cam[n] for n in names}, T_M_board=mount, A_est=dict(true_A))
+        slots = {n: i for i, n in enumerate(names)}
+        graph, values = _build_graph(vs, slots, problem, est, pixel_sigma_px)
+        marg = gtsam.Marginals(graph, values)
+        for n in names:
+            out[n] = _to_ref_axes(T_ref_cam[n], marg.marginalCovariance(C(slots[n])))
+    return out
