@@ -139,7 +139,13 @@ class Trajectory:
         return cls(poses=tuple(poses), speed_scale=float(d.get("speed_scale", 0.2)))
 
     def sha256(self) -> str:
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+        """Fingerprint of the poses and speed (rounded to 1e-9, so a YAML round trip keeps it)."""
+        d = self.to_dict()
+        for p in d["poses"]:
+            for k in p:
+                p[k] = np.round(np.asarray(p[k], float), 9).tolist()
+        d["speed_scale"] = round(d["speed_scale"], 9)
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
 
 def load_trajectory(path) -> Trajectory:
@@ -471,7 +477,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
                     p.unlink()  # half-written pose: it is redone, so its images must not linger
     for c, n in (journal.d.get("rejected_per_camera") or {}).items():
         rejected[c] = rejected.get(c, 0) + int(n)
-    for tmp in list((out / "images").glob("*/.*.tmp*")) + list((out / "captures").glob(".*.tmp*")):
+    for tmp in [*(out / "images").glob("*/.*.tmp*"), *(out / "captures").glob(".*.tmp*"), *out.glob(".*.tmp*")]:
         tmp.unlink()
     journal.d["runs"].append({"started_unix_s": time.time(), "resume": bool(resumed)})
     journal.save()

@@ -287,10 +287,14 @@ def check_motion(q_start_rad, q_goal_rad, limits: SafetyLimits, fk=None, T_goal_
         return Verdict(True)
     q1 = np.asarray(q_goal_rad, float).reshape(-1)
     if fk is not None:
+        probs = workspace_problems(fk(q1), limits, what="goal flange")
+        if probs:
+            return Verdict(False, tuple(probs))
         q0 = q1 if q_start_rad is None else np.asarray(q_start_rad, float).reshape(-1)
-        for s in np.linspace(0.0, 1.0, int(limits.path_samples)):
+        # s = 0 is where the robot already is; a start outside the box shows up at the first sample
+        for s in np.linspace(0.0, 1.0, int(limits.path_samples))[1:-1]:
             T = fk(q0 + s * (q1 - q0))
-            probs = workspace_problems(T, limits, what="goal flange" if s == 1.0 else f"flange at {100 * s:.0f}% of the path")
+            probs = workspace_problems(T, limits, what=f"flange at {100 * s:.0f}% of the path")
             if probs:
                 return Verdict(False, tuple(probs))
         return Verdict(True)

@@ -1,0 +1,307 @@
+"""The acquisition state machine against the in-process fakes: completeness, crash safety
+(SIGKILL mid-run + resume == uninterrupted run), camera faults, unsafe and unreachable poses."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibgraph.acquire import (AcquisitionReport, Trajectory, load_trajectory, run_acquisition, save_trajectory)
+from calibgraph.acquire_fakes import T_from_q, make_fake_cell
+from calibgraph.dataset import load_dataset
+from calibgraph.errors import InputError
+from calibgraph.safety import SafetyLimits, UnsafeTargetError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _run(cell, out, **kw):
+    kw.setdefault("detector", cell.detector)
+    kw.setdefault("progress", False)
+    return run_acquisition(cell.robot, cell.cameras, cell.trajectory, out, cell.target, **kw)
+
+
+def test_full_run_writes_every_accepted_view(tmp_path):
+    cell = make_fake_cell(n_cameras=3, n_poses=12, seed=1)
+    rep = _run(cell, tmp_path / "ds")
+    assert isinstance(rep, AcquisitionReport) and rep.complete
+    assert rep.captured == 12
+    ds = load_dataset(tmp_path / "ds")
+    assert [c.index for c in ds.captures] == list(range(12))
+    assert ds.problems == ()
+    # every accepted view is on disk with its image, and counts agree with the report
+    for cam in ("cam0", "cam1", "cam2"):
+        views = [v for v in ds.views if v.camera == cam]
+        assert len(views) == rep.accepted_per_camera[cam]
+        for v in views:
+            assert (tmp_path / "ds" / v.image).is_file()
+    # stored flange poses are the robot's FK at the trajectory targets; joints stored too
+    for cap, pose in zip(ds.captures, cell.trajectory.poses):
+        np.testing.assert_allclose(cap.T_base_flange, T_from_q(pose.q_rad), atol=1e-12)
+        np.testing.assert_allclose(cap.q_rad, pose.q_rad, atol=1e-12)
+    # stored detections are the truth plus the fake's 0.2 px noise (5 sigma bound: 1 px)
+    cell.robot.move_to_joints(cell.trajectory.poses[3].q_rad)
+    truth = cell.cameras[0].true_uv()
+    v = next(v for v in ds.views if v.camera == "cam0" and v.capture == 3)
+    assert np.abs(v.uv_px - truth[1]).max() < 1.0
+    # the problem builds and every capture has at least one view
+    prob = ds.to_problem()
+    assert {d.capture for d in prob.detections} == set(range(12))
+    # states follow START -> (MOVE SETTLE ACQUIRE NEXT)* -> END
+    states = [s for s, _ in rep.trace]
+    assert states[0] == "START" and states[-1] == "END"
+    assert states[1:-1] == ["MOVE", "SETTLE", "ACQUIRE", "NEXT"] * 12
+    assert not list((tmp_path / "ds").rglob(".*.tmp*"))
+
+
+def test_no_image_is_taken_while_the_robot_moves(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=5, seed=2, robot_kwargs=dict(settle_s=0.03))
+    grabbed_unsettled = []
+    for cam in cell.cameras:
+        orig = cam.grab
+
+        def grab(orig=orig):
+            if not cell.robot.is_settled():
+                grabbed_unsettled.append(True)
+            return orig()
+
+        cam.grab = grab
+    rep = _run(cell, tmp_path / "ds")
+    assert rep.captured == 5 and not grabbed_unsettled
+
+
+def test_robot_that_never_settles_costs_the_pose_not_the_run(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=3, seed=2, robot_kwargs=dict(settle_s=10.0))
+    rep = _run(cell, tmp_path / "ds", settle_timeout_s=0.05)
+    assert rep.count("not_settled") == 3 and rep.captured == 0
+    assert "still moving" in rep.summary()
+
+
+KILL_SCRIPT = r"""
+import sys
+from calibgraph.acquire import run_acquisition
+from calibgraph.acquire_fakes import make_fake_cell
+cell = make_fake_cell(n_cameras=2, n_poses=int(sys.argv[2]), seed=5, robot_kwargs=dict(move_delay_s=float(sys.argv[3])))
+run_acquisition(cell.robot, cell.cameras, cell.trajectory, sys.argv[1], cell.target, detector=cell.detector,
+                resume=True, progress=False)
+"""
+
+
+def _dataset_content(root):
+    """Everything in a dataset except wall-clock stamps, for comparing two runs."""
+    out = {}
+    for f in sorted((Path(root) / "captures").glob("*.json")):
+        d = json.loads(f.read_text())
+        d.pop("stamp_s")
+        for v in d["views"].values():
+            v.pop("stamp_s")
+        out[f.name] = d
+    imgs = {str(p.relative_to(root)): p.read_bytes() for p in sorted((Path(root) / "images").rglob("*.png"))}
+    return out, imgs
+
+
+def test_sigkill_mid_run_then_resume_loses_and_duplicates_nothing(tmp_path):
+    n = 24
+    ref = make_fake_cell(n_cameras=2, n_poses=n, seed=5)
+    _run(ref, tmp_path / "ref")
+    out = tmp_path / "killed"
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    kills = 0
+    for target_done in (4, 11):  # kill twice, at different points
+        p = subprocess.Popen([sys.executable, "-c", KILL_SCRIPT, str(out), str(n), "0.03"], env=env)
+        t_end = time.monotonic() + 30
+        while time.monotonic() < t_end and p.poll() is None:
+            if len(list((out / "captures").glob("*.json"))) >= target_done:
+                break
+            time.sleep(0.005)
+        assert p.poll() is None, "the capture subprocess ended before it could be killed"
+        p.send_signal(signal.SIGKILL)
+        p.wait(10)
+        kills += 1
+        done = len(list((out / "captures").glob("0*.json")))
+        assert target_done <= done < n
+    cell = make_fake_cell(n_cameras=2, n_poses=n, seed=5)
+    rep = _run(cell, out, resume=True)
+    assert rep.resumed and rep.complete
+    assert rep.count("done_before") + rep.captured == n
+    assert len(cell.robot.moves) == rep.captured  # only the missing poses were visited again
+    caps_ref, imgs_ref = _dataset_content(tmp_path / "ref")
+    caps, imgs = _dataset_content(out)
+    assert caps == caps_ref  # same captures, same poses, same detections
+    assert imgs == imgs_ref  # same images, no stray half-written ones
+    assert not list(out.rglob(".*.tmp*"))
+    ds = load_dataset(out)
+    assert len(ds.captures) == n and ds.problems == ()
+
+
+def test_resume_refuses_another_trajectory_and_fresh_run_refuses_existing(tmp_path):
+    cell = make_fake_cell(n_cameras=1, n_poses=3, seed=3)
+    _run(cell, tmp_path / "ds")
+    with pytest.raises(InputError, match="already exists"):
+        _run(make_fake_cell(n_cameras=1, n_poses=3, seed=3), tmp_path / "ds")
+    other = make_fake_cell(n_cameras=1, n_poses=4, seed=4)
+    with pytest.raises(InputError, match="different trajectory"):
+        _run(other, tmp_path / "ds", resume=True)
+    # resuming a complete dataset is a no-op
+    again = make_fake_cell(n_cameras=1, n_poses=3, seed=3)
+    rep = _run(again, tmp_path / "ds", resume=True)
+    assert rep.captured == 0 and rep.count("done_before") == 3 and not again.robot.moves
+
+
+def test_dropped_frames_and_disconnect_are_reported_and_the_run_goes_on(tmp_path):
+    cell = make_fake_cell(n_cameras=3, n_poses=10, seed=6,
+                          camera_faults={"cam1": dict(fail_grabs={3, 4}), "cam2": dict(disconnect_after=4)})
+    lines = []
+    rep = _run(cell, tmp_path / "ds", grab_retries=0, max_camera_failures=3, progress=lines.append)
+    assert rep.complete and rep.captured == 10
+    assert rep.lost_cameras == ("cam2",)
+    assert len(rep.camera_errors["cam1"]) == 2 and "dropped" in rep.camera_errors["cam1"][0]
+    assert len(rep.camera_errors["cam2"]) == 3 and "disconnected" in rep.camera_errors["cam2"][0]
+    assert cell.cameras[2].n_grabs == 7  # stopped asking once declared lost
+    ds = load_dataset(tmp_path / "ds")
+    assert {v.capture for v in ds.views if v.camera == "cam2"} <= set(range(4))
+    assert {v.capture for v in ds.views if v.camera == "cam0"} == set(range(10))
+    assert any("LOST" in s for s in lines) and "LOST" in rep.summary()
+
+
+def test_a_retry_recovers_a_single_dropped_frame(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=4, seed=6, camera_faults={"cam1": dict(fail_grabs={2})})
+    rep = _run(cell, tmp_path / "ds", grab_retries=1)
+    assert rep.accepted_per_camera["cam1"] + rep.rejected_per_camera["cam1"] == 4
+    assert len(rep.camera_errors["cam1"]) == 1 and not rep.lost_cameras
+
+
+def test_unsafe_poses_are_skipped_before_any_motion(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=8, seed=7)
+    xs = np.array([p.q_rad[0] for p in cell.trajectory.poses])
+    cut = float(np.median(xs))
+    # box that excludes the poses with x above the median (flange origin x = q[0] for the fake arm)
+    limits = SafetyLimits(workspace_min_m=[-2, -2, -2], workspace_max_m=[cut, 2, 2], max_speed_scale=0.5)
+    start = cell.robot.joint_positions()
+    rep = _run(cell, tmp_path / "ds", safety=limits)
+    bad = {i for i, x in enumerate(xs) if x > cut}
+    assert {i for i, s, _ in rep.skipped} == bad and all(s == "skipped_unsafe" for _, s, _ in rep.skipped)
+    assert all("workspace box" in m for _, _, m in rep.skipped)
+    sent = [q for q, _ in cell.robot.moves]
+    assert len(sent) == 8 - len(bad)
+    assert all(q[0] <= cut + 1e-12 for q in sent)  # no command ever left the box
+    del start
+
+
+def test_path_leaving_the_box_is_refused_even_when_both_ends_are_inside(tmp_path):
+    cell = make_fake_cell(n_cameras=1, n_poses=2, seed=7)
+    a, b = cell.trajectory.poses[0].q_rad.copy(), cell.trajectory.poses[0].q_rad.copy()
+    b[3:] = -b[3:]  # same position, opposite rotation: the fake arm's straight joint path stays put in xyz
+    # ... so use a robot whose FK bulges: position depends on the path midpoint
+    traj = Trajectory(poses=(a, b), speed_scale=0.2)
+    box = SafetyLimits(workspace_min_m=a[:3] - 0.01, workspace_max_m=a[:3] + 0.01, max_speed_scale=0.5)
+
+    def bulging_fk(q):
+        T = T_from_q(q)
+        T[2, 3] += 0.5 * np.linalg.norm(q[3:] - a[3:]) * np.linalg.norm(q[3:] - b[3:])  # zero at both ends
+        return T
+
+    cell.robot.forward_kinematics = bulging_fk
+    cell.robot.move_to_joints(a)
+    cell.robot.moves.clear()
+    rep = run_acquisition(cell.robot, cell.cameras, traj, tmp_path / "ds", cell.target, detector=cell.detector,
+                          safety=box, progress=False)
+    assert [s for _, s, _ in rep.skipped] == ["skipped_unsafe"]
+    assert "% of the path" in rep.skipped[0][2]
+    assert len(cell.robot.moves) == 1  # only the pose at the start position was commanded
+
+
+def test_joint_limits_and_speed_cap(tmp_path):
+    cell = make_fake_cell(n_cameras=1, n_poses=4, seed=8)
+    qs = np.array([p.q_rad for p in cell.trajectory.poses])
+    lim = SafetyLimits(q_min_rad=qs.min(0) - 1, q_max_rad=qs.max(0) + 1, max_speed_scale=0.5)
+    cut = float(np.median(qs[:, 0]))
+    lim_tight = SafetyLimits(q_min_rad=qs.min(0) - 1, q_max_rad=np.r_[cut, qs.max(0)[1:] + 1], max_speed_scale=0.5)
+    rep = _run(cell, tmp_path / "a", safety=lim_tight)
+    n_bad = int(np.sum(qs[:, 0] > cut))
+    assert n_bad == 2 and len(rep.skipped) == n_bad and "joint 1" in rep.skipped[0][2]
+    fast = make_fake_cell(n_cameras=1, n_poses=4, seed=8, speed_scale=0.9)
+    with pytest.raises(UnsafeTargetError, match="max_speed_scale"):
+        _run(fast, tmp_path / "b", safety=lim)
+    assert not fast.robot.moves and not (tmp_path / "b").exists()
+
+
+def test_unreachable_pose_is_skipped_with_a_message(tmp_path):
+    target_q = None
+    cell = make_fake_cell(n_cameras=2, n_poses=5, seed=9)
+    target_q = cell.trajectory.poses[2].q_rad
+    cell.robot.unreachable = lambda q: np.allclose(q, target_q)
+    rep = _run(cell, tmp_path / "ds")
+    assert rep.skipped == [(2, "skipped_unreachable", "fake robot: no joint solution (injected)")]
+    assert rep.captured == 4
+
+
+def test_robot_failure_stops_cleanly_and_resume_finishes(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=6, seed=10, robot_kwargs=dict(fail_moves={4}))
+    rep = _run(cell, tmp_path / "ds")
+    assert not rep.complete and "robot failed at pose 3" in rep.stopped_reason and rep.captured == 3
+    cell2 = make_fake_cell(n_cameras=2, n_poses=6, seed=10)
+    rep2 = _run(cell2, tmp_path / "ds", resume=True)
+    assert rep2.complete and rep2.captured == 3 and len(load_dataset(tmp_path / "ds").captures) == 6
+
+
+def test_dry_run_moves_nothing_and_writes_nothing(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=6, seed=11)
+    box = SafetyLimits(workspace_min_m=[-2, -2, -2], workspace_max_m=[2, 2, 0.5], max_speed_scale=0.5)
+    rep = _run(cell, tmp_path / "ds", dry_run=True, safety=box)
+    assert rep.dry_run and not cell.robot.moves and not (tmp_path / "ds").exists()
+    z = np.array([p.q_rad[2] for p in cell.trajectory.poses])
+    assert rep.count("skipped_unsafe") == int(np.sum(z > 0.5)) and rep.count("planned") == int(np.sum(z <= 0.5))
+    assert all(c.n_grabs == 0 for c in cell.cameras)
+
+
+def test_on_capture_estimates_reach_the_progress_line(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=4, seed=12)
+    seen = []
+
+    def on_capture(capture, detections):
+        seen.append((capture.index, sorted(d.camera for d in detections)))
+        return {"cam0": 0.001 / len(seen), "cam1": 0.002 / len(seen)}
+
+    lines = []
+    rep = _run(cell, tmp_path / "ds", on_capture=on_capture, progress=lines.append)
+    assert [i for i, _ in seen] == [0, 1, 2, 3]
+    assert rep.last_estimate == {"cam0": 0.00025, "cam1": 0.0005}
+    assert "cam0 0.25 mm" in lines[-1]
+
+
+def test_rendered_images_are_detected_and_stored_consistently(tmp_path):
+    import cv2
+
+    def detector(img, target, intr):
+        ok, c = cv2.findChessboardCorners(img, (target.cols, target.rows))
+        if not ok:
+            return None
+        c = cv2.cornerSubPix(img, c, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01))
+        return np.arange(len(c)), c.reshape(-1, 2)
+
+    cell = make_fake_cell(n_cameras=2, n_poses=6, seed=13, render=True, image_size=(480, 360))
+    rep = _run(cell, tmp_path / "ds", detector=detector)
+    assert sum(rep.accepted_per_camera.values()) >= 6
+    ds = load_dataset(tmp_path / "ds")
+    for v in ds.views:
+        img = cv2.imread(str(tmp_path / "ds" / v.image), cv2.IMREAD_GRAYSCALE)
+        assert img.shape == (360, 480)
+        ids, uv = detector(img, cell.target, None)
+        np.testing.assert_allclose(uv, v.uv_px, atol=1e-3)  # lossless PNG: same pixels, same corners
+
+
+def test_trajectory_yaml_round_trip(tmp_path):
+    cell = make_fake_cell(n_cameras=1, n_poses=3, seed=14)
+    p = save_trajectory(cell.trajectory, tmp_path / "t.yaml")
+    t = load_trajectory(p)
+    assert t.sha256() == cell.trajectory.sha256()
+    (tmp_path / "bad.yaml").write_text("poses:\n  - [0, nan, 0]\n")
+    with pytest.raises(InputError, match="finite"):
+        load_trajectory(tmp_path / "bad.yaml")
