@@ -625,14 +625,16 @@ def _pitch(ids: np.ndarray, uv: np.ndarray, target: Target) -> float:
 # ---------------------------------------------------------------------------------------------
 # Dataset detection (parallel, cached)
 # ---------------------------------------------------------------------------------------------
-def cache_path(dataset, **options) -> Path:
-    """Cache file of a dataset's detections for a target spec, detector version and options."""
+def cache_path(dataset, cache_dir=None, **options) -> Path:
+    """Cache file of a dataset's detections for a target spec, detector version and options
+    (in ``DATASET/.calibgraph_cache/`` unless ``cache_dir`` is given)."""
     import hashlib
 
     key = json.dumps({"target": dataset.target.to_dict(), "version": DETECTOR_VERSION, "options": options},
                      sort_keys=True, default=str)
     h = hashlib.sha1(key.encode()).hexdigest()[:12]
-    return Path(dataset.root) / ".calibgraph_cache" / f"detections-{h}.json"
+    base = Path(cache_dir) if cache_dir is not None else Path(dataset.root) / ".calibgraph_cache"
+    return base / f"detections-{h}.json"
 
 
 @dataclass
@@ -653,6 +655,7 @@ class DatasetDetector:
     workers: int = 2
     progress: bool = True
     options: dict = field(default_factory=dict)
+    cache: object = True
     results: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)
     _done: bool = False
@@ -665,9 +668,10 @@ class DatasetDetector:
 
         ds = self.dataset
         root = Path(ds.root)
-        cpath = cache_path(ds, **self.options)
+        use_cache = self.cache is not False and self.cache is not None
+        cpath = cache_path(ds, None if self.cache is True else self.cache, **self.options) if use_cache else None
         cache = {}
-        if cpath.is_file():
+        if use_cache and cpath.is_file():
             try:
                 cache = json.loads(cpath.read_text()).get("entries", {})
             except (OSError, ValueError):
@@ -698,7 +702,12 @@ class DatasetDetector:
 
             cv2.setNumThreads(1)  # parallelism comes from the pool; avoid oversubscription
             intr = ds.cameras.get(v.camera)
-            return v, detect_image(root / v.image, ds.target, intrinsics=intr, **self.options)
+            try:
+                return v, detect_image(root / v.image, ds.target, intrinsics=intr, **self.options)
+            except (cv2.error, ValueError, MemoryError) as e:
+                # One odd image must not stop the run: record it and carry on with the rest.
+                return v, _failed(f"detector failed on this image ({type(e).__name__}: {str(e).strip()[:200]})",
+                                  ds.target, str(root / v.image))
 
         if todo:
             bar = None
@@ -713,6 +722,7 @@ class DatasetDetector:
                         bar.update(1)
             if bar is not None:
                 bar.close()
+        if todo and use_cache:
             entries = dict(cache)
             for (cam, cap), det in self.results.items():
                 k, stamp = keys.get((cam, cap), (None, None))
@@ -747,9 +757,10 @@ class DatasetDetector:
         return det.ids, det.uv_px
 
 
-def dataset_detector(dataset, workers: int = 2, progress: bool = True, **options) -> DatasetDetector:
+def dataset_detector(dataset, workers: int = 2, progress: bool = True, cache=True, **options) -> DatasetDetector:
     """A detector for ``Dataset.to_problem(detector=...)`` that detects all undetected views of
     ``dataset`` in parallel (``workers`` threads; OpenCV releases the GIL), shows a tqdm progress
     bar, caches results next to the data and collects per-file problems in ``.problems``.
+    ``cache``: True (``DATASET/.calibgraph_cache/``), False (no cache) or a folder.
     ``options`` are passed to :func:`detect_image` (e.g. ``upscale=1``, ``method="sb"``)."""
-    return DatasetDetector(dataset=dataset, workers=workers, progress=progress, options=dict(options))
+    return DatasetDetector(dataset=dataset, workers=workers, progress=progress, options=dict(options), cache=cache)
