@@ -159,39 +159,56 @@ def residuals_section(result) -> dict:
     return out
 
 
-def compute_residuals(result: dict, dataset) -> dict:
-    """Recompute the ``residuals`` section from the poses in ``result`` and a dataset's detections.
+def observations(source) -> dict:
+    """Normalise a :class:`~calibgraph.problem.Problem`, a :class:`~calibgraph.dataset.Dataset` or a
+    dataset folder into plain data: ``points_board_m`` (M, 3), ``cameras`` (name -> Intrinsics),
+    ``T_base_flange`` (capture -> 4x4), ``views`` [(camera, capture, ids, uv_px, image path or None)]."""
+    src = _as_dataset(source)
+    if hasattr(src, "detections"):  # Problem
+        views = [(d.camera, d.capture, d.ids, d.uv_px, d.image) for d in src.detections]
+        pts = src.points_board_m
+    else:  # Dataset: image paths are relative to its root
+        views = [(v.camera, v.capture, v.ids, v.uv_px, str(Path(src.root) / v.image) if v.image else None)
+                 for v in src.views]
+        pts = src.target.points_board_m
+    return {"points_board_m": np.asarray(pts, float), "cameras": dict(src.cameras),
+            "T_base_flange": {c.index: c.T_base_flange for c in src.captures}, "views": views,
+            "mode": getattr(src, "mode", None)}
 
-    Uses the refined flange poses of the result when present, else the dataset's. Returns the
+
+def compute_residuals(result: dict, source) -> dict:
+    """Recompute the ``residuals`` section from the poses in ``result`` and the detections of a
+    dataset (folder or :class:`~calibgraph.dataset.Dataset`) or :class:`~calibgraph.problem.Problem`.
+
+    Uses the refined flange poses of the result when present, else the recorded ones. Returns the
     same structure as ``result['residuals']`` (views the solver rejected are flagged ``rejected``).
     """
-    ds = _as_dataset(dataset)
+    obs = observations(source)
     mode = result.get("mode", "eye_to_hand")
     mk = _mount_key(result)
-    pts = ds.target.points_board_m
+    pts = obs["points_board_m"]
     refined = {int(k): np.asarray(v, float) for k, v in (result.get("robot_flange_poses_refined") or {}).items()}
-    caps = {c.index: c for c in ds.captures}
     out = {}
     for name, cam in result["cameras"].items():
         T_mount_board = np.asarray(cam.get(mk, result.get(mk)), float) if (mk in cam or mk in result) else None
-        intr = camera_intrinsics(result, name, ds)
+        intr = camera_intrinsics(result, name, None) or obs["cameras"].get(name)
         if T_mount_board is None or intr is None:
             continue
         T_ref_cam = camera_pose(result, name)
         rej = {int(v["capture"]) for v in cam.get("views_rejected", [])}
         per = {}
-        for v in ds.views:
-            if v.camera != name or v.ids is None or len(v.ids) == 0 or v.capture not in caps:
+        for cam_name, k, ids, uv, _img in obs["views"]:
+            if cam_name != name or ids is None or len(ids) == 0 or k not in obs["T_base_flange"]:
                 continue
-            T_bf = refined.get(v.capture, caps[v.capture].T_base_flange)
+            T_bf = refined.get(k, obs["T_base_flange"][k])
             if mode == "eye_in_hand":
                 T_cam_board = inv(T_bf @ T_ref_cam) @ T_mount_board
             else:
                 T_cam_board = inv(T_ref_cam) @ T_bf @ T_mount_board
-            p = pts[v.ids] @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+            p = pts[np.asarray(ids)] @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
             uv_pred = intr.project(p)
-            per[str(v.capture)] = {"ids": np.asarray(v.ids).tolist(), "uv_detected_px": v.uv_px.tolist(),
-                                   "residual_px": (uv_pred - v.uv_px).tolist(), "rejected": v.capture in rej}
+            per[str(k)] = {"ids": np.asarray(ids).astype(int).tolist(), "uv_detected_px": np.asarray(uv).tolist(),
+                           "residual_px": (uv_pred - uv).tolist(), "rejected": k in rej}
         out[name] = per
     return out
 

@@ -252,3 +252,14 @@ def test_report_renders_in_headless_chromium(tmp_path):
         assert f'data-camera="{n}"' in dom
         assert f">{c['reprojection_rms_px']:.3f}<" in dom
     assert dom.count("<svg") >= 3 * len(d["cameras"])
+
+
+def test_recomputed_residuals_match_solver_eye_in_hand():
+    d, scene, prob, res = make_sim_result(mode="eye_in_hand", residuals=False)
+    rec = compute_residuals(d, prob)
+    sol = residuals_section(res)
+    assert sol and all(sol.values())
+    for n in sol:
+        assert rec[n].keys() == sol[n].keys()
+        for k, v in sol[n].items():
+            assert np.allclose(rec[n][k]["residual_px"], v["residual_px"], atol=1e-6)

@@ -1,0 +1,120 @@
+"""rerun recording: written offline from a solved simulated cell, verified by the rerun CLI, read back."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from test_report import make_sim_result, write_sim_dataset
+
+rr = pytest.importorskip("rerun", reason="rerun-sdk not installed (pip install calibgraph[viz])")
+
+
+def _verify(path):
+    from calibgraph.viz_rerun import rerun_cli
+
+    r = subprocess.run(rerun_cli() + ["rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert "verified without error" in r.stdout + r.stderr
+
+
+def _chunks(path):
+    from rerun.chunk import RrdReader
+
+    out = {}
+    for ch in RrdReader(str(path)).stream():
+        out.setdefault(ch.entity_path, []).append(ch)
+    return out
+
+
+def _series(chunks, entity):
+    caps, vals = [], []
+    for ch in chunks.get(entity, []):
+        if ch.is_static:
+            continue
+        rb = ch.to_record_batch()
+        if "Scalars:scalars" not in rb.schema.names:
+            continue
+        caps += rb.column("capture").to_pylist()
+        vals += [v[0] for v in rb.column("Scalars:scalars").to_pylist()]
+    return dict(zip(caps, vals))
+
+
+def test_rrd_from_result_and_problem_verifies_and_holds_the_residuals(tmp_path):
+    from calibgraph.viz_rerun import write_rrd
+
+    d, scene, prob, res = make_sim_result()
+    path = write_rrd(res, prob, tmp_path / "cal.rrd")  # what `calibgraph solve --rrd` calls
+    _verify(path)
+    ch = _chunks(path)
+    for n in d["cameras"]:
+        for sub in ("", "/image", "/image/detected", "/image/reprojected", "/image/residual_x20"):
+            assert f"/world/cameras/{n}{sub}" in ch, f"/world/cameras/{n}{sub}"
+        # the per-capture RMS series equals the RMS of the result's residuals (used corners only)
+        got = _series(ch, f"/residuals/{n}/rms_px")
+        rej = {(r["capture"], r["id"]) for r in d["rejected_corners"] if r["camera"] == n}
+        want = {}
+        for k, v in d["residuals"][n].items():
+            if v["rejected"]:
+                continue
+            keep = [(int(k), i) not in rej for i in v["ids"]]
+            r = np.asarray(v["residual_px"])[keep]
+            want[int(k)] = float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
+        assert got.keys() == want.keys() and np.allclose([got[k] for k in want], list(want.values()), rtol=1e-12)
+    for e in ("/world/robot_base", "/world/flange", "/world/flange/board/points", "/world/flange_path", "/summary"):
+        assert e in ch
+    # the camera whose view carried the injected 25 px corners has them highlighted
+    assert any(r["residual_px"] > 10 for r in d["rejected_corners"])
+    cam_out = {r["camera"] for r in d["rejected_corners"]}
+    assert all(f"/world/cameras/{n}/image/outliers" in ch for n in cam_out)
+
+
+def test_rrd_from_result_file_and_dataset_with_images(tmp_path):
+    import cv2
+
+    from calibgraph.cli import main
+
+    d, scene, prob, res = make_sim_result(residuals=False)
+    ds = write_sim_dataset(tmp_path / "ds", prob)
+    # give three views an image file (grey frames; the point is that they are logged)
+    caps = sorted(json.loads(p.read_text())["index"] for p in (ds / "captures").glob("*.json"))[:3]
+    for k in caps:
+        f = ds / "captures" / f"{k:06d}.json"
+        c = json.loads(f.read_text())
+        for cam in c["views"]:
+            rel = f"images/{cam}/{k:06d}.png"
+            (ds / rel).parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(ds / rel), np.full((1080 // 4, 1920 // 4), 128, np.uint8))
+            c["views"][cam]["image"] = rel
+        f.write_text(json.dumps(c))
+    (tmp_path / "result.json").write_text(json.dumps(d))
+    out = tmp_path / "view.rrd"
+    assert main(["view", str(tmp_path / "result.json"), "--dataset", str(ds), "--rrd", str(out)]) == 0
+    _verify(out)
+    ch = _chunks(out)
+    images = [c for n in d["cameras"] for c in ch.get(f"/world/cameras/{n}/image", [])
+              if not c.is_static and any("EncodedImage" in s for s in c.to_record_batch().schema.names)]
+    assert images, "images of the dataset were not logged"
+    # residuals recomputed from the dataset give the same series as in the solver's result
+    n = next(iter(d["cameras"]))
+    assert len(_series(ch, f"/residuals/{n}/rms_px")) == d["cameras"][n]["views_used"]
+
+
+def test_eye_in_hand_rrd(tmp_path):
+    from calibgraph.viz_rerun import write_rrd
+
+    d, scene, prob, res = make_sim_result(mode="eye_in_hand")
+    path = write_rrd(d, prob, tmp_path / "eih.rrd")
+    _verify(path)
+    ch = _chunks(path)
+    n = next(iter(d["cameras"]))
+    assert f"/world/flange/{n}/image/detected" in ch and "/world/board/points" in ch
+
+
+def test_engine_does_not_import_rerun():
+    code = ("import sys; import calibgraph, calibgraph.report, calibgraph.exports, calibgraph.uncertainty, "
+            "calibgraph.viz_rerun, calibgraph.cli_view, calibgraph.cli_report, calibgraph.cli_export; "
+            "assert 'rerun' not in sys.modules, 'rerun imported'; assert 'matplotlib' not in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
