@@ -27,7 +27,7 @@ def run(args) -> int:
     d = load_result_dict(args.result)
     out = args.out or args.result.with_name("report.html")
     dataset = args.dataset
-    if dataset is None and d.get("dataset") and (Path(d["dataset"]) / "dataset.yaml").is_file():
+    if dataset is None and d.get("dataset") and Path(d["dataset"]).is_dir():
         dataset = Path(d["dataset"])  # the dataset the result names, when it is still there
     path = write_report(d, out, config=args.config, dataset=dataset, result_path=args.result)
     print(f"wrote {path}")

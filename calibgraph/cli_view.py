@@ -26,7 +26,7 @@ def run(args) -> int:
 
     d = load_result_dict(args.result)
     dataset = args.dataset
-    if dataset is None and d.get("dataset") and (Path(d["dataset"]) / "dataset.yaml").is_file():
+    if dataset is None and d.get("dataset") and Path(d["dataset"]).is_dir():
         dataset = Path(d["dataset"])
     path = args.rrd or args.result.with_suffix(".rrd")
     write_rrd(d, dataset, path)

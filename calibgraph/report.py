@@ -21,8 +21,8 @@ richer when more is known. What it reads from the result (``calibgraph-result/1`
   ``residual_px = uv_reprojected_px - uv_detected_px`` (the solver's sign: predicted minus
   measured, so the reprojected corner is ``uv_detected + residual``); ``rejected`` is true when
   the solver dropped the whole view. Individually rejected corners are the ``rejected_corners``
-  entries of that camera and capture, or corners with ``weight`` 0 when the optional ``weight``
-  list (robust weights in [0, 1], one per corner) is present.
+  entries of that camera and capture, or those flagged in the optional ``corner_rejected`` list
+  (N booleans; written by ``Result.to_dict``) or with ``weight`` 0 in an optional ``weight`` list.
 
   :func:`residuals_section` builds this section from a :class:`calibgraph.result.Result`.
 
@@ -153,7 +153,7 @@ def residuals_section(result) -> dict:
                  "uv_detected_px": None if uv is None else np.asarray(uv, float).tolist(),
                  "residual_px": np.asarray(r, float).tolist(), "rejected": rej}
             if w is not None:
-                e["weight"] = np.asarray(w, float).tolist()
+                e["corner_rejected"] = (np.asarray(w, float) == 0).tolist()
             per[str(int(cap))] = e
         out[name] = per
     return out
@@ -174,6 +174,19 @@ def observations(source) -> dict:
     return {"points_board_m": np.asarray(pts, float), "cameras": dict(src.cameras),
             "T_base_flange": {c.index: c.T_base_flange for c in src.captures}, "views": views,
             "mode": getattr(src, "mode", None)}
+
+
+def corner_rejected_mask(view: dict, n: int) -> np.ndarray:
+    """(n,) booleans: corners of one residuals entry the solver rejected (``corner_rejected`` or
+    ``weight`` == 0); all False when neither is given."""
+    m = np.zeros(n, bool)
+    cr = view.get("corner_rejected")
+    if cr is not None and len(cr) == n:
+        m |= np.asarray(cr, bool)
+    w = view.get("weight")
+    if w is not None and len(w) == n:
+        m |= np.asarray(w, float) <= 0
+    return m
 
 
 def compute_residuals(result: dict, source) -> dict:
@@ -595,9 +608,7 @@ def _residual_plots(R, names, residuals) -> str:
             norm = np.linalg.norm(r, axis=1)
             k = int(cap)
             bad = np.array([i in rejected_corners.get((n, k), set()) for i in ids], bool) if ids.size == norm.size else np.zeros(norm.size, bool)
-            w = v.get("weight")
-            if w is not None and len(w) == norm.size:
-                bad |= np.asarray(w, float) <= 0
+            bad |= corner_rejected_mask(v, norm.size)
             if v.get("rejected"):
                 rv_x += [k] * norm.size
                 rv_y += norm.tolist()
@@ -622,8 +633,19 @@ def _residual_plots(R, names, residuals) -> str:
             {"x": out_x, "y": out_y, "label": "rejected corner", "color": svgplot.RED, "marker": "x", "size": 3.5},
             {"x": rv_x, "y": rv_y, "label": "rejected view", "color": svgplot.ORANGE, "marker": "s", "size": 2.2},
         ]
-        h.append(svgplot.scatter(series, title=f"{n}: residual per view (capture)", xlabel="capture",
-                                 ylabel="|residual| (px)", width=640,
+        # far outliers would squash the used corners into a flat line: clip the axis and pin them to its top
+        typical = np.percentile(used_norm, 99.5) if used_norm else 1.0
+        top = max(typical * 1.6, (thresh or 0) * 1.25, 1e-3)
+        clipped = 0
+        for s in series:
+            y = np.asarray(s["y"], float)
+            clipped += int((y > top).sum())
+            s["y"] = np.minimum(y, top)
+        title = f"{n}: residual per view (capture)"
+        if clipped:
+            title += f" — {clipped} point(s) above {top:.2f} px drawn at the top edge"
+        h.append(svgplot.scatter(series, title=title, xlabel="capture", ylabel="|residual| (px)", width=640,
+                                 ylim=(0.0, top * 1.04),
                                  hlines={f"outlier limit {thresh:.2f} px": thresh} if thresh else None))
         h.append("</div>")
     return "\n".join(h)

@@ -70,7 +70,7 @@ def log_result(rec, result, source=None) -> None:
     RecordingStream ``rec``."""
     rr = _import_rerun()
     from .exports import camera_intrinsics, camera_pose, ref_frame
-    from .report import compute_residuals, observations
+    from .report import compute_residuals, corner_rejected_mask, observations
 
     R = _result_dict(result)
     obs = observations(source) if source is not None else None
@@ -154,8 +154,7 @@ def log_result(rec, result, source=None) -> None:
             uv = v.get("uv_detected_px")
             norm = np.linalg.norm(r, axis=1)
             bad = np.array([i in rejected_corners.get((n, k), set()) for i in ids], bool)
-            if v.get("weight") is not None and len(v["weight"]) == len(ids):
-                bad |= np.asarray(v["weight"], float) <= 0
+            bad |= corner_rejected_mask(v, len(ids))
             view_rejected = bool(v.get("rejected"))
             good = ~bad & (not view_rejected)
             if good.any():
