@@ -118,3 +118,24 @@ def test_engine_does_not_import_rerun():
             "calibgraph.viz_rerun, calibgraph.cli_view, calibgraph.cli_report, calibgraph.cli_export; "
             "assert 'rerun' not in sys.modules, 'rerun imported'; assert 'matplotlib' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_report_and_rrd_from_the_real_rct_dataset(shared_dir, tmp_path):
+    """End to end on real images: solve -> report (coverage needs the dataset's intrinsics) -> .rrd with images."""
+    from calibgraph.cli import main
+    from calibgraph.report import write_report
+    from calibgraph.result import load_result_dict
+    from calibgraph.viz_rerun import write_rrd
+
+    ds = shared_dir / "datasets" / "rct_static_camera_charuco"
+    res = tmp_path / "result.json"
+    assert main(["solve", str(ds), "--out", str(res), "--quiet"]) == 0
+    d = load_result_dict(res)
+    text = write_report(d, tmp_path / "report.html", dataset=ds, result_path=res).read_text()
+    assert "1600×1200 px" in text and "image coverage (" in text
+    assert f">{d['cameras']['camera']['reprojection_rms_px']:.3f}<" in text
+    path = write_rrd(d, ds, tmp_path / "rct.rrd")
+    _verify(path)
+    ch = _chunks(path)
+    imgs = [c for c in ch["/world/cameras/camera/image"] if not c.is_static]
+    assert sum(c.num_rows for c in imgs) == len(d["residuals"]["camera"])
