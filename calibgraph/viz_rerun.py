@@ -190,6 +190,21 @@ def log_result(rec, result, source=None) -> None:
     rec.log("summary", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True)
 
 
+def default_blueprint(result: dict):
+    """Viewer layout: the 3D cell on the left; each camera's image with detected/reprojected corners
+    and the residual time series on the right."""
+    import rerun.blueprint as rrb
+
+    cam_root = "world/flange" if result.get("mode") == "eye_in_hand" else "world/cameras"
+    images = [rrb.Spatial2DView(origin=f"{cam_root}/{n}/image", name=f"{n}: detected (green) vs reprojected (magenta)")
+              for n in result["cameras"]]
+    right = rrb.Vertical(rrb.Grid(*images), rrb.TimeSeriesView(origin="residuals", name="residuals per capture (px)"),
+                         row_shares=[2, 1])
+    left = rrb.Vertical(rrb.Spatial3DView(origin="world", name="workcell (robot base frame)"),
+                        rrb.TextDocumentView(origin="summary", name="summary"), row_shares=[3, 1])
+    return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[1, 1]), collapse_panels=False)
+
+
 def write_rrd(result, problem_or_dataset=None, path="calibgraph.rrd") -> Path:
     """Save a rerun recording of ``result`` (a :class:`Result` or result dict) to ``path``.
 
@@ -200,11 +215,12 @@ def write_rrd(result, problem_or_dataset=None, path="calibgraph.rrd") -> Path:
     rr = _import_rerun()
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
+    R = _result_dict(result)
     rec = rr.RecordingStream("calibgraph")
     tmp = p.with_name(f".{p.name}.tmp")
-    rec.save(str(tmp))
+    rec.save(str(tmp), default_blueprint=default_blueprint(R))
     try:
-        log_result(rec, result, problem_or_dataset)
+        log_result(rec, R, problem_or_dataset)
         rec.flush()
     finally:
         rec.disconnect()

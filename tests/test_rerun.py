@@ -48,6 +48,9 @@ def test_rrd_from_result_and_problem_verifies_and_holds_the_residuals(tmp_path):
     d, scene, prob, res = make_sim_result()
     path = write_rrd(res, prob, tmp_path / "cal.rrd")  # what `calibgraph solve --rrd` calls
     _verify(path)
+    from rerun.chunk import RrdReader
+
+    assert len(RrdReader(str(path)).blueprints()) == 1  # the default layout travels with the file
     ch = _chunks(path)
     for n in d["cameras"]:
         for sub in ("", "/image", "/image/detected", "/image/reprojected", "/image/residual_x20"):
