@@ -63,9 +63,20 @@ class Trajectory:
     poses: tuple
     workcell: str = ""
     seed: int | None = None
+    speed_scale: float = 0.2
 
     def __post_init__(self):
         object.__setattr__(self, "poses", tuple(self.poses))
+        if not (0 < self.speed_scale <= 1):
+            raise InputError(f"trajectory: speed_scale must be in (0, 1], got {self.speed_scale}.")
+
+    def to_acquire(self):
+        """The same poses as a :class:`calibgraph.acquire.Trajectory` (what the capture state
+        machine executes; it ignores the expected-camera lists)."""
+        from .acquire import Trajectory as AcqTrajectory, TrajectoryPose as AcqPose
+
+        return AcqTrajectory(poses=tuple(AcqPose(q_rad=p.q_rad, T_base_flange=p.T_base_flange) for p in self.poses),
+                             speed_scale=self.speed_scale)
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -83,6 +94,7 @@ class Trajectory:
             "frame_convention": "T_a_b maps points from frame b to frame a (p_a = T_a_b @ p_b), metres, radians",
             "workcell": self.workcell,
             "seed": self.seed,
+            "speed_scale": float(self.speed_scale),
             "poses": [{"q_rad": [float(x) for x in p.q_rad], "T_base_flange": np.round(p.T_base_flange, 10).tolist(),
                        "cameras": list(p.cameras)} for p in self.poses],
         }
@@ -110,7 +122,8 @@ class Trajectory:
                 raise InputError(f"{where}: pose {i}: missing or malformed {e}; each pose needs q_rad and T_base_flange.") from None
             except InputError as e:
                 raise InputError(f"{where}: pose {i}: {e}") from None
-        return cls(poses=tuple(poses), workcell=str(d.get("workcell") or ""), seed=d.get("seed"))
+        return cls(poses=tuple(poses), workcell=str(d.get("workcell") or ""), seed=d.get("seed"),
+                   speed_scale=float(d.get("speed_scale", 0.2)))
 
 
 def load_trajectory(path) -> Trajectory:

@@ -11,6 +11,7 @@ YAML::
     name: default
     board: a4_54                  # a4_54 | thesis | {kind: checkerboard, rows: 6, cols: 9, pitch_m: 0.025}
     floor_z_m: -0.8
+    robot: {fk_sigma_translation_m: 5.0e-5, fk_sigma_rotation_deg: 0.005}   # reported-pose error
     mount: {translation_m: [0.01, -0.015, 0.06], rotvec_rad: [0.0, 3.14159, 0.0]}   # T_flange_board (optional)
     realism: {noise_sigma_dn: 2.0, blur_sigma_px: 0.6, exposure: 1.0, motion_blur_px: 0.0,
               distortion: false}
@@ -123,7 +124,9 @@ class Workcell:
         cameras: tuple of :class:`SimCameraSpec`.
         realism: :class:`Realism`.
         floor_z_m: floor height in the base frame (the robot stands on a pedestal).
-        seed: seed of the image noise.
+        seed: seed of the image noise and of the robot's kinematic error.
+        fk_sigma_translation_m, fk_sigma_rotation_deg: error of the flange pose the robot reports
+            (its kinematic model is not exact), 1-sigma per axis, drawn once per pose.
     """
 
     name: str
@@ -133,8 +136,12 @@ class Workcell:
     realism: Realism = field(default_factory=Realism)
     floor_z_m: float = -0.8
     seed: int = 0
+    fk_sigma_translation_m: float = 5e-5
+    fk_sigma_rotation_deg: float = 0.005
 
     def __post_init__(self):
+        if not (self.fk_sigma_translation_m >= 0 and self.fk_sigma_rotation_deg >= 0):
+            raise InputError(f"workcell {self.name!r}: robot fk sigmas must be >= 0.")
         if self.target.kind != "checkerboard":
             raise InputError(f"workcell {self.name!r}: the simulator renders checkerboards only, got {self.target.kind!r}.")
         names = [c.name for c in self.cameras]
@@ -240,7 +247,7 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
     """Build a :class:`Workcell` from its YAML mapping (see the module docstring)."""
     if not isinstance(d, dict):
         raise InputError(f"{where}: must be a mapping.")
-    known = {"name", "board", "floor_z_m", "mount", "realism", "ring", "cameras", "seed", "description"}
+    known = {"name", "board", "floor_z_m", "mount", "realism", "ring", "cameras", "seed", "description", "robot"}
     unknown = set(d) - known
     if unknown:
         raise InputError(f"{where}: unknown keys {sorted(unknown)}; allowed: {sorted(known)}.")
@@ -273,8 +280,14 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
         cams.append(SimCameraSpec(name=str(name), T_base_cam=T, intrinsics=_camera_intrinsics(p, realism), preset=p))
     mount = d.get("mount")
     T_fb = _pose_from_spec(mount, f"{where}: mount") if mount else default_T_flange_board(target)
+    robot = d.get("robot") or {}
+    unknown = set(robot) - {"fk_sigma_translation_m", "fk_sigma_rotation_deg"}
+    if unknown:
+        raise InputError(f"{where}: robot: unknown keys {sorted(unknown)}; allowed: fk_sigma_translation_m, fk_sigma_rotation_deg.")
     return Workcell(name=str(d.get("name", Path(where).stem)), target=target, T_flange_board=T_fb, cameras=tuple(cams),
-                    realism=realism, floor_z_m=floor_z, seed=int(d.get("seed", 0)))
+                    realism=realism, floor_z_m=floor_z, seed=int(d.get("seed", 0)),
+                    fk_sigma_translation_m=float(robot.get("fk_sigma_translation_m", 5e-5)),
+                    fk_sigma_rotation_deg=float(robot.get("fk_sigma_rotation_deg", 0.005)))
 
 
 def load_workcell(path) -> Workcell:
@@ -303,4 +316,5 @@ def workcell_to_dict(cell: Workcell) -> dict:
         "cameras": {c.name: {"preset": c.preset or "l515", "T_base_cam": np.asarray(c.T_base_cam).tolist()}
                     for c in cell.cameras},
         "seed": cell.seed,
+        "robot": {"fk_sigma_translation_m": cell.fk_sigma_translation_m, "fk_sigma_rotation_deg": cell.fk_sigma_rotation_deg},
     }

@@ -1,0 +1,139 @@
+"""Simulated robot and cameras implementing :mod:`calibgraph.interfaces`.
+
+Both share one :class:`~calibgraph.sim.render.SimWorld`. The robot is kinematic: a motion takes
+the time a joint-space move at ``speed_scale`` of the FR3's joint velocity limits would take (on
+a simulated clock, not wall time) and ends settled. It reports its flange pose the way a real
+controller does, through its forward kinematics, with an optional per-pose error
+(``fk_sigma_*``: the robot's kinematic model is never exact); the true pose stays in the world
+and goes to the ground truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..interfaces import DeviceError, Frame, UnreachableError
+from ..transforms import exp_so3, make_T
+from .ik import in_collision
+
+# FR3 maximum joint velocities (rad/s), Franka datasheet.
+FR3_MAX_JOINT_VELOCITY_RAD_S = np.array([2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26])
+
+
+class SimRobot:
+    """Kinematic FR3 in a :class:`SimWorld` (implements :class:`calibgraph.interfaces.Robot`).
+
+    Args:
+        world: the shared world.
+        fk_sigma_translation_m, fk_sigma_rotation_rad: 1-sigma of the error between the reported
+            and the true flange pose, drawn once per motion (Panda class: ~0.1 mm / 0.01 deg).
+        seed: seed of that error.
+    """
+
+    def __init__(self, world, fk_sigma_translation_m: float = 0.0, fk_sigma_rotation_rad: float = 0.0, seed: int = 0):
+        self.world = world
+        self.fk_sigma_translation_m = float(fk_sigma_translation_m)
+        self.fk_sigma_rotation_rad = float(fk_sigma_rotation_rad)
+        self._rng = np.random.default_rng(seed)
+        self._T_error = np.eye(4)
+        self._closed = False
+        self.true_flange_poses = []  # (stamp_s, q_rad, T_base_flange true) after every motion
+
+    # -- Robot protocol ---------------------------------------------------------------------------
+    def joint_positions(self) -> np.ndarray:
+        self._check_open()
+        return self.world.q()
+
+    def flange_pose(self) -> np.ndarray:
+        """Reported T_base_flange: true pose times the current kinematic error."""
+        self._check_open()
+        return self.world.T_base_flange() @ self._T_error
+
+    def true_flange_pose(self) -> np.ndarray:
+        """Noise-free T_base_flange (ground truth; a real robot cannot tell you this)."""
+        return self.world.T_base_flange()
+
+    def move_to_joints(self, q_rad, speed_scale: float = 0.2) -> None:
+        self._check_open()
+        q = np.asarray(q_rad, float).reshape(-1)
+        if q.shape != (7,) or not np.all(np.isfinite(q)):
+            raise UnreachableError(f"simulated FR3: expected 7 finite joint angles, got {np.asarray(q_rad).tolist()}.")
+        bad = np.nonzero((q < self.world.q_lo) | (q > self.world.q_hi))[0]
+        if bad.size:
+            j = int(bad[0])
+            raise UnreachableError(f"simulated FR3: joint {j + 1} = {q[j]:.3f} rad is outside "
+                                   f"[{self.world.q_lo[j]:.3f}, {self.world.q_hi[j]:.3f}].")
+        if not (0 < speed_scale <= 1):
+            raise UnreachableError(f"simulated FR3: speed_scale must be in (0, 1], got {speed_scale}.")
+        hits = in_collision(self.world, q)
+        if hits:
+            self.world.set_q(self.world.q())  # restore kinematics of the current pose
+            raise UnreachableError(f"simulated FR3: the goal configuration collides ({hits[0][0]} with {hits[0][1]}).")
+        dq = np.abs(q - self.world.q())
+        self.world.clock_s += float(np.max(dq / (FR3_MAX_JOINT_VELOCITY_RAD_S * speed_scale))) + 0.5
+        self.world.set_q(q)
+        self._T_error = make_T(exp_so3(self._rng.normal(scale=self.fk_sigma_rotation_rad, size=3)),
+                               self._rng.normal(scale=self.fk_sigma_translation_m, size=3))
+        self.true_flange_poses.append((self.world.clock_s, q.copy(), self.world.T_base_flange()))
+
+    def is_settled(self) -> bool:
+        self._check_open()
+        return True
+
+    def close(self) -> None:
+        self._closed = True
+
+    # -- extras used by the acquisition's safety checks -----------------------------------------------
+    def joint_limits(self):
+        """(q_min_rad (7,), q_max_rad (7,)) of the model."""
+        return self.world.q_lo.copy(), self.world.q_hi.copy()
+
+    def forward_kinematics(self, q_rad) -> np.ndarray:
+        """T_base_flange at ``q_rad`` from the MuJoCo model (the state is left unchanged)."""
+        q0 = self.world.q()
+        self.world.set_q(np.asarray(q_rad, float))
+        T = self.world.T_base_flange()
+        self.world.set_q(q0)
+        return T
+
+    def _check_open(self):
+        if self._closed:
+            raise DeviceError("simulated robot: used after close().")
+
+
+class SimCamera:
+    """A fixed camera of the simulated cell (implements :class:`calibgraph.interfaces.Camera`).
+
+    ``grab`` renders the world at its current state and degrades the image as the workcell's
+    realism settings say; frames are grey (H, W) uint8.
+    """
+
+    def __init__(self, world, name: str):
+        self.world = world
+        self.name = name
+        self.spec = world.cell.camera(name)
+        self._closed = False
+        self._index = world.cell.camera_names.index(name)
+
+    def intrinsics(self) -> Intrinsics:
+        return self.spec.intrinsics
+
+    def grab(self) -> Frame:
+        if self._closed:
+            raise DeviceError(f"simulated camera {self.name}: used after close().")
+        img = self.world.render(self.name)
+        self.world.last_frame_camera[id(img)] = self.name  # lets a simulation-side detector gate know the source
+        # a frame period after the last event, offset per camera (unsynchronised sensors)
+        self.world.clock_s += 1.0 / 30.0
+        return Frame(camera=self.name, image=img, stamp_s=self.world.clock_s + 1e-3 * self._index)
+
+    def close(self) -> None:
+        self._closed = True
+
+
+def make_devices(world, fk_sigma_translation_m: float = 0.0, fk_sigma_rotation_rad: float = 0.0, seed: int = 0):
+    """(SimRobot, {name: SimCamera}) of a world."""
+    robot = SimRobot(world, fk_sigma_translation_m, fk_sigma_rotation_rad, seed)
+    cams = {c: SimCamera(world, c) for c in world.cell.camera_names}
+    return robot, cams

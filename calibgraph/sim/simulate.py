@@ -1,0 +1,162 @@
+"""Write a simulated dataset: run the real acquisition state machine on the simulated cell.
+
+:func:`simulate_dataset` builds the world, wraps it in :class:`SimRobot`/:class:`SimCamera`, and
+hands them to :func:`calibgraph.acquire.run_acquisition` — the same capture pipeline that runs
+on hardware (detection on the spot, atomic capture files, journal). It then writes
+``ground_truth.json`` beside the data::
+
+    {"format": "calibgraph-ground-truth/1",
+     "frame_convention": "...",
+     "mode": "eye_to_hand",
+     "T_flange_board": 4x4,
+     "cameras": {"cam0": {"T_base_cam": 4x4, "intrinsics": {K, dist, width_px, height_px}, "preset": "l515"}},
+     "captures": {"0": {"T_base_flange_true": 4x4, "T_base_flange_reported": 4x4, "q_rad": [...]}},
+     "robot": {"fk_sigma_translation_m": ..., "fk_sigma_rotation_deg": ...},
+     "realism": {...}, "workcell": {...explicit workcell mapping...}}
+
+``T_base_flange_true`` is the noise-free flange pose; the capture files hold the reported one.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .workcell import Workcell, workcell_to_dict
+
+GT_FORMAT = "calibgraph-ground-truth/1"
+GT_NAME = "ground_truth.json"
+_CONVENTION = ("T_a_b maps points from frame b to frame a: p_a = T_a_b @ p_b (4x4, metres). Camera frames are "
+               "OpenCV optical frames (x right, y down, z forward); the board frame has its origin at point 0, "
+               "x along a row, y along a column, z into the board.")
+
+
+def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
+    """Write ``ground_truth.json`` for the captures already in ``out_dir``.
+
+    True flange poses come from the joint angles stored in each capture file (exact in the
+    simulation) through the MuJoCo model's kinematics.
+    """
+    from dataclasses import asdict
+
+    out = Path(out_dir)
+    if world is None:
+        from .render import SimWorld
+
+        world = SimWorld(cell)
+    caps = {}
+    for f in sorted((out / "captures").glob("*.json")):
+        d = json.loads(f.read_text())
+        q = d.get("q_rad")
+        if q is None:
+            continue
+        q0 = world.q()
+        world.set_q(np.asarray(q, float))
+        caps[str(d["index"])] = {"T_base_flange_true": world.T_base_flange().tolist(),
+                                 "T_base_flange_reported": d["T_base_flange"], "q_rad": q}
+        world.set_q(q0)
+    gt = {
+        "format": GT_FORMAT,
+        "frame_convention": _CONVENTION,
+        "mode": "eye_to_hand",
+        "T_flange_board": np.asarray(cell.T_flange_board).tolist(),
+        "cameras": {c.name: {"T_base_cam": np.asarray(c.T_base_cam).tolist(), "intrinsics": c.intrinsics.to_dict(),
+                             "preset": c.preset} for c in cell.cameras},
+        "captures": caps,
+        "robot": {"model": "franka_fr3 (franky-sim MJCF)", "fk_sigma_translation_m": cell.fk_sigma_translation_m,
+                  "fk_sigma_rotation_deg": cell.fk_sigma_rotation_deg},
+        "realism": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cell.realism).items()},
+        "workcell": workcell_to_dict(cell),
+    }
+    p = out / GT_NAME
+    tmp = p.with_name(f".{p.name}.tmp")
+    tmp.write_text(json.dumps(gt, indent=1))
+    tmp.replace(p)
+    return p
+
+
+def load_ground_truth(dataset_dir) -> dict:
+    """Read ``ground_truth.json`` with poses as numpy arrays:
+    ``{"T_flange_board", "T_base_cam": {cam: 4x4}, "T_base_flange_true": {capture: 4x4}, "raw": dict}``."""
+    p = Path(dataset_dir) / GT_NAME
+    try:
+        d = json.loads(p.read_text())
+    except (OSError, ValueError) as e:
+        raise InputError(f"{p}: no readable ground truth ({e}); only simulated datasets have one.") from None
+    return {
+        "T_flange_board": np.asarray(d["T_flange_board"], float),
+        "T_base_cam": {c: np.asarray(v["T_base_cam"], float) for c, v in d["cameras"].items()},
+        "T_base_flange_true": {int(k): np.asarray(v["T_base_flange_true"], float) for k, v in d["captures"].items()},
+        "raw": d,
+    }
+
+
+class VisibilityGatedDetector:
+    """Detector for simulated captures that skips frames in which the board is plainly not in view.
+
+    A failed search on a full frame costs seconds (the detector up-scales regions looking for a
+    far board), and most frames of a cell with cameras around the robot show the board's back or
+    nothing. This gate asks the simulation's ground truth, with looser limits than the planner
+    (board inside the image, facing the camera within 80 degrees, squares >= 3 px, no occlusion
+    test), and runs the real detector on every frame that passes, so marginal views are still
+    decided by the detector. Frames it skips are reported as "board not in view (simulation
+    shortcut)". ``simulate_dataset(..., gate=False)`` runs the detector on every frame.
+    """
+
+    def __init__(self, world, detector=None):
+        self.world = world
+        self.detector = detector
+        self.skipped = 0
+
+    def __call__(self, image, target, intrinsics=None):
+        from ..plan import board_visibility
+
+        cam = self.world.last_frame_camera.pop(id(image), None)
+        if cam is not None and not board_visibility(self.world, cam, self.world.T_base_board(), margin_px=0.0,
+                                                    max_angle_deg=80.0, min_square_px=3.0, check_occlusion=False):
+            self.skipped += 1
+            return None
+        det = self.detector
+        if det is None:
+            from ..detect import detect_image as det
+        return det(image, target, intrinsics)
+
+
+def simulate_dataset(cell: Workcell, trajectory, out_dir, world=None, progress=True, detector=None,
+                     resume: bool = False, gate: bool = True):
+    """Capture a simulated dataset of ``cell`` along ``trajectory`` into ``out_dir``.
+
+    Args:
+        cell: the workcell.
+        trajectory: :class:`calibgraph.plan.Trajectory`, :class:`calibgraph.acquire.Trajectory`
+            or a path to a trajectory YAML.
+        out_dir: new dataset folder.
+        world: an existing :class:`SimWorld` of ``cell`` (saves compiling the model again).
+        progress: True (lines on stderr), False, or a callable receiving progress lines.
+        detector: passed to the acquisition (default :func:`calibgraph.detect.detect_image`).
+        gate: wrap the detector in :class:`VisibilityGatedDetector` (skip frames whose board is
+            plainly out of view, for speed).
+    Returns:
+        the acquisition's :class:`calibgraph.acquire.AcquisitionReport`.
+    """
+    from ..acquire import load_trajectory as load_acq
+    from .devices import make_devices
+    from .render import SimWorld
+
+    if isinstance(trajectory, (str, Path)):
+        trajectory = load_acq(trajectory)
+    if hasattr(trajectory, "to_acquire"):
+        trajectory = trajectory.to_acquire()
+    world = world or SimWorld(cell)
+    robot, cams = make_devices(world, cell.fk_sigma_translation_m, np.radians(cell.fk_sigma_rotation_deg), cell.seed)
+    from ..acquire import run_acquisition
+
+    if gate:
+        detector = VisibilityGatedDetector(world, detector)
+    report = run_acquisition(robot, cams, trajectory, out_dir, cell.target, detector=detector, resume=resume,
+                             progress=progress)
+    write_ground_truth(out_dir, cell, world)
+    return report
