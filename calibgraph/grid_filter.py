@@ -14,7 +14,7 @@ Two checks, each rejection naming the row/column or point at fault:
    does not reject good views when no intrinsics are given). A swapped or shifted id moves a point
    by a whole pitch and fails this test.
 
-When intrinsics are given, points are undistorted first (``cv2.undistortPoints`` with ``P = K``),
+When intrinsics are given, points are undistorted first (to the pinhole image with the same K),
 so lines are straight and the homography is exact up to noise.
 """
 
@@ -48,13 +48,13 @@ class FilterResult:
 
 
 def _undistort(uv: np.ndarray, intr: Intrinsics | None) -> np.ndarray:
+    """Pixels as an ideal pinhole camera with the same K would see them."""
     if intr is None or not np.any(intr.dist8):
         return uv
-    import cv2
+    from .render import undistort_normalised
 
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-9)
-    out = cv2.undistortPointsIter(uv.reshape(-1, 1, 2).astype(np.float64), intr.K, intr.dist8, None, intr.K, crit)
-    return out.reshape(-1, 2)
+    xy = undistort_normalised(intr, uv)
+    return xy @ intr.K[:2, :2].T + intr.K[:2, 2]
 
 
 def grid_pitch_px(uv_px: np.ndarray, ij: np.ndarray) -> float:

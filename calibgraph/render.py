@@ -11,8 +11,10 @@ How an image is made (``render_view``):
    Square edges fall on texel boundaries, so the texture is an exact area-coverage raster.
 2. For every camera pixel in the target's bounding box, ``supersample x supersample`` sample points
    are placed at the centres of equal sub-pixels (pixel ``(u, v)`` spans ``[u - 0.5, u + 0.5]``).
-   Each sample is back-projected through the full OpenCV camera model (distortion included,
-   undistorted iteratively), intersected with the board plane, and looks up the texture bilinearly.
+   Each sample is back-projected through the full OpenCV camera model and intersected with the
+   board plane (without distortion this is one exact homography warp; with distortion the
+   back-projection is computed at pixel centres and interpolated to the samples), and looks up
+   the texture bilinearly.
    The texture resolution matches the sample spacing, so bilinear lookup acts as a small symmetric
    prefilter: edges are not shifted, only softened by a fraction of a pixel.
 3. The samples of each pixel are averaged (box filter = a pixel's light-collecting area), then
@@ -119,16 +121,28 @@ class RenderedView:
     T_cam_board: np.ndarray
 
 
-def _normalised_rays(intr: Intrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(N, 2) normalised image coordinates (x/z, y/z) of pixels, inverting the distortion."""
-    import cv2
-
-    pts = np.column_stack([u, v]).astype(np.float64)
+def undistort_normalised(intr: Intrinsics, uv_px: np.ndarray, iterations: int = 25) -> np.ndarray:
+    """(N, 2) normalised coordinates (x/z, y/z) whose projection is ``uv_px``: the inverse of the
+    distortion by fixed-point iteration (as OpenCV's undistortPoints), vectorised in numpy."""
+    uv = np.asarray(uv_px, float).reshape(-1, 2)
+    Kinv2 = np.linalg.inv(intr.K[:2, :2])
+    xd = (uv - intr.K[:2, 2]) @ Kinv2.T
     if not np.any(intr.dist8):
-        return (pts - intr.K[:2, 2]) @ np.linalg.inv(intr.K[:2, :2]).T
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-    und = cv2.undistortPointsIter(pts.reshape(-1, 1, 2), intr.K, intr.dist8, None, None, crit)
-    return und.reshape(-1, 2)
+        return xd
+    k1, k2, p1, p2, k3, k4, k5, k6 = intr.dist8
+    x, y = xd[:, 0].copy(), xd[:, 1].copy()
+    for _ in range(iterations):
+        r2 = x * x + y * y
+        rad = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        x = (xd[:, 0] - dx) / rad
+        y = (xd[:, 1] - dy) / rad
+    return np.column_stack([x, y])
+
+
+def _normalised_rays(intr: Intrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return undistort_normalised(intr, np.column_stack([u, v]))
 
 
 def render_view(target: Target, intr: Intrinsics, T_cam_board: np.ndarray, *, blur_sigma_px: float = 0.0,
@@ -185,21 +199,34 @@ def render_view(target: Target, intr: Intrinsics, T_cam_board: np.ndarray, *, bl
                 dens = min(dens, 8000.0 / max(x1 - x0 + 2 * m, y1 - y0 + 2 * m))
                 texture = board_texture(target, dens)
             nu, nv = u_hi - u_lo + 1, v_hi - v_lo + 1
-            off = (np.arange(S) + 0.5) / S - 0.5
-            us = (u_lo + np.arange(nu)[:, None] + off[None, :]).reshape(-1)
-            vs = (v_lo + np.arange(nv)[:, None] + off[None, :]).reshape(-1)
-            uu, vv = np.meshgrid(us, vs)
-            xy = _normalised_rays(intr, uu.ravel(), vv.ravel())
-            rays = np.column_stack([xy, np.ones(len(xy))])
-            denom = rays @ n
-            lam = np.where(np.abs(denom) > 1e-12, (n @ t) / np.where(denom == 0, 1, denom), -1.0)
-            p_cam = rays * lam[:, None]
-            p_b = (p_cam - t) @ R  # R^T (p - t)
-            tex = (texture.A_tex_board @ np.column_stack([p_b[:, 0], p_b[:, 1], np.ones(len(p_b))]).T).T
-            mapx = np.where(lam > 0, tex[:, 0], -10.0).astype(np.float32).reshape(uu.shape)
-            mapy = np.where(lam > 0, tex[:, 1], -10.0).astype(np.float32).reshape(uu.shape)
-            samp = cv2.remap(texture.image, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                             borderValue=float(background))
+            # Sub-pixel sample (X, Y) of the region sits at image (u_lo + (X + 0.5) / S - 0.5, ...).
+            M_img_ss = np.array([[1.0 / S, 0, u_lo + 0.5 / S - 0.5], [0, 1.0 / S, v_lo + 0.5 / S - 0.5], [0, 0, 1]])
+            if not np.any(intr.dist8):
+                # Pinhole: image <- board is the homography K [r1 r2 t]; one exact warp does it.
+                H_img_board = intr.K @ np.column_stack([R[:, 0], R[:, 1], t])
+                M = texture.A_tex_board @ np.linalg.inv(H_img_board) @ M_img_ss
+                samp = cv2.warpPerspective(texture.image, M, (nu * S, nv * S), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                           borderMode=cv2.BORDER_CONSTANT, borderValue=float(background))
+            else:
+                # The image -> texture map is smooth: evaluate it at pixel centres, then let
+                # cv2.resize (which samples source (X + 0.5) / S - 0.5, exactly the sub-pixel
+                # sample positions) interpolate it bilinearly; 1/S^2 of the undistortion work.
+                uu, vv = np.meshgrid(np.arange(u_lo, u_hi + 1, dtype=float), np.arange(v_lo, v_hi + 1, dtype=float))
+                xy = _normalised_rays(intr, uu.ravel(), vv.ravel())
+                # Ray (x, y, 1) meets the board plane n . (p - t) = 0 at lam = n.t / n.ray; the board
+                # point is R^T (lam ray - t); then board -> texture by the affine A.
+                denom = xy @ n[:2] + n[2]
+                lam = (n @ t) / np.where(np.abs(denom) > 1e-12, denom, np.nan)
+                pb_x = (lam * xy[:, 0] - t[0]) * R[0, 0] + (lam * xy[:, 1] - t[1]) * R[1, 0] + (lam - t[2]) * R[2, 0]
+                pb_y = (lam * xy[:, 0] - t[0]) * R[0, 1] + (lam * xy[:, 1] - t[1]) * R[1, 1] + (lam - t[2]) * R[2, 1]
+                A = texture.A_tex_board
+                good = np.isfinite(lam) & (lam > 0)
+                mx = np.where(good, A[0, 0] * pb_x + A[0, 1] * pb_y + A[0, 2], -1e4).reshape(uu.shape)
+                my = np.where(good, A[1, 0] * pb_x + A[1, 1] * pb_y + A[1, 2], -1e4).reshape(uu.shape)
+                mapx = cv2.resize(mx, (nu * S, nv * S), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+                mapy = cv2.resize(my, (nu * S, nv * S), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+                samp = cv2.remap(texture.image, mapx, mapy, cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=float(background))
             # Samples that miss the sheet see the background; the sheet edge is a real edge too.
             block = samp.reshape(nv, S, nu, S).mean(axis=(1, 3))
             img[v_lo : v_hi + 1, u_lo : u_hi + 1] = block
