@@ -293,10 +293,21 @@ def _normalise_detection(res):
 
 
 def _format_estimate(est) -> str:
-    """Per-camera 1-sigma text from what an incremental solver returned: a mapping camera ->
-    sigma (metres), or an object with ``sigma_translation_m`` (mapping) or ``per_camera_sigma_m``."""
+    """Per-camera 1-sigma text from what an incremental solver returned: a
+    :class:`calibgraph.incremental.IncrementalEstimate` (cameras -> sigma_translation_mm /
+    sigma_rotation_deg), a mapping camera -> sigma in metres, or an object with
+    ``sigma_translation_m`` / ``per_camera_sigma_m`` mappings."""
     if est is None:
         return ""
+    cams = getattr(est, "cameras", None)
+    if isinstance(cams, dict) and all(hasattr(v, "sigma_translation_mm") for v in cams.values()):
+        parts = []
+        for c, ce in sorted(cams.items()):
+            st, sr = ce.sigma_translation_mm, ce.sigma_rotation_deg
+            parts.append(f"{c} -" if st is None else
+                         f"{c} {float(np.linalg.norm(st)):.2f} mm/{float(np.linalg.norm(sr)):.3f} deg")
+        waiting = [c for c, v in (getattr(est, "pending", None) or {}).items() if v and c not in cams]
+        return "1σ " + (", ".join(parts) or "not initialised yet") + (f" (waiting: {', '.join(waiting)})" if waiting else "")
     m = est if isinstance(est, dict) else getattr(est, "sigma_translation_m", None) or getattr(est, "per_camera_sigma_m", None)
     if isinstance(m, dict):
         parts = []
@@ -384,7 +395,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
         trajectory = load_trajectory(trajectory) if isinstance(trajectory, (str, os.PathLike)) else Trajectory(tuple(trajectory))
     check_speed(trajectory.speed_scale, safety)
     cams = dict(cameras) if isinstance(cameras, dict) else {c.name: c for c in cameras}
-    if len(cams) == 0:
+    if len(cams) == 0 and not dry_run:
         raise InputError("capture: no cameras configured.")
     if robot is None and not dry_run:
         raise InputError("capture: no robot given (only a dry run can plan without one).")
@@ -417,7 +428,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
     fails_in_row = {c: 0 for c in cams}
     lost = []
     intr = {}
-    for name, cam in cams.items():
+    for name, cam in ({} if dry_run else cams).items():  # a dry run touches no camera
         try:
             intr[name] = cam.intrinsics()
         except Exception as e:  # a camera that cannot even report intrinsics is lost, the others go on
@@ -425,7 +436,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
             lost.append(name)
             log(f"camera {name}: LOST at start ({type(e).__name__}: {e}); continuing without it")
     live = [c for c in cams if c not in lost]
-    if not live:
+    if not live and not dry_run:
         raise DeviceError("capture: no camera could be opened: " + "; ".join(f"{c}: {m[-1]}" for c, m in camera_errors.items()))
 
     # Plan everything once before anything moves: what would be skipped, and why.

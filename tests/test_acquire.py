@@ -305,3 +305,102 @@ def test_trajectory_yaml_round_trip(tmp_path):
     (tmp_path / "bad.yaml").write_text("poses:\n  - [0, nan, 0]\n")
     with pytest.raises(InputError, match="finite"):
         load_trajectory(tmp_path / "bad.yaml")
+
+
+def test_incremental_solver_plugs_in_as_on_capture(tmp_path):
+    inc_mod = pytest.importorskip("calibgraph.incremental")
+    cell = make_fake_cell(n_cameras=3, n_poses=15, seed=0)
+    inc = inc_mod.IncrementalSolver(cell.target.points_board_m, {c.name: c.intrinsics() for c in cell.cameras})
+    lines = []
+    rep = _run(cell, tmp_path / "ds", on_capture=inc.add_capture, progress=lines.append)
+    est = rep.last_estimate
+    assert set(est.cameras) == {"cam0", "cam1", "cam2"}
+    # the live estimate is close to the fake cell's truth (0.2 px noise: well under 1 cm)
+    for cam in cell.cameras:
+        err = np.linalg.norm(est.cameras[cam.name].T_ref_cam[:3, 3] - cam.T_base_cam[:3, 3])
+        assert err < 0.01, (cam.name, err)
+    assert "1σ cam0" in lines[-1] and " mm/" in lines[-1]
+
+
+# -- CLI ----------------------------------------------------------------------------------------------
+def _cli(*argv):
+    from calibgraph.cli import main
+
+    return main([str(a) for a in argv])
+
+
+def _write_yaml(path, d):
+    import yaml
+
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+def test_cli_real_robot_never_moves_without_confirmation(tmp_path, capsys):
+    cell = make_fake_cell(n_cameras=1, n_poses=2, seed=1)
+    traj = save_trajectory(cell.trajectory, tmp_path / "t.yaml")
+    wc = _write_yaml(tmp_path / "cell.yaml", {"board": "a4_54", "robot": {"driver": "franka", "ip": "127.0.99.254"},
+                                              "cameras": {"c0": {"driver": "realsense", "serial": "1"}}})
+    code = _cli("capture", "--workcell", wc, "--trajectory", traj, "--out", tmp_path / "ds")
+    err = capsys.readouterr().err
+    assert code == 2 and "--i-have-cleared-the-cell" in err and "Traceback" not in err
+    assert not (tmp_path / "ds").exists()
+
+
+def test_cli_dry_run_plans_without_robot_or_cameras(tmp_path, capsys):
+    # FR3 joint vectors: the second breaks joint 4's limit, the third leaves the workspace box
+    home = [0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785]
+    bad_joint = [0.0, 0.0, 0.0, 0.2, 0.0, 1.57, 0.785]
+    far = [2.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785]  # flange at x = -0.23 m
+    traj = save_trajectory(Trajectory(poses=(home, bad_joint, far), speed_scale=0.2), tmp_path / "t.yaml")
+    wc = _write_yaml(tmp_path / "cell.yaml", {
+        "board": "a4_54", "robot": {"driver": "franka", "ip": "127.0.99.254"},
+        "cameras": {"c0": {"driver": "realsense", "serial": "1"}},
+        "safety": {"robot_model": "fr3", "workspace_min_m": [0.2, -0.5, 0.2], "workspace_max_m": [0.8, 0.5, 0.9]}})
+    code = _cli("capture", "--workcell", wc, "--trajectory", traj, "--out", tmp_path / "ds", "--dry-run")
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    assert "1 planned" in cap.out and "pose 1: skipped_unsafe: joint 4" in cap.out
+    assert "pose 2: skipped_unsafe" in cap.out and "workspace box" in cap.out
+    assert not (tmp_path / "ds").exists()
+    # a speed above the cap is refused outright
+    code = _cli("capture", "--workcell", wc, "--trajectory", traj, "--out", tmp_path / "ds", "--dry-run",
+                "--speed-scale", "0.9")
+    assert code == 2 and "max_speed_scale" in capsys.readouterr().err
+
+
+def test_cli_capture_on_the_mujoco_cell_then_resume_is_a_no_op(tmp_path, capsys):
+    import importlib.util
+
+    # no import here: MuJoCo must be first imported by calibgraph.sim, which picks the headless GL backend
+    if importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("franky_sim") is None:
+        pytest.skip("the simulator needs mujoco and franky-sim (its FR3 model)")
+    try:
+        from calibgraph.plan import plan_trajectory
+        from calibgraph.sim.render import SimWorld
+        from calibgraph.sim.workcell import workcell_from_dict
+    except ImportError as e:
+        pytest.skip(f"simulator not available: {e}")
+    d = {"name": "t", "board": "a4_54", "mode": "eye_to_hand",
+         "cameras": {"c0": {"driver": "sim", "preset": "d455", "position_m": [1.2, 0.3, 0.6], "look_at_m": [0.5, 0, 0.45]},
+                     "c1": {"preset": "d455", "position_m": [1.2, -0.5, 0.6], "look_at_m": [0.5, 0, 0.45]}},
+         "safety": {"robot_model": "fr3", "max_speed_scale": 0.5}}
+    from calibgraph.cli_capture import sim_workcell_dict
+
+    world = SimWorld(workcell_from_dict(sim_workcell_dict(d)))
+    plan_trajectory(world, n_poses=4, seed=0).save(tmp_path / "t.yaml")
+    wc = _write_yaml(tmp_path / "cell.yaml", d)
+    code = _cli("capture", "--workcell", wc, "--trajectory", tmp_path / "t.yaml", "--out", tmp_path / "ds")
+    out = capsys.readouterr().out
+    assert code == 0 and "4 captured" in out
+    ds = load_dataset(tmp_path / "ds")
+    assert len(ds.captures) == 4 and {v.camera for v in ds.views} == {"c0", "c1"}
+    # every stored flange pose is the simulated arm's FK at the stored joints (FK sigmas default 0.05 mm)
+    from calibgraph.safety import franka_fk
+    from calibgraph.transforms import pose_error
+
+    for cap in ds.captures:
+        dt_m, _ = pose_error(franka_fk(cap.q_rad), cap.T_base_flange)
+        assert dt_m < 1e-3
+    code = _cli("capture", "--workcell", wc, "--out", tmp_path / "ds", "--resume")
+    assert code == 0 and "4 done before" in capsys.readouterr().out
