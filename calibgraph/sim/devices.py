@@ -66,9 +66,10 @@ class SimRobot:
                                    f"[{self.world.q_lo[j]:.3f}, {self.world.q_hi[j]:.3f}].")
         if not (0 < speed_scale <= 1):
             raise UnreachableError(f"simulated FR3: speed_scale must be in (0, 1], got {speed_scale}.")
-        hits = in_collision(self.world, q)
+        q_now = self.world.q()
+        hits = in_collision(self.world, q)  # leaves the model at q: put the arm back where it is
+        self.world.set_q(q_now)
         if hits:
-            self.world.set_q(self.world.q())  # restore kinematics of the current pose
             raise UnreachableError(f"simulated FR3: the goal configuration collides ({hits[0][0]} with {hits[0][1]}).")
         dq = np.abs(q - self.world.q())
         self.world.clock_s += float(np.max(dq / (FR3_MAX_JOINT_VELOCITY_RAD_S * speed_scale))) + 0.5

@@ -116,19 +116,29 @@ class SimWorld:
         self._renderers.clear()
 
 
-def distortion_maps(intr):
+def distortion_maps(intr, iterations: int = 30):
     """cv2.remap maps that turn an ideal pinhole image (same K) into one seen through ``intr.dist``.
 
-    For every distorted output pixel we need the ideal pixel it shows: undistort the pixel grid.
+    For every distorted output pixel we need the ideal pixel it shows, i.e. the pixel grid
+    undistorted: fixed-point iteration on the OpenCV model (as cv2.undistortPoints does), vectorised
+    over the whole image; converges to < 1e-4 px for the moderate distortion of real lenses.
     """
-    import cv2
-
     w, h = intr.width_px, intr.height_px
+    fx, s, cx = intr.K[0]
+    fy, cy = intr.K[1, 1], intr.K[1, 2]
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    pts = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6)
-    und = cv2.undistortPointsIter(pts, intr.K, intr.dist, None, intr.K, crit).reshape(h, w, 2)
-    return und[..., 0].astype(np.float32), und[..., 1].astype(np.float32)
+    yd = (v - cy) / fy
+    xd = (u - cx - s * yd) / fx
+    k1, k2, p1, p2, k3, k4, k5, k6 = intr.dist8
+    x, y = xd.copy(), yd.copy()
+    for _ in range(iterations):
+        r2 = x * x + y * y
+        rad = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        x = (xd - dx) / rad
+        y = (yd - dy) / rad
+    return (fx * x + s * y + cx).astype(np.float32), (fy * y + cy).astype(np.float32)
 
 
 def degrade(img: np.ndarray, realism: Realism, rng, maps=None) -> np.ndarray:

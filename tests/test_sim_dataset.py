@@ -1,0 +1,69 @@
+"""``calibgraph sim`` writes a loadable dataset with ground truth, through the acquisition state
+machine, and replays a saved trajectory."""
+
+import json
+
+import numpy as np
+import pytest
+
+from _sim_helpers import require_sim
+from calibgraph.transforms import inv, pose_error
+
+pytestmark = pytest.mark.sim
+
+CELL = """
+name: small
+board: a4_54
+robot: {fk_sigma_translation_m: 5.0e-5, fk_sigma_rotation_deg: 0.005}
+realism: {noise_sigma_dn: 2.0, blur_sigma_px: 0.6}
+cameras:
+  left: {preset: d455, position_m: [1.2, 0.7, 0.4], look_at_m: [0.5, 0.0, 0.45]}
+  right: {preset: d455, position_m: [1.2, -0.7, 0.4], look_at_m: [0.5, 0.0, 0.45]}
+"""
+
+
+def test_cli_sim_writes_dataset_with_ground_truth(tmp_path):
+    require_sim()
+    from calibgraph.cli import main
+    from calibgraph.dataset import load_dataset
+    from calibgraph.plan import load_trajectory
+    from calibgraph.sim.simulate import load_ground_truth
+
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(CELL)
+    out = tmp_path / "ds"
+    assert main(["sim", "--workcell", str(cell), "--out", str(out), "--poses", "5", "--quiet"]) == 0
+    ds = load_dataset(out)
+    assert ds.problems == ()
+    assert set(ds.cameras) == {"left", "right"} and ds.cameras["left"].width_px == 1280
+    assert len(ds.captures) == 5 and all(v.detected for v in ds.views)
+    assert all((out / v.image).is_file() for v in ds.views)
+    gt = load_ground_truth(out)
+    traj = load_trajectory(out / "planned_trajectory.yaml")
+    assert len(traj) == 5
+    for cap in ds.captures:
+        T_true = gt["T_base_flange_true"][cap.index]
+        # the capture holds the robot's reported pose: true pose + its kinematic error (5e-5 m sigma)
+        e_m, e_deg = pose_error(cap.T_base_flange, T_true)
+        assert 0 < e_m < 5e-4 and e_deg < 0.05
+        assert np.allclose(T_true, traj.poses[cap.index].T_base_flange, atol=1e-9)
+    # stored detections agree with the board points projected through the ground truth
+    pts = ds.target.points_board_m
+    for v in ds.views:
+        T_cb = inv(gt["T_base_cam"][v.camera]) @ gt["T_base_flange_true"][v.capture] @ gt["T_flange_board"]
+        uv = ds.cameras[v.camera].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+        assert np.abs(v.uv_px - uv[v.ids]).max() < 1.0
+    raw = json.loads((out / "ground_truth.json").read_text())
+    assert raw["format"] == "calibgraph-ground-truth/1" and "frame_convention" in raw
+    assert raw["cameras"]["left"]["intrinsics"]["width_px"] == 1280
+    # replaying the saved trajectory into a new folder gives the same captures
+    out2 = tmp_path / "ds2"
+    assert main(["sim", "--workcell", str(cell), "--trajectory", str(out / "planned_trajectory.yaml"),
+                 "--out", str(out2), "--quiet"]) == 0
+    ds2 = load_dataset(out2)
+    assert [c.index for c in ds2.captures] == [c.index for c in ds.captures]
+    gt2 = load_ground_truth(out2)
+    for k, T in gt["T_base_flange_true"].items():
+        assert np.allclose(gt2["T_base_flange_true"][k], T, atol=1e-12)
+    # an existing dataset is refused with advice
+    assert main(["sim", "--workcell", str(cell), "--out", str(out), "--poses", "2", "--quiet"]) == 2
