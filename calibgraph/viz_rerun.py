@@ -34,6 +34,7 @@ GREEN = (40, 200, 60)
 MAGENTA = (230, 40, 230)
 RED = (230, 30, 30)
 ORANGE = (255, 150, 0)
+PALETTE = [(31, 119, 180), (44, 160, 44), (148, 103, 189), (140, 86, 75), (23, 190, 207), (188, 189, 34)]
 RESIDUAL_GAIN = 20.0  # residual vectors are sub-pixel: magnify to see their pattern
 
 
@@ -129,9 +130,11 @@ def log_result(rec, result, source=None) -> None:
         images = {(cam, k): img for cam, k, _ids, _uv, img in obs["views"] if img}
 
     caps = sorted(set(flange) | {int(k) for r in residuals.values() for k in r})
-    for n in names:
-        rec.log(f"residuals/{n}/rms_px", rr.SeriesLines(colors=[(31, 119, 180)], names=[f"{n} RMS px"]), static=True)
-        rec.log(f"residuals/{n}/max_px", rr.SeriesLines(colors=[(255, 127, 14)], names=[f"{n} max px"]), static=True)
+    for i, n in enumerate(names):
+        col = PALETTE[i % len(PALETTE)]
+        light = tuple(int(c + 0.55 * (255 - c)) for c in col)  # max: a paler tint of the camera's colour
+        rec.log(f"residuals/{n}/rms_px", rr.SeriesLines(colors=[col], names=[f"{n} RMS px"], widths=[2.0]), static=True)
+        rec.log(f"residuals/{n}/max_px", rr.SeriesLines(colors=[light], names=[f"{n} max px"]), static=True)
         rec.log(f"residuals/{n}/rejected", rr.SeriesPoints(colors=[RED], markers=["cross"], names=[f"{n} rejected view"],
                                                              marker_sizes=[6.0]), static=True)
     for k in caps:
@@ -166,15 +169,15 @@ def log_result(rec, result, source=None) -> None:
                 continue
             uv = np.asarray(uv, float).reshape(-1, 2)
             pred = uv + r  # residual = reprojected - detected
-            rec.log(f"{base}/detected", rr.Points2D(uv, radii=3.0, colors=GREEN))
-            rec.log(f"{base}/reprojected", rr.Points2D(pred, radii=2.0, colors=MAGENTA))
+            rec.log(f"{base}/detected", rr.Points2D(uv, radii=rr.Radius.ui_points(3.0), colors=GREEN))
+            rec.log(f"{base}/reprojected", rr.Points2D(pred, radii=rr.Radius.ui_points(2.0), colors=MAGENTA))
             strips = np.stack([uv, uv + RESIDUAL_GAIN * r], axis=1)
-            rec.log(f"{base}/residual_x20", rr.LineStrips2D(strips, colors=MAGENTA, radii=0.8))
+            rec.log(f"{base}/residual_x20", rr.LineStrips2D(strips, colors=MAGENTA, radii=rr.Radius.ui_points(1.0)))
             if view_rejected:
-                rec.log(f"{base}/outliers", rr.Points2D(uv, radii=6.0, colors=ORANGE,
+                rec.log(f"{base}/outliers", rr.Points2D(uv, radii=rr.Radius.ui_points(5.0), colors=ORANGE,
                                                         labels=["view rejected"] * len(ids)))
             elif bad.any():
-                rec.log(f"{base}/outliers", rr.Points2D(uv[bad], radii=8.0, colors=RED,
+                rec.log(f"{base}/outliers", rr.Points2D(uv[bad], radii=rr.Radius.ui_points(7.0), colors=RED,
                                                         labels=[f"corner {i}: {e:.1f} px" for i, e in zip(ids[bad], norm[bad])]))
             else:
                 rec.log(f"{base}/outliers", rr.Clear(recursive=False))
@@ -196,8 +199,16 @@ def default_blueprint(result: dict):
     import rerun.blueprint as rrb
 
     cam_root = "world/flange" if result.get("mode") == "eye_in_hand" else "world/cameras"
-    images = [rrb.Spatial2DView(origin=f"{cam_root}/{n}/image", name=f"{n}: detected (green) vs reprojected (magenta)")
-              for n in result["cameras"]]
+    from .exports import camera_intrinsics
+
+    images = []
+    for n in result["cameras"]:
+        intr = camera_intrinsics(result, n, None)
+        # show the whole image, so where the corners fall in the frame is visible even without images
+        bounds = (rrb.VisualBounds2D(x_range=[-0.5, intr.width_px - 0.5], y_range=[-0.5, intr.height_px - 0.5])
+                  if intr is not None and intr.width_px > 0 else None)
+        images.append(rrb.Spatial2DView(origin=f"{cam_root}/{n}/image", visual_bounds=bounds,
+                                        name=f"{n}: detected (green) vs reprojected (magenta)"))
     right = rrb.Vertical(rrb.Grid(*images), rrb.TimeSeriesView(origin="residuals", name="residuals per capture (px)"),
                          row_shares=[2, 1])
     left = rrb.Vertical(rrb.Spatial3DView(origin="world", name="workcell (robot base frame)"),
