@@ -47,9 +47,8 @@ from .errors import DetectionError, InputError
 from .grid_filter import check_grid, grid_pitch_px
 from .targets import Target
 
+# Part of the cache key: bump when a change can move detected points.
 DETECTOR_VERSION = "1"
-
-_CRIT = None  # cornerSubPix criteria, built lazily (cv2 imported inside functions)
 
 
 @dataclass(frozen=True)
@@ -378,7 +377,6 @@ def _find_checkerboard(grey, target, method, allow_symmetric, fast=False):
 
     pattern = (target.cols, target.rows)
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
-    tried = []
     methods = {"classic": ["classic"], "sb": ["sb"], "auto": ["classic", "sb"]}[method]
     for m in methods:
         if m == "classic":
@@ -405,7 +403,6 @@ def _find_checkerboard(grey, target, method, allow_symmetric, fast=False):
                 if ok:
                     c = np.asarray(c, float).reshape(-1, 2) + [x0, y0]
                     break
-        tried.append(m)
         if ok and c is not None:
             G = np.asarray(c, float).reshape(target.rows, target.cols, 2)
             uv, note = _orient_grid(G, target, grey, allow_symmetric)

@@ -102,8 +102,6 @@ def _describe(t: Target) -> str:
 
 def target_pdf(target: Target, paper: str = "A4") -> bytes:
     """The PDF (bytes) of ``target`` at exact scale on ``paper`` ('A4' or 'A3'), with a ruler."""
-    import cv2
-
     paper = paper.upper()
     if paper not in PAPERS_MM:
         raise InputError(f"target print: paper must be A4 or A3, got {paper!r}.")

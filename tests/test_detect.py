@@ -238,3 +238,28 @@ def test_wrong_spec_for_a_whole_dataset_is_said_once(tmp_path):
     det = dataset_detector(load_dataset(tmp_path), progress=False, cache=False)
     det.run()
     assert any("not found in any image" in m for _, m in det.problems)
+
+
+def test_cli_detect_prints_stats_and_problems(tmp_path, capsys):
+    from calibgraph.cli import main
+    from calibgraph.dataset import image_relpath, write_capture, write_header
+    from calibgraph.problem import Capture
+
+    t = thesis_board()
+    intr = preset("d455")
+    write_header(tmp_path, t, {"cam0": intr})
+    for k in range(3):
+        rel = image_relpath("cam0", k)
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        if k == 1:
+            (tmp_path / rel).write_bytes(b"")
+        else:
+            rv = render_view(t, intr, look_at_board(t, 1.0, 10 * k, 0, 0, (0, 0), intr), seed=k)
+            cv2.imwrite(str(tmp_path / rel), rv.image)
+        write_capture(tmp_path, Capture(index=k, T_base_flange=np.eye(4)), {"cam0": {"image": rel}})
+    assert main(["detect", str(tmp_path), "--quiet", "--no-cache"]) == 0
+    out, err = capsys.readouterr()
+    row = [line for line in out.splitlines() if line.startswith("cam0")][0].split()
+    assert row[1:3] == ["3", "2"]  # views, detected
+    assert "000001.png" in err and "empty" in err
+    assert not (tmp_path / ".calibgraph_cache").exists()
