@@ -79,17 +79,25 @@ def _solve_rotations(rows_by_cam: dict, n_cams: int):
     rows_by_cam: slot -> list of (A_rot, B_rot). Equation R_Z B - A R_Y = 0, row-major vec.
     """
     nu = 9 * (n_cams + 1)
-    blocks = []
     I3 = np.eye(3)
+    blocks = []
     for slot, pairs in rows_by_cam.items():
-        for A, Bm in pairs:
-            M = np.zeros((9, nu))
-            M[:, 9 * slot: 9 * slot + 9] = np.kron(I3, Bm.T)
-            M[:, 9 * n_cams:] = -np.kron(A, I3)
-            blocks.append(M)
+        if not pairs:
+            continue
+        A = np.array([a for a, _ in pairs])
+        Bm = np.array([b for _, b in pairs])
+        n = len(pairs)
+        Mk = np.zeros((n, 9, nu))
+        # kron(I, B^T)[(i,j),(k,l)] = d_ik B[l,j];  kron(A, I)[(i,j),(k,l)] = A[i,k] d_jl
+        Mk[:, :, 9 * slot: 9 * slot + 9] = np.einsum("ik,nlj->nijkl", I3, Bm).reshape(n, 9, 9)
+        Mk[:, :, 9 * n_cams:] = -np.einsum("nik,jl->nijkl", A, I3).reshape(n, 9, 9)
+        blocks.append(Mk.reshape(9 * n, nu))
     M = np.vstack(blocks)
-    _, s, Vt = np.linalg.svd(M, full_matrices=False)
-    v = Vt[-1]
+    # Normal equations keep this O(rows * nu^2) for thousands of views; the null vector is the
+    # eigenvector of the smallest eigenvalue.
+    evals, evecs = np.linalg.eigh(M.T @ M)
+    v = evecs[:, 0]
+    s = np.sqrt(np.clip(evals[::-1], 0, None))
     RY_raw = v[9 * n_cams:].reshape(3, 3)
     if np.linalg.det(RY_raw) < 0:
         v = -v
@@ -326,10 +334,10 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_S_cam: dict, T_
     if len(blocks) < 3:
         return T_S_cam, T_M_board
     use = list(range(len(blocks)))
+    AtA = [blk[0].T @ blk[0] for blk in blocks]
+    Atb = [blk[0].T @ blk[1] for blk in blocks]
     for _ in range(2):
-        A = np.vstack([blocks[i][0] for i in use])
-        b = np.concatenate([blocks[i][1] for i in use])
-        x, *_ = np.linalg.lstsq(A, b, rcond=None)
+        x = np.linalg.solve(sum(AtA[i] for i in use), sum(Atb[i] for i in use))
         res = np.array([np.sqrt(np.mean((blocks[i][0] @ x - blocks[i][1]) ** 2)) for i in range(len(blocks))])
         keep = [i for i in range(len(blocks)) if res[i] <= 4.0 * np.median(res) + 1e-9]
         if keep == use or len(keep) < 3:

@@ -114,6 +114,9 @@ class SolverOptions:
         min_views_per_camera: below this a camera is refused with an observability error.
         max_iterations: LM iterations per solve.
         refine_intrinsics: also estimate fx, fy, cx, cy (with a prior of ``intrinsics_sigma_px``).
+        formulation: 'view' (one vectorised CustomFactor per view, any OpenCV distortion),
+            'corner' (one C++ ProjectionFactorPPP per corner, Cal3DS2 distortion only) or 'auto'
+            (corner when every camera fits Cal3DS2, else view). Both give the same estimate.
     """
 
     fk_sigma_translation_m: float = 1e-4
@@ -126,6 +129,7 @@ class SolverOptions:
     max_iterations: int = 100
     refine_intrinsics: bool = False
     intrinsics_sigma_px: float = 5.0
+    formulation: str = "auto"
 
     def __post_init__(self):
         if self.loss not in LOSSES:
@@ -134,6 +138,8 @@ class SolverOptions:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"solver: {name} must be positive, got {v}.")
+        if self.formulation not in ("auto", "view", "corner"):
+            raise InputError(f"solver: formulation must be 'auto', 'view' or 'corner', got {self.formulation!r}.")
         if self.pixel_sigma_px is not None and not (self.pixel_sigma_px > 0):
             raise InputError("solver: pixel_sigma_px must be positive or None.")
 

@@ -10,7 +10,8 @@
   ``covariance`` (6x6, rotation first, rad and m, perturbation expressed in the reference frame
   axes: rotation vector of ``R_est R_true^T`` and camera-centre offset), ``reprojection_rms_px``,
   ``reprojection_max_px``, ``views_used``, ``views_rejected`` (list of {capture, reason}),
-  ``corners_used``, ``corners_rejected``; in 'single' mode also the camera's own board mount.
+  ``corners_used``, ``corners_rejected``, ``intrinsics`` (K, dist, width_px, height_px used);
+  in 'single' mode also the camera's own board mount.
 - ``camera_pairs.<a>__<b>``: ``T_a_b`` with its ``sigma_translation_mm`` / ``sigma_rotation_deg``
   and ``covariance`` (6x6, rotation first, in frame a's axes).
 - ``board_mount``: covariance and sigmas of the board mount.
@@ -67,6 +68,7 @@ class CameraResult:
     corners_used: int = 0
     corners_rejected: int = 0
     T_mount_board: np.ndarray | None = None  # own board mount in 'single' mode
+    intrinsics: dict | None = None  # Intrinsics.to_dict() of the camera the result was solved with
     # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
     residuals_px: dict = field(default_factory=dict, repr=False)
 
@@ -160,6 +162,8 @@ class Result:
             }
             if c.T_mount_board is not None:
                 cams[name][mount_key] = c.T_mount_board.tolist()
+            if c.intrinsics is not None:
+                cams[name]["intrinsics"] = c.intrinsics
         pairs = {}
         for (a, b), p in self.pairs.items():
             st, sr = sigmas_from_cov(p.covariance)

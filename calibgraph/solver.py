@@ -24,6 +24,7 @@ import gtsam
 import numpy as np
 
 from .errors import InputError, ObservabilityError, SolverError
+from . import factors_ppp
 from .factors import make_view_factor, project_chain
 from .initialise import ViewCandidates, initialise, pnp_candidates, refine_translations
 from .keys import B, C, F
@@ -79,13 +80,57 @@ def _loss_weights(r_sigma: np.ndarray, loss: str, scale: float) -> np.ndarray:
     return 1.0 / (1.0 + (r_sigma / scale) ** 2)
 
 
+def _all_residuals(views, est: _Estimate, problem) -> list:
+    """Residual norms (px) of every view, batched per camera: one projection call per camera
+    instead of one per view (the per-view numpy overhead dominated large cells)."""
+    out = [None] * len(views)
+    by_cam = {}
+    for i, v in enumerate(views):
+        by_cam.setdefault(v.camera, []).append(i)
+    for cam, idx in by_cam.items():
+        T_cs = inv(est.T_S_cam[cam])
+        pts, uvs, counts = [], [], []
+        for i in idx:
+            v = views[i]
+            T = T_cs @ est.A_est.get(v.capture, v.A) @ est.T_M_board
+            pts.append(v.p_board @ T[:3, :3].T + T[:3, 3])
+            uvs.append(v.uv)
+            counts.append(len(v.ids))
+        uv_hat = problem.cameras[cam].project(np.concatenate(pts))
+        r = np.linalg.norm(uv_hat - np.concatenate(uvs), axis=1)
+        r = np.where(np.isfinite(r), r, 1e6)
+        for i, part in zip(idx, np.split(r, np.cumsum(counts)[:-1])):
+            out[i] = part
+    return out
+
+
 def _view_residuals(v: _View, est: _Estimate, intr) -> np.ndarray:
     uv_hat = project_chain(est.T_S_cam[v.camera], est.A_est.get(v.capture, v.A), est.T_M_board, v.p_board, intr)
     r = np.linalg.norm(uv_hat - v.uv, axis=1)
     return np.where(np.isfinite(r), r, 1e6)
 
 
-def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float):
+CORNER_FORMULATION_MIN_VIEWS = 1000
+
+
+def _formulation(problem: Problem, names, n_views: int) -> str:
+    """'auto': the C++ corner graph pays off on large cells (no Python in the optimiser loop) but
+    is numerically touchier (see factors_ppp); ordinary cells use the per-view factor."""
+    f = problem.options.formulation
+    fits = all(factors_ppp.supports(problem.cameras[n]) for n in names)
+    if f == "corner" and not fits:
+        raise InputError("solver: formulation 'corner' needs Cal3DS2 distortion (k1 k2 p1 p2 only); "
+                         "use formulation 'view' for cameras with k3..k6.")
+    if f == "auto":
+        return "corner" if fits and n_views >= CORNER_FORMULATION_MIN_VIEWS else "view"
+    return f
+
+
+def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: str = "view"):
+    if form == "corner":
+        o = problem.options
+        fk = np.array([o.fk_sigma_rotation_rad] * 3 + [o.fk_sigma_translation_m] * 3)
+        return factors_ppp.build(views, slots, problem, est, sigma_px, fk)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     fk = _fk_noise(problem.options)
@@ -107,8 +152,45 @@ def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float):
     return graph, values
 
 
-def _lm(graph, values, max_iterations):
+def _ordering(values) -> gtsam.Ordering:
+    """Robot poses first, then cameras and mounts: eliminating each F(k) only couples the few
+    camera poses that saw capture k, so the reduced system stays small (COLAMD may otherwise pick
+    an order that makes the thousands of robot poses a dense block)."""
+    first, last = [], []
+    for key in values.keys():
+        (first if chr(gtsam.Symbol(key).chr()) == "f" else last).append(key)
+    order = gtsam.Ordering()
+    for key in first + last:
+        order.push_back(key)
+    return order
+
+
+class _Marginals:
+    """Marginal covariances from a Bayes tree eliminated with the solver's ordering.
+
+    gtsam.Marginals picks its own (COLAMD) ordering, which fails on the corner graph when the FK
+    priors are very tight; the ordering used by LM is well conditioned for both formulations.
+    """
+
+    def __init__(self, graph, values, ordering):
+        self._bt = graph.linearize(values).eliminateMultifrontal(ordering)
+
+    def marginalCovariance(self, key) -> np.ndarray:  # noqa: N802 - mirrors gtsam.Marginals
+        return self._bt.marginalCovariance(key)
+
+    def joint(self, keys) -> np.ndarray:
+        """Joint covariance of Pose3 variables, 6 rows/cols per key in the order given."""
+        jm = self._bt.jointMarginalCovariance(list(keys))
+        return np.block([[np.asarray(jm.at(a, b)) for b in keys] for a in keys])
+
+
+def _order_for(values, form):
+    return factors_ppp.ordering(values) if form == "corner" else _ordering(values)
+
+
+def _lm(graph, values, max_iterations, form: str = "view"):
     params = gtsam.LevenbergMarquardtParams()
+    params.setOrdering(_order_for(values, form))
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(1e-9)
     params.setAbsoluteErrorTol(1e-12)
@@ -123,7 +205,12 @@ def _lm(graph, values, max_iterations):
     return out, opt.iterations(), graph.error(out)
 
 
-def _extract(values, slots, views, est: _Estimate) -> _Estimate:
+def _extract(values, slots, views, est: _Estimate, form: str = "view") -> _Estimate:
+    if form == "corner":
+        T_S_cam, T_M_board, A_new = factors_ppp.extract(values, slots, views)
+        A_est = dict(est.A_est)
+        A_est.update(A_new)
+        return _Estimate(T_S_cam=T_S_cam, T_M_board=T_M_board, A_est=A_est)
     T_S_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
     A_est = dict(est.A_est)
     for k in {v.capture for v in views if v.active}:
@@ -133,6 +220,17 @@ def _extract(values, slots, views, est: _Estimate) -> _Estimate:
 
 def _solve_core(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_board0: np.ndarray):
     """IRLS + outlier handling for one graph (all cameras in 'joint', one camera in 'single')."""
+    form = _formulation(problem, names, len(views))
+    try:
+        return _solve_core_with(problem, names, views, T_S_cam0, T_M_board0, form)
+    except ObservabilityError:
+        if form != "corner" or problem.options.formulation == "corner":
+            raise
+        # numerical failure of the corner graph: the per-view graph is the reference
+        return _solve_core_with(problem, names, views, T_S_cam0, T_M_board0, "view")
+
+
+def _solve_core_with(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_board0: np.ndarray, form: str):
     opts = problem.options
     slots = {n: i for i, n in enumerate(names)}
     est = _Estimate(T_S_cam=dict(T_S_cam0), T_M_board=T_M_board0, A_est={})
@@ -141,7 +239,7 @@ def _solve_core(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_
         v.active = True
         v.reason = ""
     # Gross view screening at the initial guess, so a few corrupted views cannot drag the first solve.
-    init_rms = np.array([np.sqrt(np.mean(_view_residuals(v, est, problem.cameras[v.camera]) ** 2)) for v in views])
+    init_rms = np.array([np.sqrt(np.mean(r ** 2)) for r in _all_residuals(views, est, problem)])
     thr0 = max(10.0 * np.median(init_rms), 15.0)
     for v, r in zip(views, init_rms):
         if r > thr0:
@@ -152,11 +250,11 @@ def _solve_core(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_
     total_it = 0
     for outer in range(4):
         for irls in range(6):
-            graph, values = _build_graph(views, slots, problem, est, sigma)
-            values, it, cost = _lm(graph, values, opts.max_iterations)
+            graph, values = _build_graph(views, slots, problem, est, sigma, form)
+            values, it, cost = _lm(graph, values, opts.max_iterations, form)
             total_it += it
-            est = _extract(values, slots, views, est)
-            res = {id(v): _view_residuals(v, est, problem.cameras[v.camera]) for v in views}
+            est = _extract(values, slots, views, est, form)
+            res = {id(v): r for v, r in zip(views, _all_residuals(views, est, problem))}
             act = [v for v in views if v.active]
             norms = np.concatenate([res[id(v)][v.w > 0] for v in act])
             # median of a 2-D Gaussian residual norm is sqrt(2 ln 2) = 1.1774 per-axis sigmas
@@ -197,19 +295,19 @@ def _solve_core(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_
     if fixed_sigma:
         sigma_post = fixed_sigma
     else:
-        wr2 = sum(float(np.sum(v.w * _view_residuals(v, est, problem.cameras[v.camera]) ** 2)) for v in act)
+        wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(act, _all_residuals(act, est, problem)))
         sigma_post = float(np.sqrt(wr2 / max(n_obs - n_par, 1)))
         sigma_post = max(sigma_post, 1e-4)
-    graph, values = _build_graph(views, slots, problem, est, sigma_post)
+    graph, values = _build_graph(views, slots, problem, est, sigma_post, form)
     if abs(sigma_post - sigma) > 0.05 * sigma:
         # the pixel/FK balance moved enough to shift the optimum: re-solve before the marginals
-        values, it, _ = _lm(graph, values, opts.max_iterations)
+        values, it, _ = _lm(graph, values, opts.max_iterations, form)
         total_it += it
-        est = _extract(values, slots, views, est)
+        est = _extract(values, slots, views, est, form)
     cost = graph.error(values)
     est.iterations, est.cost, est.sigma_px = total_it, cost, sigma_post
     try:
-        marg = gtsam.Marginals(graph, values)
+        marg = _Marginals(graph, values, _order_for(values, form))
     except RuntimeError as e:
         raise ObservabilityError(
             f"covariance could not be computed ({str(e).splitlines()[0][:120]}): the views leave a parameter "
@@ -217,6 +315,9 @@ def _solve_core(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_
         ) from None
     est.extra["marginals"] = marg
     est.extra["slots"] = slots
+    est.extra["formulation"] = form
+    est.extra["mount_cov_body"] = (factors_ppp.mount_cov_body(marg, values) if form == "corner"
+                                   else marg.marginalCovariance(B(0)))
     est.extra["n_obs"] = n_obs
     return est
 
@@ -325,16 +426,17 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
         starts = [(T0, mounts0[0])]
         if initial:
             starts.append((dict(initial["T_ref_cam"]), np.asarray(initial["T_mount_board"])))
-        best = None
+        best, error = None, None
         for Ts, Tm in starts:
             try:
                 est = _solve_core(problem, names, views, Ts, Tm)
-            except ObservabilityError:
-                if best is None and (Ts, Tm) is starts[-1]:
-                    raise
+            except ObservabilityError as e:
+                error = e
                 continue
             if best is None or est.cost < best[0].cost:
                 best = (est, [(v.camera, v.capture, v.active, v.reason, v.w.copy()) for v in views])
+        if best is None:
+            raise error
         est, view_state = best
         for v, (_, _, active, reason, w) in zip(views, view_state):
             v.active, v.reason, v.w = active, reason, w
@@ -385,16 +487,22 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
                 corners_rejected=int(sum((v.w == 0).sum() for v in used)),
                 T_mount_board=None if joint else est.T_M_board,
                 residuals_px=residuals,
+                intrinsics=intr.to_dict(),
             )
-    # camera-to-camera poses
+    # camera-to-camera poses; one joint marginal of all cameras (pairwise calls are O(n^2) solves)
+    joint_cov = None
+    if joint and len(names) > 1:
+        est0 = groups[0][1]
+        joint_cov = est0.extra["marginals"].joint([C(est0.extra["slots"][n]) for n in names])
     for i, a in enumerate(names):
         for b in names[i + 1:]:
             Ta, Tb = cam_results[a].T_ref_cam, cam_results[b].T_ref_cam
             ca, est_a, marg_a, slots_a = body_cov[a]
             cb, est_b, marg_b, slots_b = body_cov[b]
             if joint:
-                kv = gtsam.KeyVector([C(slots_a[a]), C(slots_a[b])])
-                J = marg_a.jointMarginalCovariance(kv).fullMatrix()
+                ia, ib = names.index(a), names.index(b)
+                sel = np.r_[6 * ia: 6 * ia + 6, 6 * ib: 6 * ib + 6]
+                J = joint_cov[np.ix_(sel, sel)]
             else:
                 J = np.zeros((12, 12))
                 J[:6, :6], J[6:, 6:] = ca, cb
@@ -405,11 +513,12 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
     if joint:
         est = groups[0][1]
         T_mount = est.T_M_board
-        mount_cov = _to_ref_axes(T_mount, est.extra["marginals"].marginalCovariance(B(0)))
+        mount_cov = _to_ref_axes(T_mount, est.extra["mount_cov_body"])
         A_est = est.A_est
     if problem.mode == "eye_in_hand":
         A_est = {k: inv(T) for k, T in A_est.items()}
     settings = {k: getattr(opts, k) for k in opts.__dataclass_fields__}
+    settings["formulation_used"] = groups[0][1].extra["formulation"]
     return Result(
         mode=problem.mode, method=problem.method, cameras=cam_results, T_mount_board=T_mount,
         mount_covariance=mount_cov, pairs=pairs, converged=True, iterations=iters, final_cost=cost,
@@ -441,7 +550,7 @@ def crlb(problem: Problem, T_ref_cam: dict, T_mount_board, pixel_sigma_px: float
         est = _Estimate(T_S_cam={n: T_ref_cam[n] for n in names}, T_M_board=mount, A_est=dict(true_A))
         slots = {n: i for i, n in enumerate(names)}
         graph, values = _build_graph(vs, slots, problem, est, pixel_sigma_px)
-        marg = gtsam.Marginals(graph, values)
+        marg = _Marginals(graph, values, _ordering(values))
         for n in names:
             out[n] = _to_ref_axes(T_ref_cam[n], marg.marginalCovariance(C(slots[n])))
     return out
