@@ -4,6 +4,11 @@ with a reason when it is absent, unless CALIBGRAPH_SHARED_REQUIRED=1 (CI), where
 import os
 from pathlib import Path
 
+# MuJoCo binds its GL backend when first imported; a test module that imports mujoco (directly or
+# via franky_sim) during collection would otherwise get GLFW, which aborts without a display.
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
