@@ -103,11 +103,28 @@ class SimRobot:
             raise DeviceError("simulated robot: used after close().")
 
 
+def board_plainly_hidden(world, camera: str) -> bool:
+    """True when the simulation's ground truth says ``camera`` cannot possibly detect the board at
+    the world's current state (board outside the image, seen from behind or edge-on beyond
+    80 degrees, or squares under 3 px). Looser than the planner's visibility test, so marginal
+    views are still left to the real detector; no occlusion test for the same reason."""
+    from ..plan import board_visibility
+
+    return not board_visibility(world, camera, world.T_base_board(), margin_px=0.0, max_angle_deg=80.0,
+                                min_square_px=3.0, check_occlusion=False)
+
+
 class SimCamera:
     """A fixed camera of the simulated cell (implements :class:`calibgraph.interfaces.Camera`).
 
     ``grab`` renders the world at its current state and degrades the image as the workcell's
     realism settings say; frames are grey (H, W) uint8.
+
+    With ``world.skip_hidden_renders`` set (what :func:`calibgraph.sim.simulate.simulate_dataset`
+    does with its detection gate on), a camera for which :func:`board_plainly_hidden` holds returns
+    a blank frame instead of rendering: the gated detector rejects such frames anyway, and the
+    acquisition writes no image for rejected views, so the dataset is unchanged and the run is
+    several times faster.
     """
 
     def __init__(self, world, name: str):
@@ -123,7 +140,10 @@ class SimCamera:
     def grab(self) -> Frame:
         if self._closed:
             raise DeviceError(f"simulated camera {self.name}: used after close().")
-        img = self.world.render(self.name)
+        if getattr(self.world, "skip_hidden_renders", False) and board_plainly_hidden(self.world, self.name):
+            img = np.zeros((self.spec.intrinsics.height_px, self.spec.intrinsics.width_px), np.uint8)
+        else:
+            img = self.world.render(self.name)
         self.world.last_frame_camera[id(img)] = self.name  # lets a simulation-side detector gate know the source
         # a frame period after the last event, offset per camera (unsynchronised sensors)
         self.world.clock_s += 1.0 / 30.0

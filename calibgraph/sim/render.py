@@ -35,6 +35,7 @@ class SimWorld:
         self._renderers = {}
         self.clock_s = 0.0  # simulated time: motions and frame periods advance it
         self.last_frame_camera = {}  # id(image) -> camera name of frames handed out by SimCamera
+        self.skip_hidden_renders = False  # see SimCamera
         self.mujoco.mj_forward(self.model, self.data)
         self._distortion_maps = {}
         self.rng = np.random.default_rng(cell.seed)

@@ -112,11 +112,10 @@ class VisibilityGatedDetector:
         self.skipped = 0
 
     def __call__(self, image, target, intrinsics=None):
-        from ..plan import board_visibility
+        from .devices import board_plainly_hidden
 
         cam = self.world.last_frame_camera.pop(id(image), None)
-        if cam is not None and not board_visibility(self.world, cam, self.world.T_base_board(), margin_px=0.0,
-                                                    max_angle_deg=80.0, min_square_px=3.0, check_occlusion=False):
+        if cam is not None and board_plainly_hidden(self.world, cam):
             self.skipped += 1
             return None
         det = self.detector
@@ -138,7 +137,7 @@ def simulate_dataset(cell: Workcell, trajectory, out_dir, world=None, progress=T
         progress: True (lines on stderr), False, or a callable receiving progress lines.
         detector: passed to the acquisition (default :func:`calibgraph.detect.detect_image`).
         gate: wrap the detector in :class:`VisibilityGatedDetector` (skip frames whose board is
-            plainly out of view, for speed).
+            plainly out of view, for speed) and let cameras skip rendering those frames.
     Returns:
         the acquisition's :class:`calibgraph.acquire.AcquisitionReport`.
     """
@@ -156,6 +155,7 @@ def simulate_dataset(cell: Workcell, trajectory, out_dir, world=None, progress=T
 
     if gate:
         detector = VisibilityGatedDetector(world, detector)
+    world.skip_hidden_renders = bool(gate)
     report = run_acquisition(robot, cams, trajectory, out_dir, cell.target, detector=detector, resume=resume,
                              progress=progress)
     write_ground_truth(out_dir, cell, world)
