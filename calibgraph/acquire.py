@@ -426,6 +426,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
 
     camera_errors = {c: [] for c in cams}
     fails_in_row = {c: 0 for c in cams}
+    last_stamp = {}  # camera -> stamp of its last frame: a repeated stamp is a stale (re-delivered) frame
     lost = []
     intr = {}
     for name, cam in ({} if dry_run else cams).items():  # a dry run touches no camera
@@ -541,7 +542,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
             stamp_s = time.time()
             frames = {}
             for c in live:
-                fr = _grab(cams[c], c, grab_retries, camera_errors, fails_in_row, log, i)
+                fr = _grab(cams[c], c, grab_retries, camera_errors, fails_in_row, log, i, last_stamp)
                 if fr is not None:
                     frames[c] = fr
                 elif fails_in_row[c] >= max_camera_failures and c not in lost:
@@ -629,9 +630,9 @@ def _wait_settled(robot, timeout_s, poll_s) -> bool:
         time.sleep(poll_s)
 
 
-def _grab(cam, name, retries, errors, fails_in_row, log, i):
+def _grab(cam, name, retries, errors, fails_in_row, log, i, last_stamp):
     """One fresh frame or None; failures are counted per camera."""
-    last = getattr(cam, "_calibgraph_last_stamp", None)
+    last = last_stamp.get(name)
     for attempt in range(retries + 1):
         try:
             fr = cam.grab()
@@ -642,10 +643,7 @@ def _grab(cam, name, retries, errors, fails_in_row, log, i):
                 raise DeviceError(f"unusable frame (dtype {img.dtype}, shape {img.shape})")
             if last is not None and fr.stamp_s <= last:
                 raise DeviceError(f"stale frame (timestamp {fr.stamp_s} not after the previous {last})")
-            try:
-                cam._calibgraph_last_stamp = float(fr.stamp_s)
-            except AttributeError:
-                pass
+            last_stamp[name] = float(fr.stamp_s)
             fails_in_row[name] = 0
             return fr
         except Exception as e:  # any driver failure costs this camera's view, never the run

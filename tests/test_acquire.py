@@ -430,3 +430,41 @@ def test_engine_imports_no_sdk_and_drivers_explain_missing_ones():
     assert len(msgs) == 4
     for m, hint in zip(msgs, ("pylibfranka", "pyrealsense2", "rclpy", "pylibfreenect2")):
         assert hint in m and ("pip install" in m or "not on PyPI" in m), m
+
+
+def test_stale_frames_are_refused(tmp_path):
+    from calibgraph.interfaces import Frame
+
+    cell = make_fake_cell(n_cameras=2, n_poses=4, seed=15)
+    cam = cell.cameras[1]
+    orig = cam.grab
+    first = {}
+
+    def grab():
+        fr = orig()
+        first.setdefault("stamp", fr.stamp_s)
+        return Frame(camera=fr.camera, image=fr.image, stamp_s=first["stamp"])  # a driver re-delivering one frame
+
+    cam.grab = grab
+    rep = _run(cell, tmp_path / "ds", grab_retries=0, max_camera_failures=10)
+    assert len(rep.camera_errors["cam1"]) == 3 and "stale frame" in rep.camera_errors["cam1"][0]
+    assert rep.accepted_per_camera["cam1"] <= 1 and not rep.camera_errors["cam0"]
+
+
+def test_ctrl_c_keeps_whole_captures_and_cli_says_how_to_resume(tmp_path, capsys):
+    cell = make_fake_cell(n_cameras=2, n_poses=6, seed=16)
+    orig = cell.robot.move_to_joints
+
+    def move(q, speed_scale=0.2):
+        if len(cell.robot.moves) == 3:
+            raise KeyboardInterrupt
+        orig(q, speed_scale)
+
+    cell.robot.move_to_joints = move
+    with pytest.raises(KeyboardInterrupt):
+        _run(cell, tmp_path / "ds")
+    assert len(load_dataset(tmp_path / "ds").captures) == 3
+    journal = json.loads((tmp_path / "ds" / "acquisition.json").read_text())
+    assert journal["runs"][-1]["stopped"] == "interrupted"
+    rep = _run(make_fake_cell(n_cameras=2, n_poses=6, seed=16), tmp_path / "ds", resume=True)
+    assert rep.captured == 3 and rep.count("done_before") == 3
