@@ -101,7 +101,11 @@ def run(args) -> int:
     result.save(result_path)
     gt = load_ground_truth(ds_dir)
     print(format_summary(result, truth=gt["T_base_cam"]))
-    from .transforms import pose_error
+    from .transforms import log_so3, pose_error
+
+    print("camera orientations (T_base_cam rotation vector, deg):")
+    for n, c in result.cameras.items():
+        print(f"  {n:10s} {np.round(np.degrees(log_so3(c.T_ref_cam[:3, :3])), 3).tolist()}")
 
     if result.T_mount_board is not None:
         e_m, e_deg = pose_error(result.T_mount_board, gt["T_flange_board"])

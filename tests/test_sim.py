@@ -229,3 +229,32 @@ def test_sim_devices_implement_interfaces(world):
     f1 = cams["cam0"].grab()
     assert f1.stamp_s > f0.stamp_s and f0.image.dtype == np.uint8 and f0.camera == "cam0"
     assert cams["cam0"].intrinsics().width_px == 1280
+
+
+def test_lens_distortion_renders_the_opencv_model():
+    """With distortion on, the camera reports the coefficients and rendered corners follow
+    Intrinsics.project with them (measured: |mean| < 0.01 px, rms ~0.05 px at 1.5 m)."""
+    require_sim()
+    from calibgraph.detect import detect_image
+    from calibgraph.plan import plan_trajectory
+    from calibgraph.sim.render import SimWorld
+    from calibgraph.sim.workcell import Realism, ring_workcell
+
+    w = SimWorld(ring_workcell(n_cameras=1, distance_m=1.5, preset_name="d455", realism=Realism(distortion=True)))
+    spec = w.cell.cameras[0]
+    assert np.allclose(spec.intrinsics.dist, Realism().distortion_coeffs)
+    traj = plan_trajectory(w, 2, seed=5)
+    errs = []
+    for p in traj.poses:
+        w.set_q(p.q_rad)
+        det = detect_image(w.render(spec.name), w.cell.target, spec.intrinsics)
+        assert det.ok, det.reason
+        T_cb = inv(spec.T_base_cam) @ w.T_base_board()
+        uv = spec.intrinsics.project(w.cell.target.points_board_m @ T_cb[:3, :3].T + T_cb[:3, 3])
+        errs.append(det.uv_px - uv[det.ids])
+    E = np.concatenate(errs)
+    # the lens really bends the image: the top-left pixel shows a point ~20 px further out
+    mx, my = w._distortion_maps[spec.name]
+    assert np.hypot(mx[0, 0], my[0, 0]) > 10
+    assert np.abs(E.mean(axis=0)).max() < 0.05 and np.sqrt((E**2).sum(axis=1).mean()) < 0.25
+    w.close()
