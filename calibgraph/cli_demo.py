@@ -50,6 +50,8 @@ def run(args) -> int:
     t_start = time.monotonic()
     out = Path(args.out)
     ds_dir = out / "dataset"
+    if args.poses < 6:
+        raise InputError(f"--poses {args.poses}: the demo needs at least 6 poses (3 views per camera at the very least).")
     if (ds_dir / "dataset.yaml").exists():
         raise InputError(f"{out}: holds a previous demo; choose another --out or delete it.")
     if args.workcell:
