@@ -131,7 +131,6 @@ class FakeCamera:
         if self.n_grabs in self.fail_grabs:
             raise DeviceError(f"fake camera {self.name}: frame dropped (injected)")
         truth = self.true_uv()
-        W, H = self._intr.width_px, self._intr.height_px
         if self.render:
             img = _render_checkerboard(self.target, self._intr, inv(self.T_base_cam) @ self.robot.flange_pose()
                                        @ self.T_flange_board)

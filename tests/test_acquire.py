@@ -183,7 +183,6 @@ def test_unsafe_poses_are_skipped_before_any_motion(tmp_path):
     cut = float(np.median(xs))
     # box that excludes the poses with x above the median (flange origin x = q[0] for the fake arm)
     limits = SafetyLimits(workspace_min_m=[-2, -2, -2], workspace_max_m=[cut, 2, 2], max_speed_scale=0.5)
-    start = cell.robot.joint_positions()
     rep = _run(cell, tmp_path / "ds", safety=limits)
     bad = {i for i, x in enumerate(xs) if x > cut}
     assert {i for i, s, _ in rep.skipped} == bad and all(s == "skipped_unsafe" for _, s, _ in rep.skipped)
@@ -191,14 +190,13 @@ def test_unsafe_poses_are_skipped_before_any_motion(tmp_path):
     sent = [q for q, _ in cell.robot.moves]
     assert len(sent) == 8 - len(bad)
     assert all(q[0] <= cut + 1e-12 for q in sent)  # no command ever left the box
-    del start
 
 
 def test_path_leaving_the_box_is_refused_even_when_both_ends_are_inside(tmp_path):
     cell = make_fake_cell(n_cameras=1, n_poses=2, seed=7)
     a, b = cell.trajectory.poses[0].q_rad.copy(), cell.trajectory.poses[0].q_rad.copy()
-    b[3:] = -b[3:]  # same position, opposite rotation: the fake arm's straight joint path stays put in xyz
-    # ... so use a robot whose FK bulges: position depends on the path midpoint
+    b[3:] = -b[3:]  # same position, opposite rotation: on the fake arm the straight joint path stays put in xyz,
+    # so the robot gets an FK whose path bulges out of the box between two in-box ends
     traj = Trajectory(poses=(a, b), speed_scale=0.2)
     box = SafetyLimits(workspace_min_m=a[:3] - 0.01, workspace_max_m=a[:3] + 0.01, max_speed_scale=0.5)
 
@@ -233,7 +231,6 @@ def test_joint_limits_and_speed_cap(tmp_path):
 
 
 def test_unreachable_pose_is_skipped_with_a_message(tmp_path):
-    target_q = None
     cell = make_fake_cell(n_cameras=2, n_poses=5, seed=9)
     target_q = cell.trajectory.poses[2].q_rad
     cell.robot.unreachable = lambda q: np.allclose(q, target_q)
