@@ -39,12 +39,28 @@ def _free_loopback() -> str:
     pytest.skip("no free loopback address for franky-sim")
 
 
+def _die_with_parent():
+    """Child-side: the kernel kills franky-sim if the test process dies, so none is left behind."""
+    import ctypes
+
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
 @pytest.fixture(scope="module")
 def franky_sim():
+    import faulthandler
+
+    # pylibfranka blocks in C with the GIL held when a server does not answer; only a C-level
+    # watchdog can end such a hang, so the whole module is bounded (it needs ~30 s).
+    faulthandler.dump_traceback_later(240, exit=True)
     ip = _free_loopback()
     p = subprocess.Popen([sys.executable, "-m", "franky_sim.run_server", "-s", "mujoco", "--hostname", ip],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                         env=dict(os.environ, PYTHONUNBUFFERED="1"), start_new_session=True)
+                         env=dict(os.environ, PYTHONUNBUFFERED="1"), start_new_session=True,
+                         preexec_fn=_die_with_parent)
     t_end = time.monotonic() + 60
     lines = []
     ok = False
@@ -61,6 +77,7 @@ def franky_sim():
             pytest.fail("franky-sim did not start within 60 s:\n" + "".join(lines))
         yield ip
     finally:
+        faulthandler.cancel_dump_traceback_later()
         p.send_signal(signal.SIGINT)
         try:
             p.wait(10)
@@ -69,8 +86,9 @@ def franky_sim():
             p.wait(5)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def robot(franky_sim):
+    # one connection at a time: franky-sim serves a single libfranka client (as a real robot does)
     r = FrankaRobot(franky_sim, model="fr3", realtime=False)
     yield r
     r.close()
@@ -154,3 +172,63 @@ def test_unreachable_address_fails_fast():
     with pytest.raises(DeviceError, match="cannot reach"):
         FrankaRobot("127.0.99.254", connect_timeout_s=1.0)
     assert time.monotonic() - t0 < 5
+
+
+def _record_realsense(path, n):
+    """A short colour recording (.db3) from an SDK software device, to stand in for a live camera."""
+    rs = pytest.importorskip("pyrealsense2")
+    dev = rs.software_device()
+    sensor = dev.add_sensor("RGB Camera")
+    intr = rs.intrinsics()
+    intr.width, intr.height, intr.fx, intr.fy, intr.ppx, intr.ppy = 64, 48, 60.0, 60.0, 31.5, 23.5
+    intr.model, intr.coeffs = rs.distortion.brown_conrady, [0.0] * 5
+    vs = rs.video_stream()
+    vs.type, vs.index, vs.uid, vs.width, vs.height, vs.fps, vs.bpp = rs.stream.color, 0, 0, 64, 48, 30, 3
+    vs.fmt, vs.intrinsics = rs.format.bgr8, intr
+    prof = sensor.add_video_stream(vs)
+    dev.register_info(rs.camera_info.serial_number, "REC1")
+    rec = rs.recorder(str(path), dev)
+    rsensor = rec.query_sensors()[0]
+    sync = rs.syncer()
+    rsensor.open(rsensor.get_stream_profiles()[0])
+    rsensor.start(sync)
+    for i in range(n):
+        f = rs.software_video_frame()
+        f.pixels = np.full((48, 64, 3), 128, np.uint8)
+        f.stride, f.bpp, f.timestamp, f.frame_number = 64 * 3, 3, 1000.0 + 33.3 * i, i
+        f.domain, f.profile = rs.timestamp_domain.hardware_clock, prof.as_video_stream_profile()
+        sensor.on_video_frame(f)
+        sync.wait_for_frames(2000)
+    rsensor.stop()
+    rsensor.close()
+    del rsensor, rec
+
+
+def test_cli_capture_drives_franka_with_a_recorded_realsense(franky_sim, tmp_path, capsys):
+    import yaml
+
+    from calibgraph.acquire import save_trajectory
+    from calibgraph.cli import main
+
+    _record_realsense(tmp_path / "rec.db3", 20)
+    r = FrankaRobot(franky_sim)
+    q0 = r.joint_positions()
+    r.close()
+    del r
+    traj = Trajectory(poses=(TrajectoryPose(q0), TrajectoryPose(q0 + np.array([0.05, 0, 0, 0.05, 0, 0, 0.05]))),
+                      speed_scale=0.3)
+    save_trajectory(traj, tmp_path / "t.yaml")
+    cell = {"board": "a4_54", "robot": {"driver": "franka", "ip": franky_sim, "model": "fr3", "realtime": False},
+            "cameras": {"rs0": {"driver": "realsense", "file": str(tmp_path / "rec.db3"), "settle_frames": 2}},
+            "safety": {"robot_model": "fr3", "workspace_min_m": [0.2, -0.5, 0.2], "workspace_max_m": [0.9, 0.5, 1.0],
+                       "max_speed_scale": 0.5}}
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    code = main(["capture", "--workcell", str(tmp_path / "cell.yaml"), "--trajectory", str(tmp_path / "t.yaml"),
+                 "--out", str(tmp_path / "ds"), "--i-have-cleared-the-cell", "--settle-dwell-s", "0.05"])
+    out = capsys.readouterr()
+    # the recording shows no board: both poses are visited, every frame is grabbed and rejected
+    assert code == 0, out.err
+    assert "2 without accepted views" in out.out and "rs0: 0 views accepted, 2 rejected" in out.out
+    r = FrankaRobot(franky_sim)
+    np.testing.assert_allclose(r.joint_positions(), traj.poses[1].q_rad, atol=5e-3)
+    r.close()
