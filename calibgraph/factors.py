@@ -90,3 +90,46 @@ def make_view_factor(key_cam, key_robot, key_mount, p_board_m: np.ndarray, uv_px
         return e
 
     return gtsam.CustomFactor(model, [key_cam, key_robot, key_mount], error_func)
+
+
+def with_pinhole(intr: Intrinsics, k4: np.ndarray) -> Intrinsics:
+    """Copy of ``intr`` with fx, fy, cx, cy replaced (skew and distortion kept)."""
+    K = intr.K.copy()
+    K[0, 0], K[1, 1], K[0, 2], K[1, 2] = k4
+    return Intrinsics(K=K, dist=intr.dist, width_px=intr.width_px, height_px=intr.height_px)
+
+
+def make_view_factor_intrinsics(key_cam, key_robot, key_mount, key_intr, p_board_m, uv_px, intr: Intrinsics,
+                                sqrt_w) -> gtsam.CustomFactor:
+    """View factor that also estimates the camera's [fx, fy, cx, cy] (a Vector4 variable).
+
+    d u / d(fx, cx) = (x_d, 1), d v / d(fy, cy) = (y_d, 1), with (x_d, y_d) the distorted normalised
+    coordinates, recovered from the projection itself.
+    """
+    p_board_m = np.ascontiguousarray(p_board_m, float)
+    uv_px = np.ascontiguousarray(uv_px, float)
+    sqrt_w = np.ascontiguousarray(sqrt_w, float)
+    n = p_board_m.shape[0]
+    model = gtsam.noiseModel.Unit.Create(2 * n)
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
+        T_sc = values.atPose3(key_cam).matrix()
+        T_sm = values.atPose3(key_robot).matrix()
+        T_mb = values.atPose3(key_mount).matrix()
+        k4 = values.atVector(key_intr)
+        cur = with_pinhole(intr, k4)
+        e, J = view_residual(T_sc, T_sm, T_mb, p_board_m, uv_px, cur, sqrt_w, want_jacobians=H is not None)
+        if H is not None:
+            H[0], H[1], H[2] = J
+            uv = e.reshape(n, 2) / sqrt_w[:, None] + uv_px
+            yd = (uv[:, 1] - k4[3]) / k4[1]
+            xd = (uv[:, 0] - k4[2] - cur.K[0, 1] * yd) / k4[0]
+            Jk = np.zeros((n, 2, 4))
+            Jk[:, 0, 0] = xd
+            Jk[:, 0, 2] = 1.0
+            Jk[:, 1, 1] = yd
+            Jk[:, 1, 3] = 1.0
+            H[3] = (Jk * sqrt_w[:, None, None]).reshape(2 * n, 4)
+        return e
+
+    return gtsam.CustomFactor(model, [key_cam, key_robot, key_mount, key_intr], error_func)

@@ -25,9 +25,10 @@ import numpy as np
 
 from .errors import InputError, ObservabilityError, SolverError
 from . import factors_ppp
-from .factors import make_view_factor, project_chain
+from .factors import make_view_factor, make_view_factor_intrinsics, project_chain, with_pinhole
 from .initialise import ViewCandidates, initialise, pnp_candidates, refine_translations
 from .keys import B, C, F
+from .keys import K as Kk
 from .observability import check_after_solve, check_before_solve
 from .problem import Problem
 from .result import CameraResult, PairResult, RejectedView, Result
@@ -57,6 +58,7 @@ class _Estimate:
     iterations: int = 0
     cost: float = np.inf
     sigma_px: float = 1.0
+    intr: dict = field(default_factory=dict)  # camera -> refined Intrinsics (refine_intrinsics only)
     extra: dict = field(default_factory=dict)
 
 
@@ -96,7 +98,7 @@ def _all_residuals(views, est: _Estimate, problem) -> list:
             pts.append(v.p_board @ T[:3, :3].T + T[:3, 3])
             uvs.append(v.uv)
             counts.append(len(v.ids))
-        uv_hat = problem.cameras[cam].project(np.concatenate(pts))
+        uv_hat = est.intr.get(cam, problem.cameras[cam]).project(np.concatenate(pts))
         r = np.linalg.norm(uv_hat - np.concatenate(uvs), axis=1)
         r = np.where(np.isfinite(r), r, 1e6)
         for i, part in zip(idx, np.split(r, np.cumsum(counts)[:-1])):
@@ -142,13 +144,26 @@ def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: s
     for name, i in slots.items():
         values.insert(C(i), gtsam.Pose3(est.T_S_cam[name]))
     values.insert(B(0), gtsam.Pose3(est.T_M_board))
+    refine = problem.options.refine_intrinsics
+    if refine:
+        prior = gtsam.noiseModel.Isotropic.Sigma(4, problem.options.intrinsics_sigma_px)
+        for name, i in slots.items():
+            K0 = problem.cameras[name].K
+            k4 = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2]])
+            graph.add(gtsam.PriorFactorVector(Kk(i), k4, prior))
+            Kc = est.intr.get(name, problem.cameras[name]).K
+            values.insert(Kk(i), np.array([Kc[0, 0], Kc[1, 1], Kc[0, 2], Kc[1, 2]]))
     for v in views:
         if not v.active:
             continue
         keep = v.w > 0
         sw = np.sqrt(v.w[keep]) / sigma_px
-        graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board[keep], v.uv[keep],
-                                   problem.cameras[v.camera], sw))
+        if refine:
+            graph.add(make_view_factor_intrinsics(C(slots[v.camera]), F(v.capture), B(0), Kk(slots[v.camera]),
+                                                  v.p_board[keep], v.uv[keep], problem.cameras[v.camera], sw))
+        else:
+            graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board[keep], v.uv[keep],
+                                       problem.cameras[v.camera], sw))
     return graph, values
 
 
@@ -215,12 +230,19 @@ def _extract(values, slots, views, est: _Estimate, form: str = "view") -> _Estim
     A_est = dict(est.A_est)
     for k in {v.capture for v in views if v.active}:
         A_est[k] = values.atPose3(F(k)).matrix()
-    return _Estimate(T_S_cam=T_S_cam, T_M_board=values.atPose3(B(0)).matrix(), A_est=A_est)
+    intr = dict(est.intr)
+    for name, i in slots.items():
+        if values.exists(Kk(i)):
+            base = est.intr.get(name) or est.extra["cameras"][name]
+            intr[name] = with_pinhole(base, values.atVector(Kk(i)))
+    out = _Estimate(T_S_cam=T_S_cam, T_M_board=values.atPose3(B(0)).matrix(), A_est=A_est, intr=intr)
+    out.extra["cameras"] = est.extra.get("cameras")
+    return out
 
 
 def _solve_core(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_board0: np.ndarray):
     """IRLS + outlier handling for one graph (all cameras in 'joint', one camera in 'single')."""
-    form = _formulation(problem, names, len(views))
+    form = "view" if problem.options.refine_intrinsics else _formulation(problem, names, len(views))
     try:
         return _solve_core_with(problem, names, views, T_S_cam0, T_M_board0, form)
     except ObservabilityError:
@@ -234,6 +256,7 @@ def _solve_core_with(problem: Problem, names: list, views: list, T_S_cam0: dict,
     opts = problem.options
     slots = {n: i for i, n in enumerate(names)}
     est = _Estimate(T_S_cam=dict(T_S_cam0), T_M_board=T_M_board0, A_est={})
+    est.extra["cameras"] = problem.cameras
     for v in views:
         v.w = np.ones(len(v.ids))
         v.active = True
@@ -291,7 +314,7 @@ def _solve_core_with(problem: Problem, names: list, views: list, T_S_cam0: dict,
     # a posteriori pixel sigma and the final weighted graph for the marginals
     act = [v for v in views if v.active]
     n_obs = 2 * sum(int((v.w > 0).sum()) for v in act)
-    n_par = 6 * (len(names) + 1)
+    n_par = 6 * (len(names) + 1) + (4 * len(names) if opts.refine_intrinsics else 0)
     if fixed_sigma:
         sigma_post = fixed_sigma
     else:
@@ -462,7 +485,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
             check_after_solve(n, cov)
             cv = [v for v in gviews if v.camera == n]
             used = [v for v in cv if v.active]
-            intr = problem.cameras[n]
+            intr = est.intr.get(n, problem.cameras[n])
             res_all, residuals = [], {}
             for v in cv:
                 uv_hat = project_chain(est.T_S_cam[n], est.A_est.get(v.capture, v.A), est.T_M_board, v.p_board, intr)
