@@ -112,17 +112,19 @@ def test_move_respects_velocity_scaling_and_arrives(robot):
     scale = 0.3
     robot.move_to_joints(q1, speed_scale=scale)
     m = robot.last_motion
-    assert m["duration_s"] == pytest.approx(quintic_duration_s(q0, q1, scale, "fr3"), rel=0.05)
+    assert m["duration_s"] == pytest.approx(quintic_duration_s(q0, q1, scale, "fr3"), rel=0.05), m
     vmax = np.asarray(FRANKA_LIMITS["fr3"]["dq_max_rad_s"])
     # measured joint speed stays under the scaled limit (10% allowance for tracking overshoot)
-    assert m["peak_dq_rad_s"] <= 1.1 * scale * vmax.min() + 0.02
+    assert m["peak_dq_rad_s"] <= 1.1 * scale * vmax.min() + 0.02, m
     t_end = time.monotonic() + 60  # franky-sim runs slower than real time on a loaded machine
     while not robot.is_settled() and time.monotonic() < t_end:
         time.sleep(0.01)
     assert robot.is_settled()
-    np.testing.assert_allclose(robot.joint_positions(), q1, atol=3e-3)
+    # the joint impedance controller leaves a steady-state error of ~2 mrad under gravity (measured
+    # 0.9-1.7 mrad); the acquisition's arrival tolerance is 10 mrad
+    np.testing.assert_allclose(robot.joint_positions(), q1, atol=5e-3)
     dt_m, _ = pose_error(franka_fk(q1), robot.flange_pose())
-    assert dt_m < 2e-3
+    assert dt_m < 3e-3, dt_m
 
 
 def test_out_of_limit_target_is_refused_without_moving(robot):
