@@ -192,7 +192,9 @@ class AcquisitionReport:
         out_dir: dataset folder.
         n_poses: poses in the trajectory.
         outcomes: one :class:`PoseOutcome` per pose handled in this run (and 'done_before' ones).
-        accepted_per_camera / rejected_per_camera: view counts over the whole dataset so far.
+        accepted_per_camera: views stored, over the whole dataset so far.
+        rejected_per_camera: frames the detector or the filter refused, over every run (a pose
+            retried after a resume counts again).
         camera_errors: camera -> messages of failed grabs in this run.
         lost_cameras: cameras declared lost (too many failures in a row) in this run.
         stopped_reason: why the run ended before the trajectory did (None when it completed).
@@ -374,8 +376,8 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
         detector: ``detector(image, target, intrinsics)`` returning an object with ``ok, ids,
             uv_px, reason`` or a tuple ``(ids, uv_px)`` or None; default
             :func:`calibgraph.detect.detect_image`.
-        resume: continue a dataset whose run was interrupted. Without it an existing dataset
-            folder is refused.
+        resume: continue a dataset whose run was interrupted (starts a new one when ``out_dir``
+            holds none). Without it an existing dataset folder is refused.
         safety: limits checked before every motion (default: no box, speed cap 0.3, the robot's
             own joint limits when it exposes ``joint_limits()``).
         on_capture: ``on_capture(capture, detections) -> estimate`` called after each capture is

@@ -28,6 +28,10 @@ Real-time: libfranka expects a real-time kernel (``RealtimeConfig.kEnforce``); p
 interpolation covers short gaps, and persistent misses end in a communication-constraints
 reflex (reported as DeviceError).
 
+One client at a time: like the robot's FCI, franky-sim serves a single libfranka connection, and
+a second ``pylibfranka.Robot`` to a busy server blocks inside libfranka with the GIL held (no
+Python-level timeout can interrupt it). Close one :class:`FrankaRobot` before opening another.
+
 Tested against franky-sim (``franky-sim -s mujoco``), which serves the libfranka network protocol
 on a loopback address: see ``tests/test_driver_franka.py``. Never run franky-sim in the same
 process as pylibfranka: the connect call holds the GIL and deadlocks an in-process server.
