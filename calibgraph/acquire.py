@@ -503,8 +503,10 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
 
     stopped = None
     last_estimate = None
+    current = None
     try:
         for i in pending:
+            current = i
             pose = trajectory.poses[i]
             live = [c for c in cams if c not in lost]
             if not live:
@@ -589,13 +591,18 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
             if on_capture is not None:
                 try:
                     last_estimate = on_capture(cap, dets)
-                except CalibgraphError as e:  # the estimate is advisory; data is already safe on disk
-                    log(f"incremental estimate unavailable after pose {i}: {e}")
+                except Exception as e:  # the estimate is advisory; the data is already safe on disk
+                    log(f"incremental estimate unavailable after pose {i}: {type(e).__name__}: {e}")
             log(_progress_line(i, len(trajectory.poses), views, rej, accepted, lost, last_estimate))
     except KeyboardInterrupt:
         journal.d["runs"][-1]["stopped"] = "interrupted"
         journal.save()
         raise
+    except DeviceError as e:  # cameras never get here (their failures are caught per grab): the robot failed
+        stopped = f"robot failed at pose {current}: {e}; check the robot and resume with --resume"
+    except OSError as e:
+        raise CalibgraphError(f"{out}: cannot write pose {current} ({e}); free disk space or fix permissions, then "
+                              "resume with --resume (whole captures already written are kept).") from None
     journal.d["runs"][-1]["stopped"] = stopped
     journal.d["runs"][-1]["lost_cameras"] = list(lost)
     journal.save()
@@ -659,8 +666,8 @@ def _grab(cam, name, retries, errors, fails_in_row, log, i, last_stamp):
 def _detect_and_filter(detector, image, target, intr, min_corners, cam, i):
     try:
         got, why = _normalise_detection(detector(image, target, intr))
-    except CalibgraphError as e:
-        return None, f"detection failed: {e}"
+    except Exception as e:  # a detector crash on one frame costs that view, not the run
+        return None, f"detection failed ({type(e).__name__}: {e})"
     if got is None:
         return None, why
     ids, uv = got

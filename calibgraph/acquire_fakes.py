@@ -67,6 +67,10 @@ class FakeRobot:
     def flange_pose(self) -> np.ndarray:
         return T_from_q(self._q)
 
+    def true_flange_pose(self) -> np.ndarray:
+        """The pose the fake cameras render (tests may break :meth:`flange_pose` on purpose)."""
+        return T_from_q(self._q)
+
     def move_to_joints(self, q_rad, speed_scale: float = 0.2) -> None:
         q = np.asarray(q_rad, float).reshape(-1)
         self.n_moves += 1
@@ -110,9 +114,13 @@ class FakeCamera:
     def intrinsics(self) -> Intrinsics:
         return self._intr
 
+    def _robot_pose(self) -> np.ndarray:
+        f = getattr(self.robot, "true_flange_pose", None)
+        return f() if callable(f) else self.robot.flange_pose()
+
     def true_uv(self):
         """(ids, uv_px) of the board points visible in the image (noise-free), or None."""
-        T_cb = inv(self.T_base_cam) @ self.robot.flange_pose() @ self.T_flange_board
+        T_cb = inv(self.T_base_cam) @ self._robot_pose() @ self.T_flange_board
         p = self.target.points_board_m @ T_cb[:3, :3].T + T_cb[:3, 3]
         if np.any(p[:, 2] <= 0.05):
             return None
@@ -132,11 +140,12 @@ class FakeCamera:
             raise DeviceError(f"fake camera {self.name}: frame dropped (injected)")
         truth = self.true_uv()
         if self.render:
-            img = _render_checkerboard(self.target, self._intr, inv(self.T_base_cam) @ self.robot.flange_pose()
+            img = _render_checkerboard(self.target, self._intr, inv(self.T_base_cam) @ self._robot_pose()
                                        @ self.T_flange_board)
         else:
             img = np.full((4, 4), 128, np.uint8)
-        self.cell._register(self.name, img, truth, self.robot.joint_positions())
+        q = self.robot._q if isinstance(self.robot, FakeRobot) else self.robot.joint_positions()
+        self.cell._register(self.name, img, truth, q)
         self._t = max(self._t + 1e-3, time.monotonic())
         return Frame(camera=self.name, image=img, stamp_s=self._t)
 

@@ -484,3 +484,37 @@ def test_captured_dataset_solves_to_the_fake_cells_truth(tmp_path):
         sigma_mm = float(np.linalg.norm(cr.sigma_translation_mm))
         assert 1e3 * err_m < 4 * sigma_mm, (cam.name, err_m, sigma_mm)
         assert err_deg < 4 * float(np.linalg.norm(cr.sigma_rotation_deg)), (cam.name, err_deg)
+
+
+def test_robot_state_failure_and_crashing_helpers_do_not_lose_data(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=6, seed=17)
+    calls = {"n": 0}
+    orig_pose = cell.robot.flange_pose
+
+    def flange_pose():
+        calls["n"] += 1
+        if calls["n"] == 7:  # 4th pose, first read: the controller connection drops
+            from calibgraph.interfaces import DeviceError
+
+            raise DeviceError("fake robot: state read failed (injected)")
+        return orig_pose()
+
+    cell.robot.flange_pose = flange_pose
+
+    def bad_detector(img, target, intr):
+        if bad_detector.n == 1:
+            bad_detector.n += 1
+            raise RuntimeError("cv2.error (injected)")
+        bad_detector.n += 1
+        return cell.detector(img, target, intr)
+
+    bad_detector.n = 0
+
+    def bad_on_capture(capture, detections):
+        raise RuntimeError("solver blew up (injected)")
+
+    rep = _run(cell, tmp_path / "ds", detector=bad_detector, on_capture=bad_on_capture)
+    assert not rep.complete and "robot failed at pose 3" in rep.stopped_reason and rep.captured == 3
+    assert rep.rejected_per_camera["cam1"] >= 1
+    rep2 = _run(make_fake_cell(n_cameras=2, n_poses=6, seed=17), tmp_path / "ds", resume=True)
+    assert rep2.complete and len(load_dataset(tmp_path / "ds").captures) == 6
