@@ -88,7 +88,10 @@ def build(views, slots, problem, est, sigma_px, fk_sigmas):
             A_prior = v.A
             # Information of A^-1's right perturbation is Ad(A)^-T Sigma^-1 Ad(A)^-1, so its square root
             # is diag(1/sigma) Ad(A^-1): exact, without inverting a covariance spanning 1e-16..1e-8.
-            sqrt_info = np.diag(1.0 / np.maximum(fk_sigmas, FK_SIGMA_FLOOR)) @ gtsam.Pose3(inv(A_prior)).AdjointMap()
+            # In eye-in-hand A itself is T_flange_base, the inverse of the pose the sigmas describe,
+            # so the between measurement A^-1 = T_base_flange carries them directly.
+            s_inv = np.diag(1.0 / np.maximum(fk_sigmas, FK_SIGMA_FLOOR))
+            sqrt_info = s_inv if problem.mode == "eye_in_hand" else s_inv @ gtsam.Pose3(inv(A_prior)).AdjointMap()
             graph.add(gtsam.BetweenFactorPose3(M0, H(k), gtsam.Pose3(inv(A_prior)),
                                                gtsam.noiseModel.Gaussian.SqrtInformation(sqrt_info, False)))
             values.insert(H(k), gtsam.Pose3(inv(est.A_est.get(k, A_prior) @ est.T_M_board)))

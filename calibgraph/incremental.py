@@ -25,7 +25,7 @@ from .initialise import ViewCandidates, camera_from_mount, initialise, pnp_candi
 from .keys import B, C, F
 from .problem import Capture, Detection, SolverOptions
 from .result import sigmas_from_cov
-from .solver import MIN_CORNERS_PER_VIEW, _to_ref_axes
+from .solver import MIN_CORNERS_PER_VIEW, _fk_noise, _to_ref_axes
 from .transforms import inv
 
 WEAK_PRIOR = gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 1.0, 1.0, 10.0, 10.0, 10.0]))
@@ -93,9 +93,8 @@ class IncrementalSolver:
     def _A(self, cap: Capture) -> np.ndarray:
         return cap.T_base_flange if self.mode == "eye_to_hand" else inv(cap.T_base_flange)
 
-    def _fk_noise(self):
-        o = self.options
-        return gtsam.noiseModel.Diagonal.Sigmas(np.array([o.fk_sigma_rotation_rad] * 3 + [o.fk_sigma_translation_m] * 3))
+    def _fk_noise(self, A=None):
+        return _fk_noise(self.options, self.mode, A)
 
     def _view_factor(self, cap, det):
         p = self.points_board_m[det.ids]
@@ -105,7 +104,7 @@ class IncrementalSolver:
     def _add_views(self, graph, values, items):
         for cap, det, _ in items:
             if cap.index not in self._fk_in_graph and not values.exists(F(cap.index)):
-                graph.add(gtsam.PriorFactorPose3(F(cap.index), gtsam.Pose3(self._A(cap)), self._fk_noise()))
+                graph.add(gtsam.PriorFactorPose3(F(cap.index), gtsam.Pose3(self._A(cap)), self._fk_noise(self._A(cap))))
                 values.insert(F(cap.index), gtsam.Pose3(self._A(cap)))
             graph.add(self._view_factor(cap, det))
             self._views_in_graph[det.camera] += 1

@@ -68,9 +68,14 @@ def _robot_prior_poses(problem: Problem) -> dict:
     return {c.index: inv(c.T_base_flange) for c in problem.captures}
 
 
-def _fk_noise(opts):
+def _fk_noise(opts, mode: str = "eye_to_hand", A: np.ndarray | None = None):
+    """FK prior noise. The sigmas describe T_base_flange (perturbed at the flange); in eye-in-hand
+    the variable is its inverse T_flange_base, whose right perturbation is -Ad(T_base_flange) xi, so
+    the square-root information becomes diag(1/sigma) Ad(T_flange_base)."""
     s = np.array([opts.fk_sigma_rotation_rad] * 3 + [opts.fk_sigma_translation_m] * 3)
-    return gtsam.noiseModel.Diagonal.Sigmas(s)
+    if mode == "eye_to_hand" or A is None:
+        return gtsam.noiseModel.Diagonal.Sigmas(s)
+    return gtsam.noiseModel.Gaussian.SqrtInformation(np.diag(1.0 / s) @ gtsam.Pose3(A).AdjointMap(), False)
 
 
 def _loss_weights(r_sigma: np.ndarray, loss: str, scale: float) -> np.ndarray:
@@ -135,11 +140,10 @@ def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: s
         return factors_ppp.build(views, slots, problem, est, sigma_px, fk)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
-    fk = _fk_noise(problem.options)
     used_caps = sorted({v.capture for v in views if v.active})
     A_prior = {v.capture: v.A for v in views}
     for k in used_caps:
-        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(A_prior[k]), fk))
+        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(A_prior[k]), _fk_noise(problem.options, problem.mode, A_prior[k])))
         values.insert(F(k), gtsam.Pose3(est.A_est.get(k, A_prior[k])))
     for name, i in slots.items():
         values.insert(C(i), gtsam.Pose3(est.T_S_cam[name]))
