@@ -130,7 +130,7 @@ def run(args) -> int:
             print(f"rerun recording skipped: {e}", file=sys.stderr)
         else:
             try:
-                p = write_rrd(result, problem, out / "calibgraph.rrd")
+                p = write_rrd(result, problem, out / "calibration.rrd")
                 print(f"wrote {p} (open with: rerun {p})")
             except Exception as e:  # the recording is a convenience; the calibration is already saved
                 print(f"rerun recording skipped: {type(e).__name__}: {e}", file=sys.stderr)

@@ -24,7 +24,7 @@ def test_demo_recovers_ground_truth(tmp_path, capsys):
     assert rc == 0
     text = capsys.readouterr().out
     assert "err mm" in text and "T_flange_board error vs ground truth" in text
-    for f in ("result.json", "report.html", "calibgraph.rrd", "trajectory.yaml", "dataset/dataset.yaml",
+    for f in ("result.json", "report.html", "calibration.rrd", "trajectory.yaml", "dataset/dataset.yaml",
               "dataset/ground_truth.json"):
         assert (out / f).is_file(), f
     R = load_result_dict(out / "result.json")
