@@ -13,7 +13,8 @@ def add_parser(sub):
     p.add_argument("dataset", type=Path, help="dataset folder (calibgraph or a peer layout)")
     p.add_argument("--workers", type=int, default=2, help="parallel detection threads (default 2)")
     p.add_argument("--upscale", default="auto", help="'auto' (default), 1 (off), 2 or 3")
-    p.add_argument("--method", choices=("classic", "sb", "auto"), default="classic", help="checkerboard detector")
+    p.add_argument("--method", choices=("classic", "sb", "auto"), default="auto",
+                   help="checkerboard detector: auto (default: classic, SB for squares under 8 px), classic or sb")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the detection cache")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p

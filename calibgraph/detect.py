@@ -5,11 +5,12 @@ One entry point per image, :func:`detect_image`, and one per dataset, :func:`dat
 
 Detectors (chosen by the target's kind; ``method`` picks among checkerboard detectors):
 
-* checkerboard, ``method="classic"`` (default): ``cv2.findChessboardCorners`` + ``cv2.cornerSubPix``
-  with a window sized to the grid pitch. ``method="sb"``: ``cv2.findChessboardCornersSB`` with
-  ``CALIB_CB_ACCURACY``. The benchmark (scripts/bench_detect.py) measures both against rendered
-  truth; classic + cornerSubPix has the smaller bias, so it is the default, and SB is the fallback
-  when classic finds nothing (``method="auto"``).
+* checkerboard: ``cv2.findChessboardCorners`` + ``cv2.cornerSubPix`` with a window sized to the
+  grid pitch ("classic"), or ``cv2.findChessboardCornersSB`` with ``CALIB_CB_ACCURACY`` ("sb").
+  The benchmark (scripts/bench_detect.py, rendered truth) picks per case: classic is the more
+  accurate for squares of 10 px and more (0.02-0.06 px RMS against 0.07-0.2 px for SB), SB on the
+  up-scaled region for smaller squares (found where classic is lost, 0.05-0.1 px RMS), so
+  ``method="auto"`` (default) uses classic and switches to SB below ``SB_BELOW_PITCH_PX``.
 * ChArUco: ``cv2.aruco.CharucoDetector``; partial views are kept (ids are fixed by the markers).
 * circle grids: ``cv2.findCirclesGrid`` (symmetric, asymmetric); the modified circle grid is found
   as a symmetric grid and oriented by its enlarged origin dot.
@@ -372,42 +373,84 @@ def _subpix_window(pitch_px: float) -> int:
     return int(np.clip(np.floor(pitch_px / 3.0), 2, 11))
 
 
-def _find_checkerboard(grey, target, method, allow_symmetric, fast=False):
+# Below this square size (pixels of the original image) the SB detector on the up-scaled region
+# is more accurate than classic + cornerSubPix, above it classic is (scripts/bench_detect.py,
+# rendered truth, 10 random poses per cell): 25 mm squares on the D455 at 2-5 m (3-8 px): SB x2
+# 0.05-0.10 px RMS and always found, classic x2 0.09-0.24 px and lost beyond 3 m; 46 mm squares
+# at 9-10 px: classic x2 0.06 px, SB x2 0.2 px with +0.18 px outward bias; 10-40 px squares:
+# classic 0.02-0.06 px, SB 0.07-0.2 px.
+SB_BELOW_PITCH_PX = 8.0
+
+
+def _classic(grey, target, fast):
     import cv2
 
-    pattern = (target.cols, target.rows)
+    # CALIB_CB_FAST_CHECK keeps a miss on a whole frame fast (without it a frame with a tiny
+    # board can take seconds) but it also rejects boards with ~10 px squares: those are found
+    # afterwards in the up-scaled region of interest, searched without it.
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    ok, c = cv2.findChessboardCorners(grey, (target.cols, target.rows), flags=flags | (cv2.CALIB_CB_FAST_CHECK if fast else 0))
+    if not ok:
+        return None
+    G = c.reshape(target.rows, target.cols, 2)
+    pitch = float(np.median(np.linalg.norm(np.diff(G, axis=1), axis=-1)))
+    w = _subpix_window(pitch)
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
-    methods = {"classic": ["classic"], "sb": ["sb"], "auto": ["classic", "sb"]}[method]
-    for m in methods:
-        if m == "classic":
-            # CALIB_CB_FAST_CHECK keeps a miss on a whole frame fast (without it a frame with a
-            # tiny board can take seconds) but it also rejects boards with ~10 px squares: those
-            # are found afterwards in the up-scaled region of interest, searched without it.
-            flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-            ok, c = cv2.findChessboardCorners(grey, pattern, flags=flags | (cv2.CALIB_CB_FAST_CHECK if fast else 0))
-            if ok:
-                c = c.reshape(-1, 2)
-                G = c.reshape(target.rows, target.cols, 2)
-                pitch = float(np.median(np.linalg.norm(np.diff(G, axis=1), axis=-1)))
-                w = _subpix_window(pitch)
-                c = cv2.cornerSubPix(grey, c.reshape(-1, 1, 2).astype(np.float32), (w, w), (-1, -1), crit)
-        else:
-            # SB costs seconds on a whole 1080p frame; on the saddle-point regions it costs
-            # milliseconds and finds the same corners (the whole frame is the fallback).
-            flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
-            h, w = grey.shape
-            rois = (_roi_candidates(grey, target) if fast else []) or [(0, 0, w, h)]
-            ok, c = False, None
-            for x0, y0, x1, y1 in rois:
-                ok, c = cv2.findChessboardCornersSB(grey[y0:y1, x0:x1], pattern, flags=flags)
-                if ok:
-                    c = np.asarray(c, float).reshape(-1, 2) + [x0, y0]
-                    break
-        if ok and c is not None:
-            G = np.asarray(c, float).reshape(target.rows, target.cols, 2)
-            uv, note = _orient_grid(G, target, grey, allow_symmetric)
-            return np.arange(target.n_points), uv, m, note
+    c = cv2.cornerSubPix(grey, c.reshape(-1, 1, 2).astype(np.float32), (w, w), (-1, -1), crit)
+    return np.asarray(c, float).reshape(-1, 2)
+
+
+def _sb(grey, target, fast):
+    import cv2
+
+    # SB costs seconds on a whole 1080p frame; on the saddle-point regions it costs milliseconds
+    # and finds the same corners (the whole frame is the fallback).
+    flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
+    h, w = grey.shape
+    rois = (_roi_candidates(grey, target) if fast else []) or [(0, 0, w, h)]
+    for x0, y0, x1, y1 in rois:
+        ok, c = cv2.findChessboardCornersSB(grey[y0:y1, x0:x1], (target.cols, target.rows), flags=flags)
+        if ok:
+            return np.asarray(c, float).reshape(-1, 2) + [x0, y0]
     return None
+
+
+def _find_checkerboard(grey, target, method, allow_symmetric, scale=1.0, sb_fallback=True):
+    """Checkerboard corners on ``grey`` (the original image at ``scale`` 1, or an up-scaled
+    region). ``method='auto'``: classic, replaced by SB when the squares are smaller than
+    ``SB_BELOW_PITCH_PX`` original pixels, and SB when classic finds nothing and
+    ``sb_fallback`` (off on the original image when an up-scaled classic search follows: that
+    is more accurate than SB at ~10-12 px squares)."""
+    fast = scale == 1.0
+    found = None
+    if method in ("classic", "auto"):
+        c = _classic(grey, target, fast)
+        if c is not None:
+            found = (c, "classic")
+            if method == "auto":
+                G = c.reshape(target.rows, target.cols, 2)
+                pitch = float(np.median(np.concatenate([np.linalg.norm(np.diff(G, axis=1), axis=-1).ravel(),
+                                                        np.linalg.norm(np.diff(G, axis=0), axis=-1).ravel()])))
+                if pitch / scale < SB_BELOW_PITCH_PX:
+                    # SB in a tight region around classic's corners, kept only if it finds the same
+                    # grid (every corner within a third of a square of classic's).
+                    x0, y0, x1, y1 = _roi_from_points(c, grey.shape, pad_frac=0.6, pad_px=4)
+                    c2 = _sb(grey[y0:y1, x0:x1], target, False)
+                    if c2 is not None:
+                        c2 = c2 + [x0, y0]
+                        d = np.linalg.norm(c2[:, None, :] - c[None, :, :], axis=-1).min(axis=1)
+                        if d.max() < pitch / 3:
+                            found = (c2, "sb")
+    if found is None and (method == "sb" or (method == "auto" and sb_fallback)):
+        c = _sb(grey, target, fast)
+        if c is not None:
+            found = (c, "sb")
+    if found is None:
+        return None
+    c, m = found
+    G = np.asarray(c, float).reshape(target.rows, target.cols, 2)
+    uv, note = _orient_grid(G, target, grey, allow_symmetric)
+    return np.arange(target.n_points), uv, m, note
 
 
 def _blob_detector(max_area: float):
@@ -513,7 +556,7 @@ def _hull_area(uv: np.ndarray) -> float:
 # ---------------------------------------------------------------------------------------------
 # Public API
 # ---------------------------------------------------------------------------------------------
-def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, upscale="auto", method: str = "classic",
+def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, upscale="auto", method: str = "auto",
                  allow_symmetric: bool = False, filter: bool = True, min_pitch_px: float = 12.0,
                  min_points: int = 4, source: str | None = None) -> ImageDetection:
     """Detect ``target`` in one image.
@@ -526,7 +569,8 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
             found or its pitch is below ``min_pitch_px``), ``1``/``"off"`` (never), or an int ``k``
             (always detect on the region up-scaled by ``k``).
         method: checkerboard detector, ``"classic"`` (findChessboardCorners + cornerSubPix),
-            ``"sb"`` (findChessboardCornersSB, accuracy flag) or ``"auto"`` (classic, then SB).
+            ``"sb"`` (findChessboardCornersSB, accuracy flag) or ``"auto"`` (default: classic, but SB
+            for squares under ``SB_BELOW_PITCH_PX`` original pixels or when classic finds nothing).
         allow_symmetric: accept symmetric targets with an orientation guessed from the image.
         filter: run the grid filter (thesis Algorithm 3 + homography check).
         min_pitch_px: below this grid pitch ``"auto"`` also tries the up-scaled region.
@@ -552,7 +596,8 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
         """Raw detection on img; returns (ids, uv, method, note) or None; DetectionError for
         orientation problems."""
         if target.kind == "checkerboard":
-            return _find_checkerboard(img, target, method, allow_symmetric, fast=scale == 1.0)
+            return _find_checkerboard(img, target, method, allow_symmetric, scale=scale,
+                                      sb_fallback=scale > 1 or upscale == 1)
         if target.kind == "charuco":
             r, _ = _find_charuco(img, target, intrinsics, scale)
             return r
