@@ -17,6 +17,8 @@ def add_parser(sub):
     p.add_argument("--pixel-sigma", type=float, default=None, help="corner noise in px (default: estimated)")
     p.add_argument("--fk-sigma-mm", type=float, default=None, help="forward-kinematics translation 1-sigma, mm")
     p.add_argument("--fk-sigma-deg", type=float, default=None, help="forward-kinematics rotation 1-sigma, deg")
+    p.add_argument("--refine-intrinsics", action="store_true",
+                   help="also estimate fx, fy, cx, cy, k1, k2 of every camera (priors around the given values)")
     p.add_argument("--rrd", type=Path, default=None, help="also write a rerun recording")
     p.add_argument("--quiet", action="store_true")
     return p
@@ -38,6 +40,8 @@ def solver_options(args, dataset):
         d["fk_sigma_translation_m"] = args.fk_sigma_mm * 1e-3
     if args.fk_sigma_deg:
         d["fk_sigma_rotation_rad"] = float(np.radians(args.fk_sigma_deg))
+    if getattr(args, "refine_intrinsics", False):
+        d["refine_intrinsics"] = True
     try:
         return SolverOptions(**d)
     except TypeError as e:
@@ -118,6 +122,9 @@ def run(args) -> int:
     result.save(out)
     if not args.quiet:
         print(format_summary(result))
+        if result.pixel_sigma_px > 1.0 and not opts.refine_intrinsics:
+            print(f"hint: residuals of {result.pixel_sigma_px:.2f} px per axis are large for a sub-pixel detector; "
+                  "if the intrinsics come without (or with wrong) distortion, try --refine-intrinsics")
         print(f"wrote {out}")
     if args.rrd:
         try:

@@ -92,19 +92,29 @@ def make_view_factor(key_cam, key_robot, key_mount, p_board_m: np.ndarray, uv_px
     return gtsam.CustomFactor(model, [key_cam, key_robot, key_mount], error_func)
 
 
-def with_pinhole(intr: Intrinsics, k4: np.ndarray) -> Intrinsics:
-    """Copy of ``intr`` with fx, fy, cx, cy replaced (skew and distortion kept)."""
+def with_pinhole(intr: Intrinsics, k6: np.ndarray) -> Intrinsics:
+    """Copy of ``intr`` with [fx, fy, cx, cy] and, when given, [k1, k2] replaced."""
     K = intr.K.copy()
-    K[0, 0], K[1, 1], K[0, 2], K[1, 2] = k4
-    return Intrinsics(K=K, dist=intr.dist, width_px=intr.width_px, height_px=intr.height_px)
+    K[0, 0], K[1, 1], K[0, 2], K[1, 2] = k6[:4]
+    dist = intr.dist8 if intr.dist.size < 5 else intr.dist.copy()
+    if len(k6) > 4:
+        dist = dist.copy()
+        dist[:2] = k6[4:6]
+    return Intrinsics(K=K, dist=dist, width_px=intr.width_px, height_px=intr.height_px)
+
+
+def intrinsics_vector(intr: Intrinsics) -> np.ndarray:
+    """[fx, fy, cx, cy, k1, k2]: the refined subset of the intrinsics."""
+    return np.array([intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2], intr.dist8[0], intr.dist8[1]])
 
 
 def make_view_factor_intrinsics(key_cam, key_robot, key_mount, key_intr, p_board_m, uv_px, intr: Intrinsics,
                                 sqrt_w) -> gtsam.CustomFactor:
-    """View factor that also estimates the camera's [fx, fy, cx, cy] (a Vector4 variable).
+    """View factor that also estimates the camera's [fx, fy, cx, cy, k1, k2] (a Vector6 variable).
 
-    d u / d(fx, cx) = (x_d, 1), d v / d(fy, cy) = (y_d, 1), with (x_d, y_d) the distorted normalised
-    coordinates, recovered from the projection itself.
+    With x, y the undistorted and x_d, y_d the distorted normalised coordinates, r2 = x^2 + y^2 and
+    b the rational denominator (1 without k4..k6): d u / d(fx, cx) = (x_d, 1), d v / d(fy, cy) =
+    (y_d, 1), d(x_d, y_d) / d k1 = (x, y) r2 / b and / d k2 = (x, y) r2^2 / b.
     """
     p_board_m = np.ascontiguousarray(p_board_m, float)
     uv_px = np.ascontiguousarray(uv_px, float)
@@ -116,20 +126,31 @@ def make_view_factor_intrinsics(key_cam, key_robot, key_mount, key_intr, p_board
         T_sc = values.atPose3(key_cam).matrix()
         T_sm = values.atPose3(key_robot).matrix()
         T_mb = values.atPose3(key_mount).matrix()
-        k4 = values.atVector(key_intr)
-        cur = with_pinhole(intr, k4)
+        k6 = values.atVector(key_intr)
+        cur = with_pinhole(intr, k6)
         e, J = view_residual(T_sc, T_sm, T_mb, p_board_m, uv_px, cur, sqrt_w, want_jacobians=H is not None)
         if H is not None:
             H[0], H[1], H[2] = J
+            T_cb = np.linalg.inv(T_sc) @ T_sm @ T_mb
+            p_c = p_board_m @ T_cb[:3, :3].T + T_cb[:3, 3]
+            z = np.maximum(p_c[:, 2], _MIN_DEPTH_M)
+            x, y = p_c[:, 0] / z, p_c[:, 1] / z
+            r2 = x * x + y * y
+            k4, k5, k6_ = cur.dist8[5:8]
+            b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6_))
             uv = e.reshape(n, 2) / sqrt_w[:, None] + uv_px
-            yd = (uv[:, 1] - k4[3]) / k4[1]
-            xd = (uv[:, 0] - k4[2] - cur.K[0, 1] * yd) / k4[0]
-            Jk = np.zeros((n, 2, 4))
+            yd = (uv[:, 1] - k6[3]) / k6[1]
+            xd = (uv[:, 0] - k6[2] - cur.K[0, 1] * yd) / k6[0]
+            fx, s, fy = cur.K[0, 0], cur.K[0, 1], cur.K[1, 1]
+            Jk = np.zeros((n, 2, 6))
             Jk[:, 0, 0] = xd
             Jk[:, 0, 2] = 1.0
             Jk[:, 1, 1] = yd
             Jk[:, 1, 3] = 1.0
-            H[3] = (Jk * sqrt_w[:, None, None]).reshape(2 * n, 4)
+            for col, rp in ((4, r2 / b), (5, r2 * r2 / b)):
+                Jk[:, 0, col] = (fx * x + s * y) * rp
+                Jk[:, 1, col] = fy * y * rp
+            H[3] = (Jk * sqrt_w[:, None, None]).reshape(2 * n, 6)
         return e
 
     return gtsam.CustomFactor(model, [key_cam, key_robot, key_mount, key_intr], error_func)

@@ -113,7 +113,8 @@ class SolverOptions:
             are rejected and listed; views losing most corners are rejected as a whole.
         min_views_per_camera: below this a camera is refused with an observability error.
         max_iterations: LM iterations per solve.
-        refine_intrinsics: also estimate fx, fy, cx, cy (with a prior of ``intrinsics_sigma_px``).
+        refine_intrinsics: also estimate fx, fy, cx, cy and the radial k1, k2 of every camera, with
+            priors of ``intrinsics_sigma_px`` and ``distortion_sigma`` around the given values.
         formulation: 'view' (one vectorised CustomFactor per view, any OpenCV distortion),
             'corner' (one C++ ProjectionFactorPPP per corner, Cal3DS2 distortion only) or 'auto'
             (corner when every camera fits Cal3DS2, else view). Both give the same estimate.
@@ -129,6 +130,7 @@ class SolverOptions:
     max_iterations: int = 100
     refine_intrinsics: bool = False
     intrinsics_sigma_px: float = 5.0
+    distortion_sigma: float = 0.1
     formulation: str = "auto"
 
     def __post_init__(self):

@@ -25,7 +25,7 @@ import numpy as np
 
 from .errors import InputError, ObservabilityError, SolverError
 from . import factors_ppp
-from .factors import make_view_factor, make_view_factor_intrinsics, project_chain, with_pinhole
+from .factors import intrinsics_vector, make_view_factor, make_view_factor_intrinsics, project_chain, with_pinhole
 from .initialise import ViewCandidates, initialise, pnp_candidates, refine_translations
 from .keys import B, C, F
 from .keys import K as Kk
@@ -150,13 +150,11 @@ def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: s
     values.insert(B(0), gtsam.Pose3(est.T_M_board))
     refine = problem.options.refine_intrinsics
     if refine:
-        prior = gtsam.noiseModel.Isotropic.Sigma(4, problem.options.intrinsics_sigma_px)
+        o = problem.options
+        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([o.intrinsics_sigma_px] * 4 + [o.distortion_sigma] * 2))
         for name, i in slots.items():
-            K0 = problem.cameras[name].K
-            k4 = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2]])
-            graph.add(gtsam.PriorFactorVector(Kk(i), k4, prior))
-            Kc = est.intr.get(name, problem.cameras[name]).K
-            values.insert(Kk(i), np.array([Kc[0, 0], Kc[1, 1], Kc[0, 2], Kc[1, 2]]))
+            graph.add(gtsam.PriorFactorVector(Kk(i), intrinsics_vector(problem.cameras[name]), prior))
+            values.insert(Kk(i), intrinsics_vector(est.intr.get(name, problem.cameras[name])))
     for v in views:
         if not v.active:
             continue
@@ -318,7 +316,7 @@ def _solve_core_with(problem: Problem, names: list, views: list, T_S_cam0: dict,
     # a posteriori pixel sigma and the final weighted graph for the marginals
     act = [v for v in views if v.active]
     n_obs = 2 * sum(int((v.w > 0).sum()) for v in act)
-    n_par = 6 * (len(names) + 1) + (4 * len(names) if opts.refine_intrinsics else 0)
+    n_par = 6 * (len(names) + 1) + (6 * len(names) if opts.refine_intrinsics else 0)
     if fixed_sigma:
         sigma_post = fixed_sigma
     else:
