@@ -52,6 +52,14 @@ import numpy as np
 from calibgraph.camera import Intrinsics
 from calibgraph.interfaces import DeviceError, Frame
 
+try:
+    # Load rclpy's libraries (when installed) before librealsense's: with pyrealsense2 2.59 loaded
+    # first, a process that later starts rclpy (drivers.ros2) double-frees in its C exit handlers
+    # and dies with SIGSEGV after all work is done. Loaded in this order both exit cleanly.
+    import rclpy  # noqa: F401
+except ImportError:
+    pass
+
 try:  # the SDK is an optional extra; the engine and other drivers must import without it
     import pyrealsense2 as _rs
 except ImportError as _e:  # pragma: no cover - exercised only where pyrealsense2 is absent

@@ -8,11 +8,14 @@ import time
 import numpy as np
 import pytest
 
+# drivers.realsense first: it loads rclpy (if installed) before pyrealsense2, the load order in which
+# a process using both exits cleanly (see the note in drivers/realsense.py)
+from drivers.realsense import RealSenseCamera, distortion_from_rs, intrinsics_from_rs  # noqa: E402
+
 rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 (calibgraph[realsense]; apt libusb-1.0-0) is not available")
 
 from calibgraph.camera import Intrinsics  # noqa: E402
 from calibgraph.interfaces import DeviceError  # noqa: E402
-from drivers.realsense import RealSenseCamera, distortion_from_rs, intrinsics_from_rs  # noqa: E402
 
 W, H = 96, 64
 
