@@ -654,8 +654,15 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
         factors = (2, 3) if upscale == "auto" else (int(upscale),)
         if native is None and upscale != "auto":
             native = attempt(run, grey, 1.0)  # its points give the region to up-scale
-        rois = [_roi_from_points(native[1], grey.shape)] if native is not None and len(native[1]) else \
-            _roi_candidates(grey, target)
+        if native is not None and len(native[1]):
+            rois = [_roi_from_points(native[1], grey.shape)]
+        else:
+            # Up-scaling helps small boards only: skip regions whose size implies squares of more
+            # than 2x min_pitch_px (a miss there has another cause, e.g. a wrong target spec, and
+            # searching them up-scaled costs seconds). Regions are padded by 60 % + 8 px per side.
+            n_steps = max(target.rows, target.cols) + 1
+            rois = [r for r in _roi_candidates(grey, target)
+                    if (max(r[2] - r[0], r[3] - r[1]) - 16) / 2.2 / n_steps < 2 * min_pitch_px]
         best = first
         for k in factors:
             for roi in rois:

@@ -138,7 +138,7 @@ def test_peer_layout_eye_in_hand_modified_circle_grid_synthetic(tmp_path):
     (tmp_path / "images").mkdir()
     (tmp_path / "poses").mkdir()
     data = []
-    for k in range(10):
+    for k in range(8):
         T_cam_board = look_at_board(target, rng.uniform(0.6, 0.8), *rng.uniform(-25, 25, 2), rng.uniform(0, 360),
                                     tuple(rng.uniform(-80, 80, 2)), intr)
         T_base_flange = T_base_board @ inv(T_cam_board) @ inv(T_flange_cam)
@@ -162,8 +162,8 @@ def test_peer_layout_eye_in_hand_modified_circle_grid_synthetic(tmp_path):
     r = json.loads(out.read_text())
     assert r["mode"] == "eye_in_hand"
     cam = r["cameras"]["camera"]
-    assert cam["views_used"] >= 9
+    assert cam["views_used"] >= 7
     e_m, e_deg = pose_error(np.array(cam["T_flange_cam"]), T_flange_cam)
-    # Corner noise ~0.05 px over 10 views of 100 dots: expect well under a millimetre.
+    # Corner noise ~0.05 px over 8 views of 100 dots: expect well under a millimetre.
     assert e_m < 1e-3 and e_deg < 0.05, (e_m, e_deg)
     assert cam["reprojection_rms_px"] < 0.3
