@@ -167,3 +167,36 @@ def test_peer_layout_eye_in_hand_modified_circle_grid_synthetic(tmp_path):
     # Corner noise ~0.05 px over 8 views of 100 dots: expect well under a millimetre.
     assert e_m < 1e-3 and e_deg < 0.05, (e_m, e_deg)
     assert cam["reprojection_rms_px"] < 0.3
+
+
+def test_peer_layout_bad_input_is_named(tmp_path):
+    import yaml
+
+    from calibgraph.dataset import load_dataset
+    from calibgraph.errors import InputError
+
+    (tmp_path / "images").mkdir()
+    (tmp_path / "poses").mkdir()
+    cv2.imwrite(str(tmp_path / "images" / "0.png"), np.full((60, 80), 128, np.uint8))
+    cv2.imwrite(str(tmp_path / "images" / "1.png"), np.full((60, 80), 128, np.uint8))
+    (tmp_path / "poses" / "0.yaml").write_text("x: 0.1\ny: 0\nz: 0.5\nqx: 0\nqy: 0\nqz: 0\nqw: 1\n")
+    (tmp_path / "poses" / "1.yaml").write_text("x: 0.1\ny: 0\nz: 0.5\nqx: 0\nqy: 0\nqz: 0.5\nqw: 0.5\n")  # not unit
+    cfg = {"data": [{"image": "images/0.png", "pose": "poses/0.yaml"}, {"image": "images/1.png", "pose": "poses/1.yaml"}],
+           "intrinsics": {"fx": 100.0, "fy": 100.0, "cx": 40.0, "cy": 30.0},
+           "target_finder": {"type": "industrial_calibration::CharucoGridTargetFinderPlugin", "rows": 7, "cols": 5,
+                             "chessboard_dim": 0.036195, "aruco_marker_dim": 0.018256, "dictionary": 10},
+           "static_camera": False}
+    (tmp_path / "cal_data.yaml").write_text(yaml.safe_dump(cfg))
+    ds = load_dataset(tmp_path)
+    assert ds.mode == "eye_in_hand" and len(ds.captures) == 1
+    assert ds.cameras["camera"].width_px == 80
+    assert len(ds.problems) == 1 and "1.yaml" in ds.problems[0][0] and "unit quaternion" in ds.problems[0][1]
+    cfg["target_finder"] = {"type": "ArucoGridTargetFinder", "rows": 3, "cols": 3}
+    (tmp_path / "cal_data.yaml").write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InputError, match="not supported"):
+        load_dataset(tmp_path)
+    del cfg["intrinsics"]
+    cfg["target_finder"] = {"type": "ModifiedCircleGridTargetFinder", "rows": 5, "cols": 5, "spacing": 0.02}
+    (tmp_path / "cal_data.yaml").write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InputError, match="intrinsics"):
+        load_dataset(tmp_path)
