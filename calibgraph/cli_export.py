@@ -1,4 +1,6 @@
-"""``calibgraph export RESULT --format urdf|ros2-launch|opencv-yaml|yaml|json --out DIR``."""
+"""``calibgraph export RESULT --format urdf|ros2-launch|opencv-yaml|yaml|json --out DIR``, and
+``calibgraph export DATASET --format mchec --out DIR`` (a dataset in the Multi-Camera-Hand-Eye-
+Calibration layout, for moving data between the two tools)."""
 
 from __future__ import annotations
 
@@ -11,8 +13,9 @@ def add_parser(sub):
     p = sub.add_parser("export", help="write the result for a robot stack (URDF, ROS 2 launch, OpenCV YAML, YAML)",
                        description="Export camera poses (and intrinsics when known) in standard formats. "
                                    "Frames and units are stated in every file.")
-    p.add_argument("result", type=Path, help="result.json or result.yaml written by `calibgraph solve`")
-    p.add_argument("--format", dest="fmt", choices=FORMATS, required=True, action="append",
+    p.add_argument("result", type=Path, help="result.json or result.yaml written by `calibgraph solve` "
+                                              "(a dataset folder for --format mchec)")
+    p.add_argument("--format", dest="fmt", choices=tuple(FORMATS) + ("mchec",), required=True, action="append",
                    help="output format; repeat for several")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--dataset", type=Path, default=None,
@@ -26,6 +29,17 @@ def run(args) -> int:
     from .exports import export
     from .result import load_result_dict
 
+    if "mchec" in args.fmt:
+        from .errors import InputError
+        from .peer_mchec import export_mchec
+
+        if len(args.fmt) > 1:
+            raise InputError("export: --format mchec takes a dataset folder and cannot be combined with result formats.")
+        if not args.result.is_dir():
+            raise InputError(f"export: --format mchec needs a dataset folder, got {args.result}.")
+        export_mchec(args.result, args.out)
+        print(f"wrote {args.out} (Multi-Camera-Hand-Eye-Calibration layout)")
+        return 0
     d = load_result_dict(args.result)
     for fmt in args.fmt:
         for p in export(d, fmt, args.out, dataset=args.dataset, parent=args.parent):
