@@ -28,23 +28,3 @@ def shared_dir() -> Path:
         pytest.fail(msg + " and CALIBGRAPH_SHARED_REQUIRED=1")
     pytest.skip(msg)
 
-
-# pyrealsense2 and rclpy both register native teardown; with both loaded in one interpreter the
-# process segfaults *after* pytest has finished and printed its summary (measured: the two driver
-# test files alone, 139 at exit with every test passed). Drivers run in separate processes in real
-# use, so only the test process is affected: there, end with pytest's own exit status once the
-# summary is out, skipping the interpreter teardown that crashes.
-_EXIT_STATUS = {}
-
-
-def pytest_sessionfinish(session, exitstatus):
-    _EXIT_STATUS["code"] = int(exitstatus)
-
-
-def pytest_unconfigure(config):
-    import sys
-
-    if "code" in _EXIT_STATUS and "rclpy" in sys.modules and "pyrealsense2" in sys.modules:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(_EXIT_STATUS["code"])
