@@ -447,6 +447,13 @@ def _find_checkerboard(grey, target, method, allow_symmetric, scale=1.0, sb_fall
                         d = np.linalg.norm(c2[:, None, :] - c[None, :, :], axis=-1).min(axis=1)
                         if d.max() < pitch / 3:
                             found = (c2, "sb")
+                        else:
+                            # They disagree: keep SB only if its grid passes the filter and
+                            # classic's does not (raw OpenCV order is a consistent grid, so the
+                            # check needs no orientation yet).
+                            ij, P = target.line_ij, target.points_board_m
+                            if check_grid(c2, ij, P).ok and not check_grid(c, ij, P).ok:
+                                found = (c2, "sb")
     if found is None and (method == "sb" or (method == "auto" and sb_fallback)):
         c = _sb(grey, target, fast)
         if c is not None:
