@@ -21,11 +21,11 @@ import numpy as np
 
 from .errors import InputError
 from .factors import make_view_factor, project_chain
-from .initialise import ViewCandidates, camera_from_mount, initialise, pnp_candidates, rotation_spread_deg
+from .initialise import ViewCandidates, camera_from_mount, pnp_candidates, rotation_spread_deg
 from .keys import B, C, F
 from .problem import Capture, Detection, SolverOptions
 from .result import sigmas_from_cov
-from .solver import MIN_CORNERS_PER_VIEW, _fk_noise, _to_ref_axes
+from .solver import MIN_CORNERS_PER_VIEW, _best_initial_guess, _fk_noise, _to_ref_axes, _View
 from .transforms import inv
 
 WEAK_PRIOR = gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 1.0, 1.0, 10.0, 10.0, 10.0]))
@@ -119,8 +119,10 @@ class IncrementalSolver:
         by_cam = {}
         for cap, det, vc in items:
             by_cam.setdefault(det.camera, []).append(vc)
+        views = [_View(camera=det.camera, capture=cap.index, ids=det.ids, p_board=self.points_board_m[det.ids],
+                       uv=det.uv_px, A=self._A(cap)) for cap, det, _ in items]
         try:
-            T0, mounts = initialise(list(self.cameras), by_cam, joint=True)
+            T0, mounts = _best_initial_guess(self, list(self.cameras), views, by_cam, True, 0)
         except Exception:  # noqa: BLE001 - not enough consistent views yet; keep buffering
             return False
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()

@@ -98,13 +98,16 @@ def _solve_rotations(rows_by_cam: dict, n_cams: int):
     evals, evecs = np.linalg.eigh(M.T @ M)
     v = evecs[:, 0]
     s = np.sqrt(np.clip(evals[::-1], 0, None))
-    RY_raw = v[9 * n_cams:].reshape(3, 3)
-    if np.linalg.det(RY_raw) < 0:
-        v = -v
-        RY_raw = -RY_raw
-    scale = np.cbrt(max(np.linalg.det(RY_raw), 1e-300))
-    RY = project_to_so3(RY_raw / scale)
-    RZ = [project_to_so3(v[9 * i: 9 * i + 9].reshape(3, 3) / scale) for i in range(n_cams)]
+    # The null vector is [R_Z..., R_Y] times an unknown scale s; every block's determinant has the
+    # sign of s^3. Decide the sign on all blocks together: with noisy views one block alone (R_Y, say)
+    # can come out with the wrong determinant sign, and projecting it onto SO(3) then gives a
+    # rotation ~180 deg away.
+    blocks_raw = [v[9 * i: 9 * i + 9].reshape(3, 3) for i in range(n_cams + 1)]
+    dets = np.array([np.linalg.det(b) for b in blocks_raw])
+    sign = 1.0 if dets.sum() >= 0 else -1.0
+    scale = sign * np.cbrt(max(abs(dets.sum()) / len(dets), 1e-300))
+    RY = project_to_so3(blocks_raw[-1] / scale)
+    RZ = [project_to_so3(b / scale) for b in blocks_raw[:-1]]
     cond = s[-2] / max(s[0], 1e-300) if len(s) > 1 else 0.0
     return RZ, RY, cond
 
@@ -130,12 +133,18 @@ def _best_candidate_errors(RZ, RY, views, stacked=None):
     return errs, idx
 
 
-def ransac_camera(views: list, rng: np.random.Generator, iterations: int = 300):
-    """RANSAC rotation consensus for one camera. Returns (RZ, RY, inlier mask, chosen candidate idx)."""
+def ransac_camera(views: list, rng: np.random.Generator, iterations: int = 300, max_hypotheses: int = 3):
+    """RANSAC rotation consensus for one camera.
+
+    Returns up to ``max_hypotheses`` distinct hypotheses (mount rotations more than 10 deg apart),
+    best first, each (RZ, RY, inlier mask, chosen candidate idx); [] when none. With noisy far views
+    a wrong, self-consistent hypothesis can collect as many inliers as the right one, so the caller
+    decides between them by reprojection error.
+    """
     usable = [i for i, v in enumerate(views) if len(v.R) > 0]
     if len(usable) < 3:
-        return None
-    best = None
+        return []
+    found = []  # (score, RZ, RY, inl, idx)
     stacked = _stack(views)
     needed, it = 30, 0
     while it < max(needed, 30) and it < iterations:
@@ -152,24 +161,32 @@ def ransac_camera(views: list, rng: np.random.Generator, iterations: int = 300):
         errs, idx = _best_candidate_errors(RZ[0], RY, views, stacked)
         inl = errs < ROT_INLIER_DEG
         score = (inl.sum(), -np.sum(np.minimum(errs, ROT_INLIER_DEG)))
-        if best is None or score > best[0]:
-            best = (score, RZ[0], RY, inl, idx)
-            # adaptive stopping: P(all 3 picks inliers with the right candidates) >= (eps * 0.5)^3
-            p = (inl.sum() / len(usable) * 0.5) ** 3
-            needed = int(np.ceil(np.log(1e-3) / np.log(max(1 - p, 1e-12)))) if p > 0 else iterations
-    if best is None:
-        return None
-    _, RZ, RY, inl, idx = best
-    # refit on all inliers, then re-select
-    for _ in range(2):
-        if inl.sum() < 3:
-            break
-        rows = {0: [(views[i].A[:3, :3], views[i].R[idx[i]]) for i in np.flatnonzero(inl)]}
-        RZ1, RY1, _ = _solve_rotations(rows, 1)
-        errs, idx = _best_candidate_errors(RZ1[0], RY1, views)
-        inl = errs < ROT_INLIER_DEG
-        RZ, RY = RZ1[0], RY1
-    return RZ, RY, inl, idx
+        same = [j for j, f in enumerate(found) if _angle_deg(f[2], RY) < 10.0]
+        if same:
+            j = same[0]
+            if score > found[j][0]:
+                found[j] = (score, RZ[0], RY, inl, idx)
+        else:
+            found.append((score, RZ[0], RY, inl, idx))
+        best = max(f[0][0] for f in found)
+        # adaptive stopping: P(all 3 picks inliers with the right candidates) >= (eps * 0.5)^3
+        p = (best / len(usable) * 0.5) ** 3
+        needed = int(np.ceil(np.log(1e-3) / np.log(max(1 - p, 1e-12)))) if p > 0 else iterations
+    found.sort(key=lambda f: f[0], reverse=True)
+    out = []
+    for _, RZ, RY, inl, idx in found[:max_hypotheses]:
+        # refit on all inliers, then re-select
+        for _ in range(2):
+            if inl.sum() < 3:
+                break
+            rows = {0: [(views[i].A[:3, :3], views[i].R[idx[i]]) for i in np.flatnonzero(inl)]}
+            RZ1, RY1, _ = _solve_rotations(rows, 1)
+            errs, idx = _best_candidate_errors(RZ1[0], RY1, views, stacked)
+            inl = errs < ROT_INLIER_DEG
+            RZ, RY = RZ1[0], RY1
+        if inl.sum() >= 3:
+            out.append((RZ, RY, inl, idx))
+    return out
 
 
 def _solve_translations(entries: list, n_cams: int, RZ: list):
@@ -217,62 +234,74 @@ def camera_from_mount(views: list, T_M_board: np.ndarray):
     return make_T(R, t), int(counts[best])
 
 
-def initialise(cameras: list, views_by_cam: dict, joint: bool, seed: int = 0):
-    """Initial camera poses and board mount(s).
+def initialise(cameras: list, views_by_cam: dict, joint: bool, seed: int = 0) -> list:
+    """Candidate initial guesses, to be ranked by the caller (by reprojection error).
 
     Args:
         cameras: camera names in slot order.
         views_by_cam: name -> list of ViewCandidates.
         joint: one shared mount (True) or one mount per camera (False).
     Returns:
-        (T_S_cam dict, mounts dict: slot -> T_M_board, where slot is 0 in joint mode or the camera
-        name in single mode).
+        A list of (T_S_cam dict, mounts dict) with mounts keyed 0 in joint mode or by camera name in
+        single mode. In single mode each entry holds one hypothesis per camera (entry i uses each
+        camera's i-th hypothesis, or its best when it has fewer).
     Raises:
         ObservabilityError when no camera has a consistent set of views.
     """
     rng = np.random.default_rng(seed)
     per_cam = {}
     for name in cameras:
-        r = ransac_camera(views_by_cam.get(name, []), rng)
-        if r is not None and r[2].sum() >= 3:
-            per_cam[name] = r
+        hyps = ransac_camera(views_by_cam.get(name, []), rng)
+        if hyps:
+            per_cam[name] = hyps
     if not per_cam:
         raise ObservabilityError(
             "no camera has 3 or more mutually consistent views with different board orientations; "
             "add robot poses that tilt the board (rotations of 15-40 deg about different axes)."
         )
-    T_S_cam, mounts = {}, {}
+    out = []
     if not joint:
-        for name in cameras:
-            if name not in per_cam:
-                continue
-            RZ, RY, inl, idx = per_cam[name]
+        n_alt = max(len(h) for h in per_cam.values())
+        for a in range(n_alt):
+            T_S_cam, mounts = {}, {}
+            for name, hyps in per_cam.items():
+                RZ, RY, inl, idx = hyps[min(a, len(hyps) - 1)]
+                vs = views_by_cam[name]
+                entries = [(0, vs[i].A, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
+                tZ, tY = _robust_translations(entries, 1, [RZ])
+                mounts[name] = make_T(RY, tY)
+                T, _ = camera_from_mount(vs, mounts[name])
+                T_S_cam[name] = T if T is not None else make_T(RZ, tZ[0])
+            out.append((T_S_cam, mounts))
+        return out
+    # joint: every distinct hypothesis of every camera seeds the shared mount; cameras whose own
+    # hypotheses agree with the seed join the linear solve
+    seeds = []
+    for name in sorted(per_cam, key=lambda n: -per_cam[n][0][2].sum()):
+        for h in per_cam[name]:
+            if all(_angle_deg(h[1], s[1]) > 10.0 for s in seeds):
+                seeds.append(h)
+    for RY_seed_h in seeds:
+        RY_seed = RY_seed_h[1]
+        rows, entries, agreeing = {}, [], []
+        for name, hyps in per_cam.items():
+            match = [h for h in hyps if _angle_deg(h[1], RY_seed) < 2 * ROT_INLIER_DEG]
+            if match:
+                agreeing.append((name, match[0]))
+        for slot, (name, (RZ, RY, inl, idx)) in enumerate(agreeing):
             vs = views_by_cam[name]
-            entries = [(0, vs[i].A, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
-            tZ, tY = _robust_translations(entries, 1, [RZ])
-            mounts[name] = make_T(RY, tY)
-            T, _ = camera_from_mount(vs, mounts[name])
-            T_S_cam[name] = T if T is not None else make_T(RZ, tZ[0])
-        return T_S_cam, mounts
-    # joint: seed the mount rotation with the camera of strongest consensus, keep agreeing cameras
-    order = sorted(per_cam, key=lambda n: -per_cam[n][2].sum())
-    RY_seed = per_cam[order[0]][1]
-    agreeing = [n for n in order if _angle_deg(per_cam[n][1], RY_seed) < 2 * ROT_INLIER_DEG]
-    rows, entries = {}, []
-    for slot, name in enumerate(agreeing):
-        RZ, RY, inl, idx = per_cam[name]
-        vs = views_by_cam[name]
-        rows[slot] = [(vs[i].A[:3, :3], vs[i].R[idx[i]]) for i in np.flatnonzero(inl)]
-        entries += [(slot, vs[i].A, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
-    RZs, RY, _ = _solve_rotations(rows, len(agreeing))
-    tZs, tY = _robust_translations(entries, len(agreeing), RZs)
-    T_M_board = make_T(RY, tY)
-    mounts[0] = T_M_board
-    for name in cameras:
-        T, n_agree = camera_from_mount(views_by_cam.get(name, []), T_M_board)
-        if T is not None:
-            T_S_cam[name] = T
-    return T_S_cam, mounts
+            rows[slot] = [(vs[i].A[:3, :3], vs[i].R[idx[i]]) for i in np.flatnonzero(inl)]
+            entries += [(slot, vs[i].A, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
+        RZs, RY, _ = _solve_rotations(rows, len(agreeing))
+        tZs, tY = _robust_translations(entries, len(agreeing), RZs)
+        T_M_board = make_T(RY, tY)
+        T_S_cam = {}
+        for name in cameras:
+            T, n_agree = camera_from_mount(views_by_cam.get(name, []), T_M_board)
+            if T is not None:
+                T_S_cam[name] = T
+        out.append((T_S_cam, {0: T_M_board}))
+    return out
 
 
 def rotation_spread_deg(A_list) -> tuple[float, float]:

@@ -133,7 +133,20 @@ def _formulation(problem: Problem, names, n_views: int) -> str:
     return f
 
 
+def _check_cameras_keep_views(views, slots):
+    """Every camera in the graph needs an active view; otherwise its variable would be unconstrained."""
+    for name in slots:
+        mine = [v for v in views if v.camera == name]
+        if mine and not any(v.active for v in mine):
+            reasons = sorted({v.reason for v in mine if v.reason})[:3]
+            raise ObservabilityError(
+                f"camera {name!r}: all {len(mine)} of its views were rejected as inconsistent with the rest "
+                f"({'; '.join(reasons)}); check its intrinsics, that it saw the same target, and add views of it."
+            )
+
+
 def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: str = "view"):
+    _check_cameras_keep_views(views, slots)
     if form == "corner":
         o = problem.options
         fk = np.array([o.fk_sigma_rotation_rad] * 3 + [o.fk_sigma_translation_m] * 3)
@@ -400,6 +413,44 @@ def _candidates(problem, views):
     return out, bad
 
 
+def _init_score(problem, views, T_S_cam, T_M_board) -> float:
+    """Median per-view RMS reprojection error (px) of an initial guess over the views it covers."""
+    vs = [v for v in views if v.camera in T_S_cam]
+    if not vs:
+        return np.inf
+    est = _Estimate(T_S_cam=T_S_cam, T_M_board=T_M_board, A_est={})
+    rms = [np.sqrt(np.mean(r ** 2)) for r in _all_residuals(vs, est, problem)]
+    return float(np.median(rms))
+
+
+def _best_initial_guess(problem, names, views, cands, joint, seed):
+    """Rank the initialiser's hypotheses by reprojection error after the linear translation solve.
+
+    Per-view PnP rotations of a small far board can be tens of degrees off, and a wrong hypothesis
+    can be as self-consistent in rotation as the right one; it cannot explain the corners.
+    """
+    p_by_view = {(v.camera, v.capture): v.p_board for v in views}
+    uv_by_view = {(v.camera, v.capture): v.uv for v in views}
+    hyps = initialise(names, cands, joint=joint, seed=seed)
+    if joint:
+        best = None
+        for T0, mounts in hyps:
+            T0, m0 = refine_translations(cands, problem.cameras, T0, mounts[0], p_by_view, uv_by_view)
+            score = (-len(T0), _init_score(problem, views, T0, m0))
+            if best is None or score < best[0]:
+                best = (score, T0, {0: m0})
+        return best[1], best[2]
+    T_best, m_best, s_best = {}, {}, {}
+    for T0, mounts in hyps:
+        for n in mounts:
+            Tn, mn = refine_translations({n: cands.get(n, [])}, problem.cameras, {n: T0[n]}, mounts[n],
+                                         p_by_view, uv_by_view)
+            sc = _init_score(problem, [v for v in views if v.camera == n], {n: Tn[n]}, mn)
+            if n not in s_best or sc < s_best[n]:
+                T_best[n], m_best[n], s_best[n] = Tn[n], mn, sc
+    return T_best, m_best
+
+
 def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Result:
     """Calibrate all cameras of ``problem``.
 
@@ -428,16 +479,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
     check_before_solve(problem, views_by_cam, frame_word)
     names = list(problem.cameras)
     joint = problem.method == "joint"
-    T0, mounts0 = initialise(names, cands, joint=joint, seed=seed)
-    p_by_view = {(v.camera, v.capture): v.p_board for v in views}
-    uv_by_view = {(v.camera, v.capture): v.uv for v in views}
-    if joint:
-        T0, mounts0[0] = refine_translations(cands, problem.cameras, T0, mounts0[0], p_by_view, uv_by_view)
-    else:
-        for n in list(mounts0):
-            Tn, mounts0[n] = refine_translations({n: cands.get(n, [])}, problem.cameras, {n: T0[n]}, mounts0[n],
-                                                 p_by_view, uv_by_view)
-            T0[n] = Tn[n]
+    T0, mounts0 = _best_initial_guess(problem, names, views, cands, joint, seed)
     missing = [n for n in names if n not in T0]
     if missing:
         raise ObservabilityError(

@@ -144,10 +144,7 @@ def test_initialiser_survives_planar_ambiguity_at_5m(seed):
             T_cb_true = inv(sc.truth.T_ref_cam[name]) @ sc.truth.T_base_flange_true[v.capture] @ sc.truth.T_mount_board
             wrong += np.degrees(np.linalg.norm(log_so3(v.R[0] @ T_cb_true[:3, :3].T))) > 5
     assert wrong >= 5, "scene does not exercise the ambiguity"
-    T0, mounts = solver.initialise(list(p.cameras), cands, joint=True)
-    T0, mounts[0] = solver.refine_translations(cands, p.cameras, T0, mounts[0],
-                                               {(v.camera, v.capture): v.p_board for v in views},
-                                               {(v.camera, v.capture): v.uv for v in views})
+    T0, mounts = solver._best_initial_guess(p, list(p.cameras), views, cands, True, 0)
     for n in p.cameras:
         e_m, e_deg = pose_error(T0[n], sc.truth.T_ref_cam[n])
         assert e_deg < 8.0, (n, e_m, e_deg, wrong)  # a mirrored consensus would be tens of degrees off
@@ -322,3 +319,34 @@ def test_eye_in_hand_fk_prior_means_the_same_in_both_formulations():
     assert pose_error(a.T_ref_cam, b.T_ref_cam)[0] < 0.02e-3 * np.linalg.norm(a.sigma_translation_mm)
     assert np.allclose(a.covariance, b.covariance, rtol=0.02, atol=1e-12)
     assert mahalanobis2(a.T_ref_cam, sc.truth.T_ref_cam["wrist"], a.covariance) < CHI2_6_999
+
+
+@pytest.mark.parametrize("seed,fk", [(1403, 0.0), (1506, 1e-4)])
+def test_self_consistent_flipped_hypothesis_is_not_chosen(seed, fk):
+    """Regression (found by scripts/bench_solver.py): 12-corner board, D455 at 1.5/3/5 m, 1 px, 20
+    poses. One camera's RANSAC found a rotation hypothesis 174 deg off with more rotation inliers
+    (6/8) than the right one; ranking hypotheses by reprojection error must reject it."""
+    from calibgraph.targets import thesis_board
+
+    sc = make_scene(cameras=ring_cameras([1.5, 3.0, 5.0], presets=("d455",)), target=thesis_board(), n_poses=20,
+                    pixel_sigma_px=1.0, fk_sigma_translation_m=fk, fk_sigma_rotation_rad=np.radians(0.01) if fk else 0.0,
+                    seed=seed)
+    r = solver.solve(sc.problem)
+    for n, c in r.cameras.items():
+        assert mahalanobis2(c.T_ref_cam, sc.truth.T_ref_cam[n], c.covariance) < CHI2_6_999, n
+
+
+def test_camera_whose_views_are_all_inconsistent_is_named():
+    """A camera whose intrinsics are grossly wrong fits nothing; the error must name it."""
+    from calibgraph.camera import Intrinsics
+
+    sc = make_scene(n_poses=40, pixel_sigma_px=0.3, seed=13)
+    p = sc.problem
+    dets = []
+    rng = np.random.default_rng(1)
+    for d in p.detections:
+        if d.camera == "cam1":  # every view of cam1 scrambled: no consistent pose exists
+            d = Detection(d.camera, d.capture, d.ids, d.uv_px[rng.permutation(len(d.ids))])
+        dets.append(d)
+    with pytest.raises(ObservabilityError, match="cam1"):
+        solver.solve(p.with_(detections=tuple(dets)))
