@@ -711,6 +711,7 @@ def main(argv=None) -> int:
     t_start = time.perf_counter()
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     load_start = os.getloadavg()[0]
+    dirty_start = _engine_dirty()
 
     cv_py, cv_reason = (None, "disabled with --no-opencv")
     if not args.no_opencv:
@@ -950,7 +951,8 @@ def main(argv=None) -> int:
     report = {
         "meta": {"started_utc": started, "quick": args.quick, "trials": trials,
                  "seeds": f"{args.seed} + {SEED_STRIDE} x configuration index + trial (0..{trials - 1})", "wall_time_s": time.perf_counter() - t_start,
-                 "git": _git_rev(), "engine_uncommitted": _engine_dirty(), "loadavg_1min_start_end": [load_start, os.getloadavg()[0]],
+                 "git": _git_rev(), "engine_uncommitted": sorted(set(dirty_start) | set(_engine_dirty())),
+                 "engine_uncommitted_start_end": [dirty_start, _engine_dirty()], "loadavg_1min_start_end": [load_start, os.getloadavg()[0]],
                  "formulation_requested": args.formulation or "engine default",
                  "formulations_used": sorted({str(tr.get("formulation_used")) for tr in all_trials}), "python": sys.version.split()[0], "opencv_main": cv2.__version__,
                  "gross_definition": f"err > {GROSS_CRLB_FACTOR}x CRLB sigma or > {GROSS_T_M} m or > {GROSS_R_DEG} deg or solve raised"},
