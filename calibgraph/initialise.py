@@ -161,6 +161,8 @@ def ransac_camera(views: list, rng: np.random.Generator, iterations: int = 300, 
         errs, idx = _best_candidate_errors(RZ[0], RY, views, stacked)
         inl = errs < ROT_INLIER_DEG
         score = (inl.sum(), -np.sum(np.minimum(errs, ROT_INLIER_DEG)))
+        if inl.sum() < 3:
+            continue  # not even its own sample agrees: noise, not a hypothesis
         same = [j for j, f in enumerate(found) if _angle_deg(f[2], RY) < 10.0]
         if same:
             j = same[0]
