@@ -24,8 +24,9 @@ Layout (``calibgraph-dataset/1``)::
      "views": {"cam0": {"image": "images/cam0/000012.png", "stamp_s": 1712.31,
                         "detection": {"ids": [...], "uv_px": [[u, v], ...]} | null}}}
 
-A view without ``detection`` is detected from its image when the problem is built (and the
-result is cached in the capture file's sibling ``.detections/`` folder by the detector).
+A view without ``detection`` is detected from its image when the problem is built; the detector
+caches its results in ``DATASET/.calibgraph_cache/detections-<hash>.json`` (the hash covers the
+target spec, detector version and options).
 """
 
 from __future__ import annotations
