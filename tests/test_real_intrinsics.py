@@ -42,3 +42,37 @@ def test_refining_intrinsics_explains_the_real_residuals(rct_copy, tmp_path):
     # the camera moves by a few mm, consistent with the change of model, not by a gross amount
     move = np.linalg.norm(np.array(cr["T_base_cam"])[:3, 3] - np.array(cf["T_base_cam"])[:3, 3])
     assert move < 0.02
+
+
+def test_refined_calibration_agrees_with_per_image_pnp_on_all_views(rct_copy, tmp_path):
+    """The peer's acceptance (mean difference to per-image PnP < 6 mm / 1.5 deg), on all 16 views
+    with no restriction to well-covered ones, once the intrinsics are refined.
+    Measured: 1.69 mm / 0.25 deg (fixed intrinsics: 7.26 mm / 1.02 deg)."""
+    import cv2
+
+    from calibgraph.camera import Intrinsics
+    from calibgraph.dataset import load_dataset
+    from calibgraph.detect import dataset_detector
+    from calibgraph.transforms import inv
+
+    r, _ = _solve(rct_copy, tmp_path / "refined.json", "--refine-intrinsics", "--quiet")
+    cam = r["cameras"]["camera"]
+    T_base_cam, T_flange_board = np.array(cam["T_base_cam"]), np.array(r["T_flange_board"])
+    ik = cam["intrinsics"]
+    intr = Intrinsics(K=np.array(ik["K"]), dist=np.array(ik["dist"]), width_px=ik["width_px"], height_px=ik["height_px"])
+    ds = load_dataset(rct_copy)
+    det = dataset_detector(ds, progress=False)
+    det.run()
+    d_mm, d_deg = [], []
+    for c in ds.captures:
+        d = det.results[("camera", c.index)]
+        if not d.ok:
+            continue
+        T = inv(T_base_cam) @ c.T_base_flange @ T_flange_board
+        _, rv, tv = cv2.solvePnP(ds.target.points_board_m[d.ids], d.uv_px, intr.K, intr.dist8,
+                                 cv2.Rodrigues(T[:3, :3])[0], T[:3, 3].reshape(3, 1).copy(), useExtrinsicGuess=True)
+        R = cv2.Rodrigues(rv)[0]
+        d_mm.append(1e3 * np.linalg.norm(tv.ravel() - T[:3, 3]))
+        d_deg.append(np.degrees(np.arccos(np.clip((np.trace(R.T @ T[:3, :3]) - 1) / 2, -1, 1))))
+    assert len(d_mm) == 16
+    assert np.mean(d_mm) < 6.0 and np.mean(d_deg) < 1.5, (np.mean(d_mm), np.mean(d_deg))
