@@ -111,6 +111,8 @@ def solve_and_score(problem, gt):
         res = solve(problem)
     except CalibgraphError as e:
         return {"failed": str(e)}
+    except Exception as e:  # a solver crash is a finding of the benchmark: record it, go on
+        return {"failed": f"solver crashed: {type(e).__name__}: {e}"}
     out = {"cameras": {}, "pairs": {}}
     est = {}
     for c in CAMS:
@@ -225,7 +227,7 @@ def main(argv=None) -> int:
             ds_dir, gt, t_sim = simulate(3.0, "l515", "a4_54", n_poses, args.seed, work, 200.0)
             sc = solve_and_score(load_dataset(ds_dir).to_problem(method="joint", options=opts), gt)
             report["a4_54_l515_3m"] = sc
-            log(f"a4_54 L515 3 m: " + ", ".join(
+            log(f"a4_54 L515 3 m: {sc.get('failed', '')}" + ", ".join(
                 f"{c} {sc['cameras'][c]['t_err_mm']:.3f} mm / {sc['cameras'][c]['r_err_deg']:.4f} deg"
                 for c in CAMS if sc.get("cameras", {}).get(c)))
             if not args.keep:
