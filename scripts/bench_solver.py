@@ -528,7 +528,7 @@ def to_markdown(report: dict) -> str:
              f"configuration, 3 cameras at {'/'.join(f'{d:g}' for d in DISTANCES_M)} m, seeds {meta['seeds']}; "
              f"wall time {meta['wall_time_s']:.0f} s on a shared 2-core machine (1-min load average "
              f"{meta['loadavg_1min_start_end'][0]:.1f} at start, {meta['loadavg_1min_start_end'][1]:.1f} at end: wall "
-             f"times are inflated by other jobs; CPU times are given too). git {meta['git']}"
+             f"times are inflated by other jobs; CPU times are given too). git {meta['git']} at start{' (' + meta['git_at_end'] + ' at end)' if meta.get('git_at_end', meta['git']) != meta['git'] else ''}"
              f"{' with uncommitted engine edits in ' + ', '.join(meta['engine_uncommitted']) if meta['engine_uncommitted'] else ''}. "
              f"Solver formulation: {meta['formulation_requested']} (used: {', '.join(meta['formulations_used'])}).")
     L.append("Errors are over every camera of every trial; the CRLB is sqrt(trace) of the 3x3 translation / rotation "
@@ -712,6 +712,7 @@ def main(argv=None) -> int:
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     load_start = os.getloadavg()[0]
     dirty_start = _engine_dirty()
+    git_start = _git_rev()  # the engine modules are imported once, so this is the code that ran
 
     cv_py, cv_reason = (None, "disabled with --no-opencv")
     if not args.no_opencv:
@@ -951,7 +952,7 @@ def main(argv=None) -> int:
     report = {
         "meta": {"started_utc": started, "quick": args.quick, "trials": trials,
                  "seeds": f"{args.seed} + {SEED_STRIDE} x configuration index + trial (0..{trials - 1})", "wall_time_s": time.perf_counter() - t_start,
-                 "git": _git_rev(), "engine_uncommitted": sorted(set(dirty_start) | set(_engine_dirty())),
+                 "git": git_start, "git_at_end": _git_rev(), "engine_uncommitted": sorted(set(dirty_start) | set(_engine_dirty())),
                  "engine_uncommitted_start_end": [dirty_start, _engine_dirty()], "loadavg_1min_start_end": [load_start, os.getloadavg()[0]],
                  "formulation_requested": args.formulation or "engine default",
                  "formulations_used": sorted({str(tr.get("formulation_used")) for tr in all_trials}), "python": sys.version.split()[0], "opencv_main": cv2.__version__,
