@@ -149,7 +149,7 @@ def fmt(x, nd=2):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="3.0 m only, 16 poses (~2 min on an idle 2-core machine)")
+    ap.add_argument("--quick", action="store_true", help="3.0 m only, 24 poses (~80 s on an idle 2-core machine)")
     ap.add_argument("--out", type=Path, default=REPO / "bench_out" / "thesis")
     ap.add_argument("--poses", type=int, default=None, help="poses per cell (default 110, quick 24)")
     ap.add_argument("--distances", type=float, nargs="*", default=None)
@@ -161,7 +161,7 @@ def main(argv=None) -> int:
     from calibgraph.detect import detect_image
     from calibgraph.problem import SolverOptions
 
-    n_poses = args.poses or (16 if args.quick else 110)
+    n_poses = args.poses or (24 if args.quick else 110)
     dists = args.distances or ([3.0] if args.quick else sorted(THESIS_SINGLE))
     args.out.mkdir(parents=True, exist_ok=True)
     work = args.out / "datasets" if args.keep else Path(tempfile.mkdtemp(prefix="bench_thesis_"))
