@@ -30,6 +30,7 @@ from .errors import ObservabilityError
 from .transforms import inv, log_so3, make_T, project_to_so3
 
 ROT_INLIER_DEG = 5.0
+MAX_MOUNT_SEEDS = 5
 
 
 @dataclass(frozen=True)
@@ -279,10 +280,13 @@ def initialise(cameras: list, views_by_cam: dict, joint: bool, seed: int = 0) ->
     # joint: every distinct hypothesis of every camera seeds the shared mount; cameras whose own
     # hypotheses agree with the seed join the linear solve
     seeds = []
-    for name in sorted(per_cam, key=lambda n: -per_cam[n][0][2].sum()):
+    for name in sorted(per_cam, key=lambda n: -per_cam[n][0][2].mean()):
         for h in per_cam[name]:
             if all(_angle_deg(h[1], s[1]) > 10.0 for s in seeds):
                 seeds.append(h)
+    # Distinct mount hypotheses are few in practice (the right one and a flipped one or two); cap the
+    # list so that large cells do not pay for every camera's alternatives.
+    seeds = seeds[:MAX_MOUNT_SEEDS]
     for RY_seed_h in seeds:
         RY_seed = RY_seed_h[1]
         rows, entries, agreeing = {}, [], []
@@ -367,8 +371,13 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_S_cam: dict, T_
     use = list(range(len(blocks)))
     AtA = [blk[0].T @ blk[0] for blk in blocks]
     Atb = [blk[0].T @ blk[1] for blk in blocks]
+    # A weak pull towards the current translations keeps directions the kept views do not determine
+    # (a camera whose views all fell out, a mount seen edge-on) where they were instead of singular.
+    x0 = np.concatenate([T_S_cam[n][:3, 3] for n in names] + [T_M_board[:3, 3]])
     for _ in range(2):
-        x = np.linalg.solve(sum(AtA[i] for i in use), sum(Atb[i] for i in use))
+        N = sum(AtA[i] for i in use)
+        lam = 1e-9 * max(np.trace(N) / len(N), 1e-12)
+        x = np.linalg.solve(N + lam * np.eye(len(N)), sum(Atb[i] for i in use) + lam * x0)
         res = np.array([np.sqrt(np.mean((blocks[i][0] @ x - blocks[i][1]) ** 2)) for i in range(len(blocks))])
         keep = [i for i in range(len(blocks)) if res[i] <= 4.0 * np.median(res) + 1e-9]
         if keep == use or len(keep) < 3:

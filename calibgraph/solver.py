@@ -117,6 +117,9 @@ def _view_residuals(v: _View, est: _Estimate, intr) -> np.ndarray:
     return np.where(np.isfinite(r), r, 1e6)
 
 
+CORNER_FORMULATION_MIN_VIEWS = 1000
+
+
 def _formulation(problem: Problem, names, n_views: int) -> str:
     """Which graph to build: 'view' (per-view CustomFactor) or 'corner' (C++ factor per corner)."""
     f = problem.options.formulation
@@ -125,10 +128,11 @@ def _formulation(problem: Problem, names, n_views: int) -> str:
         raise InputError("solver: formulation 'corner' needs Cal3DS2 distortion (k1 k2 p1 p2 only); "
                          "use formulation 'view' for cameras with k3..k6.")
     if f == "auto":
-        # Measured (16 cameras x 1000 poses, 6745 views): view 26.7 s CPU, corner 53.6 s CPU -- building
-        # 3.6e5 C++ factors from Python, once per IRLS round, costs more than the per-view callbacks
-        # save. The per-view factor is also the numerically robust one, so it is the default everywhere.
-        return "view"
+        # Measured by scripts/bench_solver.py (16 cameras x 1000 poses, 6761 views): corner 42.6 s CPU,
+        # view 62.2 s (LM alone 8.6 s vs 41 s); at 3 cameras x 110 poses the two are on par. The corner
+        # graph is numerically touchier (see factors_ppp), so it is used where it pays off, with the
+        # per-view graph as the fallback.
+        return "corner" if fits and n_views >= CORNER_FORMULATION_MIN_VIEWS else "view"
     return f
 
 
@@ -422,6 +426,23 @@ def _init_score(problem, views, T_S_cam, T_M_board) -> float:
     return float(np.median(rms))
 
 
+INIT_SCORE_MAX_VIEWS = 300
+
+
+def _subsample(cands: dict, views: list, max_views: int, seed: int):
+    """At most ~max_views views, spread over cameras in proportion (at least 5 each when available)."""
+    total = sum(len(v) for v in cands.values())
+    if total <= max_views:
+        return cands, views
+    rng = np.random.default_rng(seed)
+    out = {}
+    for name, vs in cands.items():
+        k = min(len(vs), max(5, int(np.ceil(len(vs) * max_views / total))))
+        out[name] = [vs[i] for i in sorted(rng.choice(len(vs), size=k, replace=False))]
+    keep = {(v.camera, v.capture) for vs in out.values() for v in vs}
+    return out, [v for v in views if (v.camera, v.capture) in keep]
+
+
 def _best_initial_guess(problem, names, views, cands, joint, seed):
     """Rank the initialiser's hypotheses by reprojection error after the linear translation solve.
 
@@ -432,13 +453,19 @@ def _best_initial_guess(problem, names, views, cands, joint, seed):
     uv_by_view = {(v.camera, v.capture): v.uv for v in views}
     hyps = initialise(names, cands, joint=joint, seed=seed)
     if joint:
+        # Rank on a subsample (large cells have thousands of views), refine the winner on all.
+        s_cands, s_views = _subsample(cands, views, INIT_SCORE_MAX_VIEWS, seed)
         best = None
         for T0, mounts in hyps:
-            T0, m0 = refine_translations(cands, problem.cameras, T0, mounts[0], p_by_view, uv_by_view)
-            score = (-len(T0), _init_score(problem, views, T0, m0))
+            if len(hyps) > 1:
+                T1, m1 = refine_translations(s_cands, problem.cameras, T0, mounts[0], p_by_view, uv_by_view)
+                score = (-len(T1), _init_score(problem, s_views, T1, m1))
+            else:
+                score = (0, 0.0)
             if best is None or score < best[0]:
-                best = (score, T0, {0: m0})
-        return best[1], best[2]
+                best = (score, T0, mounts[0])
+        T0, m0 = refine_translations(cands, problem.cameras, best[1], best[2], p_by_view, uv_by_view)
+        return T0, {0: m0}
     T_best, m_best, s_best = {}, {}, {}
     for T0, mounts in hyps:
         for n in mounts:
