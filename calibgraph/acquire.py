@@ -256,13 +256,9 @@ class AcquisitionReport:
 
 # -- helpers -----------------------------------------------------------------------------------------
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    from .dataset import atomic_write_bytes
+
+    atomic_write_bytes(path, data)
 
 
 def write_image_atomic(path, image: np.ndarray) -> None:

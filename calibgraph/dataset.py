@@ -100,14 +100,29 @@ class Dataset:
                        options=options)
 
 
-def _atomic_write(path: Path, text: str) -> None:
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write a file so that a crash leaves either the old or the new content (tmp + fsync + rename)."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w") as f:
-        f.write(text)
+    with open(tmp, "wb") as f:
+        f.write(data)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    atomic_write_bytes(path, text.encode())
+
+
+def as_dataset(dataset):
+    """A Dataset from a Dataset, a folder path, or None (passed through)."""
+    if dataset is None or isinstance(dataset, Dataset):
+        return dataset
+    if isinstance(dataset, (str, Path)):
+        return load_dataset(dataset)
+    return dataset
 
 
 def write_header(root, target: Target, cameras: dict, mode: str = "eye_to_hand", solver: dict | None = None,

@@ -96,13 +96,9 @@ def camera_intrinsics(result: dict, name: str, dataset=None):
 
 
 def _as_dataset(dataset):
-    if dataset is None:
-        return None
-    if isinstance(dataset, (str, Path)):
-        from .dataset import load_dataset
+    from .dataset import as_dataset
 
-        return load_dataset(dataset)
-    return dataset
+    return as_dataset(dataset)
 
 
 def _safe(name: str) -> str:

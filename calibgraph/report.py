@@ -123,13 +123,9 @@ def load_tolerances(config=None) -> dict:
 
 
 def _as_dataset(dataset):
-    if dataset is None:
-        return None
-    if isinstance(dataset, (str, Path)):
-        from .dataset import load_dataset
+    from .dataset import as_dataset
 
-        return load_dataset(dataset)
-    return dataset
+    return as_dataset(dataset)
 
 
 def _mount_key(result: dict) -> str:
