@@ -150,13 +150,10 @@ class Trajectory:
 
 def load_trajectory(path) -> Trajectory:
     """Read a trajectory YAML (or JSON) file."""
-    import yaml
+    from .yamlio import read_yaml
 
     p = Path(path)
-    try:
-        d = yaml.safe_load(p.read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise InputError(f"{p}: cannot read trajectory: {e}") from None
+    d = read_yaml(p, "trajectory", mapping=False)
     return Trajectory.from_dict(d, where=str(p))
 
 

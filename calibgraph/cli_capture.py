@@ -66,17 +66,9 @@ def add_parser(sub):
 
 
 def _read_yaml(path: Path, what: str):
-    import yaml
+    from .yamlio import read_yaml
 
-    from .errors import InputError
-
-    try:
-        d = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise InputError(f"{path}: cannot read {what}: {e}") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{path}: {what} must be a mapping.")
-    return d
+    return read_yaml(path, what)
 
 
 def workcell_hardware(d: dict, where: str):

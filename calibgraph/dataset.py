@@ -42,6 +42,7 @@ from .camera import Intrinsics
 from .errors import InputError
 from .problem import Capture, Detection, Problem, SolverOptions
 from .targets import Target
+from .yamlio import read_yaml
 
 FORMAT = "calibgraph-dataset/1"
 
@@ -182,7 +183,6 @@ def load_dataset(root) -> Dataset:
     """Read a dataset folder in any supported layout (calibgraph, industrial_calibration/RCT,
     Multi-Camera-Hand-Eye-Calibration). Unreadable capture files are listed in ``problems`` and
     skipped; nothing else is dropped silently."""
-    import yaml
 
     root = Path(root)
     if not root.exists():
@@ -191,11 +191,8 @@ def load_dataset(root) -> Dataset:
         from . import peer_formats
 
         return peer_formats.load_peer_dataset(root)
-    try:
-        head = yaml.safe_load((root / "dataset.yaml").read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise InputError(f"{root / 'dataset.yaml'}: cannot read: {e}") from None
-    if not isinstance(head, dict) or "target" not in head or "cameras" not in head:
+    head = read_yaml(root / "dataset.yaml", "dataset header")
+    if "target" not in head or "cameras" not in head:
         raise InputError(f"{root / 'dataset.yaml'}: needs 'target' and 'cameras' sections (see README, Dataset format).")
     target = Target.from_dict(head["target"])
     cameras = {}

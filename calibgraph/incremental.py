@@ -23,7 +23,7 @@ from .errors import InputError
 from .factors import make_view_factor, project_chain
 from .initialise import ViewCandidates, camera_from_mount, pnp_candidates, rotation_spread_deg
 from .keys import B, C, F
-from .problem import Capture, Detection, SolverOptions
+from .problem import Capture, SolverOptions
 from .result import sigmas_from_cov
 from .solver import MIN_CORNERS_PER_VIEW, _best_initial_guess, _fk_noise, _to_ref_axes, _View
 from .transforms import inv

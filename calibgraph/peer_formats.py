@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .yamlio import read_yaml
 
 
 def is_rct_dataset(root) -> bool:
@@ -76,15 +77,10 @@ def rct_target(cfg: dict, where: str = "target_finder"):
 
 def read_rct_pose(path) -> np.ndarray:
     """``T_base_tool0`` (4x4) from an RCT pose file (x, y, z, qx, qy, qz, qw in any order)."""
-    import yaml
-
     from .transforms import check_pose, make_T, quat_xyzw_to_R
 
     p = Path(path)
-    try:
-        d = yaml.safe_load(p.read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise InputError(f"{p}: cannot read pose file: {e}") from None
+    d = read_yaml(p, "pose file", mapping=False)
     keys = ("x", "y", "z", "qx", "qy", "qz", "qw")
     if not isinstance(d, dict) or any(k not in d for k in keys):
         raise InputError(f"{p}: pose file needs keys {', '.join(keys)} (base -> tool0, metres and unit quaternion).")
@@ -113,29 +109,18 @@ def load_rct_dataset(root):
     """Read an industrial_calibration / RCT dataset folder as a :class:`calibgraph.dataset.Dataset`
     (one camera named ``camera``; views carry no detections, so they are detected on demand).
     Unreadable pose files are listed in ``Dataset.problems`` and skipped."""
-    import yaml
-
     from .camera import Intrinsics
     from .dataset import Dataset, View
     from .problem import Capture
 
     root = Path(root)
     cfg_path = root / "cal_data.yaml"
-    try:
-        cfg = yaml.safe_load(cfg_path.read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise InputError(f"{cfg_path}: cannot read: {e}") from None
-    if not isinstance(cfg, dict):
-        raise InputError(f"{cfg_path}: must be a mapping.")
+    cfg = read_yaml(cfg_path, "calibration config")
     tf = cfg.get("target_finder")
     if isinstance(tf, str):
-        tf_path = root / tf
-        try:
-            tf = yaml.safe_load(tf_path.read_text())
-        except (OSError, yaml.YAMLError) as e:
-            raise InputError(f"{tf_path}: cannot read the target finder file: {e}") from None
+        tf = read_yaml(root / tf, "the target finder file", mapping=False)
     elif tf is None and (root / "target_finder.yaml").is_file():
-        tf = yaml.safe_load((root / "target_finder.yaml").read_text())
+        tf = read_yaml(root / "target_finder.yaml", "the target finder file", mapping=False)
     if tf is None:
         raise InputError(f"{cfg_path}: no target_finder section (nor target_finder.yaml); cannot know the board.")
     target = rct_target(tf, f"{cfg_path}: target_finder")
@@ -144,7 +129,7 @@ def load_rct_dataset(root):
     if intr_d is None:
         for name in ("camera_intr.yaml", "camera_intr_nominal.yaml"):
             if (root / name).is_file():
-                intr_d = (yaml.safe_load((root / name).read_text()) or {}).get("intrinsics")
+                intr_d = read_yaml(root / name, "camera intrinsics", empty_ok=True).get("intrinsics")
                 break
     if not isinstance(intr_d, dict):
         raise InputError(f"{cfg_path}: no intrinsics (fx, fy, cx, cy) given.")

@@ -58,15 +58,9 @@ def is_mchec_dataset(root) -> bool:
 
 
 def _yaml(path: Path) -> dict:
-    import yaml
+    from .yamlio import read_yaml
 
-    try:
-        d = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise InputError(f"{path}: cannot read: {e}") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{path}: expected a YAML mapping.")
-    return d
+    return read_yaml(path, "file")
 
 
 def mchec_target(info: dict, where: str = INFO_NAME):

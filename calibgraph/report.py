@@ -86,7 +86,6 @@ def load_tolerances(config=None) -> dict:
     ``z_m`` height, ``grid_n`` cells along x; for eye-in-hand ``depth_m`` and ``lateral_m``).
     A limit of ``null`` disables that check.
     """
-    import yaml
 
     tol = json.loads(json.dumps(BUILTIN_TOLERANCES))
     sources = []
@@ -98,13 +97,9 @@ def load_tolerances(config=None) -> dict:
         if isinstance(src, dict):
             d = src
         else:
-            p = Path(src)
-            try:
-                d = yaml.safe_load(p.read_text()) or {}
-            except (OSError, yaml.YAMLError) as e:
-                raise InputError(f"{p}: cannot read tolerance config: {e}") from None
-            if not isinstance(d, dict):
-                raise InputError(f"{p}: tolerance config must be a mapping with 'defaults', 'cameras', 'workspace'.")
+            from .yamlio import read_yaml
+
+            d = read_yaml(src, "tolerance config (a mapping with 'defaults', 'cameras', 'workspace')", empty_ok=True)
         unknown = set(d) - {"format", "defaults", "cameras", "workspace", "description"}
         if unknown:
             raise InputError(f"{src}: unknown tolerance sections {sorted(unknown)}; use defaults, cameras, workspace.")

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from .errors import InputError, ObservabilityError, SolverError
+from .errors import InputError, ObservabilityError
 from . import factors_ppp
 from .factors import intrinsics_vector, make_view_factor, make_view_factor_intrinsics, project_chain, with_pinhole
 from .initialise import ViewCandidates, initialise, pnp_candidates, refine_translations
@@ -32,7 +32,7 @@ from .keys import K as Kk
 from .observability import check_after_solve, check_before_solve
 from .problem import Problem
 from .result import CameraResult, PairResult, RejectedView, Result
-from .transforms import exp_so3, inv, log_so3, make_T
+from .transforms import inv, log_so3
 
 MIN_CORNERS_PER_VIEW = 4
 

@@ -8,11 +8,11 @@ board is presented with varied tilts, some poses visible from several cameras at
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Intrinsics, preset
+from .camera import preset
 from .problem import Capture, Detection, Problem, SolverOptions
 from .targets import Target, a4_board_54
 from .transforms import exp_so3, inv, look_at, make_T

@@ -32,7 +32,6 @@ detector refuses symmetric boards unless told to accept an image-based orientati
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -249,15 +248,9 @@ def dictionary_name(d) -> str:
 
 def load_target(path) -> Target:
     """Read a target spec YAML file (keys as in ``Target``)."""
-    import yaml
+    from .yamlio import read_yaml
 
-    p = Path(path)
-    try:
-        d = yaml.safe_load(p.read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise InputError(f"{p}: cannot read target spec: {e}") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{p}: target spec must be a mapping.")
+    d = read_yaml(path, "target spec")
     return Target.from_dict(d.get("target", d))
 
 

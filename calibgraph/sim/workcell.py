@@ -292,13 +292,10 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
 
 def load_workcell(path) -> Workcell:
     """Read a workcell YAML file."""
-    import yaml
+    from ..yamlio import read_yaml
 
     p = Path(path)
-    try:
-        d = yaml.safe_load(p.read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise InputError(f"{p}: cannot read workcell file: {e}") from None
+    d = read_yaml(p, "workcell file", mapping=False)
     return workcell_from_dict(d, str(p))
 
 
