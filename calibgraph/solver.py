@@ -111,12 +111,6 @@ def _all_residuals(views, est: _Estimate, problem) -> list:
     return out
 
 
-def _view_residuals(v: _View, est: _Estimate, intr) -> np.ndarray:
-    uv_hat = project_chain(est.T_S_cam[v.camera], est.A_est.get(v.capture, v.A), est.T_M_board, v.p_board, intr)
-    r = np.linalg.norm(uv_hat - v.uv, axis=1)
-    return np.where(np.isfinite(r), r, 1e6)
-
-
 CORNER_FORMULATION_MIN_VIEWS = 1000
 
 

@@ -2,6 +2,7 @@
 with a reason when it is absent, unless CALIBGRAPH_SHARED_REQUIRED=1 (CI), where they fail."""
 
 import os
+import shutil
 from pathlib import Path
 
 # MuJoCo binds its GL backend when first imported; a test module that imports mujoco (directly or
@@ -28,3 +29,15 @@ def shared_dir() -> Path:
         pytest.fail(msg + " and CALIBGRAPH_SHARED_REQUIRED=1")
     pytest.skip(msg)
 
+
+
+@pytest.fixture(scope="module")
+def rct_dir(shared_dir, tmp_path_factory) -> Path:
+    """A private copy of the real RCT ChArUco dataset (the detection cache is written next to the
+    data, and ../shared is read-only); one copy per test module."""
+    src = shared_dir / "datasets" / "rct_static_camera_charuco"
+    if not (src / "cal_data.yaml").is_file():
+        pytest.skip(f"{src} is missing")
+    dst = tmp_path_factory.mktemp("rct") / "rct_static_camera_charuco"
+    shutil.copytree(src, dst)
+    return dst

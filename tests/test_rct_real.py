@@ -15,7 +15,6 @@ all views is printed too. Measured: 5.15 mm / 0.90 deg on the peer's views, 7.26
 """
 
 import json
-import shutil
 import subprocess
 import sys
 
@@ -24,17 +23,6 @@ import numpy as np
 import pytest
 
 from calibgraph.transforms import inv
-
-
-@pytest.fixture(scope="module")
-def rct_dir(shared_dir, tmp_path_factory):
-    src = shared_dir / "datasets" / "rct_static_camera_charuco"
-    if not (src / "cal_data.yaml").is_file():
-        pytest.skip(f"{src} is missing")
-    # Work on a copy: the detection cache is written next to the data, and ../shared is read-only.
-    dst = tmp_path_factory.mktemp("rct") / "rct_static_camera_charuco"
-    shutil.copytree(src, dst)
-    return dst
 
 
 def test_peer_layout_reads_and_charuco_is_detected(rct_dir):
