@@ -18,6 +18,15 @@ ACQUIRE read the flange pose and joints, grab every live camera, read the pose a
 NEXT    progress line (views accepted per camera, and the incremental solver's current 1-sigma
         when ``on_capture`` is given), then the next pending pose or END.
 
+Via poses (``capture: false``) go through MOVE (same safety checks) and SETTLE (no dwell) and
+straight to NEXT: nothing is grabbed or written; the journal and the report give them the status
+``via``. They exist because the drivers move along the straight joint-space line between
+consecutive poses and :func:`calibgraph.plan.plan_trajectory` checks those lines for
+collisions: where a line collides it inserts via poses (a folded transit posture) so that the
+motion goes round the obstacle. A via pose that cannot be reached (unsafe, unreachable, not
+settled) is reported like any skipped pose, and the capture pose it led to is skipped as well
+(``skipped_unsafe``): the direct motion to it is the one the planner found colliding.
+
 Crash safety. Pose ``i`` of the trajectory becomes capture ``i``; the capture file is the proof
 that the pose is done. ``acquisition.json`` (the journal, rewritten atomically after each pose)
 records skipped poses and the trajectory's SHA-256. After a kill at any instant the folder
@@ -25,18 +34,40 @@ holds whole captures only: a pose whose capture file is missing is redone on ``r
 half-written images are removed first), a pose whose capture file exists is never redone, so
 nothing is lost and nothing is duplicated.
 
+What resume means for the motions. The pending poses are visited in trajectory order, skipping
+the done ones. Via poses write no capture file, so they are never "done": a via pose is visited
+when the capture pose it leads to (the next capture pose after it) is pending, and left out when
+that pose is done before (a trailing via pose, with no capture pose after it, is always visited).
+The motions the planner checked are those between *consecutive* poses of the trajectory. The
+first motion after a resume starts wherever the arm is (where it stopped, or where an operator
+jogged it), and a skipped pose (unsafe, unreachable, done before) joins the poses around it by a
+motion that nobody checked for collisions either. Those motions still get every safety check
+of MOVE (joint limits, workspace box along the path, speed cap) and the robot's own collision
+reflex, but the cell geometry is not known here: before resuming on hardware, jog the arm to (or
+near) the last captured pose, or to the transit posture, and watch the first motion. The
+simulated robot refuses (``skipped_unreachable``) a motion whose path collides.
+
 Cameras. A camera that raises :class:`~calibgraph.interfaces.DeviceError` (or anything else),
 times out or returns a stale frame is reported; after ``max_camera_failures`` failures in a row it
 is declared lost and the run continues with the others.
 
-Trajectory YAML (``calibgraph-trajectory/1``)::
+Trajectory YAML (``calibgraph-trajectory/1``; :class:`Trajectory` is the one trajectory type of
+calibgraph, also what :func:`calibgraph.plan.plan_trajectory` returns)::
 
     format: calibgraph-trajectory/1
     speed_scale: 0.2                   # fraction of the robot's maximum joint velocity
+    workcell: default                  # optional: what it was planned for, and the planner's seed
+    seed: 0
     poses:
       - q_rad: [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]
         T_base_flange: [[...4x4...]]   # optional: planned flange pose (used when no FK exists)
+        cameras: [cam0, cam1]          # optional: cameras expected to see the whole board
+      - q_rad: [1.2, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]
+        capture: false                 # optional (default true): a via pose, moved through only
       - [0.1, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]   # a bare joint vector is fine too
+
+The SHA-256 of a trajectory (stored in the journal, checked on resume) covers the joint targets,
+the flange poses, the capture flags and the speed, not the bookkeeping (cameras, workcell, seed).
 """
 
 from __future__ import annotations
@@ -77,14 +108,29 @@ class State(enum.Enum):
 # -- trajectory --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class TrajectoryPose:
-    """One pose of a trajectory: joint target ``q_rad`` (n,) and, optionally, the planned
-    ``T_base_flange`` (4, 4)."""
+    """One pose of a trajectory.
+
+    Attributes:
+        q_rad: (n,) joint target.
+        T_base_flange: (4, 4) planned flange pose at ``q_rad``, or None (used by the safety
+            checks when the robot offers no forward kinematics).
+        cameras: names of the cameras expected to see the whole board (what the planner aimed
+            for; advisory, the acquisition grabs every live camera).
+        capture: False for a via (transit) pose: the robot moves there and settles, nothing is
+            grabbed or written. The planner inserts via poses where the straight joint path
+            between two capture poses would collide.
+    """
 
     q_rad: np.ndarray
     T_base_flange: np.ndarray | None = None
+    cameras: tuple = ()
+    capture: bool = True
 
     def __post_init__(self):
-        q = np.asarray(self.q_rad, float).reshape(-1)
+        try:
+            q = np.asarray(self.q_rad, float).reshape(-1)
+        except (TypeError, ValueError):
+            raise InputError(f"trajectory pose: q_rad must be a list of joint angles (rad), got {self.q_rad!r}.") from None
         if q.size == 0 or not np.all(np.isfinite(q)):
             raise InputError(f"trajectory pose: q_rad must be a finite joint vector, got {np.asarray(self.q_rad).tolist()}.")
         object.__setattr__(self, "q_rad", q)
@@ -92,14 +138,38 @@ class TrajectoryPose:
             from .transforms import check_pose
 
             object.__setattr__(self, "T_base_flange", check_pose(self.T_base_flange, "trajectory pose T_base_flange"))
+        cams = self.cameras
+        if cams is None:
+            cams = ()
+        elif isinstance(cams, str):
+            cams = (cams,)
+        if not isinstance(cams, (list, tuple)) or not all(isinstance(c, str) and c for c in cams):
+            raise InputError(f"trajectory pose: cameras must be a list of camera names, got {self.cameras!r}.")
+        object.__setattr__(self, "cameras", tuple(cams))
+        if not isinstance(self.capture, (bool, np.bool_)):
+            raise InputError(f"trajectory pose: capture must be true or false, got {self.capture!r}.")
+        object.__setattr__(self, "capture", bool(self.capture))
+        if not self.capture and self.cameras:
+            raise InputError("trajectory pose: a via pose (capture: false) cannot list cameras expected to see the board.")
 
 
 @dataclass(frozen=True)
 class Trajectory:
-    """Robot poses to visit in order, and the speed to move at."""
+    """Robot poses to visit in order, the speed to move at, and where the plan came from.
+
+    Attributes:
+        poses: :class:`TrajectoryPose` (or bare joint vectors), visited in order.
+        speed_scale: fraction of the robot's maximum joint velocity, in (0, 1].
+        workcell: name of the workcell it was planned for ("" when unknown).
+        seed: seed of the planner, or None.
+        notes: free-text remarks of the planner (e.g. poses dropped for want of a free path).
+    """
 
     poses: tuple
     speed_scale: float = 0.2
+    workcell: str = ""
+    seed: int | None = None
+    notes: tuple = ()
 
     def __post_init__(self):
         poses = tuple(p if isinstance(p, TrajectoryPose) else TrajectoryPose(q_rad=p) for p in self.poses)
@@ -109,60 +179,146 @@ class Trajectory:
         if len(n) != 1:
             raise InputError(f"trajectory: poses have different joint counts {sorted(n)}.")
         object.__setattr__(self, "poses", poses)
-        if not (np.isfinite(self.speed_scale) and 0 < self.speed_scale <= 1):
-            raise InputError(f"trajectory: speed_scale must be in (0, 1], got {self.speed_scale}.")
+        try:
+            ok = bool(np.isfinite(self.speed_scale) and 0 < self.speed_scale <= 1)
+        except TypeError:
+            ok = False
+        if not ok:
+            raise InputError(f"trajectory: speed_scale must be in (0, 1], got {self.speed_scale!r}.")
+        object.__setattr__(self, "speed_scale", float(self.speed_scale))
+        object.__setattr__(self, "workcell", str(self.workcell or ""))
+        if self.seed is not None:
+            if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)):
+                raise InputError(f"trajectory: seed must be an integer or absent, got {self.seed!r}.")
+            object.__setattr__(self, "seed", int(self.seed))
+        notes = (self.notes,) if isinstance(self.notes, str) else tuple(self.notes or ())
+        object.__setattr__(self, "notes", tuple(str(x) for x in notes))
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    @property
+    def n_capture(self) -> int:
+        """Number of capture poses (via poses excluded)."""
+        return sum(p.capture for p in self.poses)
+
+    @property
+    def n_via(self) -> int:
+        """Number of via (transit) poses."""
+        return len(self.poses) - self.n_capture
+
+    def views_per_camera(self) -> dict:
+        """camera -> number of capture poses planned to show it the whole board."""
+        out = {}
+        for p in self.poses:
+            if p.capture:
+                for c in p.cameras:
+                    out[c] = out.get(c, 0) + 1
+        return out
 
     def to_dict(self) -> dict:
+        """The ``calibgraph-trajectory/1`` mapping; ``cameras``/``capture`` only when not default."""
         ps = []
         for p in self.poses:
             d = {"q_rad": p.q_rad.tolist()}
             if p.T_base_flange is not None:
                 d["T_base_flange"] = p.T_base_flange.tolist()
+            if p.cameras:
+                d["cameras"] = list(p.cameras)
+            if not p.capture:
+                d["capture"] = False
             ps.append(d)
-        return {"format": TRAJECTORY_FORMAT, "speed_scale": float(self.speed_scale), "poses": ps}
+        d = {"format": TRAJECTORY_FORMAT,
+             "frame_convention": "T_a_b maps points from frame b to frame a (p_a = T_a_b @ p_b), metres, radians",
+             "speed_scale": float(self.speed_scale)}
+        if self.workcell:
+            d["workcell"] = self.workcell
+        if self.seed is not None:
+            d["seed"] = self.seed
+        if self.notes:
+            d["notes"] = list(self.notes)
+        d["poses"] = ps
+        return d
 
     @classmethod
     def from_dict(cls, d, where: str = "trajectory") -> "Trajectory":
+        """Build from a mapping (or a bare list of joint vectors); errors name ``where`` and the pose."""
         if isinstance(d, list):
             d = {"poses": d}
         if not isinstance(d, dict) or "poses" not in d:
             raise InputError(f"{where}: expected a mapping with 'poses' (see calibgraph.acquire docstring).")
+        if d.get("format", TRAJECTORY_FORMAT) != TRAJECTORY_FORMAT:
+            raise InputError(f"{where}: unsupported format {d.get('format')!r}; expected {TRAJECTORY_FORMAT}.")
+        raw = d["poses"] or []
+        if not isinstance(raw, list):
+            raise InputError(f"{where}: 'poses' must be a list, got {type(raw).__name__}.")
         poses = []
-        for k, p in enumerate(d["poses"] or []):
+        for k, p in enumerate(raw):
             try:
                 if isinstance(p, dict):
-                    poses.append(TrajectoryPose(q_rad=p["q_rad"], T_base_flange=p.get("T_base_flange")))
+                    unknown = set(p) - {"q_rad", "T_base_flange", "cameras", "capture"}
+                    if unknown:
+                        raise InputError(f"unknown keys {sorted(unknown)} (allowed: q_rad, T_base_flange, cameras, capture)")
+                    poses.append(TrajectoryPose(q_rad=p["q_rad"], T_base_flange=p.get("T_base_flange"),
+                                                cameras=p.get("cameras") or (), capture=p.get("capture", True)))
                 else:
                     poses.append(TrajectoryPose(q_rad=p))
-            except (KeyError, TypeError, ValueError) as e:
+            except KeyError as e:
+                raise InputError(f"{where}: pose {k}: missing {e}; each pose needs q_rad.") from None
+            except (InputError, TypeError, ValueError) as e:
                 raise InputError(f"{where}: pose {k}: {e}") from None
-        return cls(poses=tuple(poses), speed_scale=float(d.get("speed_scale", 0.2)))
+        try:
+            speed = float(d.get("speed_scale", 0.2))
+        except (TypeError, ValueError):
+            raise InputError(f"{where}: speed_scale must be a number in (0, 1], got {d.get('speed_scale')!r}.") from None
+        try:
+            return cls(poses=tuple(poses), speed_scale=speed, workcell=d.get("workcell") or "", seed=d.get("seed"),
+                       notes=d.get("notes") or ())
+        except InputError as e:
+            raise InputError(f"{where}: {e}") from None
 
     def sha256(self) -> str:
-        """Fingerprint of the poses and speed (rounded to 1e-9, so a YAML round trip keeps it)."""
-        d = self.to_dict()
-        for p in d["poses"]:
-            for k in p:
-                p[k] = np.round(np.asarray(p[k], float), 9).tolist()
-        d["speed_scale"] = round(d["speed_scale"], 9)
+        """Fingerprint of what the robot does: joint targets, planned flange poses, capture flags
+        and speed (rounded to 1e-9, so a YAML round trip keeps it). ``cameras``, ``workcell``,
+        ``seed`` and ``notes`` are bookkeeping and left out, so a trajectory without via poses
+        hashes exactly as before those keys existed (and resume accepts it)."""
+        poses = []
+        for p in self.poses:
+            d = {"q_rad": np.round(p.q_rad, 9).tolist()}
+            if p.T_base_flange is not None:
+                d["T_base_flange"] = np.round(p.T_base_flange, 9).tolist()
+            if not p.capture:
+                d["capture"] = False
+            poses.append(d)
+        d = {"format": TRAJECTORY_FORMAT, "speed_scale": round(float(self.speed_scale), 9), "poses": poses}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+    def save(self, path) -> Path:
+        """Write the trajectory YAML atomically (tmp + rename); returns the path."""
+        import yaml
+
+        p = Path(path)
+        _atomic_write_bytes(p, yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None,
+                                              width=200).encode())
+        return p
+
+    @classmethod
+    def load(cls, path) -> "Trajectory":
+        """Read a trajectory YAML (or JSON) file."""
+        from .yamlio import read_yaml
+
+        p = Path(path)
+        return cls.from_dict(read_yaml(p, "trajectory", mapping=False), where=str(p))
 
 
 def load_trajectory(path) -> Trajectory:
     """Read a trajectory YAML (or JSON) file."""
-    from .yamlio import read_yaml
-
-    p = Path(path)
-    d = read_yaml(p, "trajectory", mapping=False)
-    return Trajectory.from_dict(d, where=str(p))
+    return Trajectory.load(path)
 
 
 def save_trajectory(traj: Trajectory, path) -> Path:
-    import yaml
-
-    p = Path(path)
-    _atomic_write_bytes(p, yaml.safe_dump(traj.to_dict(), sort_keys=False).encode())
-    return p
+    """Write ``traj`` as YAML atomically; returns the path."""
+    return traj.save(path)
 
 
 # -- report ------------------------------------------------------------------------------------------
@@ -171,7 +327,8 @@ class PoseOutcome:
     """What happened at one trajectory pose.
 
     status: 'captured' | 'no_views' | 'skipped_unsafe' | 'skipped_unreachable' | 'not_settled' |
-        'moved_during_grab' | 'planned' (dry run) | 'done_before' (resume).
+        'moved_during_grab' | 'planned' (dry run) | 'done_before' (resume) | 'via' (a via pose
+        passed through, or in a dry run one that passes the checks).
     """
 
     index: int
@@ -187,8 +344,9 @@ class AcquisitionReport:
 
     Attributes:
         out_dir: dataset folder.
-        n_poses: poses in the trajectory.
-        outcomes: one :class:`PoseOutcome` per pose handled in this run (and 'done_before' ones).
+        n_poses: poses in the trajectory, via poses included.
+        outcomes: one :class:`PoseOutcome` per pose handled in this run (and 'done_before' ones;
+            a via pose whose capture pose was done before is not handled and has none).
         accepted_per_camera: views stored, over the whole dataset so far.
         rejected_per_camera: frames the detector or the filter refused, over every run (a pose
             retried after a resume counts again).
@@ -198,6 +356,7 @@ class AcquisitionReport:
         elapsed_s: wall time of this run; ``captures_per_s`` derived from it.
         trace: state transitions ``(state, pose_index)`` of this run.
         last_estimate: the last value returned by ``on_capture``.
+        n_via_poses: via poses (``capture: false``) in the trajectory.
     """
 
     out_dir: Path
@@ -213,6 +372,7 @@ class AcquisitionReport:
     elapsed_s: float
     trace: tuple = ()
     last_estimate: object = None
+    n_via_poses: int = 0
 
     def count(self, status: str) -> int:
         return sum(o.status == status for o in self.outcomes)
@@ -235,10 +395,13 @@ class AcquisitionReport:
         return self.stopped_reason is None
 
     def summary(self) -> str:
-        lines = [f"{'dry run' if self.dry_run else 'capture'} of {self.n_poses} poses into {self.out_dir}"
-                 f"{' (resumed)' if self.resumed else ''}: {self.captured} captured, "
+        via = f" (+{self.n_via_poses} via poses)" if self.n_via_poses else ""
+        passed = f", {self.count('via')} via poses {'planned' if self.dry_run else 'passed'}" if self.n_via_poses else ""
+        lines = [f"{'dry run' if self.dry_run else 'capture'} of {self.n_poses - self.n_via_poses} poses{via} into "
+                 f"{self.out_dir}{' (resumed)' if self.resumed else ''}: {self.captured} captured, "
                  f"{self.count('no_views')} without accepted views, {len(self.skipped)} skipped, "
-                 f"{self.count('done_before')} done before, {self.count('planned')} planned; {self.elapsed_s:.1f} s"]
+                 f"{self.count('done_before')} done before, {self.count('planned')} planned{passed}; "
+                 f"{self.elapsed_s:.1f} s"]
         for cam in sorted(set(self.accepted_per_camera) | set(self.rejected_per_camera)):
             lines.append(f"  {cam}: {self.accepted_per_camera.get(cam, 0)} views accepted, "
                          f"{self.rejected_per_camera.get(cam, 0)} rejected"
@@ -447,19 +610,29 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
     log(f"plan: {len(plan) - n_bad}/{len(plan)} poses pass the safety checks"
         + (f"; {n_bad} will be skipped" if n_bad else "") + f"; speed scale {trajectory.speed_scale:g}")
 
+    poses = trajectory.poses
+    n_via = sum(not p.capture for p in poses)
+    leads_to = {}  # via pose -> the capture pose it leads to (None after the last capture pose)
+    nxt = None
+    for i in range(len(poses) - 1, -1, -1):
+        if poses[i].capture:
+            nxt = i
+        else:
+            leads_to[i] = nxt
     outcomes = []
     accepted = {c: 0 for c in cams}
     rejected = {c: 0 for c in cams}
     if dry_run:
         for i, v in enumerate(plan):
             enter(State.MOVE, i)
-            outcomes.append(PoseOutcome(i, "planned" if v.ok else "skipped_unsafe", v.message))
+            ok_status = "planned" if trajectory.poses[i].capture else "via"
+            outcomes.append(PoseOutcome(i, ok_status if v.ok else "skipped_unsafe", v.message))
             if not v.ok:
                 log(f"pose {i}: would be skipped: {v.message}")
         enter(State.END)
         return AcquisitionReport(out, len(trajectory.poses), True, False, tuple(outcomes), accepted, rejected,
                                  {c: tuple(m) for c, m in camera_errors.items()}, tuple(lost), None,
-                                 time.monotonic() - t_start, tuple(trace))
+                                 time.monotonic() - t_start, tuple(trace), n_via_poses=n_via)
 
     out.mkdir(parents=True, exist_ok=True)
     _write_or_check_header(out, target, intr, mode, resumed)
@@ -469,7 +642,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
     done = set()
     for i in range(len(trajectory.poses)):
         cp = capture_path(out, i)
-        if cp.exists():
+        if poses[i].capture and cp.exists():
             done.add(i)
             try:
                 views = json.loads(cp.read_text()).get("views", {})
@@ -488,11 +661,20 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
         tmp.unlink()
     journal.d["runs"].append({"started_unix_s": time.time(), "resume": bool(resumed)})
     journal.save()
-    pending = [i for i in range(len(trajectory.poses)) if i not in done]
+    # a via pose is only worth passing on the way to a pose still to capture (see the module docstring)
+    pending = [i for i in range(len(poses)) if i not in done and (poses[i].capture or leads_to[i] not in done)]
     for i in sorted(done):
         outcomes.append(PoseOutcome(i, "done_before", journal.d["poses"].get(str(i), {}).get("message", "")))
     if resumed:
-        log(f"resume: {len(done)} poses done before, {len(pending)} to go")
+        n_go = sum(poses[i].capture for i in pending)
+        log(f"resume: {len(done)} poses done before, {n_go} to go"
+            + (f" (and {len(pending) - n_go} via poses on the way)" if len(pending) > n_go else ""))
+    failed_leg = {}  # capture pose -> the via pose on the way to it that was not reached
+
+    def skip(i, status, msg):
+        _skip(journal, outcomes, log, i, status, msg)
+        if not poses[i].capture and leads_to[i] is not None:
+            failed_leg.setdefault(leads_to[i], i)
 
     stopped = None
     last_estimate = None
@@ -505,17 +687,23 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
             if not live:
                 stopped = "every camera is lost; fix the cameras and resume with --resume"
                 break
+            if i in failed_leg or leads_to.get(i, -1) in failed_leg:
+                j = failed_leg.get(i, failed_leg.get(leads_to.get(i)))
+                skip(i, "skipped_unsafe", f"via pose {j} on the way to it was not reached, and the direct motion "
+                                          "was planned as colliding" if pose.capture else
+                                          f"via pose {j} of the same detour was not reached")
+                continue
             # ---- MOVE ---------------------------------------------------------------------------
             enter(State.MOVE, i)
             q_now = robot.joint_positions()
             v = check_motion(q_now, pose.q_rad, safety, fk=fk, T_goal_stated=pose.T_base_flange, robot_limits=robot_limits)
             if not v.ok:
-                _skip(journal, outcomes, log, i, "skipped_unsafe", v.message)
+                skip(i, "skipped_unsafe", v.message)
                 continue
             try:
                 robot.move_to_joints(pose.q_rad, speed_scale=trajectory.speed_scale)
             except UnreachableError as e:
-                _skip(journal, outcomes, log, i, "skipped_unreachable", str(e))
+                skip(i, "skipped_unreachable", str(e))
                 continue
             except DeviceError as e:
                 stopped = f"robot failed at pose {i}: {e}; check the robot and resume with --resume"
@@ -523,15 +711,22 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
             # ---- SETTLE -------------------------------------------------------------------------
             enter(State.SETTLE, i)
             if not _wait_settled(robot, settle_timeout_s, settle_poll_s):
-                _skip(journal, outcomes, log, i, "not_settled", f"the robot was still moving after {settle_timeout_s:g} s")
+                skip(i, "not_settled", f"the robot was still moving after {settle_timeout_s:g} s")
                 continue
-            if settle_dwell_s > 0:
+            if settle_dwell_s > 0 and pose.capture:  # the dwell lets images get sharp; a via pose takes none
                 time.sleep(settle_dwell_s)
             q_rad = np.asarray(robot.joint_positions(), float)
             if np.max(np.abs(q_rad - pose.q_rad)) > arrival_tolerance_rad:
-                _skip(journal, outcomes, log, i, "skipped_unreachable",
+                skip(i, "skipped_unreachable",
                       f"the robot stopped {np.max(np.abs(q_rad - pose.q_rad)):.4f} rad from the target "
                       f"(tolerance {arrival_tolerance_rad:g} rad)")
+                continue
+            if not pose.capture:
+                journal.set(i, "via", "")
+                journal.save()
+                outcomes.append(PoseOutcome(i, "via", "passed through (no capture)"))
+                enter(State.NEXT, i)
+                log(f"pose {i + 1}/{len(poses)}: via pose passed (no capture)")
                 continue
             # ---- ACQUIRE ------------------------------------------------------------------------
             enter(State.ACQUIRE, i)
@@ -548,7 +743,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
             T1 = np.asarray(robot.flange_pose(), float)
             dt_m, dr_deg = _pose_diff(T0, T1)
             if dt_m > still_tolerance_m or dr_deg > still_tolerance_deg:
-                _skip(journal, outcomes, log, i, "moved_during_grab",
+                skip(i, "moved_during_grab",
                       f"the flange moved {1e3 * dt_m:.2f} mm / {dr_deg:.3f} deg while the cameras grabbed")
                 continue
             views, dets, rej = {}, [], []
@@ -604,7 +799,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
         log(f"stopped: {stopped}")
     return AcquisitionReport(out, len(trajectory.poses), False, resumed, tuple(sorted(outcomes, key=lambda o: o.index)),
                              accepted, rejected, {c: tuple(m) for c, m in camera_errors.items()}, tuple(lost), stopped,
-                             time.monotonic() - t_start, tuple(trace), last_estimate)
+                             time.monotonic() - t_start, tuple(trace), last_estimate, n_via)
 
 
 def _make_log(progress):

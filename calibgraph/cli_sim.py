@@ -32,7 +32,8 @@ def add_parser(sub):
 
 def run(args) -> int:
     from .errors import InputError
-    from .plan import load_trajectory, plan_trajectory
+    from .acquire import load_trajectory
+    from .plan import plan_trajectory
     from .sim.render import SimWorld
     from .sim.simulate import simulate_dataset
     from .sim.workcell import load_workcell, ring_workcell
@@ -45,20 +46,18 @@ def run(args) -> int:
         f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm")
     world = SimWorld(cell)
     if args.trajectory:
-        try:
-            traj = load_trajectory(args.trajectory)
-        except InputError:
-            from .acquire import load_trajectory as load_acq  # a joint-only capture trajectory
-
-            traj = load_acq(args.trajectory)
+        traj = load_trajectory(args.trajectory)
     else:
         if args.poses < 1:
             raise InputError("--poses must be >= 1.")
         traj = plan_trajectory(world, args.poses, seed=args.seed)
         args.out.mkdir(parents=True, exist_ok=True)
         traj.save(args.out / "planned_trajectory.yaml")
-        say(f"planned {len(traj)} poses (expected views per camera: {traj.views_per_camera()}); "
+        via = f" + {traj.n_via} via poses for collision-free motion" if traj.n_via else ""
+        say(f"planned {traj.n_capture} poses{via} (expected views per camera: {traj.views_per_camera()}); "
             f"saved {args.out / 'planned_trajectory.yaml'}")
+        for note in traj.notes:
+            say(f"  plan: {note}")
     report = simulate_dataset(cell, traj, args.out, world=world, progress=False if args.quiet else True,
                               resume=args.resume, gate=not args.full_detection)
     if not args.quiet:

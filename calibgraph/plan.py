@@ -1,4 +1,5 @@
-"""Robot poses for a calibration run: reachable flange poses that show the board to every camera.
+"""Robot poses for a calibration run: reachable flange poses that show the board to every camera,
+joined by collision-free motions.
 
 The thesis drove the arm along a predefined, hand-written trajectory; here it is generated. For
 each camera in turn (and for pairs of neighbouring cameras, so that some captures are seen by
@@ -7,7 +8,16 @@ flange pose follows through the board mount, and inverse kinematics on the arm m
 angles within the limits. A pose is kept only when MuJoCo finds no collision (self, camera stands,
 floor) and the board is fully visible, unoccluded and large enough in the intended camera(s).
 
-A :class:`Trajectory` is saved as YAML and replayed by ``calibgraph sim`` (or on hardware, after
+The poses are then ordered by base rotation and the motions between them are checked: every
+driver moves along the straight joint-space line between consecutive poses (see
+:mod:`calibgraph.safety`), and a big base swing with the arm stretched out can sweep a link or
+the board through the pedestal. Where a motion collides, one or two via poses (``capture:
+false``, a compact transit posture at the base angle of either end) are inserted; a pose that
+no via reaches freely is dropped and replaced by a new one. The result has ``n_poses`` capture
+poses and a collision-free motion from the arm's start configuration through every pose.
+
+The trajectory is the one :class:`calibgraph.acquire.Trajectory` (re-exported here), saved as
+``calibgraph-trajectory/1`` YAML and replayed by ``calibgraph sim`` (or on hardware, after
 checking it against the real cell)::
 
     format: calibgraph-trajectory/1
@@ -16,123 +26,28 @@ checking it against the real cell)::
       - q_rad: [7 joint angles]
         T_base_flange: 4x4 (m)     # expected flange pose
         cameras: [cam0, cam1]      # cameras expected to see the whole board
+      - q_rad: [...]               # a via pose: moved through, nothing captured
+        T_base_flange: 4x4
+        capture: false
 
 Needs the simulator (MuJoCo, franky-sim); it is imported when a plan is made.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-
 import numpy as np
 
+from .acquire import TRAJECTORY_FORMAT as FORMAT
+from .acquire import Trajectory, TrajectoryPose, load_trajectory
 from .errors import InputError
-from .transforms import check_pose, exp_so3, inv, make_T
+from .transforms import exp_so3, inv, make_T
 
-FORMAT = "calibgraph-trajectory/1"
+__all__ = ["FORMAT", "Trajectory", "TrajectoryPose", "load_trajectory", "board_visibility", "visible_cameras",
+           "plan_trajectory", "TRANSIT_Q_RAD"]
 
-
-@dataclass(frozen=True)
-class TrajectoryPose:
-    """One planned robot pose.
-
-    Attributes:
-        q_rad: (7,) joint angles.
-        T_base_flange: (4, 4) flange pose expected at ``q_rad``.
-        cameras: names of the cameras expected to see the whole board.
-    """
-
-    q_rad: np.ndarray
-    T_base_flange: np.ndarray
-    cameras: tuple = ()
-
-    def __post_init__(self):
-        q = np.asarray(self.q_rad, float).reshape(-1)
-        if not np.all(np.isfinite(q)):
-            raise InputError("trajectory pose: joint angles contain NaN/inf.")
-        object.__setattr__(self, "q_rad", q)
-        object.__setattr__(self, "T_base_flange", check_pose(self.T_base_flange, "trajectory pose: T_base_flange"))
-        object.__setattr__(self, "cameras", tuple(str(c) for c in self.cameras))
-
-
-@dataclass(frozen=True)
-class Trajectory:
-    """An ordered list of :class:`TrajectoryPose` (plus where it came from)."""
-
-    poses: tuple
-    workcell: str = ""
-    seed: int | None = None
-    speed_scale: float = 0.2
-
-    def __post_init__(self):
-        object.__setattr__(self, "poses", tuple(self.poses))
-        if not (0 < self.speed_scale <= 1):
-            raise InputError(f"trajectory: speed_scale must be in (0, 1], got {self.speed_scale}.")
-
-    def to_acquire(self):
-        """The same poses as a :class:`calibgraph.acquire.Trajectory` (what the capture state
-        machine executes; it ignores the expected-camera lists)."""
-        from .acquire import Trajectory as AcqTrajectory, TrajectoryPose as AcqPose
-
-        return AcqTrajectory(poses=tuple(AcqPose(q_rad=p.q_rad, T_base_flange=p.T_base_flange) for p in self.poses),
-                             speed_scale=self.speed_scale)
-
-    def __len__(self) -> int:
-        return len(self.poses)
-
-    def views_per_camera(self) -> dict:
-        out = {}
-        for p in self.poses:
-            for c in p.cameras:
-                out[c] = out.get(c, 0) + 1
-        return out
-
-    def to_dict(self) -> dict:
-        return {
-            "format": FORMAT,
-            "frame_convention": "T_a_b maps points from frame b to frame a (p_a = T_a_b @ p_b), metres, radians",
-            "workcell": self.workcell,
-            "seed": self.seed,
-            "speed_scale": float(self.speed_scale),
-            "poses": [{"q_rad": [float(x) for x in p.q_rad], "T_base_flange": np.round(p.T_base_flange, 10).tolist(),
-                       "cameras": list(p.cameras)} for p in self.poses],
-        }
-
-    def save(self, path) -> Path:
-        import yaml
-
-        p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None, width=200))
-        return p
-
-    @classmethod
-    def from_dict(cls, d: dict, where: str = "trajectory") -> "Trajectory":
-        if not isinstance(d, dict) or "poses" not in d:
-            raise InputError(f"{where}: not a trajectory file (needs a 'poses' list).")
-        if d.get("format", FORMAT) != FORMAT:
-            raise InputError(f"{where}: unsupported format {d.get('format')!r}; expected {FORMAT}.")
-        poses = []
-        for i, p in enumerate(d["poses"] or []):
-            try:
-                poses.append(TrajectoryPose(q_rad=p["q_rad"], T_base_flange=p["T_base_flange"],
-                                            cameras=p.get("cameras") or ()))
-            except (KeyError, TypeError) as e:
-                raise InputError(f"{where}: pose {i}: missing or malformed {e}; each pose needs q_rad and T_base_flange.") from None
-            except InputError as e:
-                raise InputError(f"{where}: pose {i}: {e}") from None
-        return cls(poses=tuple(poses), workcell=str(d.get("workcell") or ""), seed=d.get("seed"),
-                   speed_scale=float(d.get("speed_scale", 0.2)))
-
-
-def load_trajectory(path) -> Trajectory:
-    """Read a trajectory YAML file."""
-    from .yamlio import read_yaml
-
-    p = Path(path)
-    d = read_yaml(p, "trajectory", mapping=False)
-    return Trajectory.from_dict(d, str(p))
+# Compact transit posture (elbow folded, board held close above the base); its joint 1 is set to
+# the base angle of the motion it serves. It is the simulator's home posture.
+TRANSIT_Q_RAD = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785])
 
 
 # -- visibility ---------------------------------------------------------------------------------------
@@ -215,24 +130,49 @@ def _board_pose_facing(eye_m, centre_m, tilt_rad, roll_rad, rng, centre_b):
 
 def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: float = 0.3, tilt_deg: float = 35.0,
                     roll_deg: float = 30.0, radius_m=(0.38, 0.62), height_m=(0.25, 0.7), max_attempts: int | None = None,
-                    progress=None) -> Trajectory:
-    """Generate ``n_poses`` reachable, collision-free poses that show the board to the cameras.
+                    progress=None, q_start=None, max_step_rad: float = 0.03) -> Trajectory:
+    """Generate ``n_poses`` reachable, collision-free poses that show the board to the cameras,
+    joined by collision-free motions (via poses inserted where needed).
 
     Args:
         world: :class:`calibgraph.sim.render.SimWorld` of the cell (its model is used for IK,
-            collisions and occlusion ray casts; nothing is rendered).
-        n_poses: poses wanted; cameras are served round robin so each gets a similar share.
+            collisions and occlusion ray casts; nothing is rendered). Its state is restored on return.
+        n_poses: capture poses wanted (via poses come on top); cameras are served round robin so
+            each gets a similar share.
         shared_fraction: fraction of poses aimed between two neighbouring cameras (seen by both
             when the geometry allows).
         tilt_deg: maximum tilt of the board away from facing the camera.
         roll_deg: maximum in-plane rotation of the board.
         radius_m, height_m: where the board centre is placed (distance from the base z axis,
             height in the base frame).
+        max_attempts: pose samples allowed in all (default 60 per pose).
         progress: optional callable(n_done, n_total).
+        q_start: (7,) joint angles the robot starts from (default
+            :func:`calibgraph.sim.ik.start_configuration`: the world's state when it is a valid
+            arm configuration, else the simulator's home, where :class:`~calibgraph.sim.devices.SimRobot`
+            starts).
+        max_step_rad: joint step between collision samples along each motion.
+    Returns:
+        a :class:`Trajectory` whose first motion (from ``q_start``) and every motion between
+        consecutive poses is collision-free; ``notes`` says how many via poses were inserted and
+        which poses were replaced.
     Raises:
         InputError when fewer than ``n_poses`` poses were found (camera too far, board too small,
-        cameras outside the arm's reach).
+        cameras outside the arm's reach) or could be joined by free motions.
     """
+    from .sim.ik import start_configuration
+
+    q_saved = world.q()
+    try:
+        q0 = start_configuration(world) if q_start is None else np.asarray(q_start, float).reshape(-1)
+        return _plan(world, n_poses, seed, shared_fraction, tilt_deg, roll_deg, radius_m, height_m, max_attempts,
+                     progress, q0, max_step_rad)
+    finally:
+        world.set_q(q_saved)
+
+
+def _plan(world, n_poses, seed, shared_fraction, tilt_deg, roll_deg, radius_m, height_m, max_attempts, progress,
+          q_start, max_step_rad) -> Trajectory:
     from .sim.ik import in_collision, solve_ik
 
     rng = np.random.default_rng(seed)
@@ -250,57 +190,153 @@ def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: fl
             d, o = min(others)
             if d < np.radians(130):
                 neighbour[n] = o
-    poses, q_prev = [], None
     max_attempts = max_attempts or 60 * n_poses
-    attempts = 0
-    k = 0
-    while len(poses) < n_poses and attempts < max_attempts:
-        attempts += 1
-        cam = names[k % len(names)]
-        pair = neighbour.get(cam) if rng.uniform() < shared_fraction else None
-        if pair is not None:
-            a = np.angle(np.exp(1j * az[cam]) + np.exp(1j * az[pair]))
-            eye = 0.5 * (eyes[cam] + eyes[pair])
-            want = {cam, pair}
-            tilt = np.radians(tilt_deg) * rng.uniform(0.0, 0.4)
-        else:
-            a = az[cam]
-            eye = eyes[cam]
-            want = {cam}
-            tilt = np.radians(tilt_deg) * rng.uniform(0.3, 1.0)
-        a += rng.uniform(-1, 1) * np.radians(20)
-        r = rng.uniform(*radius_m)
-        centre = np.array([r * np.cos(a), r * np.sin(a), rng.uniform(*height_m)])
-        T_bb = _board_pose_facing(eye, centre, tilt, np.radians(roll_deg) * rng.uniform(-1, 1), rng, centre_b)
-        T_bf = T_bb @ T_fb_inv
-        seeds = []
-        if q_prev is not None and abs(np.angle(np.exp(1j * (q_prev[0] - a)))) < 0.6:
-            seeds.append(q_prev)
-        base = np.array([a, 0.1, 0.0, -2.0, 0.0, 2.0, 0.785])
-        seeds += [base, base + rng.normal(scale=0.4, size=7), base + rng.normal(scale=0.8, size=7)]
-        q = None
-        for s in seeds:
-            q = solve_ik(world, T_bf, s)
-            if q is not None and not in_collision(world, q):
-                break
+    state = {"attempts": 0, "k": 0, "q_prev": None}
+
+    def sample(poses, n_wanted):
+        """Append sampled poses to ``poses`` until it holds ``n_wanted`` or the budget is spent."""
+        while len(poses) < n_wanted and state["attempts"] < max_attempts:
+            state["attempts"] += 1
+            cam = names[state["k"] % len(names)]
+            pair = neighbour.get(cam) if rng.uniform() < shared_fraction else None
+            if pair is not None:
+                a = np.angle(np.exp(1j * az[cam]) + np.exp(1j * az[pair]))
+                eye = 0.5 * (eyes[cam] + eyes[pair])
+                want = {cam, pair}
+                tilt = np.radians(tilt_deg) * rng.uniform(0.0, 0.4)
+            else:
+                a = az[cam]
+                eye = eyes[cam]
+                want = {cam}
+                tilt = np.radians(tilt_deg) * rng.uniform(0.3, 1.0)
+            a += rng.uniform(-1, 1) * np.radians(20)
+            r = rng.uniform(*radius_m)
+            centre = np.array([r * np.cos(a), r * np.sin(a), rng.uniform(*height_m)])
+            T_bb = _board_pose_facing(eye, centre, tilt, np.radians(roll_deg) * rng.uniform(-1, 1), rng, centre_b)
+            T_bf = T_bb @ T_fb_inv
+            seeds = []
+            q_prev = state["q_prev"]
+            if q_prev is not None and abs(np.angle(np.exp(1j * (q_prev[0] - a)))) < 0.6:
+                seeds.append(q_prev)
+            base = np.array([a, 0.1, 0.0, -2.0, 0.0, 2.0, 0.785])
+            seeds += [base, base + rng.normal(scale=0.4, size=7), base + rng.normal(scale=0.8, size=7)]
             q = None
-        if q is None:
+            for s in seeds:
+                q = solve_ik(world, T_bf, s)
+                if q is not None and not in_collision(world, q):
+                    break
+                q = None
+            if q is None:
+                continue
+            world.set_q(q)
+            seen = visible_cameras(world, world.T_base_board())
+            if not want <= set(seen):
+                continue
+            poses.append(TrajectoryPose(q_rad=q, T_base_flange=world.T_base_flange(), cameras=seen))
+            state["q_prev"] = q
+            state["k"] += 1
+            if progress:
+                progress(len(poses), n_poses)
+
+    poses, dropped, notes = [], [], []
+    while True:
+        sample(poses, n_poses)
+        if len(poses) < n_poses:
+            per = _views(poses)
+            lost = (f"; {len(dropped)} more were found but no collision-free motion reached them" if dropped else "")
+            raise InputError(
+                f"planned only {len(poses)} of {n_poses} poses after {state['attempts']} attempts (views per camera: "
+                f"{per}){lost}; move the cameras closer, use a larger board, or ask for fewer poses."
+            )
+        # visit in order of base rotation so the arm sweeps round the cell instead of zig-zagging
+        order = np.argsort([np.round(p.q_rad[0], 1) for p in poses], kind="stable")
+        seq, cut = _connect(world, q_start, [poses[i] for i in order], max_step_rad)
+        if not cut:
+            break
+        for p, hit in cut:
+            dropped.append(p)
+            notes.append(f"dropped a pose at joint 1 = {p.q_rad[0]:.2f} rad: no free motion to it even through a "
+                         f"transit pose ({hit[0]} hits {hit[1]}); replaced by a new one")
+        keep = {id(p) for p, _ in cut}
+        poses = [p for p in poses if id(p) not in keep]
+    n_via = sum(not p.capture for p in seq)
+    if n_via:
+        notes.insert(0, f"{n_via} via poses inserted where the straight joint motion between two poses collides")
+    return Trajectory(poses=tuple(seq), workcell=cell.name, seed=seed, notes=tuple(notes))
+
+
+def _views(poses) -> dict:
+    out = {}
+    for p in poses:
+        for c in p.cameras:
+            out[c] = out.get(c, 0) + 1
+    return out
+
+
+def _connect(world, q_start, poses, max_step_rad):
+    """Walk ``poses`` from ``q_start``; where a motion collides insert via poses, and where no via
+    helps leave the pose out. Returns (sequence with via poses, [(left-out pose, contact pair)])."""
+    from .sim.ik import path_collision
+
+    seq, cut = [], []
+    q = np.asarray(q_start, float)
+    for p in poses:
+        hit = path_collision(world, q, p.q_rad, max_step_rad)
+        if hit:
+            vias = _find_vias(world, q, p.q_rad, max_step_rad)
+            if vias is None:
+                cut.append((p, hit[0]))
+                continue
+            for v in vias:
+                world.set_q(v)
+                seq.append(TrajectoryPose(q_rad=v, T_base_flange=world.T_base_flange(), capture=False))
+        seq.append(p)
+        q = p.q_rad
+    return seq, cut
+
+
+def _transit(world, a_rad, wrist=None):
+    """The transit posture at base angle ``a_rad`` (optionally keeping the wrist joints 5-7 of
+    another pose), or None when it breaks a joint limit or collides."""
+    from .sim.ik import LIMIT_MARGIN_RAD, in_collision
+
+    q = TRANSIT_Q_RAD.copy()
+    q[0] = a_rad
+    if wrist is not None:
+        q[4:] = wrist
+    if np.any(q < world.q_lo + LIMIT_MARGIN_RAD) or np.any(q > world.q_hi - LIMIT_MARGIN_RAD):
+        return None
+    if in_collision(world, q):
+        return None
+    return q
+
+
+def _find_vias(world, q0, q1, max_step_rad):
+    """One or two transit poses making ``q0 -> vias -> q1`` collision-free, or None.
+
+    Candidates, fewest motions first: fold the arm at the goal's base angle (then extend), at the
+    start's base angle (then swing), fold at the start's angle and swing folded to the goal's;
+    each also with the wrist (joints 5-7) of the nearer end held, which keeps the board from
+    spinning past the links."""
+    from .sim.ik import path_collision
+
+    a0, a1 = float(q0[0]), float(q1[0])
+    am = 0.5 * (a0 + a1)
+    cands = []
+    for wrist in (None, "near"):
+        def T(a, near):
+            return _transit(world, a, None if wrist is None else near[4:])
+
+        cands += [(T(a1, q1),), (T(a0, q0),), (T(a0, q0), T(a1, q1)), (T(am, q1),)]
+    tried = set()
+    for vias in cands:
+        if any(v is None for v in vias):
             continue
-        world.set_q(q)
-        seen = visible_cameras(world, world.T_base_board())
-        if not want <= set(seen):
+        key = tuple(np.round(np.concatenate(vias), 6))
+        if key in tried:
             continue
-        poses.append(TrajectoryPose(q_rad=q, T_base_flange=world.T_base_flange(), cameras=seen))
-        q_prev = q
-        k += 1
-        if progress:
-            progress(len(poses), n_poses)
-    if len(poses) < n_poses:
-        per = Trajectory(tuple(poses)).views_per_camera()
-        raise InputError(
-            f"planned only {len(poses)} of {n_poses} poses after {attempts} attempts (views per camera: {per}); "
-            "move the cameras closer, use a larger board, or ask for fewer poses."
-        )
-    # visit in order of base rotation so the arm sweeps round the cell instead of zig-zagging
-    order = np.argsort([np.round(p.q_rad[0], 1) for p in poses], kind="stable")
-    return Trajectory(poses=tuple(poses[i] for i in order), workcell=cell.name, seed=seed)
+        tried.add(key)
+        chain = [q0, *vias, q1]
+        if all(not path_collision(world, chain[k], chain[k + 1], max_step_rad) for k in range(len(chain) - 1)):
+            return [v.copy() for v in vias]
+    return None

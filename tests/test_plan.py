@@ -62,17 +62,23 @@ def test_planned_poses_are_reachable_free_and_visible(world):
     from calibgraph.plan import board_visibility, plan_trajectory
     from calibgraph.sim.ik import LIMIT_MARGIN_RAD, in_collision
 
+    from calibgraph.sim.ik import path_collision, start_configuration
+
     traj = plan_trajectory(world, 18, seed=4)
-    assert len(traj) == 18
+    assert traj.n_capture == 18 and len(traj) == 18 + traj.n_via
     views = traj.views_per_camera()
     assert set(views) == set(world.cell.camera_names) and min(views.values()) >= 4
     assert sum(len(p.cameras) > 1 for p in traj.poses) >= 1  # some poses serve two cameras
+    q_prev = start_configuration(world)
     for p in traj.poses:
         assert np.all(p.q_rad >= world.q_lo + LIMIT_MARGIN_RAD - 1e-9)
         assert np.all(p.q_rad <= world.q_hi - LIMIT_MARGIN_RAD + 1e-9)
         assert in_collision(world, p.q_rad) == []
+        assert path_collision(world, q_prev, p.q_rad) == []  # every motion, from the start on
+        q_prev = p.q_rad
         world.set_q(p.q_rad)
         assert np.allclose(world.T_base_flange(), p.T_base_flange, atol=1e-9)
+        assert p.capture or p.cameras == ()
         for c in p.cameras:
             assert board_visibility(world, c, world.T_base_board())
     # varied tilts: board normals presented to one camera spread over tens of degrees
@@ -105,25 +111,40 @@ def test_trajectory_file_round_trip(tmp_path):
     from calibgraph.transforms import exp_so3, make_T
 
     poses = tuple(TrajectoryPose(q_rad=rng.normal(size=7), T_base_flange=make_T(exp_so3(rng.normal(size=3)), rng.normal(size=3)),
-                                 cameras=("cam0", "cam2")[: k % 2 + 1]) for k in range(5))
-    traj = Trajectory(poses=poses, workcell="test", seed=7, speed_scale=0.15)
+                                 cameras=("cam0", "cam2")[: k % 2 + 1] if k != 2 else (), capture=k != 2)
+                  for k in range(5))
+    traj = Trajectory(poses=poses, workcell="test", seed=7, speed_scale=0.15, notes=("1 via pose",))
     p = traj.save(tmp_path / "traj.yaml")
     back = load_trajectory(p)
     assert len(back) == 5 and back.workcell == "test" and back.seed == 7 and back.speed_scale == 0.15
+    assert back.notes == ("1 via pose",) and back.n_capture == 4 and back.n_via == 1
     for a, b in zip(traj.poses, back.poses):
         assert np.allclose(a.q_rad, b.q_rad, atol=1e-12)
         assert np.allclose(a.T_base_flange, b.T_base_flange, atol=1e-9)
-        assert a.cameras == b.cameras
-    # the capture state machine reads the same file
-    from calibgraph.acquire import load_trajectory as load_acq
+        assert a.cameras == b.cameras and a.capture == b.capture
+    assert back.views_per_camera() == {"cam0": 4, "cam2": 2}  # the via pose counts for no camera
+    assert back.sha256() == traj.sha256()
+    # one trajectory type: the capture state machine's loader gives the same object
+    from calibgraph import acquire
 
-    acq = load_acq(p)
-    assert len(acq.poses) == 5 and acq.speed_scale == 0.15
-    assert np.allclose(acq.poses[3].q_rad, traj.poses[3].q_rad)
-    assert traj.to_acquire().sha256() == acq.sha256()
+    assert Trajectory is acquire.Trajectory and load_trajectory is acquire.load_trajectory
+    # the capture flag is part of the fingerprint; the expected cameras are bookkeeping
+    flip = Trajectory(poses=tuple(TrajectoryPose(q.q_rad, q.T_base_flange, q.cameras, True) for q in traj.poses[:2])
+                      + (TrajectoryPose(traj.poses[2].q_rad, traj.poses[2].T_base_flange),) + traj.poses[3:],
+                      speed_scale=0.15)
+    assert flip.sha256() != traj.sha256()
+    mute = Trajectory(poses=tuple(TrajectoryPose(q.q_rad, q.T_base_flange, (), q.capture) for q in traj.poses),
+                      speed_scale=0.15)
+    assert mute.sha256() == traj.sha256()
     bad = tmp_path / "bad.yaml"
-    bad.write_text("poses:\n  - {q_rad: [0, 0, 0, 0, 0, 0, 0]}\n")
-    with pytest.raises(InputError, match="pose 0"):
+    bad.write_text("poses:\n  - {q_rad: [0, 0, 0, -2, 0, 2, 0]}\n  - {q_rad: [0, 0, 0, -2, 0, 2, 0], capture: maybe}\n")
+    with pytest.raises(InputError, match=r"bad.yaml: pose 1: .*capture must be true or false"):
+        load_trajectory(bad)
+    bad.write_text("poses:\n  - {q_rad: [0, 0, 0, -2, 0, 2, 0], cameras: [cam0, 3]}\n")
+    with pytest.raises(InputError, match=r"bad.yaml: pose 0: .*list of camera names"):
+        load_trajectory(bad)
+    bad.write_text("poses:\n  - {T_base_flange: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}\n")
+    with pytest.raises(InputError, match=r"bad.yaml: pose 0: missing 'q_rad'"):
         load_trajectory(bad)
     bad.write_text("format: something-else/2\nposes: []\n")
     with pytest.raises(InputError, match="unsupported format"):

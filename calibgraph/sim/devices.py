@@ -6,6 +6,12 @@ a simulated clock, not wall time) and ends settled. It reports its flange pose t
 controller does, through its forward kinematics, with an optional per-pose error
 (``fk_sigma_*``: the robot's kinematic model is never exact); the true pose stays in the world
 and goes to the ground truth.
+
+The robot starts at :func:`calibgraph.sim.ik.start_configuration` (the simulator's home when the
+world is in the model's all-zero pose, which no real arm can take), the configuration
+:func:`calibgraph.plan.plan_trajectory` plans from. Like a real arm's collision reflex, it
+refuses a motion whose straight joint path (or goal) collides, with
+:class:`~calibgraph.interfaces.UnreachableError`, and stays where it is.
 """
 
 from __future__ import annotations
@@ -15,7 +21,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..interfaces import DeviceError, Frame, UnreachableError
 from ..transforms import exp_so3, make_T
-from .ik import in_collision
+from .ik import in_collision, path_collision, start_configuration
 
 # FR3 maximum joint velocities (rad/s), Franka datasheet.
 FR3_MAX_JOINT_VELOCITY_RAD_S = np.array([2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26])
@@ -39,6 +45,7 @@ class SimRobot:
         self._T_error = np.eye(4)
         self._closed = False
         self.true_flange_poses = []  # (stamp_s, q_rad, T_base_flange true) after every motion
+        world.set_q(start_configuration(world))
 
     # -- Robot protocol ---------------------------------------------------------------------------
     def joint_positions(self) -> np.ndarray:
@@ -71,6 +78,11 @@ class SimRobot:
         self.world.set_q(q_now)
         if hits:
             raise UnreachableError(f"simulated FR3: the goal configuration collides ({hits[0][0]} with {hits[0][1]}).")
+        hits = path_collision(self.world, q_now, q)
+        if hits:
+            raise UnreachableError(f"simulated FR3: the straight joint motion to the goal collides ({hits[0][0]} with "
+                                   f"{hits[0][1]}); the arm stopped before moving. Plan via poses around the obstacle "
+                                   "(calibgraph.plan.plan_trajectory does).")
         dq = np.abs(q - self.world.q())
         self.world.clock_s += float(np.max(dq / (FR3_MAX_JOINT_VELOCITY_RAD_S * speed_scale))) + 0.5
         self.world.set_q(q)

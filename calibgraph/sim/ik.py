@@ -4,6 +4,11 @@ Damped least squares on MuJoCo's site Jacobian of the flange, with joint limits 
 clamping (a margin keeps solutions off the hard stops), restarted from several seeds. A
 configuration is accepted only when MuJoCo's collision detection finds no contact between the arm
 (links, mount, board) and anything but the pedestal it stands on.
+
+Motions are checked too: every driver moves along the straight joint-space line
+``q(s) = q0 + s (q1 - q0)`` (see :mod:`calibgraph.safety`), so :func:`path_collision` samples
+that line densely enough (``max_step_rad`` per joint between samples) that no link sweeps
+through an obstacle between two samples.
 """
 
 from __future__ import annotations
@@ -63,6 +68,25 @@ def solve_ik(world, T_base_flange_target: np.ndarray, q_seed, max_iter: int = 15
     return None
 
 
+def start_configuration(world) -> np.ndarray:
+    """Where the simulated arm starts: the world's current joint angles when they are a valid
+    configuration (inside the joint limits, collision-free), else the home posture
+    :data:`calibgraph.sim.scene.HOME_Q_RAD`. A fresh MuJoCo model sits at all-zero joints, which
+    is outside the FR3's limits (joints 4 and 6) and self-colliding: no real arm is ever there.
+    The model state is left unchanged."""
+    from .scene import HOME_Q_RAD
+
+    q = world.q()
+    if np.all(q >= world.q_lo) and np.all(q <= world.q_hi):
+        saved = world.data.qpos.copy()
+        free = not in_collision(world, q)
+        world.data.qpos[:] = saved
+        world.mujoco.mj_fwdPosition(world.model, world.data)
+        if free:
+            return q
+    return HOME_Q_RAD.copy()
+
+
 def arm_geom_ids(world) -> set:
     """Geoms that move with the arm (links, mount, board): collisions involving them matter."""
     m = world.model
@@ -77,11 +101,47 @@ def arm_geom_ids(world) -> set:
 
 def in_collision(world, q) -> list:
     """Contacts (name pairs) at ``q`` that involve a moving part of the arm, the board or its mount;
-    empty when the configuration is free."""
+    empty when the configuration is free. Leaves the model at ``q``."""
     mj = world.mujoco
     m, d = world.model, world.data
     d.qpos[world.qadr] = q
     mj.mj_fwdPosition(m, d)
+    return _arm_contacts(world)
+
+
+def path_collision(world, q0, q1, max_step_rad: float = 0.03) -> list:
+    """Contacts (name pairs) at the first colliding sample of the straight joint-space motion
+    from ``q0`` to ``q1``; empty when the whole motion is free.
+
+    The line is sampled at ``s = k / n``, k = 1..n, with ``n`` chosen so no joint moves more than
+    ``max_step_rad`` between samples (0.03 rad swings a point 1 m from the axis by 3 cm, less
+    than the thickness of any link); the start ``q0`` itself is not checked (the arm is there
+    already). The model state (joint angles and everything derived) is restored before returning.
+    """
+    if not max_step_rad > 0:
+        raise ValueError(f"path_collision: max_step_rad must be > 0, got {max_step_rad}.")
+    q0 = np.asarray(q0, float).reshape(-1)
+    q1 = np.asarray(q1, float).reshape(-1)
+    mj = world.mujoco
+    m, d = world.model, world.data
+    saved = d.qpos.copy()
+    n = max(1, int(np.ceil(np.max(np.abs(q1 - q0)) / max_step_rad)))
+    hits = []
+    try:
+        for k in range(1, n + 1):
+            d.qpos[world.qadr] = q0 + (k / n) * (q1 - q0)
+            mj.mj_fwdPosition(m, d)
+            hits = _arm_contacts(world)
+            if hits:
+                break
+    finally:
+        d.qpos[:] = saved
+        mj.mj_fwdPosition(m, d)
+    return hits
+
+
+def _arm_contacts(world) -> list:
+    m, d = world.model, world.data
     moving = getattr(world, "_moving_geoms", None)
     if moving is None:
         moving = world._moving_geoms = arm_geom_ids(world)

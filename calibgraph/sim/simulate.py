@@ -130,8 +130,8 @@ def simulate_dataset(cell: Workcell, trajectory, out_dir, world=None, progress=T
 
     Args:
         cell: the workcell.
-        trajectory: :class:`calibgraph.plan.Trajectory`, :class:`calibgraph.acquire.Trajectory`
-            or a path to a trajectory YAML.
+        trajectory: a :class:`calibgraph.acquire.Trajectory` (what
+            :func:`calibgraph.plan.plan_trajectory` returns) or a path to a trajectory YAML.
         out_dir: new dataset folder.
         world: an existing :class:`SimWorld` of ``cell`` (saves compiling the model again).
         progress: True (lines on stderr), False, or a callable receiving progress lines.
@@ -141,14 +141,12 @@ def simulate_dataset(cell: Workcell, trajectory, out_dir, world=None, progress=T
     Returns:
         the acquisition's :class:`calibgraph.acquire.AcquisitionReport`.
     """
-    from ..acquire import load_trajectory as load_acq
+    from ..acquire import load_trajectory
     from .devices import make_devices
     from .render import SimWorld
 
     if isinstance(trajectory, (str, Path)):
-        trajectory = load_acq(trajectory)
-    if hasattr(trajectory, "to_acquire"):
-        trajectory = trajectory.to_acquire()
+        trajectory = load_trajectory(trajectory)
     world = world or SimWorld(cell)
     robot, cams = make_devices(world, cell.fk_sigma_translation_m, np.radians(cell.fk_sigma_rotation_deg), cell.seed)
     from ..acquire import run_acquisition
