@@ -191,7 +191,7 @@ def _plan(world, n_poses, seed, shared_fraction, tilt_deg, roll_deg, radius_m, h
             if d < np.radians(130):
                 neighbour[n] = o
     max_attempts = max_attempts or 60 * n_poses
-    state = {"attempts": 0, "k": 0, "q_prev": None}
+    state = {"attempts": 0, "k": 0, "q_prev": None, "reported": 0}
 
     def sample(poses, n_wanted):
         """Append sampled poses to ``poses`` until it holds ``n_wanted`` or the budget is spent."""
@@ -235,7 +235,8 @@ def _plan(world, n_poses, seed, shared_fraction, tilt_deg, roll_deg, radius_m, h
             poses.append(TrajectoryPose(q_rad=q, T_base_flange=world.T_base_flange(), cameras=seen))
             state["q_prev"] = q
             state["k"] += 1
-            if progress:
+            if progress and len(poses) > state["reported"]:  # replacements of dropped poses do not step back
+                state["reported"] = len(poses)
                 progress(len(poses), n_poses)
 
     poses, dropped, notes = [], [], []

@@ -304,6 +304,24 @@ def test_trajectory_yaml_round_trip(tmp_path):
         load_trajectory(tmp_path / "bad.yaml")
 
 
+def test_sha256_of_a_plain_trajectory_is_unchanged():
+    """Journals of datasets captured before trajectories had cameras/capture keys must still match."""
+    from calibgraph.acquire import TrajectoryPose
+    from calibgraph.transforms import exp_so3, make_T
+
+    T = make_T(exp_so3([0.1, -0.2, 0.3]), [0.4, 0.05, 0.5])
+    t = Trajectory(poses=(TrajectoryPose(q_rad=[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785], T_base_flange=T),
+                          TrajectoryPose(q_rad=[0.1, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785])), speed_scale=0.15)
+    # computed with the code before the merge of the two trajectory classes (commit 85604fb)
+    assert t.sha256() == "112894b5ae432a2924bebf581a7f1ef518d9fa683aea13cb075a332cadab6e0f"
+    # bookkeeping keys do not change it; a capture flag does
+    named = Trajectory(poses=(TrajectoryPose(t.poses[0].q_rad, T, cameras=("cam0",)), t.poses[1]), speed_scale=0.15,
+                       workcell="w", seed=3, notes=("n",))
+    assert named.sha256() == t.sha256()
+    via = Trajectory(poses=(t.poses[0], TrajectoryPose(t.poses[1].q_rad, capture=False)), speed_scale=0.15)
+    assert via.sha256() != t.sha256()
+
+
 def test_incremental_solver_plugs_in_as_on_capture(tmp_path):
     inc_mod = pytest.importorskip("calibgraph.incremental")
     cell = make_fake_cell(n_cameras=3, n_poses=15, seed=0)
@@ -518,3 +536,102 @@ def test_robot_state_failure_and_crashing_helpers_do_not_lose_data(tmp_path):
     assert rep.rejected_per_camera["cam1"] >= 1
     rep2 = _run(make_fake_cell(n_cameras=2, n_poses=6, seed=17), tmp_path / "ds", resume=True)
     assert rep2.complete and len(load_dataset(tmp_path / "ds").captures) == 6
+
+
+# -- via (transit) poses --------------------------------------------------------------------------------
+def _with_vias(cell, before):
+    """``cell.trajectory`` with via poses inserted: ``before`` maps a capture pose's index to the
+    number of via poses put in front of it (fake Cartesian joints halfway to it)."""
+    from calibgraph.acquire import TrajectoryPose
+
+    poses, q_prev = [], cell.robot.joint_positions()
+    for k, p in enumerate(cell.trajectory.poses):
+        for j in range(before.get(k, 0)):
+            q = q_prev + (j + 1) / (before[k] + 1) * (p.q_rad - q_prev)
+            poses.append(TrajectoryPose(q_rad=q, T_base_flange=T_from_q(q), capture=False))
+        poses.append(p)
+        q_prev = p.q_rad
+    cell.trajectory = Trajectory(poses=tuple(poses), speed_scale=cell.trajectory.speed_scale)
+    return cell.trajectory
+
+
+def test_via_poses_are_moved_through_without_capture(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=6, seed=3)
+    traj = _with_vias(cell, {2: 1, 4: 2})  # indices: 0 1 v2 3 4 v5 v6 7 8
+    via = [2, 5, 6]
+    lines = []
+    rep = _run(cell, tmp_path / "ds", progress=lines.append)
+    assert rep.complete and rep.captured == 6 and rep.count("via") == 3 and rep.skipped == []
+    assert rep.n_poses == 9 and rep.n_via_poses == 3
+    assert [o.index for o in rep.outcomes if o.status == "via"] == via
+    # the robot went through every pose in order, the via poses included
+    assert len(cell.robot.moves) == 9
+    for (q, _), p in zip(cell.robot.moves, traj.poses):
+        np.testing.assert_allclose(q, p.q_rad)
+    # nothing is written for a via pose: no capture file, no image; the journal says "via"
+    ds = load_dataset(tmp_path / "ds")
+    assert ds.problems == () and [c.index for c in ds.captures] == [0, 1, 3, 4, 7, 8]
+    assert not any(v.capture in via for v in ds.views)
+    assert not [p for p in (tmp_path / "ds" / "images").rglob("*.png") if int(p.stem) in via]
+    journal = json.loads((tmp_path / "ds" / "acquisition.json").read_text())
+    assert [journal["poses"][str(i)]["status"] for i in via] == ["via"] * 3
+    # a via pose is MOVE -> SETTLE -> NEXT (no ACQUIRE); capture poses keep all four states
+    states = {i: [s for s, k in rep.trace if k == i] for i in range(9)}
+    assert all(states[i] == ["MOVE", "SETTLE", "NEXT"] for i in via)
+    assert all(states[i] == ["MOVE", "SETTLE", "ACQUIRE", "NEXT"] for i in (0, 1, 3, 4, 7, 8))
+    s = rep.summary()
+    assert "capture of 6 poses (+3 via poses)" in s and "6 captured" in s and "0 skipped" in s and "3 via poses passed" in s
+    assert sum("via pose passed" in ln for ln in lines) == 3 and any(ln.startswith("pose 9/9: ") for ln in lines)
+    # the dataset's copy of the trajectory keeps the capture flags
+    assert load_trajectory(tmp_path / "ds" / "trajectory.yaml").sha256() == traj.sha256()
+    assert [p.capture for p in load_trajectory(tmp_path / "ds" / "trajectory.yaml").poses].count(False) == 3
+
+
+def test_resume_passes_only_the_via_poses_leading_to_pending_poses(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=6, seed=3)
+    traj = _with_vias(cell, {2: 1, 4: 2})  # indices: 0 1 v2 3 4 v5 v6 7 8
+    cell.robot.fail_moves = {6}  # the 6th move (via pose 5) fails: captures 0 1 3 4 are on disk
+    rep = _run(cell, tmp_path / "ds")
+    assert not rep.complete and rep.captured == 4 and rep.count("via") == 1
+    cell2 = make_fake_cell(n_cameras=2, n_poses=6, seed=3)
+    _with_vias(cell2, {2: 1, 4: 2})
+    lines = []
+    rep2 = _run(cell2, tmp_path / "ds", resume=True, progress=lines.append)
+    assert rep2.complete and rep2.captured == 2 and rep2.count("done_before") == 4 and rep2.count("via") == 2
+    # via pose 2 led to pose 3, done before: not visited again; via poses 5, 6 lead to pose 7
+    assert [o.index for o in rep2.outcomes if o.status == "via"] == [5, 6]
+    assert 2 not in {o.index for o in rep2.outcomes}
+    for (q, _), i in zip(cell2.robot.moves, (5, 6, 7, 8)):
+        np.testing.assert_allclose(q, traj.poses[i].q_rad)
+    assert "resume: 4 poses done before, 2 to go (and 2 via poses on the way)" in lines
+    assert [c.index for c in load_dataset(tmp_path / "ds").captures] == [0, 1, 3, 4, 7, 8]
+    # everything captured: a further resume moves nothing (via poses lead only to done poses)
+    cell3 = make_fake_cell(n_cameras=2, n_poses=6, seed=3)
+    _with_vias(cell3, {2: 1, 4: 2})
+    rep3 = _run(cell3, tmp_path / "ds", resume=True)
+    assert rep3.complete and rep3.count("done_before") == 6 and not cell3.robot.moves and rep3.count("via") == 0
+
+
+def test_unreachable_via_pose_skips_the_pose_it_leads_to(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=6, seed=3)
+    traj = _with_vias(cell, {2: 1, 4: 2})  # indices: 0 1 v2 3 4 v5 v6 7 8
+    bad_q = traj.poses[5].q_rad
+    cell.robot.unreachable = lambda q: np.allclose(q, bad_q)
+    rep = _run(cell, tmp_path / "ds")
+    assert rep.complete and rep.captured == 5 and rep.count("via") == 1  # via 2 passed
+    sk = {i: (st, msg) for i, st, msg in rep.skipped}
+    assert set(sk) == {5, 6, 7}
+    assert sk[5][0] == "skipped_unreachable"
+    assert sk[6] == ("skipped_unsafe", "via pose 5 of the same detour was not reached")
+    assert sk[7][0] == "skipped_unsafe" and "via pose 5" in sk[7][1] and "colliding" in sk[7][1]
+    # the robot never tried the direct motion to pose 7
+    assert not any(np.allclose(q, traj.poses[7].q_rad) for q, _ in cell.robot.moves)
+    assert [c.index for c in load_dataset(tmp_path / "ds").captures] == [0, 1, 3, 4, 8]
+
+
+def test_dry_run_lists_via_poses_apart_from_capture_poses(tmp_path):
+    cell = make_fake_cell(n_cameras=2, n_poses=4, seed=3)
+    _with_vias(cell, {1: 1, 3: 1})
+    rep = _run(cell, tmp_path / "ds", dry_run=True)
+    assert rep.count("planned") == 4 and rep.count("via") == 2 and rep.skipped == []
+    assert "dry run of 4 poses (+2 via poses)" in rep.summary() and "2 via poses planned" in rep.summary()
