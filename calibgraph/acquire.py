@@ -88,7 +88,7 @@ from .dataset import capture_path, image_relpath, write_capture, write_header
 from .errors import CalibgraphError, InputError
 from .interfaces import DeviceError, UnreachableError
 from .problem import Capture, Detection
-from .safety import SafetyLimits, check_motion, check_speed, fk_function
+from .safety import SafetyLimits, Verdict, check_motion, check_speed, fk_function
 from .targets import Target
 
 TRAJECTORY_FORMAT = "calibgraph-trajectory/1"
@@ -623,12 +623,17 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
     accepted = {c: 0 for c in cams}
     rejected = {c: 0 for c in cams}
     if dry_run:
+        cut = {}  # as in a real run: a via pose that fails costs the pose it leads to
         for i, v in enumerate(plan):
             enter(State.MOVE, i)
-            ok_status = "planned" if trajectory.poses[i].capture else "via"
+            ok_status = "planned" if poses[i].capture else "via"
+            if v.ok and (i in cut or leads_to.get(i, -1) in cut):
+                v = Verdict(False, (f"via pose {cut.get(i, cut.get(leads_to.get(i)))} on the way to it would be skipped",))
             outcomes.append(PoseOutcome(i, ok_status if v.ok else "skipped_unsafe", v.message))
             if not v.ok:
                 log(f"pose {i}: would be skipped: {v.message}")
+                if not poses[i].capture and leads_to[i] is not None:
+                    cut.setdefault(leads_to[i], i)
         enter(State.END)
         return AcquisitionReport(out, len(trajectory.poses), True, False, tuple(outcomes), accepted, rejected,
                                  {c: tuple(m) for c, m in camera_errors.items()}, tuple(lost), None,

@@ -324,11 +324,10 @@ def _find_vias(world, q0, q1, max_step_rad):
     a0, a1 = float(q0[0]), float(q1[0])
     am = 0.5 * (a0 + a1)
     cands = []
-    for wrist in (None, "near"):
-        def T(a, near):
-            return _transit(world, a, None if wrist is None else near[4:])
-
-        cands += [(T(a1, q1),), (T(a0, q0),), (T(a0, q0), T(a1, q1)), (T(am, q1),)]
+    for keep_wrist in (False, True):
+        w0, w1 = (q0[4:], q1[4:]) if keep_wrist else (None, None)
+        t0, t1 = _transit(world, a0, w0), _transit(world, a1, w1)
+        cands += [(t1,), (t0,), (t0, t1), (_transit(world, am, w1),)]
     tried = set()
     for vias in cands:
         if any(v is None for v in vias):

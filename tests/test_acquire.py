@@ -635,3 +635,12 @@ def test_dry_run_lists_via_poses_apart_from_capture_poses(tmp_path):
     rep = _run(cell, tmp_path / "ds", dry_run=True)
     assert rep.count("planned") == 4 and rep.count("via") == 2 and rep.skipped == []
     assert "dry run of 4 poses (+2 via poses)" in rep.summary() and "2 via poses planned" in rep.summary()
+    # a via pose outside the box costs the pose it leads to (the direct motion would collide)
+    box = SafetyLimits(workspace_min_m=[-5, -5, -5], workspace_max_m=[5, 5, 5])
+    cell.trajectory = Trajectory(poses=tuple(p if i != 1 else type(p)(q_rad=p.q_rad + np.r_[0, 0, 20.0, 0, 0, 0],
+                                                                      capture=False)
+                                             for i, p in enumerate(cell.trajectory.poses)), speed_scale=0.2)
+    rep = _run(cell, tmp_path / "ds", dry_run=True, safety=box)
+    st = {o.index: (o.status, o.message) for o in rep.outcomes}
+    assert st[1][0] == "skipped_unsafe" and st[2] == ("skipped_unsafe", "via pose 1 on the way to it would be skipped")
+    assert rep.count("planned") == 3 and rep.count("via") == 1
