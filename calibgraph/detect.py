@@ -421,13 +421,14 @@ def _sb(grey, target, fast):
     return None
 
 
-def _find_checkerboard(grey, target, method, allow_symmetric, scale=1.0, sb_fallback=True):
+def _find_checkerboard(grey, target, method, allow_symmetric, scale=1.0, sb_fallback=True, fast=None):
     """Checkerboard corners on ``grey`` (the original image at ``scale`` 1, or an up-scaled
     region). ``method='auto'``: classic, replaced by SB when the squares are smaller than
     ``SB_BELOW_PITCH_PX`` original pixels, and SB when classic finds nothing and
     ``sb_fallback`` (off on the original image when an up-scaled classic search follows: that
-    is more accurate than SB at ~10-12 px squares)."""
-    fast = scale == 1.0
+    is more accurate than SB at ~10-12 px squares). ``fast`` (default: on at scale 1) is OpenCV's
+    quick rejection of frames without a board."""
+    fast = scale == 1.0 if fast is None else fast
     found = None
     if method in ("classic", "auto"):
         c = _classic(grey, target, fast)
@@ -605,26 +606,26 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
     if upscale != "auto" and int(upscale) not in (1, 2, 3, 4):
         raise InputError(f"detect: upscale must be 'auto', 1, 2, 3 or 4, got {upscale!r}.")
 
-    def run(img, scale):
+    def run(img, scale, fast=None):
         """Raw detection on img; returns (ids, uv, method, note) or None; DetectionError for
-        orientation problems."""
+        orientation problems. ``fast=True`` is a quick probe: OpenCV's fast check, no SB."""
         if target.kind == "checkerboard":
             return _find_checkerboard(img, target, method, allow_symmetric, scale=scale,
-                                      sb_fallback=scale > 1 or upscale == 1)
+                                      sb_fallback=(scale > 1 or upscale == 1) and not fast, fast=fast)
         if target.kind == "charuco":
             r, _ = _find_charuco(img, target, intrinsics, scale)
             return r
         return _find_circles(img, target, method, allow_symmetric)
 
-    def run_roi(roi, k):
+    def run_roi(roi, k, fast=None):
         import cv2
 
         x0, y0, x1, y1 = roi
         crop = grey[y0:y1, x0:x1]
         if crop.shape[0] < 8 or crop.shape[1] < 8:
             return None
-        big = cv2.resize(crop, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC)
-        r = run(big, float(k))
+        big = crop if k == 1 else cv2.resize(crop, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC)
+        r = run(big, float(k), fast=(False if k == 1 else None) if fast is None else fast)
         if r is None:
             return None
         ids, uv, m, note = r
@@ -674,8 +675,23 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
             # than 2x min_pitch_px (a miss there has another cause, e.g. a wrong target spec, and
             # searching them up-scaled costs seconds). Regions are padded by 60 % + 8 px per side.
             n_steps = max(target.rows, target.cols) + 1
-            rois = [r for r in _roi_candidates(grey, target)
-                    if (max(r[2] - r[0], r[3] - r[1]) - 16) / 2.2 / n_steps < 2 * min_pitch_px]
+            cands = _roi_candidates(grey, target)
+            rois = [r for r in cands if (max(r[2] - r[0], r[3] - r[1]) - 16) / 2.2 / n_steps < 2 * min_pitch_px]
+            if first is None and target.kind == "checkerboard":
+                # A board on the flange touches the arm, whose shading also answers the saddle
+                # filter: its region then looks too big for a small board, and OpenCV's fast check
+                # on the whole frame rejects boards of ~10-12 px squares. Search such regions
+                # up-scaled x2 with the fast check (a miss costs ~0.1 s where a search without it
+                # costs seconds), then redo the found board at full resolution in a tight region.
+                for roi in (r for r in cands if r not in rois):
+                    got = attempt(run_roi, roi, 2, True)
+                    if got is None:
+                        continue
+                    tight = _roi_from_points(got[1], grey.shape)
+                    nat = attempt(run_roi, tight, 1)
+                    first = finish(nat, 1) if nat is not None else finish(got, 2)
+                    rois = [] if first.ok and first.pitch_px >= min_pitch_px else [tight]
+                    break
         best = first
         for k in factors:
             for roi in rois:
