@@ -128,8 +128,8 @@ def _board_pose_facing(eye_m, centre_m, tilt_rad, roll_rad, rng, centre_b):
     return make_T(R, centre_m - R @ centre_b)
 
 
-def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: float = 0.3, tilt_deg: float = 35.0,
-                    roll_deg: float = 30.0, radius_m=(0.38, 0.62), height_m=(0.25, 0.7), max_attempts: int | None = None,
+def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: float = 0.3, tilt_deg: float = 50.0,
+                    roll_deg: float = 30.0, radius_m=(0.30, 0.75), height_m=(0.15, 0.80), max_attempts: int | None = None,
                     progress=None, q_start=None, max_step_rad: float = 0.03) -> Trajectory:
     """Generate ``n_poses`` reachable, collision-free poses that show the board to the cameras,
     joined by collision-free motions (via poses inserted where needed).
@@ -144,7 +144,11 @@ def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: fl
         tilt_deg: maximum tilt of the board away from facing the camera.
         roll_deg: maximum in-plane rotation of the board.
         radius_m, height_m: where the board centre is placed (distance from the base z axis,
-            height in the base frame).
+            height in the base frame). The defaults use most of the FR3's reach: spreading the
+            board over depth and height decouples each camera's position from its rotation.
+            Measured on synthetic corners (0.06 px, 110 poses, 3 cameras), against the former
+            compact volume (0.38-0.62 m, 0.25-0.70 m, tilt 35 deg): 1-sigma norm of T_base_cam
+            0.32 -> 0.25 mm (L515, 3 m), 0.53 -> 0.39 mm (D455, 3 m), 0.18 -> 0.11 mm (Kinect, 1.5 m).
         max_attempts: pose samples allowed in all (default 60 per pose).
         progress: optional callable(n_done, n_total).
         q_start: (7,) joint angles the robot starts from (default

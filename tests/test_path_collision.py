@@ -61,6 +61,11 @@ def _motions_free(world, q_start, traj):
     return [i for i in range(len(qs) - 1) if path_collision(world, qs[i], qs[i + 1])]
 
 
+# The planner's former compact workspace: with it, seed 3 on large_cell has colliding motions
+# (measured; the n_via assertion keeps the case honest if the planner changes).
+COMPACT = dict(radius_m=(0.38, 0.62), height_m=(0.25, 0.70), tilt_deg=35.0)
+
+
 def test_planner_inserts_via_poses_so_every_motion_is_free(world):
     from calibgraph.plan import plan_trajectory
     from calibgraph.sim.ik import LIMIT_MARGIN_RAD, in_collision, start_configuration
@@ -69,7 +74,7 @@ def test_planner_inserts_via_poses_so_every_motion_is_free(world):
     q_start = start_configuration(world)
     # Without via poses this plan has 2 colliding motions (measured with the planner before it
     # checked motions; the n_via assertion below keeps the case honest).
-    traj = plan_trajectory(world, 20, seed=3)
+    traj = plan_trajectory(world, 20, seed=3, **COMPACT)
     assert np.all(world.q() == 0)  # the world is left as it was
     assert traj.n_capture == 20 and traj.n_via >= 1 and len(traj) == 20 + traj.n_via
     assert _motions_free(world, q_start, traj) == []
@@ -90,7 +95,7 @@ def test_planner_replaces_poses_no_via_can_reach(world, monkeypatch):
 
     monkeypatch.setattr(plan, "_find_vias", lambda *a, **k: None)  # as if no transit posture helped
     world.set_q(np.zeros(7))
-    traj = plan.plan_trajectory(world, 20, seed=3)
+    traj = plan.plan_trajectory(world, 20, seed=3, **COMPACT)
     assert traj.n_capture == 20 and traj.n_via == 0
     assert _motions_free(world, start_configuration(world), traj) == []
     dropped = [n for n in traj.notes if n.startswith("dropped a pose")]
