@@ -40,7 +40,7 @@ def test_cli_sim_writes_dataset_with_ground_truth(tmp_path):
     assert all((out / v.image).is_file() for v in ds.views)
     gt = load_ground_truth(out)
     traj = load_trajectory(out / "planned_trajectory.yaml")
-    assert len(traj) == 5
+    assert traj.n_capture == 5  # via poses (capture: false), if any, come on top
     for cap in ds.captures:
         T_true = gt["T_base_flange_true"][cap.index]
         # the capture holds the robot's reported pose: true pose + its kinematic error (5e-5 m sigma)
