@@ -154,6 +154,18 @@ def row_values(score):
     return v
 
 
+def cell_values(row, method):
+    """(mean, min, max) per column over the seeds of one table row (a merged report holds a list
+    of scores per method, a single run one score); None where no seed has a value."""
+    scores = row[method] if isinstance(row[method], list) else [row[method]]
+    cols = list(zip(*[row_values(sc) for sc in scores]))
+    out = []
+    for c in cols:
+        v = [x for x in c if x is not None]
+        out.append((float(np.mean(v)), min(v), max(v)) if v else (None, None, None))
+    return out
+
+
 def fmt(x, nd=2):
     return "-" if x is None else f"{x:.{nd}f}"
 
@@ -167,8 +179,13 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--a4-seeds", type=int, nargs="*", default=None, help="seeds of the A4 54-corner runs (default 0 1 2 3 4, quick 0)")
     ap.add_argument("--keep", action="store_true", help="keep the rendered datasets under OUT/datasets")
+    ap.add_argument("--merge", type=Path, nargs="*", default=None,
+                    help="combine the bench_thesis.json of earlier runs (e.g. one per seed) into OUT: table "
+                         "cells become the mean over seeds, the bars are judged on the means")
     ap.add_argument("--skip", nargs="*", default=(), choices=("tables", "resize", "a4"), help="parts to skip")
     args = ap.parse_args(argv)
+    if args.merge:
+        return merge(args.merge, args.out)
     from calibgraph.dataset import load_dataset
     from calibgraph.detect import detect_image
     from calibgraph.problem import SolverOptions
@@ -266,13 +283,43 @@ def main(argv=None) -> int:
     return 0
 
 
+def merge(dirs, out: Path) -> int:
+    """Combine earlier runs: tables per seed (cells averaged), the last run's resize and A4 parts."""
+    runs = [json.loads((Path(d) / "bench_thesis.json").read_text()) for d in dirs]
+    merged = {"protocol": dict(runs[0]["protocol"]), "tables": {}, "resize": {}, "a4_54_l515_3m": None,
+              "merged_from": [str(d) for d in dirs]}
+    seeds = []
+    for r in runs:
+        if r["tables"]:
+            seeds.append(r["protocol"]["seed"])
+            for d, row in r["tables"].items():
+                m = merged["tables"].setdefault(d, {"single": [], "joint": []})
+                m["single"].append(row["single"])
+                m["joint"].append(row["joint"])
+        if r["resize"]:
+            merged["resize"] = r["resize"]
+        if r.get("a4_54_l515_3m"):
+            merged["a4_54_l515_3m"] = r["a4_54_l515_3m"]
+    merged["tables"] = dict(sorted(merged["tables"].items(), key=lambda kv: float(kv[0])))
+    merged["protocol"]["seeds"] = seeds
+    merged["protocol"]["seed"] = seeds[0] if seeds else runs[0]["protocol"]["seed"]
+    merged["bars"] = bars(merged)
+    merged["elapsed_s"] = sum(r.get("elapsed_s", 0.0) for r in runs)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "bench_thesis.json").write_text(json.dumps(merged, indent=1, default=float))
+    (out / "bench_thesis.md").write_text(markdown(merged))
+    print(markdown(merged))
+    print(f"wrote {out / 'bench_thesis.json'} and {out / 'bench_thesis.md'}")
+    return 0
+
+
 def bars(report) -> dict:
     """The issue's acceptance bars, evaluated."""
     out = {}
     worst = []
     for d, row in report["tables"].items():
         for method, thesis in (("single", THESIS_SINGLE), ("joint", THESIS_MULTI)):
-            ours = row_values(row[method])
+            ours = [m for m, _, _ in cell_values(row, method)]
             th = thesis[float(d)]
             for k, (o, t) in enumerate(zip(ours, th)):
                 worst.append({"distance_m": float(d), "method": method, "column": k, "ours": o, "thesis": t,
@@ -314,12 +361,17 @@ def markdown(report) -> str:
                                   ("joint", THESIS_MULTI, "Table 6.2 (multi-camera)")):
         if not report["tables"]:
             break
-        L += [f"## {title}: ours / thesis (translation errors mm, reprojection px)", "",
+        seeds = report["protocol"].get("seeds")
+        L += [f"## {title}: ours / thesis (translation errors mm, reprojection px)"
+              + (f"; ours = mean (min–max) over seeds {seeds}" if seeds and len(seeds) > 1 else ""), "",
               "| d [m] | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
         for d, row in report["tables"].items():
-            ours = row_values(row[method])
+            ours = cell_values(row, method)
             th = thesis[float(d)]
-            L.append(f"| {d} | " + " | ".join(f"{fmt(o, 3 if k < 6 else 3)} / {t:.2f}" for k, (o, t) in enumerate(zip(ours, th))) + " |")
+            multi = isinstance(row[method], list) and len(row[method]) > 1
+            L.append(f"| {d} | " + " | ".join(
+                f"{fmt(m, 3)}" + (f" ({fmt(lo, 2)}–{fmt(hi, 2)})" if multi and k < 6 and m is not None else "") + f" / {t:.2f}"
+                for k, ((m, lo, hi), t) in enumerate(zip(ours, th))) + " |")
         L.append("")
     if report["resize"]:
         L += ["## §6.3: D455 cameras, original vs up-scaled detection (reprojection px; views detected)", "",
