@@ -104,7 +104,7 @@ def simulate(distance_m, preset, board, n_poses, seed, work: Path, spread_deg, p
                          name=f"thesis_{preset}_{distance_m:.1f}", seed=seed)
     world = SimWorld(cell)
     traj = plan_trajectory(world, n_poses, seed=seed, **(plan_kw or {}))
-    ds = work / f"{preset}_{board}_{distance_m:.1f}_s{seed}"
+    ds = work / f"{preset}_{board}_{distance_m:.1f}m_{n_poses}poses_s{seed}"
     if ds.exists():
         shutil.rmtree(ds)
     simulate_dataset(cell, traj, ds, world=world, progress=False)
