@@ -66,6 +66,8 @@ THESIS_MULTI = {
     2.8: [4.12, 4.76, 5.12, 2.16, 1.43, 1.38, 1.65, 1.42, 1.19],
     3.0: [4.76, 5.21, 5.27, 2.19, 1.56, 1.85, 1.79, 1.73, 1.28],
 }
+# Table 6.1's T_W^C1 at 2.2 m (0.09 mm) breaks the column's trend and its Table 6.2 twin (1.32 mm).
+SUSPECTED_TYPO = (2.2, "single", 3)
 # §6.3 table: distance -> original [Err1..3] (None = failed), resized [Err1..3]
 THESIS_RESIZE = {
     1.5: ([0.17, 0.22, 0.20], [0.16, 0.18, 0.22]),
@@ -325,8 +327,17 @@ def bars(report) -> dict:
                 worst.append({"distance_m": float(d), "method": method, "column": k, "ours": o, "thesis": t,
                               "ratio": None if o is None else o / t})
     ratios = [w for w in worst if w["ratio"] is not None]
+    over = [w for w in ratios if w["ratio"] > 0.5]
     out["half_of_thesis"] = {
         "pose_columns_ok": all(w["ratio"] <= 0.5 for w in ratios if w["column"] < 6) and bool(ratios),
+        # Table 6.1 gives 0.09 mm for T_W^C1 at 2.2 m between 1.25 (2.0 m) and 1.68 (2.4 m), and
+        # Table 6.2 gives 1.32 for the same cell; every other single/multi pair of the T_W^Ci columns
+        # differs by at most 0.20 mm.
+        # Reported both with and without that cell.
+        "pose_columns_ok_without_suspected_typo": all(
+            w["ratio"] <= 0.5 for w in ratios if w["column"] < 6 and (w["distance_m"], w["method"], w["column"]) != SUSPECTED_TYPO)
+        and bool(ratios),
+        "cells_over_half": over,
         "reprojection_columns_ok": all(w["ratio"] <= 0.5 for w in ratios if w["column"] >= 6) and bool(ratios),
         "missing": sum(w["ratio"] is None for w in worst),
         "worst": sorted(ratios, key=lambda w: -w["ratio"])[:5],
