@@ -2,30 +2,43 @@
 
 Frame convention: ``T_a_b`` maps points from frame b to frame a (``p_a = T_a_b @ p_b``).
 
-The engine is pure: importing it never imports a camera/robot SDK, MuJoCo or rerun.
+The package is layered in data-flow order — :mod:`~calibgraph.core` → :mod:`~calibgraph.io` →
+:mod:`~calibgraph.detect` → :mod:`~calibgraph.solver` → :mod:`~calibgraph.plan` →
+:mod:`~calibgraph.acquire` → :mod:`~calibgraph.report`, with :mod:`~calibgraph.sim` and
+:mod:`~calibgraph.cli` at the edge — and this module re-exports what a script needs::
 
-    >>> from calibgraph import solve
-    >>> result = solve(problem)          # Problem in, Result out
+    import calibgraph as cg
+
+    dataset = cg.load_dataset("my_dataset")          # any supported layout
+    problem, _ = cg.build_problem(dataset)            # detects views without stored corners
+    result = cg.solve(problem)                        # Problem in, Result out
+    print(result.cameras["cam0"].T_base_cam, result.cameras["cam0"].sigma_translation_mm)
+    result.save("result.json")
+
+Importing it never imports a camera/robot SDK, MuJoCo or rerun (see ``scripts/examples/``).
 """
 
-__version__ = "0.1.0"
-
-from .camera import Intrinsics, preset  # noqa: E402
-from .errors import CalibgraphError, DetectionError, InputError, ObservabilityError, SolverError  # noqa: E402
-from .problem import Capture, Detection, Problem, SolverOptions  # noqa: E402
-from .result import CameraResult, PairResult, Result  # noqa: E402
-from .targets import Target, load_target  # noqa: E402
-
-
-def solve(problem):
-    """Calibrate every camera of ``problem``; see :func:`calibgraph.solve.solve`."""
-    from .solver import solve as _solve
-
-    return _solve(problem)
-
+from calibgraph.core.camera import Intrinsics, preset
+from calibgraph.core.errors import CalibgraphError, DetectionError, InputError, ObservabilityError, SolverError
+from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
+from calibgraph.core.targets import Target, a4_board_54, thesis_board
+from calibgraph.core.version import __version__
+from calibgraph.detect.corners import ImageDetection, dataset_detector, detect_image
+from calibgraph.io.dataset import Dataset
+from calibgraph.io.layouts import load_dataset
+from calibgraph.io.specs import load_target
+from calibgraph.plan.planner import plan_trajectory
+from calibgraph.plan.trajectory import Trajectory, TrajectoryPose, load_trajectory
+from calibgraph.plan.visibility import board_visibility
+from calibgraph.solver.batch import solve
+from calibgraph.solver.build import build_problem
+from calibgraph.solver.incremental import IncrementalSolver
+from calibgraph.solver.result import CameraResult, PairResult, Result, load_result_dict
 
 __all__ = [
-    "CalibgraphError", "Capture", "CameraResult", "Detection", "DetectionError", "InputError", "Intrinsics",
-    "ObservabilityError", "PairResult", "Problem", "Result", "SolverError", "SolverOptions", "Target",
-    "load_target", "preset", "solve",
+    "CalibgraphError", "CameraResult", "Capture", "Dataset", "Detection", "DetectionError", "ImageDetection",
+    "IncrementalSolver", "InputError", "Intrinsics", "ObservabilityError", "PairResult", "Problem", "Result",
+    "SolverError", "SolverOptions", "Target", "Trajectory", "TrajectoryPose", "__version__", "a4_board_54",
+    "board_visibility", "build_problem", "dataset_detector", "detect_image", "load_dataset", "load_result_dict",
+    "load_target", "load_trajectory", "plan_trajectory", "preset", "solve", "thesis_board",
 ]

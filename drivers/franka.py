@@ -2,7 +2,7 @@
 
     pip install 'calibgraph[franka]'      # pylibfranka >= 0.15 (tested with 0.21)
 
-Implements :class:`calibgraph.interfaces.Robot`.
+Implements :class:`calibgraph.acquire.interfaces.Robot`.
 
 Frames (libfranka names, all column-major 4x4 in the robot state):
 
@@ -18,9 +18,9 @@ Frames (libfranka names, all column-major 4x4 in the robot state):
 Motion: :meth:`FrankaRobot.move_to_joints` plans a quintic (minimum-jerk) joint trajectory whose
 duration keeps every joint's peak velocity, acceleration and jerk at or below ``speed_scale`` times
 the datasheet limits, and streams it at 1 kHz through ``start_joint_position_control`` (internal
-joint impedance controller). The straight joint-space path is what :mod:`calibgraph.safety`
+joint impedance controller). The straight joint-space path is what :mod:`calibgraph.acquire.safety`
 checks. A control exception (reflex, collision, communication) stops the motion, runs
-``automatic_error_recovery`` and raises :class:`~calibgraph.interfaces.DeviceError`.
+``automatic_error_recovery`` and raises :class:`~calibgraph.acquire.interfaces.DeviceError`.
 
 Real-time: libfranka expects a real-time kernel (``RealtimeConfig.kEnforce``); pass
 ``realtime=False`` for the simulator or a development PC (``kIgnore``). The Python loop runs one
@@ -44,8 +44,8 @@ import time
 
 import numpy as np
 
-from calibgraph.interfaces import DeviceError, UnreachableError
-from calibgraph.safety import FRANKA_LIMITS, franka_fk
+from calibgraph.acquire.interfaces import DeviceError, UnreachableError
+from calibgraph.acquire.safety import FRANKA_LIMITS, franka_fk
 
 _JERK_MAX_RAD_S3 = 5000.0  # Panda/FR3 datasheets: 5000-7500 rad/s^3; the lower value is used for both
 

@@ -10,7 +10,7 @@ use a Kinect V2 is its ROS 2 bridge with :mod:`drivers.ros2`.
 Install by hand: build libfreenect2 (github.com/OpenKinect/libfreenect2, with ``ENABLE_CXX11``),
 then ``pip install pylibfreenect2`` with ``LIBFREENECT2_INSTALL_PREFIX`` pointing at it.
 
-Implements :class:`calibgraph.interfaces.Camera` for the 1920x1080 colour stream:
+Implements :class:`calibgraph.acquire.interfaces.Camera` for the 1920x1080 colour stream:
 
 - frames arrive as BGRX; the X channel is dropped (OpenCV BGR);
 - libfreenect2 delivers the colour image mirrored left-right (iai_kinect2 flips it back);
@@ -21,7 +21,7 @@ Implements :class:`calibgraph.interfaces.Camera` for the 1920x1080 colour stream
   colour intrinsics first and pass them as ``intrinsics=``;
 - freshness: frames queued before :meth:`KinectV2Camera.grab` are released unused, then the next
   one is taken (polling ``hasNewFrame`` so a stalled device raises
-  :class:`~calibgraph.interfaces.DeviceError` after ``timeout_s`` instead of blocking forever);
+  :class:`~calibgraph.acquire.interfaces.DeviceError` after ``timeout_s`` instead of blocking forever);
 - stamp: the frame's device timestamp (libfreenect2: units of 0.1 ms).
 """
 
@@ -31,8 +31,8 @@ import time
 
 import numpy as np
 
-from calibgraph.camera import Intrinsics
-from calibgraph.interfaces import DeviceError, Frame
+from calibgraph.acquire.interfaces import DeviceError, Frame
+from calibgraph.core.camera import Intrinsics
 
 try:  # hand-built optional dependency; see the module docstring
     import pylibfreenect2 as _fn2

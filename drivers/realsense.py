@@ -3,7 +3,7 @@
 
     pip install 'calibgraph[realsense]'      # pyrealsense2; Linux also needs apt libusb-1.0-0
 
-Implements :class:`calibgraph.interfaces.Camera` for the **colour** stream.
+Implements :class:`calibgraph.acquire.interfaces.Camera` for the **colour** stream.
 
 Sources:
 
@@ -49,8 +49,8 @@ import time
 
 import numpy as np
 
-from calibgraph.camera import Intrinsics
-from calibgraph.interfaces import DeviceError, Frame
+from calibgraph.acquire.interfaces import DeviceError, Frame
+from calibgraph.core.camera import Intrinsics
 
 try:
     # Load rclpy's libraries (when installed) before librealsense's: with pyrealsense2 2.59 loaded

@@ -9,7 +9,7 @@ Set ``ROS_DOMAIN_ID`` to the camera drivers' domain; on a single machine
 ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` keeps discovery off the network. (There are no tf2
 wheels, so camera extrinsics are calibrated here, not looked up from TF.)
 
-Implements :class:`calibgraph.interfaces.Camera`:
+Implements :class:`calibgraph.acquire.interfaces.Camera`:
 
 - :meth:`Ros2Camera.intrinsics` from the first ``CameraInfo``: ``k`` (row-major 3x3) is K;
   ``d`` with ``distortion_model`` ``plumb_bob`` (k1 k2 t1 t2 k3) or ``rational_polynomial``
@@ -19,7 +19,7 @@ Implements :class:`calibgraph.interfaces.Camera`:
   exposed while the robot was still moving is never used; ``bgr8 rgb8 bgra8 rgba8 mono8 mono16``
   become OpenCV BGR / grey uint8 (mono16 keeps its high byte). The stamp is the message header's
   (the host's arrival time when the publisher leaves it zero).
-  No frame within ``timeout_s`` raises :class:`~calibgraph.interfaces.DeviceError`.
+  No frame within ``timeout_s`` raises :class:`~calibgraph.acquire.interfaces.DeviceError`.
 
 All cameras of a process share one rclpy context and one executor thread (:func:`shutdown` ends
 them; it also runs at interpreter exit).
@@ -33,8 +33,8 @@ import time
 
 import numpy as np
 
-from calibgraph.camera import Intrinsics
-from calibgraph.interfaces import DeviceError, Frame
+from calibgraph.acquire.interfaces import DeviceError, Frame
+from calibgraph.core.camera import Intrinsics
 
 try:  # the SDK is an optional extra; the engine and other drivers must import without it
     import rclpy

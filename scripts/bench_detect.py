@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Detection benchmark on rendered images with exact truth (calibgraph.render).
+"""Detection benchmark on rendered images with exact truth (calibgraph.sim.board_image).
 
 For the D455-like (1280x800, HFOV 90), L515-like (1920x1080, HFOV 70) and Kinect-V2-like
 (1920x1080, HFOV 84.1) presets, the thesis's A4 board (5x4 squares of 46 mm = 4x3 inner corners)
@@ -37,10 +37,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from calibgraph.camera import preset  # noqa: E402
-from calibgraph.detect import detect_image  # noqa: E402
-from calibgraph.render import board_texture, look_at_board, render_view  # noqa: E402
-from calibgraph.targets import a4_board_54, thesis_board  # noqa: E402
+from calibgraph.core.camera import preset  # noqa: E402
+from calibgraph.core.targets import a4_board_54, thesis_board  # noqa: E402
+from calibgraph.detect.corners import detect_image  # noqa: E402
+from calibgraph.sim.board_image import board_texture, look_at_board, render_view  # noqa: E402
 
 PRESETS = ("d455", "l515", "kinect_v2")
 VARIANTS = {  # name: detect_image options

@@ -1,14 +1,14 @@
 #!/usr/bin/env python
 """Benchmark of the calibgraph solver: accuracy vs the Cramer-Rao bound, OpenCV 4.x baselines, run times.
 
-Monte Carlo on seeded synthetic eye-to-hand workcells (:func:`calibgraph.synth.make_scene`): three
+Monte Carlo on seeded synthetic eye-to-hand workcells (:func:`calibgraph.sim.synth.make_scene`): three
 fixed cameras on a ring at 1.5 / 3 / 5 m, D455-like or L515-like intrinsics, the thesis's board
 (5 x 4 squares of 46 mm -> 12 corners) or a 7 x 10 board of 25 mm squares (54 corners), 20 or 110
 robot poses, corner noise 0.1 / 0.3 / 1 px, forward-kinematics noise 0 or Panda-class
 (0.1 mm / 0.01 deg per flange pose). For every configuration it reports, over all cameras and trials:
 
 * translation / rotation error of ``T_base_cam`` vs truth (median, 95th percentile);
-* the Cramer-Rao bound (:func:`calibgraph.solver.crlb`, inverse Fisher information at the truth with
+* the Cramer-Rao bound (:func:`calibgraph.solver.batch.crlb`, inverse Fisher information at the truth with
   the true pixel sigma): ``sqrt(trace)`` of the translation and rotation blocks;
 * error / CRLB = pooled RMS error / RMS CRLB sigma (1.0 = efficient estimator), and the solver's
   own reported sigma checked the same way (error / reported sigma, 1.0 = honest covariance);
@@ -56,12 +56,12 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from calibgraph import solver as cg_solver  # noqa: E402
-from calibgraph.errors import CalibgraphError  # noqa: E402
-from calibgraph.problem import SolverOptions  # noqa: E402
-from calibgraph.synth import Scene, make_scene, ring_cameras  # noqa: E402
-from calibgraph.targets import a4_board_54, thesis_board  # noqa: E402
-from calibgraph.transforms import inv, make_T, pose_error  # noqa: E402
+from calibgraph.core.errors import CalibgraphError  # noqa: E402
+from calibgraph.core.problem import SolverOptions  # noqa: E402
+from calibgraph.core.targets import a4_board_54, thesis_board  # noqa: E402
+from calibgraph.core.transforms import inv, make_T, pose_error  # noqa: E402
+from calibgraph.sim.synth import Scene, make_scene, ring_cameras  # noqa: E402
+from calibgraph.solver import solver as cg_solver  # noqa: E402
 
 DISTANCES_M = (1.5, 3.0, 5.0)
 PRESETS = ("d455", "l515")
@@ -469,9 +469,9 @@ def _safe(f, *a, **k) -> dict:
 
 def time_incremental(cfg: Config, seed: int) -> dict:
     try:
-        from calibgraph.incremental import IncrementalSolver
+        from calibgraph.solver.incremental import IncrementalSolver
     except ImportError as e:
-        return {"status": f"pending: calibgraph.incremental not importable ({e})"}
+        return {"status": f"pending: calibgraph.solver.incremental not importable ({e})"}
     scene = _scene(cfg, seed)
     prob, truth = scene.problem, scene.truth
     by_cap = {}

@@ -96,9 +96,10 @@ CAMS = ("cam0", "cam1", "cam2")
 
 def simulate(distance_m, preset, board, n_poses, seed, work: Path, spread_deg, plan_kw=None):
     """Render and capture one cell; returns (dataset dir, ground truth, seconds)."""
-    from calibgraph.plan import plan_trajectory
+    from calibgraph.io.ground_truth import load_ground_truth
+    from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.simulate import load_ground_truth, simulate_dataset
+    from calibgraph.sim.simulate import simulate_dataset
     from calibgraph.sim.workcell import ring_workcell
 
     t0 = time.monotonic()
@@ -116,9 +117,9 @@ def simulate(distance_m, preset, board, n_poses, seed, work: Path, spread_deg, p
 
 def solve_and_score(problem, gt):
     """Solve; return per-camera/pair errors or the reason it failed."""
-    from calibgraph.errors import CalibgraphError
-    from calibgraph.solver import solve
-    from calibgraph.transforms import inv, pose_error
+    from calibgraph.core.errors import CalibgraphError
+    from calibgraph.core.transforms import inv, pose_error
+    from calibgraph.solver.batch import solve
 
     try:
         res = solve(problem)
@@ -188,9 +189,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.merge:
         return merge(args.merge, args.out)
-    from calibgraph.dataset import load_dataset
-    from calibgraph.detect import detect_image
-    from calibgraph.problem import SolverOptions
+    from calibgraph.core.problem import SolverOptions
+    from calibgraph.detect.corners import detect_image
+    from calibgraph.io.layouts import load_dataset
 
     n_poses = args.poses or (24 if args.quick else 110)
     args.a4_seeds = args.a4_seeds if args.a4_seeds else ([0] if args.quick else [0, 1, 2, 3, 4])
@@ -366,7 +367,7 @@ def markdown(report) -> str:
     L = ["# calibgraph vs the thesis's simulated protocol (chapter 6)", "",
          f"Poses per cell: {report['protocol']['poses']}; seed {report['protocol']['seed']}; "
          f"{report['protocol']['cell']}; rendered MuJoCo images (sensor noise 2 DN + shot noise, 0.6 px blur), "
-         "corners detected by calibgraph.detect, solved by calibgraph's GTSAM graph; errors vs simulator truth.", ""]
+         "corners detected by calibgraph.detect.corners, solved by calibgraph's GTSAM graph; errors vs simulator truth.", ""]
     cols = ["T_C1C2", "T_C1C3", "T_C2C3", "T_W^C1", "T_W^C2", "T_W^C3", "err1", "err2", "err3"]
     for method, thesis, title in (("single", THESIS_SINGLE, "Table 6.1 (single-camera)"),
                                   ("joint", THESIS_MULTI, "Table 6.2 (multi-camera)")):

@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibgraph.acquire import (AcquisitionReport, Trajectory, load_trajectory, run_acquisition, save_trajectory)
-from calibgraph.acquire_fakes import T_from_q, make_fake_cell
-from calibgraph.dataset import load_dataset
-from calibgraph.errors import InputError
-from calibgraph.safety import SafetyLimits, UnsafeTargetError
+from calibgraph.acquire.run import AcquisitionReport, run_acquisition
+from calibgraph.acquire.safety import SafetyLimits, UnsafeTargetError
+from calibgraph.core.errors import InputError
+from calibgraph.io.layouts import load_dataset
+from calibgraph.plan.trajectory import Trajectory, load_trajectory, save_trajectory
+from calibgraph.sim.fakes import T_from_q, make_fake_cell
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -85,8 +86,8 @@ def test_robot_that_never_settles_costs_the_pose_not_the_run(tmp_path):
 
 KILL_SCRIPT = r"""
 import sys
-from calibgraph.acquire import run_acquisition
-from calibgraph.acquire_fakes import make_fake_cell
+from calibgraph.acquire.run import run_acquisition
+from calibgraph.sim.fakes import make_fake_cell
 cell = make_fake_cell(n_cameras=2, n_poses=int(sys.argv[2]), seed=5, robot_kwargs=dict(move_delay_s=float(sys.argv[3])))
 run_acquisition(cell.robot, cell.cameras, cell.trajectory, sys.argv[1], cell.target, detector=cell.detector,
                 resume=True, progress=False)
@@ -306,8 +307,8 @@ def test_trajectory_yaml_round_trip(tmp_path):
 
 def test_sha256_of_a_plain_trajectory_is_unchanged():
     """Journals of datasets captured before trajectories had cameras/capture keys must still match."""
-    from calibgraph.acquire import TrajectoryPose
-    from calibgraph.transforms import exp_so3, make_T
+    from calibgraph.core.transforms import exp_so3, make_T
+    from calibgraph.plan.trajectory import TrajectoryPose
 
     T = make_T(exp_so3([0.1, -0.2, 0.3]), [0.4, 0.05, 0.5])
     t = Trajectory(poses=(TrajectoryPose(q_rad=[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785], T_base_flange=T),
@@ -323,7 +324,7 @@ def test_sha256_of_a_plain_trajectory_is_unchanged():
 
 
 def test_incremental_solver_plugs_in_as_on_capture(tmp_path):
-    inc_mod = pytest.importorskip("calibgraph.incremental")
+    inc_mod = pytest.importorskip("calibgraph.solver.incremental")
     cell = make_fake_cell(n_cameras=3, n_poses=15, seed=0)
     inc = inc_mod.IncrementalSolver(cell.target.points_board_m, {c.name: c.intrinsics() for c in cell.cameras})
     lines = []
@@ -339,7 +340,7 @@ def test_incremental_solver_plugs_in_as_on_capture(tmp_path):
 
 # -- CLI ----------------------------------------------------------------------------------------------
 def _cli(*argv):
-    from calibgraph.cli import main
+    from calibgraph.cli.main import main
 
     return main([str(a) for a in argv])
 
@@ -391,7 +392,7 @@ def test_cli_capture_on_the_mujoco_cell_then_resume_is_a_no_op(tmp_path, capsys)
     if importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("franky_sim") is None:
         pytest.skip("the simulator needs mujoco and franky-sim (its FR3 model)")
     try:
-        from calibgraph.plan import plan_trajectory
+        from calibgraph.plan.planner import plan_trajectory
         from calibgraph.sim.render import SimWorld
         from calibgraph.sim.workcell import workcell_from_dict
     except ImportError as e:
@@ -400,7 +401,7 @@ def test_cli_capture_on_the_mujoco_cell_then_resume_is_a_no_op(tmp_path, capsys)
          "cameras": {"c0": {"driver": "sim", "preset": "d455", "position_m": [1.2, 0.3, 0.6], "look_at_m": [0.5, 0, 0.45]},
                      "c1": {"preset": "d455", "position_m": [1.2, -0.5, 0.6], "look_at_m": [0.5, 0, 0.45]}},
          "safety": {"robot_model": "fr3", "max_speed_scale": 0.5}}
-    from calibgraph.cli_capture import sim_workcell_dict
+    from calibgraph.cli.capture import sim_workcell_dict
 
     world = SimWorld(workcell_from_dict(sim_workcell_dict(d)))
     plan_trajectory(world, n_poses=3, seed=0).save(tmp_path / "t.yaml")
@@ -411,8 +412,8 @@ def test_cli_capture_on_the_mujoco_cell_then_resume_is_a_no_op(tmp_path, capsys)
     ds = load_dataset(tmp_path / "ds")
     assert len(ds.captures) == 3 and {v.camera for v in ds.views} == {"c0", "c1"}
     # every stored flange pose is the simulated arm's FK at the stored joints (FK sigmas default 0.05 mm)
-    from calibgraph.safety import franka_fk
-    from calibgraph.transforms import pose_error
+    from calibgraph.acquire.safety import franka_fk
+    from calibgraph.core.transforms import pose_error
 
     for cap in ds.captures:
         dt_m, _ = pose_error(franka_fk(cap.q_rad), cap.T_base_flange)
@@ -425,8 +426,12 @@ GUARD_SCRIPT = r"""
 import sys
 for m in ("pyrealsense2", "pylibfranka", "rclpy", "pylibfreenect2", "mujoco", "rerun"):
     sys.modules[m] = None  # importing any of these now fails, as on a machine without the SDK
-import calibgraph.acquire, calibgraph.acquire_fakes, calibgraph.cli_capture, calibgraph.peer_mchec, calibgraph.safety
-from calibgraph.interfaces import DeviceError
+import importlib, pkgutil
+import calibgraph
+for mod in pkgutil.walk_packages(calibgraph.__path__, "calibgraph."):
+    if mod.name != "calibgraph.__main__":
+        importlib.import_module(mod.name)  # every engine module imports without any SDK, MuJoCo or rerun
+from calibgraph.acquire.interfaces import DeviceError
 import drivers.franka, drivers.realsense, drivers.ros2, drivers.kinect
 for make in (lambda: drivers.franka.FrankaRobot("127.0.0.1"), lambda: drivers.realsense.RealSenseCamera("c"),
              lambda: drivers.ros2.Ros2Camera("c", "/x/image_raw"), lambda: drivers.kinect.KinectV2Camera("c")):
@@ -448,7 +453,7 @@ def test_engine_imports_no_sdk_and_drivers_explain_missing_ones():
 
 
 def test_stale_frames_are_refused(tmp_path):
-    from calibgraph.interfaces import Frame
+    from calibgraph.acquire.interfaces import Frame
 
     cell = make_fake_cell(n_cameras=2, n_poses=4, seed=15)
     cam = cell.cameras[1]
@@ -491,7 +496,7 @@ def test_captured_dataset_solves_to_the_fake_cells_truth(tmp_path):
     norms (measured: 0.4-1.0 mm for sigma norms 0.7-0.8 mm, 0.05-0.10 deg for 0.06 deg, at 0.2 px
     noise)."""
     import calibgraph
-    from calibgraph.transforms import pose_error
+    from calibgraph.core.transforms import pose_error
 
     cell = make_fake_cell(n_cameras=3, n_poses=20, seed=0)
     _run(cell, tmp_path / "ds")
@@ -512,7 +517,7 @@ def test_robot_state_failure_and_crashing_helpers_do_not_lose_data(tmp_path):
     def flange_pose():
         calls["n"] += 1
         if calls["n"] == 7:  # 4th pose, first read: the controller connection drops
-            from calibgraph.interfaces import DeviceError
+            from calibgraph.acquire.interfaces import DeviceError
 
             raise DeviceError("fake robot: state read failed (injected)")
         return orig_pose()
@@ -542,7 +547,7 @@ def test_robot_state_failure_and_crashing_helpers_do_not_lose_data(tmp_path):
 def _with_vias(cell, before):
     """``cell.trajectory`` with via poses inserted: ``before`` maps a capture pose's index to the
     number of via poses put in front of it (fake Cartesian joints halfway to it)."""
-    from calibgraph.acquire import TrajectoryPose
+    from calibgraph.plan.trajectory import TrajectoryPose
 
     poses, q_prev = [], cell.robot.joint_positions()
     for k, p in enumerate(cell.trajectory.poses):

@@ -1,7 +1,7 @@
 import cv2
 import numpy as np
 
-from calibgraph.camera import Intrinsics
+from calibgraph.core.camera import Intrinsics
 
 
 def test_projection_matches_opencv_and_jacobian_is_exact():

@@ -5,18 +5,18 @@ import json
 
 import numpy as np
 import pytest
-
 from _sim_helpers import require_sim
-from calibgraph.transforms import pose_error
+
+from calibgraph.core.transforms import pose_error
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 
 def test_demo_recovers_ground_truth(tmp_path, capsys):
     require_sim()
-    from calibgraph.cli import main
-    from calibgraph.result import load_result_dict
-    from calibgraph.sim.simulate import load_ground_truth
+    from calibgraph.cli.main import main
+    from calibgraph.io.ground_truth import load_ground_truth
+    from calibgraph.solver.result import load_result_dict
 
     out = tmp_path / "demo"
     rc = main(["demo", "--out", str(out), "--cameras", "2", "--preset", "d455", "--distance-m", "1.5",

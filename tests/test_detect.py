@@ -8,11 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from calibgraph.camera import Intrinsics, preset
-from calibgraph.detect import ImageDetection, dataset_detector, detect_image
-from calibgraph.grid_filter import check_grid
-from calibgraph.render import board_texture, look_at_board, render_view
-from calibgraph.targets import Target, a4_board_54, rct_charuco_board, thesis_board
+from calibgraph.core.camera import Intrinsics, preset
+from calibgraph.core.targets import Target, a4_board_54, rct_charuco_board, thesis_board
+from calibgraph.detect.corners import ImageDetection, dataset_detector, detect_image
+from calibgraph.detect.grid_filter import check_grid
+from calibgraph.sim.board_image import board_texture, look_at_board, render_view
 
 
 def _errors(det, rv):
@@ -187,9 +187,10 @@ def test_detection_record_round_trips():
 
 
 def test_dataset_detector_parallel_cached_and_reports_bad_files(tmp_path, monkeypatch):
-    from calibgraph import detect as detect_mod
-    from calibgraph.dataset import image_relpath, load_dataset, write_capture, write_header
-    from calibgraph.problem import Capture
+    from calibgraph.core.problem import Capture
+    from calibgraph.detect import corners as detect_mod
+    from calibgraph.io.dataset import image_relpath, write_capture, write_header
+    from calibgraph.io.layouts import load_dataset
 
     t = thesis_board()
     intr = preset("d455")
@@ -224,8 +225,9 @@ def test_dataset_detector_parallel_cached_and_reports_bad_files(tmp_path, monkey
 
 
 def test_wrong_spec_for_a_whole_dataset_is_said_once(tmp_path):
-    from calibgraph.dataset import image_relpath, load_dataset, write_capture, write_header
-    from calibgraph.problem import Capture
+    from calibgraph.core.problem import Capture
+    from calibgraph.io.dataset import image_relpath, write_capture, write_header
+    from calibgraph.io.layouts import load_dataset
 
     t = thesis_board()
     intr = preset("d455")
@@ -242,9 +244,9 @@ def test_wrong_spec_for_a_whole_dataset_is_said_once(tmp_path):
 
 
 def test_cli_detect_prints_stats_and_problems(tmp_path, capsys):
-    from calibgraph.cli import main
-    from calibgraph.dataset import image_relpath, write_capture, write_header
-    from calibgraph.problem import Capture
+    from calibgraph.cli.main import main
+    from calibgraph.core.problem import Capture
+    from calibgraph.io.dataset import image_relpath, write_capture, write_header
 
     t = thesis_board()
     intr = preset("d455")

@@ -17,13 +17,14 @@ pytest.importorskip("pylibfranka", reason="pylibfranka (calibgraph[franka]) is n
 pytest.importorskip("franky_sim", reason="franky-sim (calibgraph[sim]) is not installed")
 pytest.importorskip("mujoco", reason="franky-sim needs MuJoCo")
 
-from calibgraph.acquire import Trajectory, TrajectoryPose, run_acquisition  # noqa: E402
-from calibgraph.acquire_fakes import FakeCamera, FakeCell  # noqa: E402
-from calibgraph.camera import Intrinsics  # noqa: E402
-from calibgraph.interfaces import DeviceError  # noqa: E402
-from calibgraph.safety import FRANKA_LIMITS, SafetyLimits, franka_fk  # noqa: E402
-from calibgraph.targets import a4_board_54  # noqa: E402
-from calibgraph.transforms import exp_so3, inv, look_at, make_T, pose_error  # noqa: E402
+from calibgraph.acquire.interfaces import DeviceError  # noqa: E402
+from calibgraph.acquire.run import run_acquisition  # noqa: E402
+from calibgraph.acquire.safety import FRANKA_LIMITS, SafetyLimits, franka_fk  # noqa: E402
+from calibgraph.core.camera import Intrinsics  # noqa: E402
+from calibgraph.core.targets import a4_board_54  # noqa: E402
+from calibgraph.core.transforms import exp_so3, inv, look_at, make_T, pose_error  # noqa: E402
+from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
+from calibgraph.sim.fakes import FakeCamera, FakeCell  # noqa: E402
 from drivers.franka import FrankaRobot, quintic_duration_s  # noqa: E402
 
 HOME = np.array([0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785])
@@ -128,7 +129,7 @@ def test_move_respects_velocity_scaling_and_arrives(robot):
 
 
 def test_out_of_limit_target_is_refused_without_moving(robot):
-    from calibgraph.interfaces import UnreachableError
+    from calibgraph.acquire.interfaces import UnreachableError
 
     q = robot.joint_positions()
     bad = q.copy()
@@ -159,7 +160,7 @@ def test_acquisition_on_franky_sim_with_a_board_camera(robot, tmp_path):
     assert rep.complete, rep.summary()
     assert [i for i, _, _ in rep.skipped] == [1] and "workspace box" in rep.skipped[0][2]
     assert rep.captured == 3, rep.summary()
-    from calibgraph.dataset import load_dataset
+    from calibgraph.io.layouts import load_dataset
 
     ds = load_dataset(tmp_path / "ds")
     for cap in ds.captures:
@@ -209,8 +210,8 @@ def _record_realsense(path, n):
 def test_cli_capture_drives_franka_with_a_recorded_realsense(franky_sim, tmp_path, capsys):
     import yaml
 
-    from calibgraph.acquire import save_trajectory
-    from calibgraph.cli import main
+    from calibgraph.cli.main import main
+    from calibgraph.plan.trajectory import save_trajectory
 
     _record_realsense(tmp_path / "rec.db3", 20)
     r = FrankaRobot(franky_sim)

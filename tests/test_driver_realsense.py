@@ -14,8 +14,8 @@ from drivers.realsense import RealSenseCamera, distortion_from_rs, intrinsics_fr
 
 rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 (calibgraph[realsense]; apt libusb-1.0-0) is not available")
 
-from calibgraph.camera import Intrinsics  # noqa: E402
-from calibgraph.interfaces import DeviceError  # noqa: E402
+from calibgraph.acquire.interfaces import DeviceError  # noqa: E402
+from calibgraph.core.camera import Intrinsics  # noqa: E402
 
 W, H = 96, 64
 

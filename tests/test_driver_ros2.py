@@ -15,7 +15,7 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy wheels not installed (pip ins
                                             "ros-geometry-msgs ros-rmw-fastrtps-cpp)")
 sensor_msgs = pytest.importorskip("sensor_msgs.msg")
 
-from calibgraph.interfaces import DeviceError  # noqa: E402
+from calibgraph.acquire.interfaces import DeviceError  # noqa: E402
 from drivers import ros2 as drv  # noqa: E402
 
 W, H = 8, 6

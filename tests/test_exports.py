@@ -6,11 +6,18 @@ import json
 import numpy as np
 import pytest
 import yaml
-
-from calibgraph.exports import (R_to_rpy, export, parse_urdf_joints, read_opencv_yaml, rpy_to_R, urdf_snippet,
-                                write_opencv_yaml)
-from calibgraph.transforms import exp_so3, quat_xyzw_to_R
 from test_report import make_sim_result
+
+from calibgraph.core.transforms import exp_so3, quat_xyzw_to_R
+from calibgraph.report.exports import (
+    R_to_rpy,
+    export,
+    parse_urdf_joints,
+    read_opencv_yaml,
+    rpy_to_R,
+    urdf_snippet,
+    write_opencv_yaml,
+)
 
 
 def test_rpy_round_trip_including_gimbal_lock():
@@ -89,7 +96,7 @@ def test_opencv_yaml_without_intrinsics_says_so(tmp_path):
 
 
 def test_yaml_and_json_outputs_and_cli(tmp_path):
-    from calibgraph.cli import main
+    from calibgraph.cli.main import main
 
     d, *_ = make_sim_result()
     (tmp_path / "result.json").write_text(json.dumps(d))

@@ -1,10 +1,10 @@
 import numpy as np
 
-from calibgraph import solver
-from calibgraph.incremental import IncrementalSolver
-from calibgraph.problem import Detection
-from calibgraph.synth import make_scene
-from calibgraph.transforms import log_so3, pose_error
+from calibgraph.core.problem import Detection
+from calibgraph.core.transforms import log_so3, pose_error
+from calibgraph.sim.synth import make_scene
+from calibgraph.solver import batch as solver
+from calibgraph.solver.incremental import IncrementalSolver
 
 
 def _feed(inc, p, corrupt=()):

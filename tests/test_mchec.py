@@ -4,11 +4,12 @@ project's README and code lay it out, export of a captured dataset, and the roun
 import numpy as np
 import pytest
 
-from calibgraph.acquire import run_acquisition
-from calibgraph.acquire_fakes import make_fake_cell
-from calibgraph.dataset import load_dataset
-from calibgraph.errors import InputError
-from calibgraph.peer_mchec import export_mchec, is_mchec_dataset, load_mchec_dataset, mchec_target
+from calibgraph.acquire.run import run_acquisition
+from calibgraph.core.errors import InputError
+from calibgraph.io.layouts import load_dataset
+from calibgraph.io.peer_mchec import is_mchec_dataset, load_mchec_dataset, mchec_target
+from calibgraph.report.mchec_export import export_mchec
+from calibgraph.sim.fakes import make_fake_cell
 
 INFO = """# Number of cameras you want to calibrate
 number_of_cameras: 2
@@ -158,7 +159,7 @@ def test_export_then_import_round_trip(tmp_path):
     assert files == sorted(p.relative_to(out2).as_posix() for p in out2.rglob("*") if p.is_file())
     for f in files:
         if f.endswith(".csv"):  # poses are re-orthonormalised on reading: equal to the last bit or two
-            from calibgraph.peer_mchec import read_mchec_pose
+            from calibgraph.io.peer_mchec import read_mchec_pose
 
             np.testing.assert_allclose(read_mchec_pose(out / f), read_mchec_pose(out2 / f), atol=1e-15)
         else:

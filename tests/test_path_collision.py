@@ -4,7 +4,6 @@ arm stretched out sweep links or the board through the pedestal)."""
 
 import numpy as np
 import pytest
-
 from _sim_helpers import require_sim
 
 pytestmark = pytest.mark.sim
@@ -67,7 +66,7 @@ COMPACT = dict(radius_m=(0.38, 0.62), height_m=(0.25, 0.70), tilt_deg=35.0)
 
 
 def test_planner_inserts_via_poses_so_every_motion_is_free(world):
-    from calibgraph.plan import plan_trajectory
+    from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.ik import LIMIT_MARGIN_RAD, in_collision, start_configuration
 
     world.set_q(np.zeros(7))  # a fresh model's pose: invalid, so the plan starts from home
@@ -89,8 +88,7 @@ def test_planner_inserts_via_poses_so_every_motion_is_free(world):
 
 
 def test_planner_replaces_poses_no_via_can_reach(world, monkeypatch):
-    import calibgraph.plan as plan
-
+    import calibgraph.plan.planner as plan
     from calibgraph.sim.ik import start_configuration
 
     monkeypatch.setattr(plan, "_find_vias", lambda *a, **k: None)  # as if no transit posture helped
@@ -103,7 +101,7 @@ def test_planner_replaces_poses_no_via_can_reach(world, monkeypatch):
 
 
 def test_simulated_arm_refuses_a_colliding_motion(world):
-    from calibgraph.interfaces import UnreachableError
+    from calibgraph.acquire.interfaces import UnreachableError
     from calibgraph.sim.devices import SimRobot
     from calibgraph.sim.scene import HOME_Q_RAD
 

@@ -3,11 +3,11 @@ and the trajectory file."""
 
 import numpy as np
 import pytest
-
 from _sim_helpers import require_sim
-from calibgraph.errors import InputError
-from calibgraph.plan import Trajectory, TrajectoryPose, load_trajectory
-from calibgraph.transforms import pose_error
+
+from calibgraph.core.errors import InputError
+from calibgraph.core.transforms import pose_error
+from calibgraph.plan.trajectory import Trajectory, TrajectoryPose, load_trajectory
 
 pytestmark = pytest.mark.sim
 
@@ -59,10 +59,14 @@ def test_ik_refuses_unreachable_target(world):
 
 
 def test_planned_poses_are_reachable_free_and_visible(world):
-    from calibgraph.plan import board_visibility, plan_trajectory
-    from calibgraph.sim.ik import LIMIT_MARGIN_RAD, in_collision
-
-    from calibgraph.sim.ik import path_collision, start_configuration
+    from calibgraph.plan.planner import plan_trajectory
+    from calibgraph.plan.visibility import board_visibility
+    from calibgraph.sim.ik import (
+        LIMIT_MARGIN_RAD,
+        in_collision,
+        path_collision,
+        start_configuration,
+    )
 
     traj = plan_trajectory(world, 18, seed=4)
     assert traj.n_capture == 18 and len(traj) == 18 + traj.n_via
@@ -95,7 +99,7 @@ def test_planned_poses_are_reachable_free_and_visible(world):
 
 def test_plan_fails_clearly_when_cameras_cannot_see_the_board():
     require_sim()
-    from calibgraph.plan import plan_trajectory
+    from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
     from calibgraph.sim.workcell import ring_workcell
 
@@ -108,7 +112,7 @@ def test_plan_fails_clearly_when_cameras_cannot_see_the_board():
 
 def test_trajectory_file_round_trip(tmp_path):
     rng = np.random.default_rng(2)
-    from calibgraph.transforms import exp_so3, make_T
+    from calibgraph.core.transforms import exp_so3, make_T
 
     poses = tuple(TrajectoryPose(q_rad=rng.normal(size=7), T_base_flange=make_T(exp_so3(rng.normal(size=3)), rng.normal(size=3)),
                                  cameras=("cam0", "cam2")[: k % 2 + 1] if k != 2 else (), capture=k != 2)
@@ -125,7 +129,7 @@ def test_trajectory_file_round_trip(tmp_path):
     assert back.views_per_camera() == {"cam0": 4, "cam2": 2}  # the via pose counts for no camera
     assert back.sha256() == traj.sha256()
     # one trajectory type: the capture state machine's loader gives the same object
-    from calibgraph import acquire
+    from calibgraph.acquire import run as acquire
 
     assert Trajectory is acquire.Trajectory and load_trajectory is acquire.load_trajectory
     # the capture flag is part of the fingerprint; the expected cameras are bookkeeping

@@ -22,12 +22,12 @@ import cv2
 import numpy as np
 import pytest
 
-from calibgraph.transforms import inv
+from calibgraph.core.transforms import inv
 
 
 def test_peer_layout_reads_and_charuco_is_detected(rct_dir):
-    from calibgraph.dataset import load_dataset
-    from calibgraph.detect import dataset_detector
+    from calibgraph.detect.corners import dataset_detector
+    from calibgraph.io.layouts import load_dataset
 
     ds = load_dataset(rct_dir)
     assert ds.mode == "eye_to_hand"
@@ -54,9 +54,9 @@ def test_peer_layout_reads_and_charuco_is_detected(rct_dir):
 
 
 def test_calibrate_end_to_end_through_the_cli(rct_dir, tmp_path):
-    pytest.importorskip("calibgraph.solver")
-    from calibgraph.dataset import load_dataset
-    from calibgraph.detect import dataset_detector
+    pytest.importorskip("calibgraph.solver.batch")
+    from calibgraph.detect.corners import dataset_detector
+    from calibgraph.io.layouts import load_dataset
 
     out = tmp_path / "result.json"
     proc = subprocess.run([sys.executable, "-m", "calibgraph", "solve", str(rct_dir), "--out", str(out), "--quiet"],
@@ -109,13 +109,13 @@ def test_peer_layout_eye_in_hand_modified_circle_grid_synthetic(tmp_path):
     """A synthetic folder in the peer's layout (static_camera: false, ModifiedCircleGridTargetFinder,
     pose files with shuffled keys): read as it is, detected and solved through the CLI; the
     camera-on-flange pose must come back (rendered images, exact robot poses)."""
-    pytest.importorskip("calibgraph.solver")
+    pytest.importorskip("calibgraph.solver.batch")
     import yaml
 
-    from calibgraph.camera import preset
-    from calibgraph.render import board_texture, look_at_board, render_view
-    from calibgraph.targets import Target
-    from calibgraph.transforms import R_to_quat_xyzw, exp_so3, make_T, pose_error
+    from calibgraph.core.camera import preset
+    from calibgraph.core.targets import Target
+    from calibgraph.core.transforms import R_to_quat_xyzw, exp_so3, make_T, pose_error
+    from calibgraph.sim.board_image import board_texture, look_at_board, render_view
 
     target = Target(kind="modified_circles", rows=10, cols=10, pitch_m=0.0254, circle_diameter_m=0.0105)
     intr = preset("l515")
@@ -160,8 +160,8 @@ def test_peer_layout_eye_in_hand_modified_circle_grid_synthetic(tmp_path):
 def test_peer_layout_bad_input_is_named(tmp_path):
     import yaml
 
-    from calibgraph.dataset import load_dataset
-    from calibgraph.errors import InputError
+    from calibgraph.core.errors import InputError
+    from calibgraph.io.layouts import load_dataset
 
     (tmp_path / "images").mkdir()
     (tmp_path / "poses").mkdir()

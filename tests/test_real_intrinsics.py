@@ -38,10 +38,10 @@ def test_refined_calibration_agrees_with_per_image_pnp_on_all_views(rct_dir, tmp
     Measured: 1.69 mm / 0.25 deg (fixed intrinsics: 7.26 mm / 1.02 deg)."""
     import cv2
 
-    from calibgraph.camera import Intrinsics
-    from calibgraph.dataset import load_dataset
-    from calibgraph.detect import dataset_detector
-    from calibgraph.transforms import inv
+    from calibgraph.core.camera import Intrinsics
+    from calibgraph.core.transforms import inv
+    from calibgraph.detect.corners import dataset_detector
+    from calibgraph.io.layouts import load_dataset
 
     r, _ = _solve(rct_dir, tmp_path / "refined.json", "--refine-intrinsics", "--quiet")
     cam = r["cameras"]["camera"]

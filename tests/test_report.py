@@ -17,12 +17,18 @@ import numpy as np
 import pytest
 
 from calibgraph import solve
-from calibgraph.dataset import load_dataset, write_capture, write_header
-from calibgraph.problem import Detection
-from calibgraph.report import compute_residuals, load_tolerances, residuals_section, write_report
-from calibgraph.result import load_result_dict
-from calibgraph.synth import make_scene
-from calibgraph.targets import a4_board_54
+from calibgraph.core.problem import Detection
+from calibgraph.core.targets import a4_board_54
+from calibgraph.io.dataset import write_capture, write_header
+from calibgraph.io.layouts import load_dataset
+from calibgraph.report.html import (
+    compute_residuals,
+    load_tolerances,
+    residuals_section,
+    write_report,
+)
+from calibgraph.sim.synth import make_scene
+from calibgraph.solver.result import load_result_dict
 
 OUTLIER_VIEW = 5        # detection index whose corners are all garbage -> a rejected view
 OUTLIER_CORNERS = 2     # detection index with 3 corners moved by 25 px -> rejected corners
@@ -60,7 +66,7 @@ def make_sim_result(seed: int = 0, mode: str = "eye_to_hand", intrinsics: bool =
             c.setdefault("intrinsics", prob.cameras[n].to_dict())
         else:
             c.pop("intrinsics", None)
-    d["dataset"] = "simulated (calibgraph.synth.make_scene seed %d)" % seed
+    d["dataset"] = "simulated (calibgraph.sim.synth.make_scene seed %d)" % seed
     return json.loads(json.dumps(d)), scene, prob, res
 
 
@@ -169,7 +175,7 @@ def test_pass_fail_follows_tolerances(tmp_path):
 def test_tolerance_file_errors_are_clear(tmp_path):
     bad = tmp_path / "tol.yaml"
     bad.write_text("defaults: {max_sigma_mm: 1}\n")
-    from calibgraph.errors import InputError
+    from calibgraph.core.errors import InputError
 
     with pytest.raises(InputError, match="unknown tolerance 'max_sigma_mm'"):
         load_tolerances(bad)
@@ -199,7 +205,7 @@ def test_report_eye_in_hand(tmp_path):
 
 
 def test_cli_report(tmp_path):
-    from calibgraph.cli import main
+    from calibgraph.cli.main import main
 
     d, *_ = make_sim_result()
     (tmp_path / "result.json").write_text(json.dumps(d))

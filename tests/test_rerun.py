@@ -6,14 +6,13 @@ import sys
 
 import numpy as np
 import pytest
-
 from test_report import make_sim_result, write_sim_dataset
 
 rr = pytest.importorskip("rerun", reason="rerun-sdk not installed (pip install calibgraph[viz])")
 
 
 def _verify(path):
-    from calibgraph.viz_rerun import rerun_cli
+    from calibgraph.report.rerun_view import rerun_cli
 
     r = subprocess.run(rerun_cli() + ["rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
@@ -43,7 +42,7 @@ def _series(chunks, entity):
 
 
 def test_rrd_from_result_and_problem_verifies_and_holds_the_residuals(tmp_path):
-    from calibgraph.viz_rerun import write_rrd
+    from calibgraph.report.rerun_view import write_rrd
 
     d, scene, prob, res = make_sim_result()
     path = write_rrd(res, prob, tmp_path / "cal.rrd")  # what `calibgraph solve --rrd` calls
@@ -77,7 +76,7 @@ def test_rrd_from_result_and_problem_verifies_and_holds_the_residuals(tmp_path):
 def test_rrd_from_result_file_and_dataset_with_images(tmp_path):
     import cv2
 
-    from calibgraph.cli import main
+    from calibgraph.cli.main import main
 
     d, scene, prob, res = make_sim_result(residuals=False)
     ds = write_sim_dataset(tmp_path / "ds", prob)
@@ -106,7 +105,7 @@ def test_rrd_from_result_file_and_dataset_with_images(tmp_path):
 
 
 def test_eye_in_hand_rrd(tmp_path):
-    from calibgraph.viz_rerun import write_rrd
+    from calibgraph.report.rerun_view import write_rrd
 
     d, scene, prob, res = make_sim_result(mode="eye_in_hand")
     path = write_rrd(d, prob, tmp_path / "eih.rrd")
@@ -117,18 +116,18 @@ def test_eye_in_hand_rrd(tmp_path):
 
 
 def test_engine_does_not_import_rerun():
-    code = ("import sys; import calibgraph, calibgraph.report, calibgraph.exports, calibgraph.uncertainty, "
-            "calibgraph.viz_rerun, calibgraph.cli_view, calibgraph.cli_report, calibgraph.cli_export; "
+    code = ("import sys; import calibgraph, calibgraph.report.html, calibgraph.report.exports, calibgraph.solver.uncertainty, "
+            "calibgraph.report.rerun_view, calibgraph.cli.view, calibgraph.cli.report, calibgraph.cli.export; "
             "assert 'rerun' not in sys.modules, 'rerun imported'; assert 'matplotlib' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
 
 
 def test_report_and_rrd_from_the_real_rct_dataset(shared_dir, tmp_path):
     """End to end on real images: solve -> report (coverage needs the dataset's intrinsics) -> .rrd with images."""
-    from calibgraph.cli import main
-    from calibgraph.report import write_report
-    from calibgraph.result import load_result_dict
-    from calibgraph.viz_rerun import write_rrd
+    from calibgraph.cli.main import main
+    from calibgraph.report.html import write_report
+    from calibgraph.report.rerun_view import write_rrd
+    from calibgraph.solver.result import load_result_dict
 
     ds = shared_dir / "datasets" / "rct_static_camera_charuco"
     res = tmp_path / "result.json"

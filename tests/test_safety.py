@@ -4,9 +4,17 @@ the speed cap, and refusal when the workspace cannot be checked."""
 import numpy as np
 import pytest
 
-from calibgraph.errors import InputError
-from calibgraph.safety import (FRANKA_LIMITS, SafetyLimits, UnsafeTargetError, check_motion, check_speed, franka_fk,
-                               joint_problems, workspace_problems)
+from calibgraph.acquire.safety import (
+    FRANKA_LIMITS,
+    SafetyLimits,
+    UnsafeTargetError,
+    check_motion,
+    check_speed,
+    franka_fk,
+    joint_problems,
+    workspace_problems,
+)
+from calibgraph.core.errors import InputError
 
 
 def test_franka_fk_matches_libfranka_flange_at_the_default_pose():
@@ -56,7 +64,7 @@ def test_workspace_checked_along_the_franka_joint_path():
                                   "workspace_max_m": [0.8, 0.4, 0.9]})
     a = np.array([0.6, 0, 0, -1.57, 0, 1.57, 0.785])
     b = np.array([-0.6, 0, 0, -1.57, 0, 1.57, 0.785])
-    from calibgraph.safety import fk_function
+    from calibgraph.acquire.safety import fk_function
 
     fk = fk_function(None, lim)
     # joint 1 swings the flange on an arc of radius 0.5544 m: ends at y = +-0.31 m, x = 0.458 m

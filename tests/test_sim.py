@@ -3,12 +3,12 @@ truth, sensor degradations, workcell files, and the Robot/Camera interfaces."""
 
 import numpy as np
 import pytest
-
 from _sim_helpers import require_sim
-from calibgraph.camera import Intrinsics
-from calibgraph.errors import InputError
-from calibgraph.targets import a4_board_54, thesis_board
-from calibgraph.transforms import inv
+
+from calibgraph.core.camera import Intrinsics
+from calibgraph.core.errors import InputError
+from calibgraph.core.targets import a4_board_54, thesis_board
+from calibgraph.core.transforms import inv
 
 pytestmark = pytest.mark.sim
 
@@ -101,8 +101,8 @@ def test_projection_convention_matches_intrinsics(world):
 def test_rendered_corners_match_projected_truth(world):
     """Detected corners in rendered images (noise + blur) agree with the board points projected
     through the true chain: same ids, no bias, sub-pixel scatter."""
-    from calibgraph.detect import detect_image
-    from calibgraph.plan import plan_trajectory
+    from calibgraph.detect.corners import detect_image
+    from calibgraph.plan.planner import plan_trajectory
 
     traj = plan_trajectory(world, 4, seed=3)
     errs = []
@@ -169,7 +169,11 @@ def test_distortion_maps_follow_opencv_model():
 def test_workcell_yaml_round_trip_and_errors(tmp_path):
     import yaml
 
-    from calibgraph.sim.workcell import load_workcell, workcell_from_dict, workcell_to_dict
+    from calibgraph.sim.workcell import (
+        load_workcell,
+        workcell_from_dict,
+        workcell_to_dict,
+    )
 
     for name in ("default", "thesis_one_side", "large_cell"):
         from pathlib import Path
@@ -199,8 +203,8 @@ def test_workcell_yaml_round_trip_and_errors(tmp_path):
 
 
 def test_sim_devices_implement_interfaces(world):
-    from calibgraph.interfaces import Camera, Robot, UnreachableError
-    from calibgraph.safety import franka_fk
+    from calibgraph.acquire.interfaces import Camera, Robot, UnreachableError
+    from calibgraph.acquire.safety import franka_fk
     from calibgraph.sim.devices import make_devices
     from calibgraph.sim.scene import HOME_Q_RAD
 
@@ -235,8 +239,8 @@ def test_lens_distortion_renders_the_opencv_model():
     """With distortion on, the camera reports the coefficients and rendered corners follow
     Intrinsics.project with them (measured: |mean| < 0.01 px, rms ~0.05 px at 1.5 m)."""
     require_sim()
-    from calibgraph.detect import detect_image
-    from calibgraph.plan import plan_trajectory
+    from calibgraph.detect.corners import detect_image
+    from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
     from calibgraph.sim.workcell import Realism, ring_workcell
 
@@ -271,7 +275,7 @@ def test_board_touching_the_arm_is_detected(q_rad, cam):
     and looked too big for a small board, and OpenCV's fast check on the whole frame rejects
     ~10-13 px squares: such boards were lost although fully in view."""
     require_sim()
-    from calibgraph.detect import detect_image
+    from calibgraph.detect.corners import detect_image
     from calibgraph.sim.render import SimWorld
     from calibgraph.sim.workcell import ring_workcell
 

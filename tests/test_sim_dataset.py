@@ -5,9 +5,9 @@ import json
 
 import numpy as np
 import pytest
-
 from _sim_helpers import require_sim
-from calibgraph.transforms import inv, pose_error
+
+from calibgraph.core.transforms import inv, pose_error
 
 pytestmark = pytest.mark.sim
 
@@ -24,10 +24,10 @@ cameras:
 
 def test_cli_sim_writes_dataset_with_ground_truth(tmp_path):
     require_sim()
-    from calibgraph.cli import main
-    from calibgraph.dataset import load_dataset
-    from calibgraph.plan import load_trajectory
-    from calibgraph.sim.simulate import load_ground_truth
+    from calibgraph.cli.main import main
+    from calibgraph.io.ground_truth import load_ground_truth
+    from calibgraph.io.layouts import load_dataset
+    from calibgraph.plan.trajectory import load_trajectory
 
     cell = tmp_path / "cell.yaml"
     cell.write_text(CELL)

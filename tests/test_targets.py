@@ -8,8 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from calibgraph.errors import InputError
-from calibgraph.targets import Target, load_target, rct_charuco_board, thesis_board
+from calibgraph.core.errors import InputError
+from calibgraph.core.targets import Target, rct_charuco_board, thesis_board
+from calibgraph.io.specs import load_target
 
 REPO = Path(__file__).resolve().parents[1]
 SPECS = sorted((REPO / "datasets" / "targets").glob("*.yaml"))
@@ -114,8 +115,8 @@ def _page_metric_error(target, det_ids, uv_px, px_per_mm):
 @pytest.mark.parametrize("name,paper", [("thesis_5x4_46mm", "A4"), ("charuco_rct_5x7", "A4"),
                                         ("acircles_a4_4x11_20mm", "A4"), ("modified_circles_rct_10x10", "A3")])
 def test_pdf_is_exact_scale_and_detectable(tmp_path, name, paper):
-    from calibgraph.cli import main
-    from calibgraph.detect import detect_image
+    from calibgraph.cli.main import main
+    from calibgraph.detect.corners import detect_image
 
     spec = REPO / "datasets" / "targets" / f"{name}.yaml"
     out = tmp_path / "board.pdf"
@@ -140,7 +141,7 @@ def test_pdf_is_exact_scale_and_detectable(tmp_path, name, paper):
 
 
 def test_pdf_refuses_a_board_too_big_for_the_paper(tmp_path):
-    from calibgraph.pdf import target_pdf
+    from calibgraph.report.pdf import target_pdf
 
     with pytest.raises(InputError, match="A3"):
         target_pdf(Target(kind="checkerboard", rows=8, cols=11, pitch_m=0.03), "A4")

@@ -1,9 +1,17 @@
 import numpy as np
 import pytest
 
-from calibgraph.errors import InputError
-from calibgraph.transforms import (R_to_quat_xyzw, check_pose, exp_so3, inv, log_so3, make_T, pose_error,
-                                   quat_xyzw_to_R)
+from calibgraph.core.errors import InputError
+from calibgraph.core.transforms import (
+    R_to_quat_xyzw,
+    check_pose,
+    exp_so3,
+    inv,
+    log_so3,
+    make_T,
+    pose_error,
+    quat_xyzw_to_R,
+)
 
 
 def test_exp_log_roundtrip_including_near_pi():

@@ -2,10 +2,16 @@
 
 import numpy as np
 
-from calibgraph.transforms import exp_so3, look_at, make_T
-from calibgraph.uncertainty import (point_covariance, point_sigma_mm, visible_mask, weakest_directions,
-                                    workspace_grid, workspace_sigma_map)
-from calibgraph.camera import preset
+from calibgraph.core.camera import preset
+from calibgraph.core.transforms import exp_so3, look_at, make_T
+from calibgraph.solver.uncertainty import (
+    point_covariance,
+    point_sigma_mm,
+    visible_mask,
+    weakest_directions,
+    workspace_grid,
+    workspace_sigma_map,
+)
 
 
 def _cam():

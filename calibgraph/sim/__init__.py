@@ -7,10 +7,17 @@ Submodules (MuJoCo is imported only when a world is built):
 - :mod:`.render` — :class:`SimWorld` (model, state, renderer) and sensor degradations;
 - :mod:`.ik` — damped-least-squares IK and collision checks;
 - :mod:`.devices` — :class:`SimRobot` and :class:`SimCamera`, implementations of
-  :mod:`calibgraph.interfaces`;
+  :mod:`calibgraph.acquire.interfaces`;
 - :mod:`.simulate` — write a simulated dataset with its ground truth.
 """
 
-from .workcell import Realism, SimCameraSpec, Workcell, board_by_name, load_workcell, ring_workcell
+from calibgraph.sim.workcell import (
+    Realism,
+    SimCameraSpec,
+    Workcell,
+    board_by_name,
+    load_workcell,
+    ring_workcell,
+)
 
 __all__ = ["Realism", "SimCameraSpec", "Workcell", "board_by_name", "load_workcell", "ring_workcell"]

@@ -1,4 +1,4 @@
-"""Simulated robot and cameras implementing :mod:`calibgraph.interfaces`.
+"""Simulated robot and cameras implementing :mod:`calibgraph.acquire.interfaces`.
 
 Both share one :class:`~calibgraph.sim.render.SimWorld`. The robot is kinematic: a motion takes
 the time a joint-space move at ``speed_scale`` of the FR3's joint velocity limits would take (on
@@ -9,26 +9,27 @@ and goes to the ground truth.
 
 The robot starts at :func:`calibgraph.sim.ik.start_configuration` (the simulator's home when the
 world is in the model's all-zero pose, which no real arm can take), the configuration
-:func:`calibgraph.plan.plan_trajectory` plans from. Like a real arm's collision reflex, it
+:func:`calibgraph.plan.planner.plan_trajectory` plans from. Like a real arm's collision reflex, it
 refuses a motion whose straight joint path (or goal) collides, with
-:class:`~calibgraph.interfaces.UnreachableError`, and stays where it is.
+:class:`~calibgraph.acquire.interfaces.UnreachableError`, and stays where it is.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..camera import Intrinsics
-from ..interfaces import DeviceError, Frame, UnreachableError
-from ..transforms import exp_so3, make_T
-from .ik import in_collision, path_collision, start_configuration
+from calibgraph.acquire.interfaces import DeviceError, Frame, UnreachableError
+from calibgraph.core.camera import Intrinsics
+from calibgraph.core.transforms import exp_so3, make_T
+from calibgraph.plan.visibility import board_visibility
+from calibgraph.sim.ik import in_collision, path_collision, start_configuration
 
 # FR3 maximum joint velocities (rad/s), Franka datasheet.
 FR3_MAX_JOINT_VELOCITY_RAD_S = np.array([2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26])
 
 
 class SimRobot:
-    """Kinematic FR3 in a :class:`SimWorld` (implements :class:`calibgraph.interfaces.Robot`).
+    """Kinematic FR3 in a :class:`SimWorld` (implements :class:`calibgraph.acquire.interfaces.Robot`).
 
     Args:
         world: the shared world.
@@ -82,7 +83,7 @@ class SimRobot:
         if hits:
             raise UnreachableError(f"simulated FR3: the straight joint motion to the goal collides ({hits[0][0]} with "
                                    f"{hits[0][1]}); the arm stopped before moving. Plan via poses around the obstacle "
-                                   "(calibgraph.plan.plan_trajectory does).")
+                                   "(calibgraph.plan.planner.plan_trajectory does).")
         dq = np.abs(q - self.world.q())
         self.world.clock_s += float(np.max(dq / (FR3_MAX_JOINT_VELOCITY_RAD_S * speed_scale))) + 0.5
         self.world.set_q(q)
@@ -120,14 +121,13 @@ def board_plainly_hidden(world, camera: str) -> bool:
     the world's current state (board outside the image, seen from behind or edge-on beyond
     80 degrees, or squares under 3 px). Looser than the planner's visibility test, so marginal
     views are still left to the real detector; no occlusion test for the same reason."""
-    from ..plan import board_visibility
 
     return not board_visibility(world, camera, world.T_base_board(), margin_px=0.0, max_angle_deg=80.0,
                                 min_square_px=3.0, check_occlusion=False)
 
 
 class SimCamera:
-    """A fixed camera of the simulated cell (implements :class:`calibgraph.interfaces.Camera`).
+    """A fixed camera of the simulated cell (implements :class:`calibgraph.acquire.interfaces.Camera`).
 
     ``grab`` renders the world at its current state and degrades the image as the workcell's
     realism settings say; frames are grey (H, W) uint8.

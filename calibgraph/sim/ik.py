@@ -6,7 +6,7 @@ configuration is accepted only when MuJoCo's collision detection finds no contac
 (links, mount, board) and anything but the pedestal it stands on.
 
 Motions are checked too: every driver moves along the straight joint-space line
-``q(s) = q0 + s (q1 - q0)`` (see :mod:`calibgraph.safety`), so :func:`path_collision` samples
+``q(s) = q0 + s (q1 - q0)`` (see :mod:`calibgraph.acquire.safety`), so :func:`path_collision` samples
 that line densely enough (``max_step_rad`` per joint between samples) that no link sweeps
 through an obstacle between two samples.
 """
@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..transforms import log_so3
+from calibgraph.core.transforms import log_so3
+from calibgraph.sim.scene import HOME_Q_RAD
 
 LIMIT_MARGIN_RAD = 0.05
 
@@ -74,7 +75,6 @@ def start_configuration(world) -> np.ndarray:
     :data:`calibgraph.sim.scene.HOME_Q_RAD`. A fresh MuJoCo model sits at all-zero joints, which
     is outside the FR3's limits (joints 4 and 6) and self-colliding: no real arm is ever there.
     The model state is left unchanged."""
-    from .scene import HOME_Q_RAD
 
     q = world.q()
     if np.all(q >= world.q_lo) and np.all(q <= world.q_hi):

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InputError
-from .scene import ARM_JOINTS, SimulatorError, build_model, import_mujoco
-from .workcell import Realism, Workcell
+from calibgraph.core.errors import InputError
+from calibgraph.sim import ik
+from calibgraph.sim.scene import ARM_JOINTS, SimulatorError, build_model, import_mujoco
+from calibgraph.sim.workcell import Realism, Workcell
 
 
 class SimWorld:
@@ -63,6 +64,39 @@ class SimWorld:
         T[:3, :3] = self.data.xmat[self.board_body].reshape(3, 3)
         T[:3, 3] = self.data.xpos[self.board_body]
         return T
+
+    # -- the planner's robot model (calibgraph.plan.planner.RobotWorld) ---------------------------
+    limit_margin_rad = ik.LIMIT_MARGIN_RAD
+
+    def solve_ik(self, T_base_flange: np.ndarray, q_seed) -> np.ndarray | None:
+        """Joint angles reaching ``T_base_flange`` from ``q_seed`` within the limits, or None."""
+        return ik.solve_ik(self, T_base_flange, q_seed)
+
+    def in_collision(self, q_rad) -> list:
+        """Contact pairs of the arm (and board) at ``q_rad``; empty when free."""
+        return ik.in_collision(self, q_rad)
+
+    def path_collision(self, q0_rad, q1_rad, max_step_rad: float = 0.03) -> list:
+        """Contact pairs met along the straight joint-space motion ``q0 -> q1``; empty when free."""
+        return ik.path_collision(self, q0_rad, q1_rad, max_step_rad)
+
+    def start_configuration(self) -> np.ndarray:
+        """Where the arm starts (see :func:`calibgraph.sim.ik.start_configuration`)."""
+        return ik.start_configuration(self)
+
+    def occluded(self, origin_m: np.ndarray, points_m: np.ndarray) -> bool:
+        """True when any rendered geometry other than the board lies on a ray from ``origin_m`` to
+        one of ``points_m`` (N, 3), base frame (MuJoCo ray casts)."""
+        geomgroup = np.array([1, 1, 1, 0, 0, 0], np.uint8)  # rendered groups only
+        gid = np.zeros(1, np.int32)
+        origin = np.asarray(origin_m, np.float64)
+        for p in np.asarray(points_m, float):
+            v = p - origin
+            dist = np.linalg.norm(v)
+            hit = self.mujoco.mj_ray(self.model, self.data, origin, v / dist, geomgroup, 1, self.board_body, gid)
+            if 0 <= hit < dist - 2e-3:
+                return True
+        return False
 
     # -- rendering ---------------------------------------------------------------------------------
     def _renderer(self, w: int, h: int):

@@ -5,14 +5,14 @@ replaced by the board mount. Frames the rest of calibgraph relies on:
 
 - body ``base`` of the arm is the world frame (the robot base);
 - site ``flange`` on ``fr3_link7`` at 0.107 m along its z axis (Franka's flange frame);
-- body ``board`` is the board frame of :mod:`calibgraph.targets` (origin at point id 0, x along a
+- body ``board`` is the board frame of :mod:`calibgraph.core.targets` (origin at point id 0, x along a
   row, y along a column, z into the board), child of ``fr3_link7`` through ``T_flange_board``;
 - camera ``<name>`` is an OpenGL camera (looking along -z, y up) whose OpenCV optical frame is
   ``T_base_cam`` of the workcell (``R_gl = R_cv @ diag(1, -1, -1)``).
 
 MuJoCo places a camera's principal point at the image centre, ``((W - 1) / 2, (H - 1) / 2)`` in
 OpenCV pixel coordinates, and its ``fovy`` is the *vertical* field of view; both match
-:meth:`calibgraph.camera.Intrinsics.from_hfov` for square pixels (checked by tests/test_sim.py).
+:meth:`calibgraph.core.camera.Intrinsics.from_hfov` for square pixels (checked by tests/test_sim.py).
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibgraphError, InputError
-from ..targets import Target
-from ..transforms import R_to_quat_xyzw
-from .workcell import Workcell
+from calibgraph.core.errors import CalibgraphError, InputError
+from calibgraph.core.targets import Target
+from calibgraph.core.transforms import R_to_quat_xyzw
+from calibgraph.sim.workcell import Workcell
 
 FLANGE_OFFSET_M = 0.107  # fr3_link7 -> flange along z (Franka FR3 datasheet, = the hand body's offset)
 ARM_JOINTS = tuple(f"fr3_joint{i}" for i in range(1, 8))

@@ -1,7 +1,7 @@
 """Write a simulated dataset: run the real acquisition state machine on the simulated cell.
 
 :func:`simulate_dataset` builds the world, wraps it in :class:`SimRobot`/:class:`SimCamera`, and
-hands them to :func:`calibgraph.acquire.run_acquisition` — the same capture pipeline that runs
+hands them to :func:`calibgraph.acquire.run.run_acquisition` — the same capture pipeline that runs
 on hardware (detection on the spot, atomic capture files, journal). It then writes
 ``ground_truth.json`` beside the data::
 
@@ -24,14 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from .workcell import Workcell, workcell_to_dict
-
-GT_FORMAT = "calibgraph-ground-truth/1"
-GT_NAME = "ground_truth.json"
-_CONVENTION = ("T_a_b maps points from frame b to frame a: p_a = T_a_b @ p_b (4x4, metres). Camera frames are "
-               "OpenCV optical frames (x right, y down, z forward); the board frame has its origin at point 0, "
-               "x along a row, y along a column, z into the board.")
+from calibgraph.acquire.run import run_acquisition
+from calibgraph.detect.corners import detect_image
+from calibgraph.io.ground_truth import write_ground_truth_file
+from calibgraph.plan.trajectory import load_trajectory
+from calibgraph.sim.devices import board_plainly_hidden, make_devices
+from calibgraph.sim.render import SimWorld
+from calibgraph.sim.workcell import Workcell, workcell_to_dict
 
 
 def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
@@ -44,7 +43,6 @@ def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
 
     out = Path(out_dir)
     if world is None:
-        from .render import SimWorld
 
         world = SimWorld(cell)
     caps = {}
@@ -59,8 +57,6 @@ def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
                                  "T_base_flange_reported": d["T_base_flange"], "q_rad": q}
         world.set_q(q0)
     gt = {
-        "format": GT_FORMAT,
-        "frame_convention": _CONVENTION,
         "mode": "eye_to_hand",
         "T_flange_board": np.asarray(cell.T_flange_board).tolist(),
         "cameras": {c.name: {"T_base_cam": np.asarray(c.T_base_cam).tolist(), "intrinsics": c.intrinsics.to_dict(),
@@ -71,27 +67,7 @@ def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
         "realism": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cell.realism).items()},
         "workcell": workcell_to_dict(cell),
     }
-    p = out / GT_NAME
-    tmp = p.with_name(f".{p.name}.tmp")
-    tmp.write_text(json.dumps(gt, indent=1))
-    tmp.replace(p)
-    return p
-
-
-def load_ground_truth(dataset_dir) -> dict:
-    """Read ``ground_truth.json`` with poses as numpy arrays:
-    ``{"T_flange_board", "T_base_cam": {cam: 4x4}, "T_base_flange_true": {capture: 4x4}, "raw": dict}``."""
-    p = Path(dataset_dir) / GT_NAME
-    try:
-        d = json.loads(p.read_text())
-    except (OSError, ValueError) as e:
-        raise InputError(f"{p}: no readable ground truth ({e}); only simulated datasets have one.") from None
-    return {
-        "T_flange_board": np.asarray(d["T_flange_board"], float),
-        "T_base_cam": {c: np.asarray(v["T_base_cam"], float) for c, v in d["cameras"].items()},
-        "T_base_flange_true": {int(k): np.asarray(v["T_base_flange_true"], float) for k, v in d["captures"].items()},
-        "raw": d,
-    }
+    return write_ground_truth_file(out, gt)
 
 
 class VisibilityGatedDetector:
@@ -112,15 +88,11 @@ class VisibilityGatedDetector:
         self.skipped = 0
 
     def __call__(self, image, target, intrinsics=None):
-        from .devices import board_plainly_hidden
-
         cam = self.world.last_frame_camera.pop(id(image), None)
         if cam is not None and board_plainly_hidden(self.world, cam):
             self.skipped += 1
             return None
-        det = self.detector
-        if det is None:
-            from ..detect import detect_image as det
+        det = self.detector or detect_image
         return det(image, target, intrinsics)
 
 
@@ -130,26 +102,22 @@ def simulate_dataset(cell: Workcell, trajectory, out_dir, world=None, progress=T
 
     Args:
         cell: the workcell.
-        trajectory: a :class:`calibgraph.acquire.Trajectory` (what
-            :func:`calibgraph.plan.plan_trajectory` returns) or a path to a trajectory YAML.
+        trajectory: a :class:`calibgraph.plan.trajectory.Trajectory` (what
+            :func:`calibgraph.plan.planner.plan_trajectory` returns) or a path to a trajectory YAML.
         out_dir: new dataset folder.
         world: an existing :class:`SimWorld` of ``cell`` (saves compiling the model again).
         progress: True (lines on stderr), False, or a callable receiving progress lines.
-        detector: passed to the acquisition (default :func:`calibgraph.detect.detect_image`).
+        detector: passed to the acquisition (default :func:`calibgraph.detect.corners.detect_image`).
         gate: wrap the detector in :class:`VisibilityGatedDetector` (skip frames whose board is
             plainly out of view, for speed) and let cameras skip rendering those frames.
     Returns:
-        the acquisition's :class:`calibgraph.acquire.AcquisitionReport`.
+        the acquisition's :class:`calibgraph.acquire.run.AcquisitionReport`.
     """
-    from ..acquire import load_trajectory
-    from .devices import make_devices
-    from .render import SimWorld
 
     if isinstance(trajectory, (str, Path)):
         trajectory = load_trajectory(trajectory)
     world = world or SimWorld(cell)
     robot, cams = make_devices(world, cell.fk_sigma_translation_m, np.radians(cell.fk_sigma_rotation_deg), cell.seed)
-    from ..acquire import run_acquisition
 
     if gate:
         detector = VisibilityGatedDetector(world, detector)

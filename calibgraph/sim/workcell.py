@@ -32,10 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Intrinsics, preset
-from ..errors import InputError
-from ..targets import Target, a4_board_54, thesis_board
-from ..transforms import exp_so3, look_at, make_T
+from calibgraph.core.camera import Intrinsics, preset
+from calibgraph.core.errors import InputError
+from calibgraph.core.targets import Target, a4_board_54, thesis_board
+from calibgraph.core.transforms import check_pose, exp_so3, look_at, make_T
+from calibgraph.io.files import read_yaml
 
 # Where the robot presents the board, relative to a camera's azimuth: radius from the base z axis
 # and height in the base frame. Cameras aim here, so the board lands near their image centre.
@@ -232,7 +233,6 @@ def ring_workcell(n_cameras: int = 3, distance_m: float = 3.0, preset_name: str 
 
 def _pose_from_spec(d: dict, what: str) -> np.ndarray:
     if "T" in d:
-        from ..transforms import check_pose
 
         return check_pose(np.asarray(d["T"], float), what)
     t = np.asarray(d.get("translation_m", [0, 0, 0]), float)
@@ -269,7 +269,6 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
     for name, c in (d.get("cameras") or {}).items():
         p = c.get("preset", "l515")
         if "T_base_cam" in c:
-            from ..transforms import check_pose
 
             T = check_pose(np.asarray(c["T_base_cam"], float), f"{where}: camera {name}: T_base_cam")
         elif "position_m" in c:
@@ -292,7 +291,6 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
 
 def load_workcell(path) -> Workcell:
     """Read a workcell YAML file."""
-    from ..yamlio import read_yaml
 
     p = Path(path)
     d = read_yaml(p, "workcell file", mapping=False)

@@ -1,0 +1,2 @@
+"""Stage 5 — moving the robot and capturing: the device interfaces drivers implement, the
+acquisition state machine with its journal (resume after a crash), and the safety checks."""

@@ -1,0 +1,235 @@
+"""``calibgraph capture``: drive the robot along a trajectory and record a dataset.
+
+    calibgraph capture --workcell cell.yaml --trajectory traj.yaml --out DATASET
+    calibgraph capture --workcell cell.yaml --out DATASET --resume            # after a crash / Ctrl-C
+    calibgraph capture --workcell cell.yaml --trajectory traj.yaml --dry-run  # plan + safety checks only
+    calibgraph solve DATASET
+
+A real robot (``driver: franka``) never moves without ``--i-have-cleared-the-cell``; ``--dry-run``
+connects to nothing that moves and opens no camera.
+
+Workcell YAML: the simulator's schema (:mod:`calibgraph.sim.workcell`: ``board``, ``mount``,
+``ring``, ``cameras`` with ``preset``/``position_m``, ``realism``, ...) plus the hardware fields
+read here::
+
+    board: a4_54                      # or {kind: checkerboard, rows: 6, cols: 9, pitch_m: 0.025}
+    mode: eye_to_hand                 # or eye_in_hand
+    robot:
+      driver: franka                  # franka | sim (default sim)
+      ip: 172.16.0.2
+      model: fr3                      # fr3 | panda
+      realtime: true                  # libfranka real-time checks (needs an RT kernel)
+    cameras:
+      left:  {driver: realsense, serial: "233522071234", settle_frames: 30}
+      right: {driver: ros2, image_topic: /right/color/image_raw, info_topic: /right/color/camera_info}
+      top:   {driver: kinect, serial: "003415165047"}
+    safety:                           # see calibgraph.acquire.safety
+      robot_model: fr3
+      workspace_min_m: [0.2, -0.6, 0.05]
+      workspace_max_m: [0.9, 0.6, 1.0]
+      max_speed_scale: 0.3
+
+Keys a driver does not know are refused with the list of allowed ones. Heavy imports (SDKs,
+MuJoCo) happen only for the drivers a workcell names.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+ROBOT_DRIVERS = ("sim", "franka")
+CAMERA_DRIVERS = ("sim", "realsense", "ros2", "kinect")
+_ROBOT_KEYS = {"driver", "ip", "model", "realtime", "settle_velocity_rad_s"}
+_SIM_ROBOT_KEYS = {"fk_sigma_translation_m", "fk_sigma_rotation_deg"}
+
+
+def add_parser(sub):
+    p = sub.add_parser("capture", help="drive the robot and record a dataset (real or simulated cell)",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--workcell", type=Path, required=True, help="workcell YAML (robot, cameras, safety)")
+    p.add_argument("--trajectory", type=Path, default=None,
+                   help="trajectory YAML (calibgraph-trajectory/1); with --resume defaults to DATASET/trajectory.yaml")
+    p.add_argument("--out", type=Path, required=True, help="dataset folder to write")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted capture in --out")
+    p.add_argument("--dry-run", action="store_true", help="plan and check every pose; move nothing, grab nothing")
+    p.add_argument("--robot", choices=ROBOT_DRIVERS, default=None, help="override the workcell's robot driver")
+    p.add_argument("--robot-ip", default=None, help="override the workcell's robot address")
+    p.add_argument("--i-have-cleared-the-cell", dest="cleared", action="store_true",
+                   help="confirm that nobody is inside the cell: required before a real robot moves")
+    p.add_argument("--speed-scale", type=float, default=None, help="override the trajectory's speed scale")
+    p.add_argument("--settle-dwell-s", type=float, default=None,
+                   help="extra wait after the robot reports still (default 0.3 s real, 0 s sim)")
+    p.add_argument("--incremental", action="store_true", help="show the live 1-sigma per camera (iSAM2)")
+    p.add_argument("--quiet", action="store_true")
+    return p
+
+
+def _read_yaml(path: Path, what: str):
+    from calibgraph.io.files import read_yaml
+
+    return read_yaml(path, what)
+
+
+def workcell_hardware(d: dict, where: str):
+    """Split a workcell mapping into (robot section, camera sections, safety limits, target, mode)."""
+    from calibgraph.acquire.safety import SafetyLimits
+    from calibgraph.core.errors import InputError
+
+    robot = dict(d.get("robot") or {})
+    unknown = set(robot) - _ROBOT_KEYS - _SIM_ROBOT_KEYS
+    if unknown:
+        raise InputError(f"{where}: robot: unknown keys {sorted(unknown)}; allowed: {sorted(_ROBOT_KEYS | _SIM_ROBOT_KEYS)}.")
+    cams = d.get("cameras") or {}
+    if not isinstance(cams, dict):
+        raise InputError(f"{where}: cameras must be a mapping name -> settings.")
+    for name, c in cams.items():
+        drv = (c or {}).get("driver", "sim")
+        if drv not in CAMERA_DRIVERS:
+            raise InputError(f"{where}: camera {name!r}: unknown driver {drv!r}; choose one of {CAMERA_DRIVERS}.")
+    try:
+        safety = SafetyLimits.from_dict(d.get("safety"))
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+    mode = d.get("mode", "eye_to_hand")
+    from calibgraph.sim.workcell import board_by_name
+
+    target = board_by_name(d.get("board", "a4_54"))
+    return robot, cams, safety, target, mode
+
+
+def sim_workcell_dict(d: dict) -> dict:
+    """The part of a workcell mapping the simulator reads (hardware-only keys removed)."""
+    s = {k: v for k, v in d.items() if k not in ("safety", "mode")}
+    if "robot" in s:
+        s["robot"] = {k: v for k, v in (s["robot"] or {}).items() if k in _SIM_ROBOT_KEYS}
+    if "cameras" in s:
+        s["cameras"] = {n: {k: v for k, v in (c or {}).items() if k != "driver"} for n, c in (s["cameras"] or {}).items()
+                        if (c or {}).get("driver", "sim") == "sim"}
+    return s
+
+
+def open_camera(name: str, spec: dict, where: str):
+    """A Camera for one workcell camera entry (real drivers only)."""
+    from calibgraph.core.errors import InputError
+
+    spec = dict(spec or {})
+    drv = spec.pop("driver", "sim")
+    try:
+        if drv == "realsense":
+            from drivers.realsense import RealSenseCamera
+
+            return RealSenseCamera(name, **spec)
+        if drv == "ros2":
+            from drivers.ros2 import Ros2Camera
+
+            return Ros2Camera(name, **spec)
+        if drv == "kinect":
+            from drivers.kinect import KinectV2Camera
+
+            return KinectV2Camera(name, **spec)
+    except TypeError as e:
+        raise InputError(f"{where}: camera {name!r} ({drv}): {e}") from None
+    raise InputError(f"{where}: camera {name!r}: driver {drv!r} is not a hardware driver.")
+
+
+def run(args) -> int:
+    from calibgraph.acquire.run import run_acquisition
+    from calibgraph.core.errors import InputError
+    from calibgraph.plan.trajectory import Trajectory, load_trajectory
+
+    log = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    d = _read_yaml(args.workcell, "workcell")
+    robot_cfg, cam_cfg, safety, target, mode = workcell_hardware(d, str(args.workcell))
+    driver = args.robot or robot_cfg.get("driver", "sim")
+    if driver not in ROBOT_DRIVERS:
+        raise InputError(f"{args.workcell}: robot driver {driver!r} unknown; choose one of {ROBOT_DRIVERS}.")
+    traj_path = args.trajectory
+    if traj_path is None:
+        if args.resume and (args.out / "trajectory.yaml").is_file():
+            traj_path = args.out / "trajectory.yaml"
+        else:
+            raise InputError("capture: give --trajectory (or --resume a dataset that holds its trajectory.yaml).")
+    traj = load_trajectory(traj_path)
+    if args.speed_scale is not None:
+        traj = Trajectory(poses=traj.poses, speed_scale=args.speed_scale)
+    real = driver != "sim"
+    if real and not args.dry_run and not args.cleared:
+        raise InputError("capture: a real robot is configured; it will not move without --i-have-cleared-the-cell. "
+                         "Run with --dry-run first to check every pose against the safety limits.")
+    dwell = args.settle_dwell_s if args.settle_dwell_s is not None else (0.3 if real else 0.0)
+
+    robot, cameras, closers, detector = None, {}, [], None
+    try:
+        if driver == "sim":
+            from calibgraph.sim.devices import make_devices
+            from calibgraph.sim.render import SimWorld
+            from calibgraph.sim.simulate import VisibilityGatedDetector
+            from calibgraph.sim.workcell import workcell_from_dict
+
+            cell = workcell_from_dict(sim_workcell_dict(d), str(args.workcell))
+            target = cell.target
+            world = SimWorld(cell)
+            import numpy as np
+
+            robot, sim_cams = make_devices(world, cell.fk_sigma_translation_m, np.radians(cell.fk_sigma_rotation_deg),
+                                           cell.seed)
+            cameras.update(sim_cams)
+            detector = VisibilityGatedDetector(world, None)
+        else:
+            from drivers.franka import FrankaRobot
+
+            ip = args.robot_ip or robot_cfg.get("ip")
+            if not ip:
+                raise InputError(f"{args.workcell}: robot.ip (or --robot-ip) is needed for the franka driver.")
+            try:
+                robot = FrankaRobot(ip, model=robot_cfg.get("model", "fr3"), realtime=bool(robot_cfg.get("realtime", True)),
+                                    settle_velocity_rad_s=float(robot_cfg.get("settle_velocity_rad_s", 0.005)))
+            except Exception as e:
+                if not args.dry_run:
+                    raise
+                log(f"robot at {ip}: not connected ({e}); planning from the first pose instead of the robot's joints")
+        if robot is not None:
+            closers.append(robot)
+        if not args.dry_run:
+            for name, spec in cam_cfg.items():
+                if (spec or {}).get("driver", "sim") == "sim":
+                    continue
+                try:
+                    cam = open_camera(name, spec, str(args.workcell))
+                except InputError:
+                    raise
+                except Exception as e:  # a camera that cannot open is reported; the others go on
+                    log(f"camera {name}: cannot open ({type(e).__name__}: {e}); continuing without it")
+                    continue
+                cameras[name] = cam
+                closers.append(cam)
+            if not cameras:
+                raise InputError(f"{args.workcell}: no camera could be opened.")
+        on_capture = None
+        if args.incremental and not args.dry_run:
+            from calibgraph.solver.incremental import IncrementalSolver
+
+            inc = IncrementalSolver(target.points_board_m, {n: c.intrinsics() for n, c in cameras.items()}, mode=mode)
+            on_capture = inc.add_capture
+        try:
+            rep = run_acquisition(robot, cameras, traj, args.out, target, detector=detector, resume=args.resume,
+                                  safety=safety, on_capture=on_capture, progress=log, dry_run=args.dry_run, mode=mode,
+                                  settle_dwell_s=dwell)
+        except KeyboardInterrupt:
+            print(f"calibgraph capture: interrupted; everything captured so far is in {args.out}. "
+                  f"Continue with: calibgraph capture --workcell {args.workcell} --out {args.out} --resume",
+                  file=sys.stderr)
+            return 130
+        print(rep.summary())
+        if rep.stopped_reason:
+            return 3
+        if not args.dry_run:
+            print(f"next: calibgraph solve {args.out}")
+        return 0
+    finally:
+        for c in closers:
+            try:
+                c.close()
+            except Exception:  # closing is best effort; the data is already on disk
+                pass

@@ -1,0 +1,47 @@
+"""``calibgraph export RESULT --format urdf|ros2-launch|opencv-yaml|yaml|json --out DIR``, and
+``calibgraph export DATASET --format mchec --out DIR`` (a dataset in the Multi-Camera-Hand-Eye-
+Calibration layout, for moving data between the two tools)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from calibgraph.report.exports import FORMATS
+
+
+def add_parser(sub):
+    p = sub.add_parser("export", help="write the result for a robot stack (URDF, ROS 2 launch, OpenCV YAML, YAML)",
+                       description="Export camera poses (and intrinsics when known) in standard formats. "
+                                   "Frames and units are stated in every file.")
+    p.add_argument("result", type=Path, help="result.json or result.yaml written by `calibgraph solve` "
+                                              "(a dataset folder for --format mchec)")
+    p.add_argument("--format", dest="fmt", choices=tuple(FORMATS) + ("mchec",), required=True, action="append",
+                   help="output format; repeat for several")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--dataset", type=Path, default=None,
+                   help="dataset folder for intrinsics when the result has none (opencv-yaml)")
+    p.add_argument("--parent", default=None,
+                   help="parent frame/link name (default base_link, or flange for eye-in-hand)")
+    return p
+
+
+def run(args) -> int:
+    from calibgraph.report.exports import export
+    from calibgraph.solver.result import load_result_dict
+
+    if "mchec" in args.fmt:
+        from calibgraph.core.errors import InputError
+        from calibgraph.report.mchec_export import export_mchec
+
+        if len(args.fmt) > 1:
+            raise InputError("export: --format mchec takes a dataset folder and cannot be combined with result formats.")
+        if not args.result.is_dir():
+            raise InputError(f"export: --format mchec needs a dataset folder, got {args.result}.")
+        export_mchec(args.result, args.out)
+        print(f"wrote {args.out} (Multi-Camera-Hand-Eye-Calibration layout)")
+        return 0
+    d = load_result_dict(args.result)
+    for fmt in args.fmt:
+        for p in export(d, fmt, args.out, dataset=args.dataset, parent=args.parent):
+            print(f"wrote {p}")
+    return 0

@@ -1,0 +1,127 @@
+"""``calibgraph solve DATASET --out result.json``: detect (if needed), solve, print, save."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from calibgraph.solver.build import build_problem
+
+
+def add_parser(sub):
+    p = sub.add_parser("solve", help="calibrate all cameras of a dataset folder",
+                       description="Solve a dataset (calibgraph, industrial_calibration or MC-HEC layout).")
+    p.add_argument("dataset", type=Path, help="dataset folder")
+    p.add_argument("--out", type=Path, default=None, help="result file (.json or .yaml); default DATASET/result.json")
+    p.add_argument("--method", choices=("joint", "single"), default="joint",
+                   help="joint: one shared board mount (default); single: each camera alone")
+    p.add_argument("--loss", choices=("huber", "cauchy", "none"), default=None, help="corner-level robust loss")
+    p.add_argument("--pixel-sigma", type=float, default=None, help="corner noise in px (default: estimated)")
+    p.add_argument("--fk-sigma-mm", type=float, default=None, help="forward-kinematics translation 1-sigma, mm")
+    p.add_argument("--fk-sigma-deg", type=float, default=None, help="forward-kinematics rotation 1-sigma, deg")
+    p.add_argument("--refine-intrinsics", action="store_true",
+                   help="also estimate fx, fy, cx, cy, k1, k2 of every camera (priors around the given values)")
+    p.add_argument("--rrd", type=Path, default=None, help="also write a rerun recording")
+    p.add_argument("--quiet", action="store_true")
+    return p
+
+
+def solver_options(args, dataset):
+    """SolverOptions from dataset.yaml's solver section overridden by command-line flags."""
+    import numpy as np
+
+    from calibgraph.core.errors import InputError
+    from calibgraph.core.problem import SolverOptions
+
+    d = dict(dataset.solver)
+    if args.loss:
+        d["loss"] = args.loss
+    if args.pixel_sigma:
+        d["pixel_sigma_px"] = args.pixel_sigma
+    if args.fk_sigma_mm:
+        d["fk_sigma_translation_m"] = args.fk_sigma_mm * 1e-3
+    if args.fk_sigma_deg:
+        d["fk_sigma_rotation_rad"] = float(np.radians(args.fk_sigma_deg))
+    if getattr(args, "refine_intrinsics", False):
+        d["refine_intrinsics"] = True
+    try:
+        return SolverOptions(**d)
+    except TypeError as e:
+        raise InputError(f"solver settings: {e}") from None
+
+
+def format_summary(result, truth=None) -> str:
+    """A per-camera table: pose, 1-sigma, reprojection, views (and error vs truth when given)."""
+    import numpy as np
+
+    from calibgraph.core.transforms import log_so3, pose_error
+
+    ref = "T_base_cam" if result.mode == "eye_to_hand" else "T_flange_cam"
+    lines = [f"mode {result.mode}, method {result.method}, pixel sigma {result.pixel_sigma_px:.3f} px, "
+             f"solved in {result.solve_time_s:.2f} s"]
+    hdr = f"{'camera':10s} {'x [m]':>8s} {'y [m]':>8s} {'z [m]':>8s} {'1σ t [mm]':>16s} {'1σ r [deg]':>20s} {'rms px':>7s} {'views':>9s}"
+    if truth is not None:
+        hdr += f" {'err mm':>7s} {'err deg':>8s}"
+    lines += [f"{ref} per camera:", hdr]
+    for n, c in result.cameras.items():
+        t = c.T_ref_cam[:3, 3]
+        st = "/".join(f"{v:.2f}" for v in c.sigma_translation_mm)
+        sr = "/".join(f"{v:.3f}" for v in c.sigma_rotation_deg)
+        row = (f"{n:10s} {t[0]:8.4f} {t[1]:8.4f} {t[2]:8.4f} {st:>16s} {sr:>20s} {c.reprojection_rms_px:7.3f} "
+               f"{c.views_used:4d}/{c.views_used + len(c.views_rejected):<4d}")
+        if truth is not None and n in truth:
+            e_m, e_deg = pose_error(c.T_ref_cam, truth[n])
+            row += f" {e_m * 1e3:7.3f} {e_deg:8.4f}"
+        lines.append(row)
+    if result.T_mount_board is not None:
+        key = "T_flange_board" if result.mode == "eye_to_hand" else "T_base_board"
+        t = result.T_mount_board[:3, 3]
+        r = np.degrees(log_so3(result.T_mount_board[:3, :3]))
+        lines.append(f"{key}: t = {np.round(t, 4).tolist()} m, rotvec = {np.round(r, 3).tolist()} deg")
+    for (a, b), p in result.pairs.items():
+        lines.append(f"T_{a}_{b}: |t| = {np.linalg.norm(p.T_a_b[:3, 3]):.4f} m, 1σ "
+                     f"{np.round(p.sigma_translation_mm, 2).tolist()} mm / {np.round(p.sigma_rotation_deg, 3).tolist()} deg")
+    rej = [rv for c in result.cameras.values() for rv in c.views_rejected]
+    if rej:
+        lines.append(f"rejected views ({len(rej)}):")
+        lines += [f"  {rv.camera} capture {rv.capture}: {rv.reason}" for rv in rej[:20]]
+        if len(rej) > 20:
+            lines.append(f"  ... and {len(rej) - 20} more (see the result file)")
+    if result.rejected_corners:
+        lines.append(f"rejected corners: {len(result.rejected_corners)} (listed in the result file)")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from calibgraph.io.layouts import load_dataset
+    from calibgraph.solver.batch import solve
+
+    ds = load_dataset(args.dataset)
+    for f, msg in ds.problems:
+        print(f"warning: {f}: {msg}", file=sys.stderr)
+    opts = solver_options(args, ds)
+    problem, detector = build_problem(ds, args.method, opts, progress=not args.quiet)
+    for f, msg in getattr(detector, "problems", []) or []:
+        print(f"warning: {f}: {msg}", file=sys.stderr)
+    result = solve(problem)
+    from dataclasses import replace
+
+    result = replace(result, dataset=str(args.dataset))
+    out = args.out or (args.dataset / "result.json")
+    result.save(out)
+    if not args.quiet:
+        print(format_summary(result))
+        if result.pixel_sigma_px > 1.0 and not opts.refine_intrinsics:
+            print(f"hint: residuals of {result.pixel_sigma_px:.2f} px per axis are large for a sub-pixel detector; "
+                  "if the intrinsics come without (or with wrong) distortion, try --refine-intrinsics")
+        print(f"wrote {out}")
+    if args.rrd:
+        try:
+            from calibgraph.report.rerun_view import write_rrd
+        except ImportError:
+            print("rerun recording skipped: calibgraph.report.rerun_view is not available", file=sys.stderr)
+        else:
+            write_rrd(result, problem, args.rrd)
+            if not args.quiet:
+                print(f"wrote {args.rrd}")
+    return 0

@@ -1,0 +1,41 @@
+"""``calibgraph view RESULT [--dataset DIR] [--rrd out.rrd]``: the calibration in rerun."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+
+def add_parser(sub):
+    p = sub.add_parser("view", help="show the calibration in the rerun viewer (or save a .rrd)",
+                       description="Robot base, flange and board poses, camera frustums with their images, detected "
+                                   "vs reprojected corners, residuals per capture, outliers highlighted.")
+    p.add_argument("result", type=Path, help="result.json or result.yaml")
+    p.add_argument("--dataset", type=Path, default=None,
+                   help="dataset folder: images, detections and recorded flange poses "
+                        "(default: the dataset named in RESULT, if it exists)")
+    p.add_argument("--rrd", type=Path, default=None,
+                   help="save the recording here and do not open a viewer")
+    return p
+
+
+def run(args) -> int:
+    from calibgraph.report.rerun_view import rerun_cli, write_rrd
+    from calibgraph.solver.result import load_result_dict
+
+    d = load_result_dict(args.result)
+    dataset = args.dataset
+    if dataset is None and d.get("dataset") and Path(d["dataset"]).is_dir():
+        dataset = Path(d["dataset"])
+    path = args.rrd or args.result.with_suffix(".rrd")
+    write_rrd(d, dataset, path)
+    print(f"wrote {path}")
+    if args.rrd is None:
+        if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+            # the viewer runs on after we exit; the recording file stays for later
+            subprocess.Popen(rerun_cli() + [str(path)], start_new_session=True)
+            print("opened the rerun viewer")
+        else:
+            print(f"no display: open it elsewhere with `rerun {path}`")
+    return 0

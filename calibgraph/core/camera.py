@@ -1,0 +1,187 @@
+"""Camera intrinsics and the projection model (OpenCV pinhole + radial/tangential distortion).
+
+The model matches ``cv2.projectPoints`` for 0, 4, 5 or 8 distortion coefficients
+``(k1, k2, p1, p2[, k3[, k4, k5, k6]])``. Pixel centres are at integer coordinates, as in OpenCV.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibgraph.core.errors import InputError
+
+_ALLOWED_DIST = (0, 4, 5, 8)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics with OpenCV distortion.
+
+    Attributes:
+        K: (3, 3) camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] in pixels.
+        dist: (n,) distortion coefficients in OpenCV order, n in {0, 4, 5, 8}.
+        width_px, height_px: image size.
+    """
+
+    K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    width_px: int = 0
+    height_px: int = 0
+
+    def __post_init__(self):
+        K = np.asarray(self.K, dtype=float)
+        dist = np.asarray(self.dist, dtype=float).reshape(-1)
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+            raise InputError(f"intrinsics: K must be a finite 3x3 matrix, got {K.tolist()}.")
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+            raise InputError(f"intrinsics: K is not a camera matrix (fx, fy > 0, last row 0 0 1): {K.tolist()}.")
+        if dist.size not in _ALLOWED_DIST:
+            raise InputError(
+                f"intrinsics: {dist.size} distortion coefficients given; calibgraph supports 0, 4, 5 or 8 "
+                "(k1 k2 p1 p2 [k3 [k4 k5 k6]])."
+            )
+        if not np.all(np.isfinite(dist)):
+            raise InputError("intrinsics: distortion coefficients contain NaN/inf.")
+        if int(self.width_px) < 0 or int(self.height_px) < 0:
+            raise InputError("intrinsics: image size must be non-negative.")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", dist)
+        object.__setattr__(self, "width_px", int(self.width_px))
+        object.__setattr__(self, "height_px", int(self.height_px))
+
+    # -- constructors ---------------------------------------------------------------------------
+    @classmethod
+    def from_hfov(cls, width_px: int, height_px: int, hfov_deg: float, dist=None) -> "Intrinsics":
+        """Square-pixel camera with the given horizontal field of view; principal point at the
+        image centre in OpenCV's convention ((W - 1) / 2, (H - 1) / 2)."""
+        f = (width_px / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
+        K = np.array([[f, 0.0, (width_px - 1) / 2.0], [0.0, f, (height_px - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return cls(K=K, dist=np.zeros(5) if dist is None else np.asarray(dist, float), width_px=width_px, height_px=height_px)
+
+    @property
+    def dist8(self) -> np.ndarray:
+        """Distortion padded to 8 coefficients."""
+        d = np.zeros(8)
+        d[: self.dist.size] = self.dist
+        return d
+
+    def to_dict(self) -> dict:
+        return {
+            "K": self.K.tolist(),
+            "dist": self.dist.tolist(),
+            "width_px": self.width_px,
+            "height_px": self.height_px,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Intrinsics":
+        if "K" in d:
+            K = np.asarray(d["K"], float).reshape(3, 3)
+        else:
+            try:
+                K = np.array([[d["fx"], d.get("s", 0.0), d["cx"]], [0, d["fy"], d["cy"]], [0, 0, 1]], float)
+            except KeyError as e:
+                raise InputError(f"intrinsics: missing key {e}; give K (3x3) or fx, fy, cx, cy.") from None
+        dist = d.get("dist", d.get("distortion", [0.0] * 5))
+        return cls(K=K, dist=np.asarray(dist, float), width_px=int(d.get("width_px", d.get("width", 0))),
+                   height_px=int(d.get("height_px", d.get("height", 0))))
+
+    # -- model ----------------------------------------------------------------------------------
+    def project(self, p_cam_m: np.ndarray, with_jacobian: bool = False):
+        """Project camera-frame points to pixels.
+
+        Args:
+            p_cam_m: (N, 3) points in the OpenCV camera frame (z forward), metres.
+            with_jacobian: also return d(uv)/d(p_cam) as (N, 2, 3).
+        Returns:
+            uv_px (N, 2) [, J (N, 2, 3)]. Points with z <= 0 project to NaN.
+        """
+        P = np.asarray(p_cam_m, float).reshape(-1, 3)
+        Z = P[:, 2]
+        valid = Z > 1e-9
+        Zs = np.where(valid, Z, np.nan)
+        x = P[:, 0] / Zs
+        y = P[:, 1] / Zs
+        k1, k2, p1, p2, k3, k4, k5, k6 = self.dist8
+        r2 = x * x + y * y
+        a = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        rad = a / b
+        xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        fx, s, cx = self.K[0]
+        fy, cy = self.K[1, 1], self.K[1, 2]
+        uv = np.column_stack([fx * xd + s * yd + cx, fy * yd + cy])
+        if not with_jacobian:
+            return uv
+        da = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+        db = k4 + r2 * (2 * k5 + 3 * k6 * r2)
+        drad = (da * b - a * db) / (b * b)
+        dxd_dx = rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
+        dxd_dy = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
+        dyd_dx = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
+        dyd_dy = rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
+        # d(uv)/d(xd, yd)
+        du_dx = fx * dxd_dx + s * dyd_dx
+        du_dy = fx * dxd_dy + s * dyd_dy
+        dv_dx = fy * dyd_dx
+        dv_dy = fy * dyd_dy
+        iz = 1.0 / Zs
+        J = np.empty((P.shape[0], 2, 3))
+        J[:, 0, 0] = du_dx * iz
+        J[:, 0, 1] = du_dy * iz
+        J[:, 0, 2] = -(du_dx * x + du_dy * y) * iz
+        J[:, 1, 0] = dv_dx * iz
+        J[:, 1, 1] = dv_dy * iz
+        J[:, 1, 2] = -(dv_dx * x + dv_dy * y) * iz
+        return uv, J
+
+    def in_image(self, uv_px: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
+        """Boolean mask of pixels inside the image (needs width/height)."""
+        uv = np.asarray(uv_px)
+        return (
+            np.isfinite(uv).all(axis=1)
+            & (uv[:, 0] >= -0.5 + margin_px)
+            & (uv[:, 1] >= -0.5 + margin_px)
+            & (uv[:, 0] <= self.width_px - 0.5 - margin_px)
+            & (uv[:, 1] <= self.height_px - 0.5 - margin_px)
+        )
+
+
+# Presets used by the simulator and the benchmarks (colour streams).
+PRESETS = {
+    "d455": dict(width_px=1280, height_px=800, hfov_deg=90.0),
+    "l515": dict(width_px=1920, height_px=1080, hfov_deg=70.0),
+    "kinect_v2": dict(width_px=1920, height_px=1080, hfov_deg=84.1),
+}
+
+
+def preset(name: str) -> Intrinsics:
+    """Ideal intrinsics of a named camera preset ('d455', 'l515', 'kinect_v2')."""
+    key = name.lower().replace("-", "_")
+    if key not in PRESETS:
+        raise InputError(f"unknown camera preset {name!r}; choose one of {sorted(PRESETS)}.")
+    p = PRESETS[key]
+    return Intrinsics.from_hfov(p["width_px"], p["height_px"], p["hfov_deg"])
+
+
+def undistort_normalised(intr: Intrinsics, uv_px: np.ndarray, iterations: int = 25) -> np.ndarray:
+    """(N, 2) normalised coordinates (x/z, y/z) whose projection is ``uv_px``: the inverse of the
+    distortion by fixed-point iteration (as OpenCV's undistortPoints), vectorised in numpy."""
+    uv = np.asarray(uv_px, float).reshape(-1, 2)
+    Kinv2 = np.linalg.inv(intr.K[:2, :2])
+    xd = (uv - intr.K[:2, 2]) @ Kinv2.T
+    if not np.any(intr.dist8):
+        return xd
+    k1, k2, p1, p2, k3, k4, k5, k6 = intr.dist8
+    x, y = xd[:, 0].copy(), xd[:, 1].copy()
+    for _ in range(iterations):
+        r2 = x * x + y * y
+        rad = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        x = (xd[:, 0] - dx) / rad
+        y = (xd[:, 1] - dy) / rad
+    return np.column_stack([x, y])

@@ -1,0 +1,223 @@
+"""The calibration problem: what the solver is given.
+
+A :class:`Problem` is plain data: the target points, each camera's intrinsics, the robot
+captures (flange poses from forward kinematics) and the corner detections. It is validated on
+construction, so the solver can trust it; every refusal names the camera and capture at fault.
+
+Modes:
+    eye_to_hand: cameras fixed in the cell, board on the flange. Unknowns ``T_base_cam[c]``
+        and ``T_flange_board``.
+    eye_in_hand: cameras on the flange, board fixed in the cell. Unknowns ``T_flange_cam[c]``
+        and ``T_base_board``.
+Methods:
+    joint: all cameras share one board mount (the thesis's multi-camera method).
+    single: every camera gets its own board mount and is solved alone (the thesis's single-camera
+        method, kept for comparison).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from calibgraph.core.camera import Intrinsics
+from calibgraph.core.errors import InputError
+from calibgraph.core.transforms import check_pose
+
+MODES = ("eye_to_hand", "eye_in_hand")
+METHODS = ("joint", "single")
+LOSSES = ("huber", "cauchy", "none")
+
+
+@dataclass(frozen=True)
+class Capture:
+    """One robot pose at which the cameras grabbed frames.
+
+    Attributes:
+        index: capture id, unique within a dataset.
+        T_base_flange: (4, 4) flange pose in the robot base frame from forward kinematics.
+        q_rad: (n,) joint angles when known.
+        stamp_s: time the robot had settled, seconds (any epoch).
+    """
+
+    index: int
+    T_base_flange: np.ndarray
+    q_rad: np.ndarray | None = None
+    stamp_s: float | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "index", int(self.index))
+        object.__setattr__(self, "T_base_flange", check_pose(self.T_base_flange, f"capture {self.index}: T_base_flange"))
+        if self.q_rad is not None:
+            q = np.asarray(self.q_rad, float).reshape(-1)
+            if not np.all(np.isfinite(q)):
+                raise InputError(f"capture {self.index}: joint angles contain NaN/inf.")
+            object.__setattr__(self, "q_rad", q)
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Target points seen by one camera in one capture.
+
+    Attributes:
+        camera: camera name.
+        capture: index of the :class:`Capture`.
+        ids: (N,) target point ids (rows of ``Problem.points_board_m``).
+        uv_px: (N, 2) sub-pixel image coordinates, OpenCV convention (pixel centres at integers).
+        image: path of the source image, when there is one (for reports and viewers).
+    """
+
+    camera: str
+    capture: int
+    ids: np.ndarray
+    uv_px: np.ndarray
+    image: str | None = None
+
+    def __post_init__(self):
+        ids = np.asarray(self.ids).reshape(-1)
+        uv = np.asarray(self.uv_px, float)
+        where = f"camera {self.camera!r}, capture {self.capture}"
+        if uv.ndim != 2 or uv.shape[1] != 2:
+            raise InputError(f"{where}: uv_px must have shape (N, 2), got {uv.shape}.")
+        if ids.shape[0] != uv.shape[0]:
+            raise InputError(f"{where}: {ids.shape[0]} corner ids but {uv.shape[0]} pixel coordinates.")
+        if ids.size and not np.issubdtype(ids.dtype, np.integer):
+            if not np.all(np.equal(np.mod(ids, 1), 0)):
+                raise InputError(f"{where}: corner ids must be integers.")
+        ids = ids.astype(int)
+        if not np.all(np.isfinite(uv)):
+            raise InputError(f"{where}: pixel coordinates contain NaN/inf.")
+        if len(np.unique(ids)) != ids.size:
+            raise InputError(f"{where}: duplicate corner ids.")
+        object.__setattr__(self, "ids", ids)
+        object.__setattr__(self, "uv_px", uv)
+        object.__setattr__(self, "capture", int(self.capture))
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Knobs of the solver; defaults suit a Panda-class arm and factory intrinsics.
+
+    Attributes:
+        fk_sigma_translation_m, fk_sigma_rotation_rad: 1-sigma of the forward-kinematics prior on
+            each flange pose (Panda class: 0.1 mm, 0.01 deg).
+        pixel_sigma_px: assumed corner noise. ``None`` estimates it from the residuals (a
+            posteriori variance factor), which is what the covariances are then scaled with.
+        loss: corner-level robust loss, 'huber' (default), 'cauchy' or 'none'.
+        loss_scale: threshold of the loss on a corner's residual *norm*, in units of the per-axis
+            pixel sigma. 2.45 keeps 95% of Gaussian corners at full weight (a 2-D residual norm
+            exceeds 1.345 sigma 40% of the time, so the 1-D Huber constant would downweight inliers).
+        outlier_sigmas: corners whose residual exceeds this many sigmas after the robust solve
+            are rejected and listed; views losing most corners are rejected as a whole.
+        min_views_per_camera: below this a camera is refused with an observability error.
+        max_iterations: LM iterations per solve.
+        refine_intrinsics: also estimate fx, fy, cx, cy and the radial k1, k2 of every camera, with
+            priors of ``intrinsics_sigma_px`` and ``distortion_sigma`` around the given values.
+        formulation: 'view' (one vectorised CustomFactor per view, any OpenCV distortion),
+            'corner' (one C++ ProjectionFactorPPP per corner, Cal3DS2 distortion only) or 'auto'
+            (corner when every camera fits Cal3DS2, else view). Both give the same estimate.
+    """
+
+    fk_sigma_translation_m: float = 1e-4
+    fk_sigma_rotation_rad: float = float(np.radians(0.01))
+    pixel_sigma_px: float | None = None
+    loss: str = "huber"
+    loss_scale: float = 2.45
+    outlier_sigmas: float = 5.0
+    min_views_per_camera: int = 3
+    max_iterations: int = 100
+    refine_intrinsics: bool = False
+    intrinsics_sigma_px: float = 5.0
+    distortion_sigma: float = 0.1
+    formulation: str = "auto"
+
+    def __post_init__(self):
+        if self.loss not in LOSSES:
+            raise InputError(f"solver: loss must be one of {LOSSES}, got {self.loss!r}.")
+        for name in ("fk_sigma_translation_m", "fk_sigma_rotation_rad", "loss_scale", "outlier_sigmas"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"solver: {name} must be positive, got {v}.")
+        if self.formulation not in ("auto", "view", "corner"):
+            raise InputError(f"solver: formulation must be 'auto', 'view' or 'corner', got {self.formulation!r}.")
+        if self.pixel_sigma_px is not None and not (self.pixel_sigma_px > 0):
+            raise InputError("solver: pixel_sigma_px must be positive or None.")
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Everything the solver needs.
+
+    Attributes:
+        points_board_m: (M, 3) target points in the board frame; detection ids index its rows.
+        cameras: name -> :class:`Intrinsics`.
+        captures: robot captures (unique indices).
+        detections: per camera and capture.
+        mode: 'eye_to_hand' or 'eye_in_hand'.
+        method: 'joint' or 'single'.
+        options: :class:`SolverOptions`.
+    """
+
+    points_board_m: np.ndarray
+    cameras: Mapping[str, Intrinsics]
+    captures: tuple
+    detections: tuple
+    mode: str = "eye_to_hand"
+    method: str = "joint"
+    options: SolverOptions = field(default_factory=SolverOptions)
+
+    def __post_init__(self):
+        pts = np.asarray(self.points_board_m, float)
+        if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 4 or not np.all(np.isfinite(pts)):
+            raise InputError(f"points_board_m must be a finite (M >= 4, 3) array, got shape {pts.shape}.")
+        object.__setattr__(self, "points_board_m", pts)
+        if self.mode not in MODES:
+            raise InputError(f"mode must be one of {MODES}, got {self.mode!r}.")
+        if self.method not in METHODS:
+            raise InputError(f"method must be one of {METHODS}, got {self.method!r}.")
+        if not self.cameras:
+            raise InputError("no cameras given.")
+        for name, intr in self.cameras.items():
+            if not isinstance(intr, Intrinsics):
+                raise InputError(f"camera {name!r}: intrinsics must be an Intrinsics object.")
+        caps = tuple(self.captures)
+        dets = tuple(self.detections)
+        object.__setattr__(self, "captures", caps)
+        object.__setattr__(self, "detections", dets)
+        idx = [c.index for c in caps]
+        if len(set(idx)) != len(idx):
+            raise InputError("capture indices must be unique.")
+        known = set(idx)
+        seen = set()
+        for d in dets:
+            if d.camera not in self.cameras:
+                raise InputError(
+                    f"detection for unknown camera {d.camera!r} (capture {d.capture}); "
+                    f"known cameras: {sorted(self.cameras)}."
+                )
+            if d.capture not in known:
+                raise InputError(f"camera {d.camera!r}: detection refers to capture {d.capture}, which has no robot pose.")
+            if (d.camera, d.capture) in seen:
+                raise InputError(f"camera {d.camera!r}: two detections for capture {d.capture}.")
+            seen.add((d.camera, d.capture))
+            if d.ids.size and (d.ids.min() < 0 or d.ids.max() >= pts.shape[0]):
+                raise InputError(
+                    f"camera {d.camera!r}, capture {d.capture}: corner id {int(d.ids.max())} is not on the target "
+                    f"(ids 0..{pts.shape[0] - 1}); check the target spec (rows, cols) matches the board."
+                )
+
+    # -- convenience ------------------------------------------------------------------------------
+    @property
+    def capture_by_index(self) -> dict:
+        return {c.index: c for c in self.captures}
+
+    def detections_of(self, camera: str) -> list:
+        return [d for d in self.detections if d.camera == camera]
+
+    def with_(self, **changes) -> "Problem":
+        """A copy with some fields replaced (the problem itself stays frozen)."""
+        from dataclasses import replace
+
+        return replace(self, **changes)

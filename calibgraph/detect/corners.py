@@ -1,0 +1,861 @@
+"""Target detection: image -> point ids, sub-pixel pixels and a quality record.
+
+One entry point per image, :func:`detect_image`, and one per dataset, :func:`dataset_detector`
+(parallel, cached next to the data, with a progress bar, for ``Dataset.to_problem(detector=...)``).
+
+Detectors (chosen by the target's kind; ``method`` picks among checkerboard detectors):
+
+* checkerboard: ``cv2.findChessboardCorners`` + ``cv2.cornerSubPix`` with a window sized to the
+  grid pitch ("classic"), or ``cv2.findChessboardCornersSB`` with ``CALIB_CB_ACCURACY`` ("sb").
+  The benchmark (scripts/bench_detect.py, rendered truth, 1-5 m, three camera presets) picks per
+  case: classic is the more accurate for squares of 8 px and more (RMS 0.029 px at >= 20 px
+  squares, 0.044 px at 12-20 px; radial bias < 0.002 px) where SB gives 0.10-0.16 px with an
+  outward bias of +0.01 to +0.06 px; below 8 px SB on the up-scaled region is found more often
+  (0.98 against 0.80) and is more accurate (0.076 against 0.156 px). ``method="auto"`` (default)
+  therefore uses classic and switches to SB below ``SB_BELOW_PITCH_PX``.
+* ChArUco: ``cv2.aruco.CharucoDetector``; partial views are kept (ids are fixed by the markers).
+* circle grids: ``cv2.findCirclesGrid`` (symmetric, asymmetric); the modified circle grid is found
+  as a symmetric grid and oriented by its enlarged origin dot.
+
+Ordering: OpenCV numbers grid points from whichever corner it meets first. Every grid detection is
+therefore re-ordered to the target's own ids (``targets`` module docstring): the handedness of the
+board (printed side towards the camera) removes mirror orderings, and the remaining 180-degree
+ambiguity is settled by the square colours (checkerboards with ``rows + cols`` odd), by the layout
+(asymmetric grids with odd row count) or by the big dot (modified circle grid). Boards without such
+a cue (``Target.is_symmetric``) are refused, unless ``allow_symmetric=True`` accepts an
+image-orientation guess (point 0 nearest the image's top-left), which is then stated in ``reason``.
+
+Far cameras (thesis §6.3): when the target is not found, or its grid pitch is below
+``min_pitch_px``, the region of interest is up-scaled (bicubic, x2 then x3) and searched again;
+corners are mapped back to original pixels (``cv2.resize`` maps destination pixel ``X`` to source
+``(X + 0.5) / k - 0.5``). The region comes from the first detection or, when there is none, from
+a saddle-point (checkerboard) or blob (circles) response map. Measured gain: with the thesis's
+board the classic detector alone loses the D455-like camera beyond 2 m and the 1080p ones beyond
+3.5-4.5 m; with up-scaling all three find it in every image up to 5 m (RMS <= 0.14 px). Where
+the original image already works, up-scaling does not improve accuracy (x2 always: 0.035 against
+0.029 px at >= 20 px squares), so it is used only when needed.
+
+Every detection passes :func:`calibgraph.detect.grid_filter.check_grid` (thesis Algorithm 3 + homography);
+a rejection says why.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calibgraph.core.camera import Intrinsics
+from calibgraph.core.errors import DetectionError, InputError
+from calibgraph.core.targets import Target
+from calibgraph.detect.grid_filter import check_grid, grid_pitch_px
+from calibgraph.io.files import atomic_write_text
+
+# Part of the cache key: bump when a change can move detected points.
+DETECTOR_VERSION = "1"
+
+
+@dataclass(frozen=True)
+class ImageDetection:
+    """The detection of a target in one image.
+
+    Attributes:
+        ids: (N,) target point ids (rows of ``Target.points_board_m``).
+        uv_px: (N, 2) sub-pixel positions, OpenCV convention (pixel centres at integers).
+        ok: True when the detection is usable; False keeps the points (if any) for diagnosis.
+        reason: why it was rejected (or a note on an accepted one); empty when clean.
+        n_expected: number of points on the target.
+        size_px: square root of the image area covered by the detected points' convex hull.
+        spread: fraction of the image area covered by that hull.
+        pitch_px: median distance between neighbouring grid points, pixels.
+        sharpness_px: edge blur at the points as a Gaussian sigma, pixels (lower is sharper).
+        upscale: up-scaling factor of the region the points came from (1 = original image).
+        method: detector that produced the points ('classic', 'sb', 'charuco', 'circles', ...).
+        homography_rms_px: residual of the board-to-image homography.
+        time_s: detection time.
+        image: source file, when read from disk.
+    """
+
+    ids: np.ndarray
+    uv_px: np.ndarray
+    ok: bool
+    reason: str = ""
+    n_expected: int = 0
+    size_px: float = 0.0
+    spread: float = 0.0
+    pitch_px: float = 0.0
+    sharpness_px: float = float("nan")
+    upscale: int = 1
+    method: str = ""
+    homography_rms_px: float = float("nan")
+    time_s: float = 0.0
+    image: str | None = None
+
+    def __post_init__(self):
+        ids = np.asarray(self.ids, int).reshape(-1)
+        uv = np.asarray(self.uv_px, float).reshape(-1, 2)
+        if ids.shape[0] != uv.shape[0]:
+            raise InputError(f"detection: {ids.shape[0]} ids but {uv.shape[0]} points.")
+        if self.ok and ids.size == 0:
+            raise InputError("detection: ok=True with no points.")
+        object.__setattr__(self, "ids", ids)
+        object.__setattr__(self, "uv_px", uv)
+
+    @property
+    def n_found(self) -> int:
+        return int(self.ids.size)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["ids"] = self.ids.tolist()
+        d["uv_px"] = self.uv_px.tolist()
+        for k, v in list(d.items()):
+            if isinstance(v, float) and not np.isfinite(v):
+                d[k] = None
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ImageDetection":
+        d = dict(d)
+        for k in ("sharpness_px", "homography_rms_px"):
+            if d.get(k) is None:
+                d[k] = float("nan")
+        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+
+
+def _failed(reason: str, target: Target, image: str | None = None, t0: float | None = None, **kw) -> ImageDetection:
+    return ImageDetection(ids=np.zeros(0, int), uv_px=np.zeros((0, 2)), ok=False, reason=reason,
+                          n_expected=target.n_points, image=image,
+                          time_s=0.0 if t0 is None else time.perf_counter() - t0, **kw)
+
+
+# ---------------------------------------------------------------------------------------------
+# Image input
+# ---------------------------------------------------------------------------------------------
+def read_grey(path) -> np.ndarray:
+    """Read an image file as 8-bit grey. Raises :class:`DetectionError` naming the file and the
+    problem (missing, empty, truncated/unreadable, unsupported bit depth)."""
+    import cv2
+
+    p = Path(path)
+    if not p.is_file():
+        raise DetectionError(f"{p}: image file not found.")
+    if p.stat().st_size == 0:
+        raise DetectionError(f"{p}: image file is empty (0 bytes); re-capture it or delete the view.")
+    data = np.fromfile(str(p), np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise DetectionError(f"{p}: cannot decode the image (truncated or not an image file); re-capture it.")
+    return to_grey8(img, str(p))
+
+
+def to_grey8(img: np.ndarray, where: str = "image") -> np.ndarray:
+    """Convert an image array to 8-bit grey: colour -> grey, 16-bit scaled by its white point,
+    float in [0, 1] scaled to 255. Other depths are refused with a clear message."""
+    import cv2
+
+    img = np.asarray(img)
+    if img.size == 0 or img.ndim < 2 or min(img.shape[:2]) < 8:
+        raise DetectionError(f"{where}: empty image (shape {img.shape}).")
+    if img.ndim == 3:
+        if img.shape[2] == 1:
+            img = img[:, :, 0]
+        elif img.shape[2] in (3, 4):
+            img = cv2.cvtColor(img[:, :, :3], cv2.COLOR_BGR2GRAY)
+        else:
+            raise DetectionError(f"{where}: {img.shape[2]} channels; expected grey, BGR or BGRA.")
+    elif img.ndim != 2:
+        raise DetectionError(f"{where}: image must be 2-D (grey) or 3-D (colour), got shape {img.shape}.")
+    if img.dtype == np.uint8:
+        return np.ascontiguousarray(img)
+    if img.dtype == np.uint16:
+        # Cameras often write 10/12-bit data in 16-bit containers: scale by the observed white point.
+        hi = float(np.percentile(img, 99.9))
+        if hi <= 0:
+            raise DetectionError(f"{where}: 16-bit image is black.")
+        return np.clip(img.astype(np.float32) * (255.0 / hi), 0, 255).astype(np.uint8)
+    if img.dtype in (np.float32, np.float64):
+        if not np.all(np.isfinite(img)):
+            raise DetectionError(f"{where}: float image contains NaN/inf.")
+        scale = 255.0 if img.max() <= 1.0 + 1e-6 else 1.0
+        return np.clip(img * scale, 0, 255).astype(np.uint8)
+    raise DetectionError(f"{where}: unsupported pixel type {img.dtype}; give 8- or 16-bit grey/colour images.")
+
+
+# ---------------------------------------------------------------------------------------------
+# Geometry helpers
+# ---------------------------------------------------------------------------------------------
+def _page_xy(target: Target) -> np.ndarray:
+    """(N, 2) point positions in page coordinates (x right, y down the printed page)."""
+    P = target.points_board_m[:, :2].copy()
+    if target.kind == "modified_circles":
+        P[:, 1] = -P[:, 1]
+    return P
+
+
+def _handedness(grid_uv: np.ndarray, page: np.ndarray) -> float:
+    """Sign of the page-to-image homography's Jacobian determinant (> 0: printed side visible)."""
+    import cv2
+
+    H, _ = cv2.findHomography(page, grid_uv, 0)
+    if H is None:
+        return 0.0
+    c = page.mean(0)
+    x = np.array([c[0], c[1], 1.0])
+    w = H[2] @ x
+    J = (H[:2, :2] * w - np.outer(H[:2] @ x, H[2, :2])) / w**2
+    return float(np.linalg.det(J))
+
+
+def _grid_candidates(G: np.ndarray, rows: int, cols: int):
+    """All re-orderings of a detected (r, c, 2) grid that give shape (rows, cols, 2)."""
+    outs = []
+    for B in (G, np.transpose(G, (1, 0, 2))):
+        if B.shape[:2] != (rows, cols):
+            continue
+        for fi in (False, True):
+            for fj in (False, True):
+                X = B[::-1] if fi else B
+                X = X[:, ::-1] if fj else X
+                outs.append(np.ascontiguousarray(X))
+    return outs
+
+
+def _bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    import cv2
+
+    m = uv.astype(np.float32).reshape(-1, 1, 2)
+    out = cv2.remap(img, m[:, :, 0], m[:, :, 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1).astype(float)
+
+
+def _colour_score(grey: np.ndarray, G: np.ndarray) -> float:
+    """Mean grey of cells expected black minus cells expected white (negative when the ordering
+    matches the board's colours: cell (i, j) between corners (i, j) and (i+1, j+1) is black iff
+    i + j is even)."""
+    import cv2
+
+    cells = 0.25 * (G[:-1, :-1] + G[1:, 1:] + G[:-1, 1:] + G[1:, :-1])
+    sm = cv2.blur(grey, (3, 3))
+    val = _bilinear(sm, cells.reshape(-1, 2)).reshape(cells.shape[:2])
+    ii, jj = np.indices(val.shape)
+    black = (ii + jj) % 2 == 0
+    if black.all() or (~black).all():
+        return 0.0
+    return float(val[black].mean() - val[~black].mean())
+
+
+def _blob_size(grey: np.ndarray, uv: np.ndarray, radius_px: float) -> float:
+    """Area (px^2) of the dark blob containing ``uv`` within a square of half-size ``radius_px``."""
+    import cv2
+
+    r = int(max(3, np.ceil(radius_px)))
+    x, y = int(round(uv[0])), int(round(uv[1]))
+    h, w = grey.shape
+    x0, x1, y0, y1 = max(0, x - r), min(w, x + r + 1), max(0, y - r), min(h, y + r + 1)
+    patch = grey[y0:y1, x0:x1]
+    if patch.size < 9:
+        return 0.0
+    _, bw = cv2.threshold(patch, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(bw, connectivity=8)
+    cy, cx = min(max(y - y0, 0), patch.shape[0] - 1), min(max(x - x0, 0), patch.shape[1] - 1)
+    k = lab[cy, cx]
+    if k == 0:
+        return 0.0
+    return float(stats[k, cv2.CC_STAT_AREA])
+
+
+def _orient_grid(G: np.ndarray, target: Target, grey: np.ndarray, allow_symmetric: bool):
+    """Re-order a detected grid to the target's ids. Returns (uv (N, 2), note) or raises
+    DetectionError with the reason."""
+    rows, cols = target.rows, target.cols
+    page = _page_xy(target)
+    cands = [C for C in _grid_candidates(G, rows, cols) if _handedness(C.reshape(-1, 2), page) > 0]
+    if not cands:
+        raise DetectionError("the grid is seen mirrored (printed side away from the camera?)")
+    # Asymmetric layouts (acircles with an odd row count) fit a homography in one ordering only.
+    if target.kind == "acircles":
+        import cv2
+
+        best, best_res = None, np.inf
+        for C in cands:
+            H, _ = cv2.findHomography(target.points_board_m[:, :2], C.reshape(-1, 2), 0)
+            if H is None:
+                continue
+            ph = np.column_stack([target.points_board_m[:, :2], np.ones(rows * cols)]) @ H.T
+            res = np.sqrt(np.mean(np.sum((ph[:, :2] / ph[:, 2:3] - C.reshape(-1, 2)) ** 2, axis=1)))
+            if res < best_res:
+                best, best_res = C, res
+        if not target.is_symmetric:
+            return best.reshape(-1, 2), ""
+    if target.kind == "checkerboard" and not target.is_symmetric:
+        scores = [_colour_score(grey, C) for C in cands]
+        k = int(np.argmin(scores))
+        if scores[k] > -5.0:
+            raise DetectionError(f"cannot tell the board's orientation from its square colours (contrast {-scores[k]:.1f})")
+        return cands[k].reshape(-1, 2), ""
+    if target.kind == "modified_circles":
+        # Size of the dots at the four grid corners; the origin dot has twice the diameter.
+        pitch = np.median(np.linalg.norm(np.diff(G, axis=1), axis=-1))
+        origin = (rows - 1) * cols
+        sizes = []
+        for C in cands:
+            sizes.append(_blob_size(grey, C.reshape(-1, 2)[origin], 0.75 * pitch))
+        k = int(np.argmax(sizes))
+        others = sorted(sizes)[:-1]
+        if not others or sizes[k] < 2.0 * max(np.median(others), 1.0):
+            raise DetectionError("the modified circle grid's enlarged origin dot was not found at a grid corner")
+        return cands[k].reshape(-1, 2), ""
+    # Symmetric pattern: no cue in the image.
+    if not allow_symmetric:
+        raise DetectionError(
+            f"the {target.kind} target {target.rows}x{target.cols} looks the same turned by 180 degrees, so its "
+            "point ids would flip between views; use a board with rows + cols odd (checkerboard), a ChArUco or a "
+            "modified circle grid, or pass allow_symmetric=True to accept an image-orientation guess")
+    k = int(np.argmin([C[0, 0].sum() for C in cands]))
+    return cands[k].reshape(-1, 2), "symmetric target: orientation guessed from the image (point 0 nearest top-left)"
+
+
+def _roi_from_points(uv: np.ndarray, shape, pad_frac: float = 0.35, pad_px: int = 12):
+    h, w = shape
+    lo = uv.min(0)
+    hi = uv.max(0)
+    pad = pad_frac * float(np.max(hi - lo)) + pad_px
+    x0 = int(max(0, np.floor(lo[0] - pad)))
+    y0 = int(max(0, np.floor(lo[1] - pad)))
+    x1 = int(min(w, np.ceil(hi[0] + pad) + 1))
+    y1 = int(min(h, np.ceil(hi[1] + pad) + 1))
+    return x0, y0, x1, y1
+
+
+def _roi_candidates(grey: np.ndarray, target: Target, max_rois: int = 2):
+    """Regions likely to hold a small target: clusters of saddle points (boards of squares) or of
+    dark blobs (circle grids), found on the original image."""
+    import cv2
+
+    g = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0)
+    if target.kind in ("checkerboard", "charuco"):
+        gxx = cv2.Sobel(g, cv2.CV_32F, 2, 0, ksize=3)
+        gyy = cv2.Sobel(g, cv2.CV_32F, 0, 2, ksize=3)
+        gxy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
+        resp = np.maximum(-(gxx * gyy - gxy * gxy), 0)  # saddles have a negative Hessian determinant
+    else:
+        resp = np.maximum(cv2.Laplacian(g, cv2.CV_32F, ksize=5), 0)  # dark blobs: positive Laplacian
+    resp = cv2.GaussianBlur(resp, (0, 0), 1.5)
+    hi = float(resp.max())
+    if hi <= 0:
+        return []
+    mask = (resp > 0.15 * hi).astype(np.uint8)
+    # Merge responses of one target: close with a kernel a few expected pitches wide.
+    k = max(5, int(0.02 * max(grey.shape)))
+    mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n <= 1:
+        return []
+    # Rank by total response inside the component.
+    sums = np.bincount(lab.ravel(), weights=resp.ravel(), minlength=n)
+    order = [i for i in np.argsort(-sums) if i != 0][:max_rois]
+    rois = []
+    for i in order:
+        x, y, w, h = stats[i, :4]
+        if w * h > 0.5 * grey.size:
+            continue
+        pts = np.array([[x, y], [x + w, y + h]], float)
+        # Saddles span the inner corners only: pad by most of that span so the outer squares
+        # and the white quiet zone around them are inside the region.
+        rois.append(_roi_from_points(pts, grey.shape, pad_frac=0.6, pad_px=8))
+    return rois
+
+
+# ---------------------------------------------------------------------------------------------
+# Per-kind raw detectors: return (ids, uv, method, note) on the given (possibly up-scaled) image
+# ---------------------------------------------------------------------------------------------
+def _subpix_window(pitch_px: float) -> int:
+    # Half-window about a third of the pitch: large enough to average noise, small enough not to
+    # reach the neighbouring corners (which biases cornerSubPix).
+    return int(np.clip(np.floor(pitch_px / 3.0), 2, 11))
+
+
+# Below this square size (pixels of the original image) the SB detector on the up-scaled region
+# is more accurate than classic + cornerSubPix, above it classic is (scripts/bench_detect.py,
+# rendered truth, 10 random poses per cell): 25 mm squares on the D455 at 2-5 m (3-8 px): SB x2
+# 0.05-0.10 px RMS and always found, classic x2 0.09-0.24 px and lost beyond 3 m; 46 mm squares
+# at 9-10 px: classic x2 0.06 px, SB x2 0.2 px with +0.18 px outward bias; 10-40 px squares:
+# classic 0.02-0.06 px, SB 0.07-0.2 px.
+SB_BELOW_PITCH_PX = 8.0
+
+
+def _classic(grey, target, fast):
+    import cv2
+
+    # CALIB_CB_FAST_CHECK keeps a miss on a whole frame fast (without it a frame with a tiny
+    # board can take seconds) but it also rejects boards with ~10 px squares: those are found
+    # afterwards in the up-scaled region of interest, searched without it.
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    ok, c = cv2.findChessboardCorners(grey, (target.cols, target.rows), flags=flags | (cv2.CALIB_CB_FAST_CHECK if fast else 0))
+    if not ok:
+        return None
+    G = c.reshape(target.rows, target.cols, 2)
+    pitch = float(np.median(np.linalg.norm(np.diff(G, axis=1), axis=-1)))
+    w = _subpix_window(pitch)
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+    c = cv2.cornerSubPix(grey, c.reshape(-1, 1, 2).astype(np.float32), (w, w), (-1, -1), crit)
+    return np.asarray(c, float).reshape(-1, 2)
+
+
+def _sb(grey, target, fast):
+    import cv2
+
+    # SB costs seconds on a whole 1080p frame; on the saddle-point regions it costs milliseconds
+    # and finds the same corners (the whole frame is the fallback).
+    flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
+    h, w = grey.shape
+    rois = (_roi_candidates(grey, target) if fast else []) or [(0, 0, w, h)]
+    for x0, y0, x1, y1 in rois:
+        ok, c = cv2.findChessboardCornersSB(grey[y0:y1, x0:x1], (target.cols, target.rows), flags=flags)
+        if ok:
+            return np.asarray(c, float).reshape(-1, 2) + [x0, y0]
+    return None
+
+
+def _find_checkerboard(grey, target, method, allow_symmetric, scale=1.0, sb_fallback=True, fast=None):
+    """Checkerboard corners on ``grey`` (the original image at ``scale`` 1, or an up-scaled
+    region). ``method='auto'``: classic, replaced by SB when the squares are smaller than
+    ``SB_BELOW_PITCH_PX`` original pixels, and SB when classic finds nothing and
+    ``sb_fallback`` (off on the original image when an up-scaled classic search follows: that
+    is more accurate than SB at ~10-12 px squares). ``fast`` (default: on at scale 1) is OpenCV's
+    quick rejection of frames without a board."""
+    fast = scale == 1.0 if fast is None else fast
+    found = None
+    if method in ("classic", "auto"):
+        c = _classic(grey, target, fast)
+        if c is not None:
+            found = (c, "classic")
+            if method == "auto":
+                G = c.reshape(target.rows, target.cols, 2)
+                pitch = float(np.median(np.concatenate([np.linalg.norm(np.diff(G, axis=1), axis=-1).ravel(),
+                                                        np.linalg.norm(np.diff(G, axis=0), axis=-1).ravel()])))
+                if pitch / scale < SB_BELOW_PITCH_PX:
+                    # SB in a tight region around classic's corners, kept only if it finds the same
+                    # grid (every corner within a third of a square of classic's).
+                    x0, y0, x1, y1 = _roi_from_points(c, grey.shape, pad_frac=0.6, pad_px=4)
+                    c2 = _sb(grey[y0:y1, x0:x1], target, False)
+                    if c2 is not None:
+                        c2 = c2 + [x0, y0]
+                        d = np.linalg.norm(c2[:, None, :] - c[None, :, :], axis=-1).min(axis=1)
+                        if d.max() < pitch / 3:
+                            found = (c2, "sb")
+                        else:
+                            # They disagree: keep SB only if its grid passes the filter and
+                            # classic's does not (raw OpenCV order is a consistent grid, so the
+                            # check needs no orientation yet).
+                            ij, P = target.line_ij, target.points_board_m
+                            if check_grid(c2, ij, P).ok and not check_grid(c, ij, P).ok:
+                                found = (c2, "sb")
+    if found is None and (method == "sb" or (method == "auto" and sb_fallback)):
+        c = _sb(grey, target, fast)
+        if c is not None:
+            found = (c, "sb")
+    if found is None:
+        return None
+    c, m = found
+    G = np.asarray(c, float).reshape(target.rows, target.cols, 2)
+    uv, note = _orient_grid(G, target, grey, allow_symmetric)
+    return np.arange(target.n_points), uv, m, note
+
+
+def _blob_detector(max_area: float):
+    import cv2
+
+    p = cv2.SimpleBlobDetector_Params()
+    p.filterByArea = True
+    p.minArea = 4.0
+    p.maxArea = float(max_area)
+    p.filterByCircularity = False
+    p.filterByConvexity = True
+    p.minConvexity = 0.8
+    p.filterByInertia = True
+    p.minInertiaRatio = 0.05
+    p.minDistBetweenBlobs = 2.0
+    return cv2.SimpleBlobDetector_create(p)
+
+
+def _find_circles(grey, target, method, allow_symmetric):
+    import cv2
+
+    det = _blob_detector(0.25 * grey.size / max(1, target.n_points) + 1e4)
+    if target.kind == "acircles":
+        flags = cv2.CALIB_CB_ASYMMETRIC_GRID
+        patterns = [(target.cols, target.rows)]
+    else:
+        flags = cv2.CALIB_CB_SYMMETRIC_GRID
+        patterns = [(target.cols, target.rows)] + ([(target.rows, target.cols)] if target.rows != target.cols else [])
+    for pat in patterns:
+        ok, c = cv2.findCirclesGrid(grey, pat, flags=flags, blobDetector=det)
+        if not ok or c is None:
+            ok, c = cv2.findCirclesGrid(grey, pat, flags=flags | cv2.CALIB_CB_CLUSTERING, blobDetector=det)
+        if ok and c is not None:
+            G = np.asarray(c, float).reshape(pat[1], pat[0], 2)
+            uv, note = _orient_grid(G, target, grey, allow_symmetric)
+            return np.arange(target.n_points), uv, "circles", note
+    return None
+
+
+def _find_charuco(grey, target, intr: Intrinsics | None, scale: float = 1.0):
+    import cv2
+
+    board = target.cv_charuco_board()
+    cp = cv2.aruco.CharucoParameters()
+    if intr is not None and scale == 1.0:
+        cp.cameraMatrix = intr.K.astype(np.float64)
+        cp.distCoeffs = intr.dist8.astype(np.float64)
+    dp = cv2.aruco.DetectorParameters()
+    dp.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    # OpenCV's default drops markers with a perimeter under 3 % of the image size (14 px sides on
+    # a 1080p frame); far boards have smaller markers that still decode.
+    dp.minMarkerPerimeterRate = 0.01
+    det = cv2.aruco.CharucoDetector(board, cp, dp)
+    cc, cid, mc, mid = det.detectBoard(grey)
+    if cid is None or len(cid) == 0:
+        n_markers = 0 if mid is None else len(mid)
+        return None, n_markers
+    return (np.asarray(cid).reshape(-1).astype(int), np.asarray(cc, float).reshape(-1, 2), "charuco", ""), len(mid)
+
+
+# ---------------------------------------------------------------------------------------------
+# Quality
+# ---------------------------------------------------------------------------------------------
+def _edge_sigma_px(grey: np.ndarray, uv: np.ndarray, pitch_px: float) -> float:
+    """Median edge blur near the points, as the sigma of a Gaussian-blurred step:
+    sigma = contrast / (sqrt(2 pi) * max gradient)."""
+    import cv2
+
+    if uv.size == 0:
+        return float("nan")
+    r = int(np.clip(0.4 * pitch_px, 3, 15))
+    # Work on the points' bounding box only (gradients of a whole 1080p frame cost ~20 ms).
+    x0, y0 = np.maximum(np.floor(uv.min(0)).astype(int) - r - 2, 0)
+    x1, y1 = np.ceil(uv.max(0)).astype(int) + r + 3
+    grey = grey[y0:y1, x0:x1]
+    uv = uv - [x0, y0]
+    h, w = grey.shape
+    g = grey.astype(np.float32)
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    mag = np.hypot(gx, gy)
+    out = []
+    for u, v in uv[:: max(1, len(uv) // 24)]:
+        x, y = int(round(u)), int(round(v))
+        if x - r < 0 or y - r < 0 or x + r + 1 > w or y + r + 1 > h:
+            continue
+        patch = g[y - r : y + r + 1, x - r : x + r + 1]
+        c = np.percentile(patch, 95) - np.percentile(patch, 5)
+        gm = mag[y - r : y + r + 1, x - r : x + r + 1].max()
+        if gm > 1e-3 and c > 10:
+            out.append(c / (np.sqrt(2 * np.pi) * gm))
+    return float(np.median(out)) if out else float("nan")
+
+
+def _hull_area(uv: np.ndarray) -> float:
+    import cv2
+
+    if len(uv) < 3:
+        return 0.0
+    return float(cv2.contourArea(cv2.convexHull(uv.astype(np.float32))))
+
+
+# ---------------------------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------------------------
+def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, upscale="auto", method: str = "auto",
+                 allow_symmetric: bool = False, filter: bool = True, min_pitch_px: float = 12.0,
+                 min_points: int = 4, source: str | None = None) -> ImageDetection:
+    """Detect ``target`` in one image.
+
+    Args:
+        image: a path or an image array (grey/colour, 8/16-bit or float in [0, 1]).
+        target: the target spec.
+        intrinsics: camera intrinsics; used to undistort points for the filter and to help ChArUco.
+        upscale: ``"auto"`` (up-scale the region of interest x2, then x3, when the target is not
+            found or its pitch is below ``min_pitch_px``), ``1``/``"off"`` (never), or an int ``k``
+            (always detect on the region up-scaled by ``k``).
+        method: checkerboard detector, ``"classic"`` (findChessboardCorners + cornerSubPix),
+            ``"sb"`` (findChessboardCornersSB, accuracy flag) or ``"auto"`` (default: classic, but SB
+            for squares under ``SB_BELOW_PITCH_PX`` original pixels or when classic finds nothing).
+        allow_symmetric: accept symmetric targets with an orientation guessed from the image.
+        filter: run the grid filter (thesis Algorithm 3 + homography check).
+        min_pitch_px: below this grid pitch ``"auto"`` also tries the up-scaled region.
+        min_points: fewer points than this is a failed detection (partial ChArUco views).
+        source: file name for messages when ``image`` is an array.
+    Returns:
+        :class:`ImageDetection`; never raises for a bad image: ``ok=False`` and ``reason`` say why.
+    """
+    t0 = time.perf_counter()
+    src = str(image) if isinstance(image, (str, Path)) else source
+    try:
+        grey = read_grey(image) if isinstance(image, (str, Path)) else to_grey8(image, src or "image")
+    except DetectionError as e:
+        return _failed(str(e), target, src, t0)
+    if method not in ("classic", "sb", "auto"):
+        raise InputError(f"detect: method must be 'classic', 'sb' or 'auto', got {method!r}.")
+    if upscale in ("off", None, False):
+        upscale = 1
+    if upscale != "auto" and int(upscale) not in (1, 2, 3, 4):
+        raise InputError(f"detect: upscale must be 'auto', 1, 2, 3 or 4, got {upscale!r}.")
+
+    def run(img, scale, fast=None):
+        """Raw detection on img; returns (ids, uv, method, note) or None; DetectionError for
+        orientation problems. ``fast=True`` is a quick probe: OpenCV's fast check, no SB."""
+        if target.kind == "checkerboard":
+            return _find_checkerboard(img, target, method, allow_symmetric, scale=scale,
+                                      sb_fallback=(scale > 1 or upscale == 1) and not fast, fast=fast)
+        if target.kind == "charuco":
+            r, _ = _find_charuco(img, target, intrinsics, scale)
+            return r
+        return _find_circles(img, target, method, allow_symmetric)
+
+    def run_roi(roi, k, fast=None):
+        import cv2
+
+        x0, y0, x1, y1 = roi
+        crop = grey[y0:y1, x0:x1]
+        if crop.shape[0] < 8 or crop.shape[1] < 8:
+            return None
+        big = crop if k == 1 else cv2.resize(crop, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC)
+        r = run(big, float(k), fast=(False if k == 1 else None) if fast is None else fast)
+        if r is None:
+            return None
+        ids, uv, m, note = r
+        # cv2.resize: destination pixel X samples source (X + 0.5) / k - 0.5.
+        uv = (uv + 0.5) / k - 0.5 + np.array([x0, y0], float)
+        return ids, uv, m, note
+
+    attempts = []  # reasons of failed attempts, for the final message
+
+    def attempt(fn, *a):
+        try:
+            return fn(*a)
+        except DetectionError as e:
+            attempts.append(str(e))
+            return None
+
+    def finish(result, k):
+        ids, uv, m, note = result
+        ok, reason = True, note
+        if ids.size < min_points:
+            ok, reason = False, f"only {ids.size} points found (minimum {min_points})"
+        pitch = _pitch(ids, uv, target) if ids.size >= 2 else 0.0
+        h_rms = float("nan")
+        if ok and filter:
+            fr = check_grid(uv, target.line_ij[ids], target.points_board_m[ids], intrinsics=intrinsics)
+            h_rms = fr.homography_rms_px
+            if not fr.ok:
+                ok, reason = False, f"rejected by the grid filter{'' if k == 1 else f' (x{k} up-scaled)'}: {fr.reason}"
+        area = _hull_area(uv)
+        return ImageDetection(
+            ids=ids, uv_px=uv, ok=ok, reason=reason, n_expected=target.n_points, size_px=float(np.sqrt(area)),
+            spread=area / float(grey.size), pitch_px=pitch, sharpness_px=_edge_sigma_px(grey, uv, max(pitch, 4.0)),
+            upscale=k, method=m, homography_rms_px=h_rms, time_s=time.perf_counter() - t0, image=src)
+
+    native = attempt(run, grey, 1.0) if upscale in ("auto", 1) else None
+    first = finish(native, 1) if native is not None else None
+    if upscale == 1 or (first is not None and first.ok and first.pitch_px >= min_pitch_px):
+        best = first
+    else:
+        factors = (2, 3) if upscale == "auto" else (int(upscale),)
+        if native is None and upscale != "auto":
+            native = attempt(run, grey, 1.0)  # its points give the region to up-scale
+        if native is not None and len(native[1]):
+            rois = [_roi_from_points(native[1], grey.shape)]
+        else:
+            # Up-scaling helps small boards only: skip regions whose size implies squares of more
+            # than 2x min_pitch_px (a miss there has another cause, e.g. a wrong target spec, and
+            # searching them up-scaled costs seconds). Regions are padded by 60 % + 8 px per side.
+            n_steps = max(target.rows, target.cols) + 1
+            cands = _roi_candidates(grey, target)
+            rois = [r for r in cands if (max(r[2] - r[0], r[3] - r[1]) - 16) / 2.2 / n_steps < 2 * min_pitch_px]
+            if first is None and target.kind == "checkerboard":
+                # A board on the flange touches the arm, whose shading also answers the saddle
+                # filter: its region then looks too big for a small board, and OpenCV's fast check
+                # on the whole frame rejects boards of ~10-12 px squares. Search such regions
+                # up-scaled x2 with the fast check (a miss costs ~0.1 s where a search without it
+                # costs seconds), then redo the found board at full resolution in a tight region.
+                for roi in (r for r in cands if r not in rois):
+                    got = attempt(run_roi, roi, 2, True)
+                    if got is None:
+                        continue
+                    tight = _roi_from_points(got[1], grey.shape)
+                    nat = attempt(run_roi, tight, 1)
+                    first = finish(nat, 1) if nat is not None else finish(got, 2)
+                    rois = [] if first.ok and first.pitch_px >= min_pitch_px else [tight]
+                    break
+        best = first
+        for k in factors:
+            for roi in rois:
+                got = attempt(run_roi, roi, k)
+                if got is None:
+                    continue
+                det = finish(got, k)
+                if det.ok:
+                    best = det
+                    break
+                if best is None:
+                    best = det
+            if best is not None and best.ok and best.upscale > 1:
+                break
+    if best is None:
+        why = "; ".join(dict.fromkeys(attempts)) if attempts else (
+            f"no {target.kind} with {target.rows}x{target.cols} points found; check the target spec matches the board "
+            "and that the whole board is in view and in focus")
+        return _failed(why, target, src, t0)
+    return best
+
+
+def _pitch(ids: np.ndarray, uv: np.ndarray, target: Target) -> float:
+    """Median image distance between neighbours one pitch apart along a row/column, pixels."""
+    return grid_pitch_px(uv, target.line_ij[ids])
+
+
+# ---------------------------------------------------------------------------------------------
+# Dataset detection (parallel, cached)
+# ---------------------------------------------------------------------------------------------
+def cache_path(dataset, cache_dir=None, **options) -> Path:
+    """Cache file of a dataset's detections for a target spec, detector version and options
+    (in ``DATASET/.calibgraph_cache/`` unless ``cache_dir`` is given)."""
+    import hashlib
+
+    key = json.dumps({"target": dataset.target.to_dict(), "version": DETECTOR_VERSION, "options": options},
+                     sort_keys=True, default=str)
+    h = hashlib.sha1(key.encode()).hexdigest()[:12]
+    base = Path(cache_dir) if cache_dir is not None else Path(dataset.root) / ".calibgraph_cache"
+    return base / f"detections-{h}.json"
+
+
+@dataclass
+class DatasetDetector:
+    """Callable ``(view, dataset) -> (ids, uv_px) | None`` for ``Dataset.to_problem(detector=...)``.
+
+    On its first call it detects every view of the dataset that has an image and no stored
+    detection (in parallel, with a progress bar), caches the results in
+    ``DATASET/.calibgraph_cache/detections-<hash>.json`` (keyed by image path, size and
+    modification time) and then answers from memory.
+
+    Attributes:
+        results: (camera, capture) -> :class:`ImageDetection`.
+        problems: (file, message) for every image that could not be used; the CLI prints them.
+    """
+
+    dataset: object
+    workers: int = 2
+    progress: bool = True
+    options: dict = field(default_factory=dict)
+    cache: object = True
+    results: dict = field(default_factory=dict)
+    problems: list = field(default_factory=list)
+    _done: bool = False
+
+    def run(self) -> dict:
+        """Detect all undetected views now (idempotent); returns ``results``."""
+        if self._done:
+            return self.results
+        from concurrent.futures import ThreadPoolExecutor
+
+        ds = self.dataset
+        root = Path(ds.root)
+        use_cache = self.cache is not False and self.cache is not None
+        cpath = cache_path(ds, None if self.cache is True else self.cache, **self.options) if use_cache else None
+        cache = {}
+        if use_cache and cpath.is_file():
+            try:
+                cache = json.loads(cpath.read_text()).get("entries", {})
+            except (OSError, ValueError):
+                cache = {}  # a damaged cache is only a lost speed-up
+        todo, keys = [], {}
+        for v in ds.views:
+            if v.detected:
+                continue
+            if not v.image:
+                self.problems.append((f"camera {v.camera}, capture {v.capture}", "no image and no detection; skipped"))
+                continue
+            p = root / v.image
+            try:
+                st = p.stat()
+                stamp = f"{st.st_size}:{int(st.st_mtime_ns)}"
+            except OSError:
+                stamp = "missing"
+            key = v.image
+            keys[(v.camera, v.capture)] = (key, stamp)
+            hit = cache.get(key)
+            if hit is not None and hit.get("stamp") == stamp and stamp != "missing":
+                self.results[(v.camera, v.capture)] = ImageDetection.from_dict(hit["detection"])
+            else:
+                todo.append(v)
+
+        def work(v):
+            import cv2
+
+            cv2.setNumThreads(1)  # parallelism comes from the pool; avoid oversubscription
+            intr = ds.cameras.get(v.camera)
+            try:
+                return v, detect_image(root / v.image, ds.target, intrinsics=intr, **self.options)
+            except (cv2.error, ValueError, MemoryError) as e:
+                # One odd image must not stop the run: record it and carry on with the rest.
+                return v, _failed(f"detector failed on this image ({type(e).__name__}: {str(e).strip()[:200]})",
+                                  ds.target, str(root / v.image))
+
+        if todo:
+            bar = None
+            if self.progress:
+                from tqdm import tqdm
+
+                bar = tqdm(total=len(todo), desc="detect", unit="img", leave=False)
+            with ThreadPoolExecutor(max_workers=max(1, int(self.workers))) as ex:
+                for v, det in ex.map(work, todo):
+                    self.results[(v.camera, v.capture)] = det
+                    if bar is not None:
+                        bar.update(1)
+            if bar is not None:
+                bar.close()
+        if todo and use_cache:
+            entries = dict(cache)
+            for (cam, cap), det in self.results.items():
+                k, stamp = keys.get((cam, cap), (None, None))
+                if k is not None and stamp != "missing":
+                    entries[k] = {"stamp": stamp, "detection": det.to_dict()}
+            try:
+                atomic_write_text(cpath, json.dumps({"version": DETECTOR_VERSION, "target": ds.target.to_dict(),
+                                                     "options": {k: str(v) for k, v in self.options.items()},
+                                                     "entries": entries}))
+            except InputError as e:
+                self.problems.append((str(cpath), f"cannot write the detection cache ({e}); continuing without"))
+        for (cam, cap), det in sorted(self.results.items(), key=lambda kv: (kv[0][0], kv[0][1])):
+            if not det.ok:
+                self.problems.append((det.image or f"camera {cam}, capture {cap}", det.reason))
+        # A target that is found nowhere is most likely the wrong spec: say so once.
+        if self.results and not any(d.ok for d in self.results.values()):
+            t = ds.target
+            self.problems.append((str(root), f"the target ({t.kind}, {t.rows}x{t.cols} points, pitch {t.pitch_m} m) was "
+                                  "not found in any image: check the target spec in dataset.yaml"))
+        self._done = True
+        return self.results
+
+    def __call__(self, view, dataset=None):
+        self.run()
+        if view.detected:
+            return view.ids, view.uv_px
+        det = self.results.get((view.camera, view.capture))
+        if det is None or not det.ok:
+            return None
+        return det.ids, det.uv_px
+
+
+def dataset_detector(dataset, workers: int = 2, progress: bool = True, cache=True, **options) -> DatasetDetector:
+    """A detector for ``Dataset.to_problem(detector=...)`` that detects all undetected views of
+    ``dataset`` in parallel (``workers`` threads; OpenCV releases the GIL), shows a tqdm progress
+    bar, caches results next to the data and collects per-file problems in ``.problems``.
+    ``cache``: True (``DATASET/.calibgraph_cache/``), False (no cache) or a folder.
+    ``options`` are passed to :func:`detect_image` (e.g. ``upscale=1``, ``method="sb"``)."""
+    return DatasetDetector(dataset=dataset, workers=workers, progress=progress, options=dict(options), cache=cache)

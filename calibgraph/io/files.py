@@ -1,0 +1,91 @@
+"""Reading input files with one clear error instead of a parser traceback, and the one way
+calibgraph writes a file: atomically, and only onto a regular file or a new path."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+from typing import Callable
+
+from calibgraph.core.errors import InputError
+
+
+def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
+    """Parse ``path``; on an unreadable or malformed file raise ``InputError`` naming it and ``what``.
+
+    With ``mapping`` the document must be a YAML mapping (``{}`` for an empty file when ``empty_ok``).
+    """
+    import yaml
+
+    p = Path(path)
+    try:
+        d = yaml.safe_load(p.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        raise InputError(f"{p}: cannot read {what}: {e}") from None
+    if d is None and empty_ok:
+        d = {}
+    if mapping and not isinstance(d, dict):
+        raise InputError(f"{p}: {what} must be a YAML mapping.")
+    return d
+
+
+def writable_target(path) -> Path:
+    """The file that writing ``path`` should replace: ``path`` itself, or the file a symlink points
+    to (the link is kept). Refuses, with the fix, a directory, a device or any other non-regular
+    file, and a parent that is not a directory."""
+    p = Path(path)
+    if p.is_symlink():
+        p = p.resolve()
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        st = None
+    except NotADirectoryError:
+        raise InputError(f"{path}: a parent of this path is a file, not a folder; choose another output path.") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot write here ({e.strerror}); choose another output path.") from None
+    if st is not None and stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{path}: is a folder; name a file inside it (e.g. {Path(path) / 'result.json'}).")
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{path}: is not a regular file (device, pipe or socket); "
+                         "calibgraph writes only regular files, choose another output path.")
+    return p
+
+
+def atomic_write_via(path, write: Callable[[Path], None]) -> Path:
+    """Write ``path`` so that a crash or a failed write leaves either the old or the new content.
+
+    ``write(tmp)`` writes the new content to a temporary file beside the target, which is then
+    fsynced and renamed over it. Errors of the file system become one ``InputError`` naming the
+    path; the temporary file never stays behind. Returns the path written.
+    """
+    target = writable_target(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise InputError(f"{path}: a parent of this path is a file, not a folder; choose another output path.") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot create its folder ({e.strerror}); choose another output path.") from None
+    tmp = target.with_name(f".{target.name}.tmp{os.getpid()}{target.suffix}")
+    try:
+        write(tmp)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    except OSError as e:
+        raise InputError(f"{path}: cannot write ({e.strerror or e}); nothing was changed there.") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return Path(path)
+
+
+def atomic_write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_write_via`)."""
+    return atomic_write_via(path, lambda tmp: tmp.write_bytes(data))
+
+
+def atomic_write_text(path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (see :func:`atomic_write_via`)."""
+    return atomic_write_bytes(path, text.encode("utf-8"))

@@ -1,0 +1,654 @@
+"""Batch solver: robust initialisation -> IRLS Levenberg-Marquardt -> outlier rejection -> marginals.
+
+The graph (see :mod:`calibgraph.solver.keys` and :mod:`calibgraph.solver.factors`)::
+
+    C(c)  camera poses              -- unknown, no prior
+    B(0)  board mount               -- unknown, no prior ('single': one graph per camera)
+    F(k)  robot pose of capture k   -- PriorFactorPose3 from forward kinematics (fk sigmas)
+    one CustomFactor per view (C(c), F(k), B(0)) with one residual pair per detected corner
+
+Robustness is at corner level: iteratively re-weighted least squares with Huber (or Cauchy)
+weights on each corner's residual norm, each LM run holding the weights fixed, so the cost LM
+sees is consistent; corners beyond ``outlier_sigmas`` are rejected and listed, views that lose
+most of their corners are rejected with a reason. Covariances come from ``gtsam.Marginals`` on the
+final weighted graph with the pixel sigma estimated from the residuals (a posteriori variance
+factor) unless it is given.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from calibgraph.core.errors import InputError, ObservabilityError
+from calibgraph.core.problem import Problem
+from calibgraph.core.transforms import inv, log_so3
+from calibgraph.solver import factors_ppp
+from calibgraph.solver.factors import (
+    intrinsics_vector,
+    make_view_factor,
+    make_view_factor_intrinsics,
+    project_chain,
+    with_pinhole,
+)
+from calibgraph.solver.initialise import (
+    ViewCandidates,
+    initialise,
+    pnp_candidates,
+    refine_translations,
+)
+from calibgraph.solver.keys import B, C, F
+from calibgraph.solver.keys import K as Kk
+from calibgraph.solver.observability import check_after_solve, check_before_solve
+from calibgraph.solver.result import CameraResult, PairResult, RejectedView, Result
+
+MIN_CORNERS_PER_VIEW = 4
+
+
+@dataclass
+class _View:
+    camera: str
+    capture: int
+    ids: np.ndarray
+    p_board: np.ndarray
+    uv: np.ndarray
+    A: np.ndarray  # robot pose prior, static <- moving
+    w: np.ndarray = None  # robust weights in [0, 1]; 0 = rejected corner
+    active: bool = True
+    reason: str = ""
+
+
+@dataclass
+class _Estimate:
+    T_S_cam: dict
+    T_M_board: np.ndarray
+    A_est: dict
+    iterations: int = 0
+    cost: float = np.inf
+    sigma_px: float = 1.0
+    intr: dict = field(default_factory=dict)  # camera -> refined Intrinsics (refine_intrinsics only)
+    extra: dict = field(default_factory=dict)
+
+
+def _robot_prior_poses(problem: Problem) -> dict:
+    if problem.mode == "eye_to_hand":
+        return {c.index: c.T_base_flange for c in problem.captures}
+    return {c.index: inv(c.T_base_flange) for c in problem.captures}
+
+
+def _fk_noise(opts, mode: str = "eye_to_hand", A: np.ndarray | None = None):
+    """FK prior noise. The sigmas describe T_base_flange (perturbed at the flange); in eye-in-hand
+    the variable is its inverse T_flange_base, whose right perturbation is -Ad(T_base_flange) xi, so
+    the square-root information becomes diag(1/sigma) Ad(T_flange_base)."""
+    s = np.array([opts.fk_sigma_rotation_rad] * 3 + [opts.fk_sigma_translation_m] * 3)
+    if mode == "eye_to_hand" or A is None:
+        return gtsam.noiseModel.Diagonal.Sigmas(s)
+    return gtsam.noiseModel.Gaussian.SqrtInformation(np.diag(1.0 / s) @ gtsam.Pose3(A).AdjointMap(), False)
+
+
+def _loss_weights(r_sigma: np.ndarray, loss: str, scale: float) -> np.ndarray:
+    """IRLS weights for residual norms expressed in sigmas."""
+    if loss == "none":
+        return np.ones_like(r_sigma)
+    if loss == "huber":
+        return np.where(r_sigma <= scale, 1.0, scale / np.maximum(r_sigma, 1e-12))
+    return 1.0 / (1.0 + (r_sigma / scale) ** 2)
+
+
+def _all_residuals(views, est: _Estimate, problem) -> list:
+    """Residual norms (px) of every view, batched per camera: one projection call per camera
+    instead of one per view (the per-view numpy overhead dominated large cells)."""
+    out = [None] * len(views)
+    by_cam = {}
+    for i, v in enumerate(views):
+        by_cam.setdefault(v.camera, []).append(i)
+    for cam, idx in by_cam.items():
+        T_cs = inv(est.T_S_cam[cam])
+        pts, uvs, counts = [], [], []
+        for i in idx:
+            v = views[i]
+            T = T_cs @ est.A_est.get(v.capture, v.A) @ est.T_M_board
+            pts.append(v.p_board @ T[:3, :3].T + T[:3, 3])
+            uvs.append(v.uv)
+            counts.append(len(v.ids))
+        uv_hat = est.intr.get(cam, problem.cameras[cam]).project(np.concatenate(pts))
+        r = np.linalg.norm(uv_hat - np.concatenate(uvs), axis=1)
+        r = np.where(np.isfinite(r), r, 1e6)
+        for i, part in zip(idx, np.split(r, np.cumsum(counts)[:-1])):
+            out[i] = part
+    return out
+
+
+CORNER_FORMULATION_MIN_VIEWS = 1000
+
+
+def _formulation(problem: Problem, names, n_views: int) -> str:
+    """Which graph to build: 'view' (per-view CustomFactor) or 'corner' (C++ factor per corner)."""
+    f = problem.options.formulation
+    fits = all(factors_ppp.supports(problem.cameras[n]) for n in names)
+    if f == "corner" and not fits:
+        raise InputError("solver: formulation 'corner' needs Cal3DS2 distortion (k1 k2 p1 p2 only); "
+                         "use formulation 'view' for cameras with k3..k6.")
+    if f == "auto":
+        # Measured by scripts/bench_solver.py (16 cameras x 1000 poses, 6761 views): corner 42.6 s CPU,
+        # view 62.2 s (LM alone 8.6 s vs 41 s); at 3 cameras x 110 poses the two are on par. The corner
+        # graph is numerically touchier (see factors_ppp), so it is used where it pays off, with the
+        # per-view graph as the fallback.
+        return "corner" if fits and n_views >= CORNER_FORMULATION_MIN_VIEWS else "view"
+    return f
+
+
+def _check_cameras_keep_views(views, slots):
+    """Every camera in the graph needs an active view; otherwise its variable would be unconstrained."""
+    for name in slots:
+        mine = [v for v in views if v.camera == name]
+        if mine and not any(v.active for v in mine):
+            reasons = sorted({v.reason for v in mine if v.reason})[:3]
+            raise ObservabilityError(
+                f"camera {name!r}: all {len(mine)} of its views were rejected as inconsistent with the rest "
+                f"({'; '.join(reasons)}); check its intrinsics, that it saw the same target, and add views of it."
+            )
+
+
+def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: str = "view"):
+    _check_cameras_keep_views(views, slots)
+    if form == "corner":
+        o = problem.options
+        fk = np.array([o.fk_sigma_rotation_rad] * 3 + [o.fk_sigma_translation_m] * 3)
+        return factors_ppp.build(views, slots, problem, est, sigma_px, fk)
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    used_caps = sorted({v.capture for v in views if v.active})
+    A_prior = {v.capture: v.A for v in views}
+    for k in used_caps:
+        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(A_prior[k]), _fk_noise(problem.options, problem.mode, A_prior[k])))
+        values.insert(F(k), gtsam.Pose3(est.A_est.get(k, A_prior[k])))
+    for name, i in slots.items():
+        values.insert(C(i), gtsam.Pose3(est.T_S_cam[name]))
+    values.insert(B(0), gtsam.Pose3(est.T_M_board))
+    refine = problem.options.refine_intrinsics
+    if refine:
+        o = problem.options
+        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([o.intrinsics_sigma_px] * 4 + [o.distortion_sigma] * 2))
+        for name, i in slots.items():
+            graph.add(gtsam.PriorFactorVector(Kk(i), intrinsics_vector(problem.cameras[name]), prior))
+            values.insert(Kk(i), intrinsics_vector(est.intr.get(name, problem.cameras[name])))
+    for v in views:
+        if not v.active:
+            continue
+        keep = v.w > 0
+        sw = np.sqrt(v.w[keep]) / sigma_px
+        if refine:
+            graph.add(make_view_factor_intrinsics(C(slots[v.camera]), F(v.capture), B(0), Kk(slots[v.camera]),
+                                                  v.p_board[keep], v.uv[keep], problem.cameras[v.camera], sw))
+        else:
+            graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board[keep], v.uv[keep],
+                                       problem.cameras[v.camera], sw))
+    return graph, values
+
+
+def _ordering(values) -> gtsam.Ordering:
+    """Robot poses first, then cameras and mounts: eliminating each F(k) only couples the few
+    camera poses that saw capture k, so the reduced system stays small (COLAMD may otherwise pick
+    an order that makes the thousands of robot poses a dense block)."""
+    first, last = [], []
+    for key in values.keys():
+        (first if chr(gtsam.Symbol(key).chr()) == "f" else last).append(key)
+    order = gtsam.Ordering()
+    for key in first + last:
+        order.push_back(key)
+    return order
+
+
+class _Marginals:
+    """Marginal covariances from a Bayes tree eliminated with the solver's ordering.
+
+    gtsam.Marginals picks its own (COLAMD) ordering, which fails on the corner graph when the FK
+    priors are very tight; the ordering used by LM is well conditioned for both formulations.
+    """
+
+    def __init__(self, graph, values, ordering):
+        self._bt = graph.linearize(values).eliminateMultifrontal(ordering)
+
+    def marginalCovariance(self, key) -> np.ndarray:  # noqa: N802 - mirrors gtsam.Marginals
+        return self._bt.marginalCovariance(key)
+
+    def joint(self, keys) -> np.ndarray:
+        """Joint covariance of Pose3 variables, 6 rows/cols per key in the order given."""
+        jm = self._bt.jointMarginalCovariance(list(keys))
+        return np.block([[np.asarray(jm.at(a, b)) for b in keys] for a in keys])
+
+
+def _order_for(values, form):
+    return factors_ppp.ordering(values) if form == "corner" else _ordering(values)
+
+
+def _lm(graph, values, max_iterations, form: str = "view"):
+    params = gtsam.LevenbergMarquardtParams()
+    params.setOrdering(_order_for(values, form))
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(1e-9)
+    params.setAbsoluteErrorTol(1e-12)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    try:
+        out = opt.optimize()
+    except RuntimeError as e:  # gtsam's IndeterminantLinearSystemException surfaces as RuntimeError
+        raise ObservabilityError(
+            f"the calibration graph is singular ({str(e).splitlines()[0][:120]}); some parameter is not "
+            "determined by the views: add poses with the board tilted about different axes."
+        ) from None
+    return out, opt.iterations(), graph.error(out)
+
+
+def _extract(values, slots, views, est: _Estimate, form: str = "view") -> _Estimate:
+    if form == "corner":
+        T_S_cam, T_M_board, A_new = factors_ppp.extract(values, slots, views)
+        A_est = dict(est.A_est)
+        A_est.update(A_new)
+        return _Estimate(T_S_cam=T_S_cam, T_M_board=T_M_board, A_est=A_est)
+    T_S_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
+    A_est = dict(est.A_est)
+    for k in {v.capture for v in views if v.active}:
+        A_est[k] = values.atPose3(F(k)).matrix()
+    intr = dict(est.intr)
+    for name, i in slots.items():
+        if values.exists(Kk(i)):
+            base = est.intr.get(name) or est.extra["cameras"][name]
+            intr[name] = with_pinhole(base, values.atVector(Kk(i)))
+    out = _Estimate(T_S_cam=T_S_cam, T_M_board=values.atPose3(B(0)).matrix(), A_est=A_est, intr=intr)
+    out.extra["cameras"] = est.extra.get("cameras")
+    return out
+
+
+def _solve_core(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_board0: np.ndarray):
+    """IRLS + outlier handling for one graph (all cameras in 'joint', one camera in 'single')."""
+    form = "view" if problem.options.refine_intrinsics else _formulation(problem, names, len(views))
+    try:
+        return _solve_core_with(problem, names, views, T_S_cam0, T_M_board0, form)
+    except ObservabilityError:
+        if form != "corner" or problem.options.formulation == "corner":
+            raise
+        # numerical failure of the corner graph: the per-view graph is the reference
+        return _solve_core_with(problem, names, views, T_S_cam0, T_M_board0, "view")
+
+
+def _solve_core_with(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_board0: np.ndarray, form: str):
+    opts = problem.options
+    slots = {n: i for i, n in enumerate(names)}
+    est = _Estimate(T_S_cam=dict(T_S_cam0), T_M_board=T_M_board0, A_est={})
+    est.extra["cameras"] = problem.cameras
+    for v in views:
+        v.w = np.ones(len(v.ids))
+        v.active = True
+        v.reason = ""
+    # Gross view screening at the initial guess, so a few corrupted views cannot drag the first solve.
+    init_rms = np.array([np.sqrt(np.mean(r ** 2)) for r in _all_residuals(views, est, problem)])
+    thr0 = max(10.0 * np.median(init_rms), 15.0)
+    for v, r in zip(views, init_rms):
+        if r > thr0:
+            v.active = False
+            v.reason = f"inconsistent with the other views at initialisation (rms {r:.1f} px)"
+    fixed_sigma = opts.pixel_sigma_px
+    sigma = fixed_sigma or max(float(np.median(init_rms[init_rms <= thr0])), 0.5)
+    total_it = 0
+    for outer in range(4):
+        for irls in range(6):
+            graph, values = _build_graph(views, slots, problem, est, sigma, form)
+            values, it, cost = _lm(graph, values, opts.max_iterations, form)
+            total_it += it
+            est = _extract(values, slots, views, est, form)
+            res = {id(v): r for v, r in zip(views, _all_residuals(views, est, problem))}
+            act = [v for v in views if v.active]
+            norms = np.concatenate([res[id(v)][v.w > 0] for v in act])
+            # median of a 2-D Gaussian residual norm is sqrt(2 ln 2) = 1.1774 per-axis sigmas
+            sigma_new = fixed_sigma or max(float(np.median(norms)) / 1.1774, 1e-3)
+            change = 0.0
+            for v in act:
+                r = res[id(v)] / sigma_new
+                w_new = _loss_weights(r, opts.loss, opts.loss_scale)
+                w_new[r > opts.outlier_sigmas] = 0.0
+                change = max(change, float(np.abs(w_new - v.w).max()))
+                v.w = w_new
+            converged = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05
+            sigma = sigma_new
+            if converged:
+                break
+        # view level: re-admit consistent views, reject views that lost most corners
+        changed = False
+        for v in views:
+            r = res[id(v)] / sigma
+            kept = r <= opts.outlier_sigmas
+            ok = kept.mean() >= 0.5 and kept.sum() >= MIN_CORNERS_PER_VIEW
+            if v.active and not ok:
+                v.active = False
+                v.reason = (f"{(~kept).sum()} of {len(kept)} corners beyond {opts.outlier_sigmas:g} sigma "
+                            f"(median residual {np.median(res[id(v)]):.2f} px)")
+                changed = True
+            elif not v.active and ok:
+                v.active = True
+                v.reason = ""
+                v.w = np.where(kept, _loss_weights(r, opts.loss, opts.loss_scale), 0.0)
+                changed = True
+        if not changed:
+            break
+    # a posteriori pixel sigma and the final weighted graph for the marginals
+    act = [v for v in views if v.active]
+    n_obs = 2 * sum(int((v.w > 0).sum()) for v in act)
+    n_par = 6 * (len(names) + 1) + (6 * len(names) if opts.refine_intrinsics else 0)
+    if fixed_sigma:
+        sigma_post = fixed_sigma
+    else:
+        wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(act, _all_residuals(act, est, problem)))
+        sigma_post = float(np.sqrt(wr2 / max(n_obs - n_par, 1)))
+        sigma_post = max(sigma_post, 1e-4)
+    graph, values = _build_graph(views, slots, problem, est, sigma_post, form)
+    if abs(sigma_post - sigma) > 0.05 * sigma:
+        # the pixel/FK balance moved enough to shift the optimum: re-solve before the marginals
+        values, it, _ = _lm(graph, values, opts.max_iterations, form)
+        total_it += it
+        est = _extract(values, slots, views, est, form)
+    cost = graph.error(values)
+    est.iterations, est.cost, est.sigma_px = total_it, cost, sigma_post
+    try:
+        marg = _Marginals(graph, values, _order_for(values, form))
+    except RuntimeError as e:
+        raise ObservabilityError(
+            f"covariance could not be computed ({str(e).splitlines()[0][:120]}): the views leave a parameter "
+            "undetermined; add poses with the board tilted about different axes."
+        ) from None
+    est.extra["marginals"] = marg
+    est.extra["slots"] = slots
+    est.extra["formulation"] = form
+    est.extra["mount_cov_body"] = (factors_ppp.mount_cov_body(marg, values) if form == "corner"
+                                   else marg.marginalCovariance(B(0)))
+    est.extra["n_obs"] = n_obs
+    return est
+
+
+def _to_ref_axes(T: np.ndarray, cov_body: np.ndarray) -> np.ndarray:
+    """GTSAM right-perturbation covariance -> rotation/position errors in the reference frame axes."""
+    R = T[:3, :3]
+    G = np.zeros((6, 6))
+    G[:3, :3] = R
+    G[3:, 3:] = R
+    return G @ cov_body @ G.T
+
+
+def _pair_covariance(T_a: np.ndarray, T_b: np.ndarray, cov_joint_body: np.ndarray) -> np.ndarray:
+    """Covariance of T_a_b = T_a^-1 T_b in a's axes from the joint (12x12) body-frame marginal."""
+    T0 = inv(T_a) @ T_b
+
+    def f(xa, xb):
+        Ta = gtsam.Pose3(T_a).retract(xa).matrix()
+        Tb = gtsam.Pose3(T_b).retract(xb).matrix()
+        T = inv(Ta) @ Tb
+        return np.concatenate([log_so3(T[:3, :3] @ T0[:3, :3].T), T[:3, 3] - T0[:3, 3]])
+
+    J = np.zeros((6, 12))
+    eps = 1e-6
+    for i in range(12):
+        d = np.zeros(12)
+        d[i] = eps
+        J[:, i] = (f(d[:6], d[6:]) - f(-d[:6], -d[6:])) / (2 * eps)
+    # f's rotation vector (left error of R_a_b) and translation (t_a_b) are both in a's axes already
+    return J @ cov_joint_body @ J.T
+
+
+def _prepare_views(problem: Problem):
+    A = _robot_prior_poses(problem)
+    views, rejected = [], []
+    for d in problem.detections:
+        if len(d.ids) < MIN_CORNERS_PER_VIEW:
+            rejected.append(RejectedView(d.camera, d.capture, f"only {len(d.ids)} corners (need {MIN_CORNERS_PER_VIEW})"))
+            continue
+        views.append(_View(camera=d.camera, capture=d.capture, ids=d.ids, p_board=problem.points_board_m[d.ids],
+                           uv=d.uv_px, A=A[d.capture]))
+    return views, rejected
+
+
+def _candidates(problem, views):
+    out = {}
+    bad = []
+    for v in views:
+        R, t, rms = pnp_candidates(v.p_board, v.uv, problem.cameras[v.camera])
+        if len(R) == 0:
+            bad.append(v)
+            continue
+        out.setdefault(v.camera, []).append(ViewCandidates(v.camera, v.capture, v.A, R, t, rms))
+    return out, bad
+
+
+def _init_score(problem, views, T_S_cam, T_M_board) -> float:
+    """Median per-view RMS reprojection error (px) of an initial guess over the views it covers."""
+    vs = [v for v in views if v.camera in T_S_cam]
+    if not vs:
+        return np.inf
+    est = _Estimate(T_S_cam=T_S_cam, T_M_board=T_M_board, A_est={})
+    rms = [np.sqrt(np.mean(r ** 2)) for r in _all_residuals(vs, est, problem)]
+    return float(np.median(rms))
+
+
+INIT_SCORE_MAX_VIEWS = 300
+
+
+def _subsample(cands: dict, views: list, max_views: int, seed: int):
+    """At most ~max_views views, spread over cameras in proportion (at least 5 each when available)."""
+    total = sum(len(v) for v in cands.values())
+    if total <= max_views:
+        return cands, views
+    rng = np.random.default_rng(seed)
+    out = {}
+    for name, vs in cands.items():
+        k = min(len(vs), max(5, int(np.ceil(len(vs) * max_views / total))))
+        out[name] = [vs[i] for i in sorted(rng.choice(len(vs), size=k, replace=False))]
+    keep = {(v.camera, v.capture) for vs in out.values() for v in vs}
+    return out, [v for v in views if (v.camera, v.capture) in keep]
+
+
+def _best_initial_guess(problem, names, views, cands, joint, seed):
+    """Rank the initialiser's hypotheses by reprojection error after the linear translation solve.
+
+    Per-view PnP rotations of a small far board can be tens of degrees off, and a wrong hypothesis
+    can be as self-consistent in rotation as the right one; it cannot explain the corners.
+    """
+    p_by_view = {(v.camera, v.capture): v.p_board for v in views}
+    uv_by_view = {(v.camera, v.capture): v.uv for v in views}
+    hyps = initialise(names, cands, joint=joint, seed=seed)
+    if joint:
+        # Rank on a subsample (large cells have thousands of views), refine the winner on all.
+        s_cands, s_views = _subsample(cands, views, INIT_SCORE_MAX_VIEWS, seed)
+        best = None
+        for T0, mounts in hyps:
+            if len(hyps) > 1:
+                T1, m1 = refine_translations(s_cands, problem.cameras, T0, mounts[0], p_by_view, uv_by_view)
+                score = (-len(T1), _init_score(problem, s_views, T1, m1))
+            else:
+                score = (0, 0.0)
+            if best is None or score < best[0]:
+                best = (score, T0, mounts[0])
+        T0, m0 = refine_translations(cands, problem.cameras, best[1], best[2], p_by_view, uv_by_view)
+        return T0, {0: m0}
+    T_best, m_best, s_best = {}, {}, {}
+    for T0, mounts in hyps:
+        for n in mounts:
+            Tn, mn = refine_translations({n: cands.get(n, [])}, problem.cameras, {n: T0[n]}, mounts[n],
+                                         p_by_view, uv_by_view)
+            sc = _init_score(problem, [v for v in views if v.camera == n], {n: Tn[n]}, mn)
+            if n not in s_best or sc < s_best[n]:
+                T_best[n], m_best[n], s_best[n] = Tn[n], mn, sc
+    return T_best, m_best
+
+
+def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Result:
+    """Calibrate all cameras of ``problem``.
+
+    Args:
+        problem: a validated :class:`Problem`.
+        initial: optional initial guess ``{"T_ref_cam": {name: 4x4}, "T_mount_board": 4x4}``; the
+            robust initialiser runs anyway and the start that ends with the lower cost wins.
+        seed: RANSAC seed (results are deterministic for a given seed).
+    Returns:
+        :class:`Result`.
+    Raises:
+        ObservabilityError: a camera has too few views or the motion leaves a parameter undetermined.
+        SolverError: the optimisation did not produce a usable estimate.
+    """
+    t0 = time.perf_counter()
+    opts = problem.options
+    views, rejected = _prepare_views(problem)
+    cands, bad = _candidates(problem, views)
+    for v in bad:
+        rejected.append(RejectedView(v.camera, v.capture, "no valid PnP solution (corners degenerate or ids wrong)"))
+    views = [v for v in views if v not in bad]
+    views_by_cam = {}
+    for v in views:
+        views_by_cam.setdefault(v.camera, []).append(v.capture)
+    frame_word = "board"
+    check_before_solve(problem, views_by_cam, frame_word)
+    names = list(problem.cameras)
+    joint = problem.method == "joint"
+    T0, mounts0 = _best_initial_guess(problem, names, views, cands, joint, seed)
+    missing = [n for n in names if n not in T0]
+    if missing:
+        raise ObservabilityError(
+            f"camera(s) {missing} could not be initialised: no consistent set of views (each view's PnP disagrees "
+            "with the board mount found from the other cameras); check their intrinsics and the target spec."
+        )
+    cam_results, pairs = {}, {}
+    ref = "base" if problem.mode == "eye_to_hand" else "flange"
+    all_rejected_corners = []
+    if joint:
+        starts = [(T0, mounts0[0])]
+        if initial:
+            starts.append((dict(initial["T_ref_cam"]), np.asarray(initial["T_mount_board"])))
+        best, error = None, None
+        for Ts, Tm in starts:
+            try:
+                est = _solve_core(problem, names, views, Ts, Tm)
+            except ObservabilityError as e:
+                error = e
+                continue
+            if best is None or est.cost < best[0].cost:
+                best = (est, [(v.camera, v.capture, v.active, v.reason, v.w.copy()) for v in views])
+        if best is None:
+            raise error
+        est, view_state = best
+        for v, (_, _, active, reason, w) in zip(views, view_state):
+            v.active, v.reason, v.w = active, reason, w
+        groups = [(names, est, views)]
+    else:
+        groups = []
+        for n in names:
+            vs = [v for v in views if v.camera == n]
+            est = _solve_core(problem, [n], vs, {n: T0[n]}, mounts0[n])
+            groups.append(([n], est, vs))
+    sigma_px_all, iters, cost = [], 0, 0.0
+    body_cov = {}
+    for gnames, est, gviews in groups:
+        marg = est.extra["marginals"]
+        slots = est.extra["slots"]
+        iters += est.iterations
+        cost += est.cost
+        sigma_px_all.append(est.sigma_px)
+        for n in gnames:
+            cb = marg.marginalCovariance(C(slots[n]))
+            body_cov[n] = (cb, est, marg, slots)
+            cov = _to_ref_axes(est.T_S_cam[n], cb)
+            check_after_solve(n, cov)
+            cv = [v for v in gviews if v.camera == n]
+            used = [v for v in cv if v.active]
+            intr = est.intr.get(n, problem.cameras[n])
+            res_all, residuals = [], {}
+            for v in cv:
+                uv_hat = project_chain(est.T_S_cam[n], est.A_est.get(v.capture, v.A), est.T_M_board, v.p_board, intr)
+                d = uv_hat - v.uv
+                residuals[v.capture] = {"ids": v.ids, "uv_detected_px": v.uv, "residual_px": d,
+                                        "weight": v.w.copy(), "rejected": not v.active}
+                if v.active:
+                    keep = v.w > 0
+                    res_all.append(d[keep])
+                    for cid, rr in zip(v.ids[~keep], np.linalg.norm(d[~keep], axis=1)):
+                        all_rejected_corners.append((n, v.capture, int(cid), float(rr)))
+            R = np.concatenate(res_all) if res_all else np.zeros((0, 2))
+            rn = np.linalg.norm(R, axis=1)
+            vrej = tuple(RejectedView(n, v.capture, v.reason) for v in cv if not v.active)
+            vrej += tuple(r for r in rejected if r.camera == n)
+            cam_results[n] = CameraResult(
+                name=n, ref_frame=ref, T_ref_cam=est.T_S_cam[n], covariance=cov,
+                reprojection_rms_px=float(np.sqrt(np.mean(rn ** 2))) if rn.size else float("nan"),
+                reprojection_max_px=float(rn.max()) if rn.size else float("nan"),
+                views_used=len(used), views_rejected=vrej,
+                corners_used=int(sum((v.w > 0).sum() for v in used)),
+                corners_rejected=int(sum((v.w == 0).sum() for v in used)),
+                T_mount_board=None if joint else est.T_M_board,
+                residuals_px=residuals,
+                intrinsics=intr.to_dict(),
+            )
+    # camera-to-camera poses; one joint marginal of all cameras (pairwise calls are O(n^2) solves)
+    joint_cov = None
+    if joint and len(names) > 1:
+        est0 = groups[0][1]
+        joint_cov = est0.extra["marginals"].joint([C(est0.extra["slots"][n]) for n in names])
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            Ta, Tb = cam_results[a].T_ref_cam, cam_results[b].T_ref_cam
+            ca, est_a, marg_a, slots_a = body_cov[a]
+            cb, est_b, marg_b, slots_b = body_cov[b]
+            if joint:
+                ia, ib = names.index(a), names.index(b)
+                sel = np.r_[6 * ia: 6 * ia + 6, 6 * ib: 6 * ib + 6]
+                J = joint_cov[np.ix_(sel, sel)]
+            else:
+                J = np.zeros((12, 12))
+                J[:6, :6], J[6:, 6:] = ca, cb
+            pairs[(a, b)] = PairResult(a=a, b=b, T_a_b=inv(Ta) @ Tb, covariance=_pair_covariance(Ta, Tb, J))
+    mount_cov = None
+    T_mount = None
+    A_est = {}
+    if joint:
+        est = groups[0][1]
+        T_mount = est.T_M_board
+        mount_cov = _to_ref_axes(T_mount, est.extra["mount_cov_body"])
+        A_est = est.A_est
+    if problem.mode == "eye_in_hand":
+        A_est = {k: inv(T) for k, T in A_est.items()}
+    settings = {k: getattr(opts, k) for k in opts.__dataclass_fields__}
+    settings["formulation_used"] = groups[0][1].extra["formulation"]
+    return Result(
+        mode=problem.mode, method=problem.method, cameras=cam_results, T_mount_board=T_mount,
+        mount_covariance=mount_cov, pairs=pairs, converged=True, iterations=iters, final_cost=cost,
+        pixel_sigma_px=float(np.mean(sigma_px_all)), solve_time_s=time.perf_counter() - t0,
+        rejected_views=tuple(rv for c in cam_results.values() for rv in c.views_rejected),
+        rejected_corners=tuple(all_rejected_corners), T_base_flange_est=A_est, settings=settings,
+    )
+
+
+def crlb(problem: Problem, T_ref_cam: dict, T_mount_board, pixel_sigma_px: float, T_base_flange_true: dict | None = None,
+         mounts_single: dict | None = None) -> dict:
+    """Cramer-Rao bound of every camera pose: the inverse Fisher information from the Jacobian at the
+    true values, with the true pixel sigma and the problem's FK prior sigmas.
+
+    Returns name -> 6x6 covariance (rotation first, reference-frame axes, as in the results).
+    In 'single' mode pass ``mounts_single`` (name -> true mount) or the shared true mount is used for each.
+    """
+    views, _ = _prepare_views(problem)
+    for v in views:
+        v.w = np.ones(len(v.ids))
+    true_A = {}
+    if T_base_flange_true:
+        true_A = {k: (T if problem.mode == "eye_to_hand" else inv(T)) for k, T in T_base_flange_true.items()}
+    groups = [list(problem.cameras)] if problem.method == "joint" else [[n] for n in problem.cameras]
+    out = {}
+    for names in groups:
+        vs = [v for v in views if v.camera in names]
+        mount = T_mount_board if problem.method == "joint" or not mounts_single else mounts_single[names[0]]
+        est = _Estimate(T_S_cam={n: T_ref_cam[n] for n in names}, T_M_board=mount, A_est=dict(true_A))
+        slots = {n: i for i, n in enumerate(names)}
+        graph, values = _build_graph(vs, slots, problem, est, pixel_sigma_px)
+        marg = _Marginals(graph, values, _ordering(values))
+        for n in names:
+            out[n] = _to_ref_axes(T_ref_cam[n], marg.marginalCovariance(C(slots[n])))
+    return out

@@ -1,0 +1,156 @@
+"""The view factor: every detected corner of one view is a reprojection residual.
+
+Model (generic over modes; "static" S is the robot base in eye-to-hand and the flange in
+eye-in-hand, "moving" M the other one):
+
+    p_cam = T_S_cam^-1 @ T_S_M[k] @ T_M_board @ p_board          (project_chain)
+    r_i   = sqrt(w_i) / sigma_px * (project(p_cam_i) - uv_i)       (2 rows per corner)
+
+One ``gtsam.CustomFactor`` per view with vectorised numpy keeps the corner as the unit of
+observation (each corner has its own robust weight ``w_i`` and its own two rows) while being ~20x
+faster than one Python factor per corner. Jacobians are analytic, in GTSAM's Pose3 tangent
+(right perturbation ``T @ Exp(xi)``, ``xi = [omega, v]``).
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from calibgraph.core.camera import Intrinsics
+
+_MIN_DEPTH_M = 1e-3
+
+
+def project_chain(T_S_cam: np.ndarray, T_S_M: np.ndarray, T_M_board: np.ndarray, p_board_m: np.ndarray,
+                  intr: Intrinsics) -> np.ndarray:
+    """Pure model: board points (N, 3) -> pixels (N, 2) through the kinematic chain."""
+    T_cam_board = np.linalg.inv(T_S_cam) @ T_S_M @ T_M_board
+    p_cam = p_board_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    return intr.project(p_cam)
+
+
+def _cross_rows(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """cross(a[n, r], p[n]) for a (N, 2, 3) and p (N, 3), without np.cross's axis shuffling."""
+    px, py, pz = p[:, None, 0], p[:, None, 1], p[:, None, 2]
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    return np.stack([ay * pz - az * py, az * px - ax * pz, ax * py - ay * px], axis=-1)
+
+
+def view_residual(T_S_cam, T_S_M, T_M_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w, want_jacobians=True):
+    """Residual (2N,) and Jacobians (2N, 6) w.r.t. camera, robot pose and mount.
+
+    ``sqrt_w`` (N,) already includes 1 / sigma_px.
+    """
+    R_sc, t_sc = T_S_cam[:3, :3], T_S_cam[:3, 3]
+    R_sm, t_sm = T_S_M[:3, :3], T_S_M[:3, 3]
+    R_mb, t_mb = T_M_board[:3, :3], T_M_board[:3, 3]
+    p_m = p_board_m @ R_mb.T + t_mb
+    p_s = p_m @ R_sm.T + t_sm
+    p_c = (p_s - t_sc) @ R_sc  # R_sc^T (p_s - t_sc), row-wise
+    # Keep the residual finite when a corner falls behind the camera during iterations.
+    p_c_safe = p_c.copy()
+    p_c_safe[:, 2] = np.maximum(p_c_safe[:, 2], _MIN_DEPTH_M)
+    if not want_jacobians:
+        uv = intr.project(p_c_safe)
+        return ((uv - uv_px) * sqrt_w[:, None]).reshape(-1), None
+    uv, Jp = intr.project(p_c_safe, with_jacobian=True)  # (N,2), (N,2,3)
+    e = ((uv - uv_px) * sqrt_w[:, None]).reshape(-1)
+    Jp = Jp * sqrt_w[:, None, None]
+    n = p_board_m.shape[0]
+    # Row vector a^T [p]x equals cross(a, p), so every "J @ skew(p)" below is a batched cross product.
+    # camera (right perturbation of T_S_cam): d p_c = [p_c]x omega - v
+    H_c = np.concatenate([_cross_rows(Jp, p_c), -Jp], axis=2)
+    # robot pose: d p_s = R_sm(-[p_m]x omega + v), d p_c = R_sc^T d p_s
+    R_cs_sm = R_sc.T @ R_sm
+    JF = Jp @ R_cs_sm
+    H_f = np.concatenate([-_cross_rows(JF, p_m), JF], axis=2)
+    # mount: d p_m = R_mb(-[p_b]x omega + v)
+    JB = JF @ R_mb
+    H_b = np.concatenate([-_cross_rows(JB, p_board_m), JB], axis=2)
+    H_c, H_f, H_b = (H.reshape(2 * n, 6) for H in (H_c, H_f, H_b))
+    return e, (H_c, H_f, H_b)
+
+
+def make_view_factor(key_cam, key_robot, key_mount, p_board_m: np.ndarray, uv_px: np.ndarray, intr: Intrinsics,
+                     sqrt_w: np.ndarray) -> gtsam.CustomFactor:
+    """A CustomFactor for one view (keys: camera pose, robot pose, board mount)."""
+    p_board_m = np.ascontiguousarray(p_board_m, float)
+    uv_px = np.ascontiguousarray(uv_px, float)
+    sqrt_w = np.ascontiguousarray(sqrt_w, float)
+    model = gtsam.noiseModel.Unit.Create(2 * p_board_m.shape[0])
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
+        T_sc = values.atPose3(key_cam).matrix()
+        T_sm = values.atPose3(key_robot).matrix()
+        T_mb = values.atPose3(key_mount).matrix()
+        e, J = view_residual(T_sc, T_sm, T_mb, p_board_m, uv_px, intr, sqrt_w, want_jacobians=H is not None)
+        if H is not None:
+            H[0], H[1], H[2] = J
+        return e
+
+    return gtsam.CustomFactor(model, [key_cam, key_robot, key_mount], error_func)
+
+
+def with_pinhole(intr: Intrinsics, k6: np.ndarray) -> Intrinsics:
+    """Copy of ``intr`` with [fx, fy, cx, cy] and, when given, [k1, k2] replaced."""
+    K = intr.K.copy()
+    K[0, 0], K[1, 1], K[0, 2], K[1, 2] = k6[:4]
+    dist = intr.dist8 if intr.dist.size < 5 else intr.dist.copy()
+    if len(k6) > 4:
+        dist = dist.copy()
+        dist[:2] = k6[4:6]
+    return Intrinsics(K=K, dist=dist, width_px=intr.width_px, height_px=intr.height_px)
+
+
+def intrinsics_vector(intr: Intrinsics) -> np.ndarray:
+    """[fx, fy, cx, cy, k1, k2]: the refined subset of the intrinsics."""
+    return np.array([intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2], intr.dist8[0], intr.dist8[1]])
+
+
+def make_view_factor_intrinsics(key_cam, key_robot, key_mount, key_intr, p_board_m, uv_px, intr: Intrinsics,
+                                sqrt_w) -> gtsam.CustomFactor:
+    """View factor that also estimates the camera's [fx, fy, cx, cy, k1, k2] (a Vector6 variable).
+
+    With x, y the undistorted and x_d, y_d the distorted normalised coordinates, r2 = x^2 + y^2 and
+    b the rational denominator (1 without k4..k6): d u / d(fx, cx) = (x_d, 1), d v / d(fy, cy) =
+    (y_d, 1), d(x_d, y_d) / d k1 = (x, y) r2 / b and / d k2 = (x, y) r2^2 / b.
+    """
+    p_board_m = np.ascontiguousarray(p_board_m, float)
+    uv_px = np.ascontiguousarray(uv_px, float)
+    sqrt_w = np.ascontiguousarray(sqrt_w, float)
+    n = p_board_m.shape[0]
+    model = gtsam.noiseModel.Unit.Create(2 * n)
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
+        T_sc = values.atPose3(key_cam).matrix()
+        T_sm = values.atPose3(key_robot).matrix()
+        T_mb = values.atPose3(key_mount).matrix()
+        k6 = values.atVector(key_intr)
+        cur = with_pinhole(intr, k6)
+        e, J = view_residual(T_sc, T_sm, T_mb, p_board_m, uv_px, cur, sqrt_w, want_jacobians=H is not None)
+        if H is not None:
+            H[0], H[1], H[2] = J
+            T_cb = np.linalg.inv(T_sc) @ T_sm @ T_mb
+            p_c = p_board_m @ T_cb[:3, :3].T + T_cb[:3, 3]
+            z = np.maximum(p_c[:, 2], _MIN_DEPTH_M)
+            x, y = p_c[:, 0] / z, p_c[:, 1] / z
+            r2 = x * x + y * y
+            k4, k5, k6_ = cur.dist8[5:8]
+            b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6_))
+            uv = e.reshape(n, 2) / sqrt_w[:, None] + uv_px
+            yd = (uv[:, 1] - k6[3]) / k6[1]
+            xd = (uv[:, 0] - k6[2] - cur.K[0, 1] * yd) / k6[0]
+            fx, s, fy = cur.K[0, 0], cur.K[0, 1], cur.K[1, 1]
+            Jk = np.zeros((n, 2, 6))
+            Jk[:, 0, 0] = xd
+            Jk[:, 0, 2] = 1.0
+            Jk[:, 1, 1] = yd
+            Jk[:, 1, 3] = 1.0
+            for col, rp in ((4, r2 / b), (5, r2 * r2 / b)):
+                Jk[:, 0, col] = (fx * x + s * y) * rp
+                Jk[:, 1, col] = fy * y * rp
+            H[3] = (Jk * sqrt_w[:, None, None]).reshape(2 * n, 6)
+        return e
+
+    return gtsam.CustomFactor(model, [key_cam, key_robot, key_mount, key_intr], error_func)

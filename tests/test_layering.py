@@ -1,0 +1,101 @@
+"""The package is layered in data-flow order and imports point one way only.
+
+core → io → detect → solve → plan → acquire → report, with sim and cli at the edge. A module may
+import calibgraph modules of its own stage or an earlier one, never a later one, wherever the
+import statement stands (module level or inside a function). Outside ``cli`` no calibgraph import
+hides inside a function: such an import could only be there to dodge a cycle (lazy imports of heavy
+third-party packages such as MuJoCo, rerun or cv2 are fine and not checked here). Nothing imports
+the package root, which re-exports the public API and so sits above every stage.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "calibgraph"
+STAGES = ("core", "io", "detect", "solver", "plan", "acquire", "report", "sim", "cli")
+LAZY_OK = {"cli"}  # commands import their stage lazily so that `calibgraph --help` stays fast
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(path.parents[len(path.parts) - 1 - path.parts.index("calibgraph")]).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _imports(path: Path):
+    """(imported module, line, at module level) for every calibgraph import in ``path``."""
+    tree = ast.parse(path.read_text(), str(path))
+    top = {id(n) for n in tree.body}
+    me = _module_name(path).split(".")
+    is_pkg = path.name == "__init__.py"
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = me if is_pkg else me[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            names = [mod]
+            if mod == "calibgraph" or mod.endswith(tuple("." + s for s in STAGES)):
+                names = [f"{mod}.{a.name}" if mod != "calibgraph" else f"calibgraph.{a.name}" for a in node.names]
+        elif isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        else:
+            continue
+        for m in names:
+            if m == "calibgraph" or m.startswith("calibgraph."):
+                yield m, node.lineno, id(node) in top
+
+
+def _stage(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in STAGES else None
+
+
+def layering_violations(pkg: Path = PKG) -> list[str]:
+    out = []
+    for path in sorted(pkg.rglob("*.py")):
+        me = _module_name(path)
+        my_stage = _stage(me)
+        if my_stage is None:  # the package root and __main__: above every stage
+            continue
+        for mod, line, at_top in _imports(path):
+            where = f"{path.relative_to(pkg.parent).as_posix()}:{line}"
+            target = _stage(mod)
+            if target is None:
+                out.append(f"{where}: imports the package root ({mod}); import from its stage instead")
+                continue
+            if STAGES.index(target) > STAGES.index(my_stage):
+                out.append(f"{where}: {my_stage} imports {mod} from the later stage {target}")
+            if not at_top and my_stage not in LAZY_OK:
+                out.append(f"{where}: function-level import of {mod}; import it at module level")
+    return out
+
+
+def test_imports_point_one_way():
+    bad = layering_violations()
+    assert not bad, "layering violations:\n" + "\n".join(bad)
+
+
+def test_the_check_catches_an_upward_import(tmp_path):
+    """The check is not vacuous: an injected upward import (core → solver) is reported."""
+    import shutil
+
+    copy = tmp_path / "calibgraph"
+    shutil.copytree(PKG, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    target = copy / "core" / "transforms.py"
+    target.write_text(target.read_text() + "\nfrom calibgraph.solver.result import Result  # injected\n")
+    bad = layering_violations(copy)
+    assert any("core/transforms.py" in b and "later stage solver" in b for b in bad), bad
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_every_stage_is_a_package(stage):
+    assert (PKG / stage / "__init__.py").is_file()
