@@ -19,7 +19,13 @@ Importing it never imports a camera/robot SDK, MuJoCo or rerun (see ``scripts/ex
 """
 
 from calibgraph.core.camera import Intrinsics, preset
-from calibgraph.core.errors import CalibgraphError, DetectionError, InputError, ObservabilityError, SolverError
+from calibgraph.core.errors import (
+    CalibgraphError,
+    DetectionError,
+    InputError,
+    ObservabilityError,
+    SolverError,
+)
 from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
 from calibgraph.core.targets import Target, a4_board_54, thesis_board
 from calibgraph.core.version import __version__

@@ -5,7 +5,7 @@ import json
 
 import numpy as np
 import pytest
-from _sim_helpers import require_sim
+from helpers import require_sim
 
 from calibgraph.core.transforms import pose_error
 

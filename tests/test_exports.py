@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from test_report import make_sim_result
+from helpers import make_sim_result
 
 from calibgraph.core.transforms import exp_so3, quat_xyzw_to_R
 from calibgraph.report.exports import (

@@ -4,7 +4,9 @@ arm stretched out sweep links or the board through the pedestal)."""
 
 import numpy as np
 import pytest
-from _sim_helpers import require_sim
+from helpers import REPO, sim_world_fixture
+
+from calibgraph.sim.workcell import load_workcell
 
 pytestmark = pytest.mark.sim
 
@@ -15,17 +17,7 @@ Q_A = np.array([-1.445, 1.434, -1.019, -2.155, 1.011, 4.467, 2.343])
 Q_B = np.array([-0.415, 0.814, 1.163, -2.598, 2.757, 1.341, -2.111])
 
 
-@pytest.fixture(scope="module")
-def world():
-    require_sim()
-    from pathlib import Path
-
-    from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.workcell import load_workcell
-
-    w = SimWorld(load_workcell(Path(__file__).resolve().parents[1] / "datasets" / "workcells" / "large_cell.yaml"))
-    yield w
-    w.close()
+world = sim_world_fixture(lambda: load_workcell(REPO / "datasets" / "workcells" / "large_cell.yaml"))
 
 
 def _state(world):

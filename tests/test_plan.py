@@ -3,24 +3,18 @@ and the trajectory file."""
 
 import numpy as np
 import pytest
-from _sim_helpers import require_sim
+from helpers import require_sim, sim_world_fixture
 
 from calibgraph.core.errors import InputError
 from calibgraph.core.transforms import pose_error
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose, load_trajectory
+from calibgraph.sim.workcell import ring_workcell
 
 pytestmark = pytest.mark.sim
 
 
-@pytest.fixture(scope="module")
-def world():
-    require_sim()
-    from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.workcell import ring_workcell
-
-    w = SimWorld(ring_workcell(n_cameras=3, distance_m=2.0, spread_deg=90.0))  # thesis one-side layout
-    yield w
-    w.close()
+# the thesis's one-side layout
+world = sim_world_fixture(lambda: ring_workcell(n_cameras=3, distance_m=2.0, spread_deg=90.0))
 
 
 def test_ik_reaches_reachable_targets_within_limits(world):

@@ -1,7 +1,6 @@
 """Commissioning report: built from a solved simulated workcell; numbers checked against result.json;
 rendered in headless Chromium.
 
-``make_sim_result`` is also used by test_rerun.py and test_exports.py.
 """
 
 import html.parser
@@ -10,16 +9,11 @@ import os
 import shutil
 import subprocess
 import tempfile
-from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import make_sim_result, write_sim_dataset
 
-from calibgraph import solve
-from calibgraph.core.problem import Detection
-from calibgraph.core.targets import a4_board_54
-from calibgraph.io.dataset import write_capture, write_header
 from calibgraph.io.layouts import load_dataset
 from calibgraph.report.html import (
     compute_residuals,
@@ -27,58 +21,7 @@ from calibgraph.report.html import (
     residuals_section,
     write_report,
 )
-from calibgraph.sim.synth import make_scene
 from calibgraph.solver.result import load_result_dict
-
-OUTLIER_VIEW = 5        # detection index whose corners are all garbage -> a rejected view
-OUTLIER_CORNERS = 2     # detection index with 3 corners moved by 25 px -> rejected corners
-
-
-@lru_cache(maxsize=4)
-def _solved(seed: int, mode: str):
-    scene = make_scene(n_poses=24, seed=seed, mode=mode)
-    prob = scene.problem
-    dets = list(prob.detections)
-    rng = np.random.default_rng(seed + 100)
-    d = dets[OUTLIER_CORNERS]
-    uv = d.uv_px.copy()
-    uv[[3, 10, 20]] += 25.0
-    dets[OUTLIER_CORNERS] = Detection(d.camera, d.capture, d.ids, uv)
-    if mode == "eye_to_hand":
-        d = dets[OUTLIER_VIEW]
-        dets[OUTLIER_VIEW] = Detection(d.camera, d.capture, d.ids, d.uv_px + rng.normal(scale=40.0, size=d.uv_px.shape))
-    prob = prob.with_(detections=tuple(dets))
-    return scene, prob, solve(prob)
-
-
-def make_sim_result(seed: int = 0, mode: str = "eye_to_hand", intrinsics: bool = True, residuals: bool = True):
-    """(result dict as read back from result.json, scene, problem, Result) of a solved simulated cell
-    with injected outliers. Adds the 'residuals' (and 'intrinsics') sections the report reads when
-    Result.to_dict does not write them yet."""
-    scene, prob, res = _solved(seed, mode)
-    d = res.to_dict()
-    if residuals and "residuals" not in d:
-        d["residuals"] = residuals_section(res)
-    if not residuals:
-        d.pop("residuals", None)
-    for n, c in d["cameras"].items():
-        if intrinsics:
-            c.setdefault("intrinsics", prob.cameras[n].to_dict())
-        else:
-            c.pop("intrinsics", None)
-    d["dataset"] = "simulated (calibgraph.sim.synth.make_scene seed %d)" % seed
-    return json.loads(json.dumps(d)), scene, prob, res
-
-
-def write_sim_dataset(root: Path, prob) -> Path:
-    """Write a problem as a calibgraph dataset folder (detections stored, no images)."""
-    write_header(root, a4_board_54(), dict(prob.cameras), mode=prob.mode)
-    by_cap = {}
-    for d in prob.detections:
-        by_cap.setdefault(d.capture, {})[d.camera] = {"image": None, "ids": d.ids, "uv_px": d.uv_px}
-    for c in prob.captures:
-        write_capture(root, c, by_cap.get(c.index, {}))
-    return root
 
 
 class _Spans(html.parser.HTMLParser):

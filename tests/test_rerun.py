@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from test_report import make_sim_result, write_sim_dataset
+from helpers import make_sim_result, write_sim_dataset
 
 rr = pytest.importorskip("rerun", reason="rerun-sdk not installed (pip install calibgraph[viz])")
 

@@ -3,27 +3,19 @@ truth, sensor degradations, workcell files, and the Robot/Camera interfaces."""
 
 import numpy as np
 import pytest
-from _sim_helpers import require_sim
+from helpers import require_sim, sim_world_fixture
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.core.targets import a4_board_54, thesis_board
 from calibgraph.core.transforms import inv
+from calibgraph.sim.workcell import Realism, ring_workcell
 
 pytestmark = pytest.mark.sim
 
 
-@pytest.fixture(scope="module")
-def world():
-    require_sim()
-    from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.workcell import Realism, ring_workcell
-
-    cell = ring_workcell(n_cameras=2, distance_m=1.5, preset_name="d455", spread_deg=60.0,
-                         realism=Realism(noise_sigma_dn=2.0, blur_sigma_px=0.6))
-    w = SimWorld(cell)
-    yield w
-    w.close()
+world = sim_world_fixture(lambda: ring_workcell(n_cameras=2, distance_m=1.5, preset_name="d455", spread_deg=60.0,
+                                                realism=Realism(noise_sigma_dn=2.0, blur_sigma_px=0.6)))
 
 
 def test_board_texture_matches_board_frame():

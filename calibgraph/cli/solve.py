@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from calibgraph.core.problem import mode_frames
 from calibgraph.solver.build import build_problem
 
 
@@ -56,7 +57,8 @@ def format_summary(result, truth=None) -> str:
 
     from calibgraph.core.transforms import log_so3, pose_error
 
-    ref = "T_base_cam" if result.mode == "eye_to_hand" else "T_flange_cam"
+    frames = mode_frames(result.mode)
+    ref = frames.camera_key
     lines = [f"mode {result.mode}, method {result.method}, pixel sigma {result.pixel_sigma_px:.3f} px, "
              f"solved in {result.solve_time_s:.2f} s"]
     hdr = f"{'camera':10s} {'x [m]':>8s} {'y [m]':>8s} {'z [m]':>8s} {'1σ t [mm]':>16s} {'1σ r [deg]':>20s} {'rms px':>7s} {'views':>9s}"
@@ -74,7 +76,7 @@ def format_summary(result, truth=None) -> str:
             row += f" {e_m * 1e3:7.3f} {e_deg:8.4f}"
         lines.append(row)
     if result.T_mount_board is not None:
-        key = "T_flange_board" if result.mode == "eye_to_hand" else "T_base_board"
+        key = frames.board_key
         t = result.T_mount_board[:3, 3]
         r = np.degrees(log_so3(result.T_mount_board[:3, :3]))
         lines.append(f"{key}: t = {np.round(t, 4).tolist()} m, rotvec = {np.round(r, 3).tolist()} deg")

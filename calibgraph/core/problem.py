@@ -27,6 +27,39 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.transforms import check_pose
 
 MODES = ("eye_to_hand", "eye_in_hand")
+
+
+@dataclass(frozen=True)
+class ModeFrames:
+    """The frame names of a calibration mode.
+
+    Eye-to-hand: fixed cameras in the robot base frame, the board on the flange (``T_base_cam``,
+    ``T_flange_board``). Eye-in-hand: cameras on the flange, the board fixed in the base frame
+    (``T_flange_cam``, ``T_base_board``).
+    """
+
+    ref: str  # the frame the cameras are fixed in: 'base' or 'flange'
+    mount: str  # the frame the board is fixed in: 'flange' or 'base'
+
+    @property
+    def camera_key(self) -> str:
+        """``T_base_cam`` or ``T_flange_cam``."""
+        return f"T_{self.ref}_cam"
+
+    @property
+    def board_key(self) -> str:
+        """``T_flange_board`` or ``T_base_board``."""
+        return f"T_{self.mount}_board"
+
+
+def mode_frames(mode: str | None) -> ModeFrames:
+    """The :class:`ModeFrames` of ``mode`` (``None``, as in old result files, means eye-to-hand)."""
+    mode = mode or "eye_to_hand"
+    if mode not in MODES:
+        raise InputError(f"mode must be one of {MODES}, got {mode!r}.")
+    return ModeFrames("base", "flange") if mode == "eye_to_hand" else ModeFrames("flange", "base")
+
+
 METHODS = ("joint", "single")
 LOSSES = ("huber", "cauchy", "none")
 

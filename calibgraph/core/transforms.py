@@ -61,15 +61,6 @@ def log_so3(R: np.ndarray) -> np.ndarray:
     return w * theta / (2.0 * np.sin(theta))
 
 
-def exp_se3_simple(xi: np.ndarray) -> np.ndarray:
-    """Pose from [rotation (3), translation (3)] with independent rotation and translation.
-
-    Used to build perturbations for tests and Monte-Carlo studies, not as a Lie retraction.
-    """
-    xi = np.asarray(xi, float)
-    return make_T(exp_so3(xi[:3]), xi[3:])
-
-
 def project_to_so3(M: np.ndarray) -> np.ndarray:
     """Closest rotation matrix (Frobenius norm) to a 3x3 matrix."""
     U, _, Vt = np.linalg.svd(M)
@@ -134,6 +125,19 @@ def look_at(eye_m, target_m, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return make_T(np.column_stack([x, y, z]), eye)
+
+
+def board_facing(eye_m, centre_m, tilt_rotvec=(0.0, 0.0, 0.0), roll_rad: float = 0.0, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """``T_base_board`` of a board at ``centre_m`` whose printed face (-z) looks at ``eye_m``.
+
+    Unperturbed, board z points from the eye to the centre and board x is horizontal (x = z × up,
+    as :func:`look_at` builds a camera): the sheet hangs upright, y pointing down. The board is
+    then tilted by ``tilt_rotvec`` (rotation vector in board axes, rad) and turned by ``roll_rad``
+    about its own z. The board frame's origin is placed at ``centre_m``: to centre the pattern
+    rather than its first point, right-multiply by ``make_T(np.eye(3), -centre_board_m)``.
+    """
+    R = look_at(eye_m, centre_m, up)[:3, :3] @ exp_so3(tilt_rotvec) @ exp_so3([0.0, 0.0, roll_rad])
+    return make_T(R, centre_m)
 
 
 def check_pose(T, what: str, tol: float = 1e-4) -> np.ndarray:

@@ -53,11 +53,13 @@ def writable_target(path) -> Path:
     return p
 
 
-def atomic_write_via(path, write: Callable[[Path], None]) -> Path:
+def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") -> Path:
     """Write ``path`` so that a crash or a failed write leaves either the old or the new content.
 
     ``write(tmp)`` writes the new content to a temporary file beside the target, which is then
-    fsynced and renamed over it. Errors of the file system become one ``InputError`` naming the
+    fsynced and renamed over it. The temporary name is hidden and does not end like the target
+    (a reader globbing ``captures/*.json`` never sees one left by a kill), unless a writer needs
+    an extension to pick its format (``tmp_suffix``, e.g. ``.yaml`` for OpenCV's FileStorage). Errors of the file system become one ``InputError`` naming the
     path; the temporary file never stays behind. Returns the path written.
     """
     target = writable_target(path)
@@ -67,7 +69,7 @@ def atomic_write_via(path, write: Callable[[Path], None]) -> Path:
         raise InputError(f"{path}: a parent of this path is a file, not a folder; choose another output path.") from None
     except OSError as e:
         raise InputError(f"{path}: cannot create its folder ({e.strerror}); choose another output path.") from None
-    tmp = target.with_name(f".{target.name}.tmp{os.getpid()}{target.suffix}")
+    tmp = target.with_name(f".{target.name}.tmp{os.getpid()}{tmp_suffix}")
     try:
         write(tmp)
         with open(tmp, "rb+") as f:

@@ -40,7 +40,7 @@ from typing import Protocol
 import numpy as np
 
 from calibgraph.core.errors import InputError
-from calibgraph.core.transforms import exp_so3, inv, make_T
+from calibgraph.core.transforms import board_facing, inv, make_T
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
 from calibgraph.plan.visibility import visible_cameras
 
@@ -80,16 +80,9 @@ class RobotWorld(Protocol):
 def _board_pose_facing(eye_m, centre_m, tilt_rad, roll_rad, rng, centre_b):
     """T_base_board with the board centre at ``centre_m`` and its printed face (-z) towards ``eye_m``,
     tilted by ``tilt_rad`` about a random in-plane axis and rolled by ``roll_rad``."""
-    z = centre_m - eye_m
-    z /= np.linalg.norm(z)
-    up = np.array([0.0, 0.0, 1.0])
-    x = np.cross(z, up)  # board x horizontal; y then points down on a hanging sheet
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.column_stack([x, y, z])
     a = rng.uniform(0, 2 * np.pi)
-    R = R @ exp_so3(tilt_rad * np.array([np.cos(a), np.sin(a), 0.0])) @ exp_so3([0.0, 0.0, roll_rad])
-    return make_T(R, centre_m - R @ centre_b)
+    tilt = tilt_rad * np.array([np.cos(a), np.sin(a), 0.0])
+    return board_facing(eye_m, centre_m, tilt, roll_rad) @ make_T(np.eye(3), -np.asarray(centre_b))
 
 
 def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: float = 0.3, tilt_deg: float = 50.0,

@@ -31,6 +31,7 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
+from calibgraph.core.problem import mode_frames
 from calibgraph.core.transforms import R_to_quat_xyzw
 from calibgraph.core.version import __version__
 from calibgraph.io.files import atomic_write_text, atomic_write_via
@@ -71,7 +72,7 @@ def R_to_rpy(R: np.ndarray) -> np.ndarray:
 # -- reading the result dict ------------------------------------------------------------------------
 def ref_frame(result: dict) -> str:
     """'base' (eye-to-hand) or 'flange' (eye-in-hand)."""
-    return "flange" if result.get("mode") == "eye_in_hand" else "base"
+    return mode_frames(result.get("mode")).ref
 
 
 def camera_pose(result: dict, name: str) -> np.ndarray:
@@ -272,7 +273,7 @@ def write_opencv_yaml(result: dict, out_dir, dataset=None) -> list:
         T = camera_pose(result, name)
         intr = camera_intrinsics(result, name, dataset)
         p = out / f"{_safe(name)}.yaml"
-        atomic_write_via(p, lambda tmp: _write_opencv_camera(tmp, result, name, ref, T, intr))
+        atomic_write_via(p, lambda tmp: _write_opencv_camera(tmp, result, name, ref, T, intr), tmp_suffix=".yaml")
         paths.append(p)
     return paths
 

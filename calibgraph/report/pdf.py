@@ -21,7 +21,6 @@ import numpy as np
 from calibgraph.core.errors import InputError
 from calibgraph.core.targets import Target
 
-PT_PER_M = 72.0 / 0.0254
 PAPERS_MM = {"A4": (210.0, 297.0), "A3": (297.0, 420.0)}
 _K = 0.5522847498  # cubic Bézier circle constant
 

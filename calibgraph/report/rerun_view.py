@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import InputError
+from calibgraph.core.problem import mode_frames
 from calibgraph.io.files import atomic_write_via
 from calibgraph.report.exports import camera_intrinsics, camera_pose, ref_frame
 from calibgraph.report.html import (
@@ -82,7 +83,7 @@ def log_result(rec, result, source=None) -> None:
     obs = observations(source) if source is not None else None
     ref = ref_frame(R)
     eih = R.get("mode") == "eye_in_hand"
-    mk = "T_base_board" if eih else "T_flange_board"
+    mk = mode_frames(R.get("mode")).board_key
     names = list(R["cameras"])
 
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)

@@ -21,7 +21,6 @@ _VIRIDIS = [
 
 BLUE = "#1f77b4"
 RED = "#d62728"
-GREY = "#999999"
 ORANGE = "#ff7f0e"
 
 

@@ -35,7 +35,7 @@ from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
 from calibgraph.sim.synth import (
     DEFAULT_T_FLANGE_BOARD,
     WORKSPACE_CENTRE_M,
-    _board_facing,
+    random_board_facing,
 )
 
 
@@ -260,7 +260,7 @@ def make_fake_cell(n_cameras: int = 2, n_poses: int = 10, seed: int = 0, render:
             T_aim[:3, 3] = (T_cams[names[(i // 3) % len(names)]][:3, 3] + T_cams[names[(i // 3 + 1) % len(names)]][:3, 3]) / 2
         else:
             T_aim = T_cams[names[i % len(names)]]
-        T_base_board = _board_facing(T_aim, centre, 15.0, rng) @ make_T(np.eye(3), -centre_b)
+        T_base_board = random_board_facing(T_aim, centre, 15.0, rng) @ make_T(np.eye(3), -centre_b)
         T_bf = T_base_board @ inv(cell.T_flange_board)
         poses.append(TrajectoryPose(q_rad=q_from_T(T_bf), T_base_flange=T_bf))
     cell.trajectory = Trajectory(poses=tuple(poses), speed_scale=speed_scale)

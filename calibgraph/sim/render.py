@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calibgraph.core.camera import undistort_normalised
 from calibgraph.core.errors import InputError
 from calibgraph.sim import ik
 from calibgraph.sim.scene import ARM_JOINTS, SimulatorError, build_model, import_mujoco
@@ -155,25 +156,14 @@ def distortion_maps(intr, iterations: int = 30):
     """cv2.remap maps that turn an ideal pinhole image (same K) into one seen through ``intr.dist``.
 
     For every distorted output pixel we need the ideal pixel it shows, i.e. the pixel grid
-    undistorted: fixed-point iteration on the OpenCV model (as cv2.undistortPoints does), vectorised
-    over the whole image; converges to < 1e-4 px for the moderate distortion of real lenses.
+    undistorted (:func:`calibgraph.core.camera.undistort_normalised`, fixed-point iteration on the
+    OpenCV model, vectorised over the whole image); converges to < 1e-4 px for the moderate distortion of real lenses.
     """
     w, h = intr.width_px, intr.height_px
-    fx, s, cx = intr.K[0]
-    fy, cy = intr.K[1, 1], intr.K[1, 2]
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    yd = (v - cy) / fy
-    xd = (u - cx - s * yd) / fx
-    k1, k2, p1, p2, k3, k4, k5, k6 = intr.dist8
-    x, y = xd.copy(), yd.copy()
-    for _ in range(iterations):
-        r2 = x * x + y * y
-        rad = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        x = (xd - dx) / rad
-        y = (yd - dy) / rad
-    return (fx * x + s * y + cx).astype(np.float32), (fy * y + cy).astype(np.float32)
+    xy = undistort_normalised(intr, np.column_stack([u.ravel(), v.ravel()]), iterations)
+    uv = xy @ intr.K[:2, :2].T + intr.K[:2, 2]
+    return uv[:, 0].reshape(h, w).astype(np.float32), uv[:, 1].reshape(h, w).astype(np.float32)
 
 
 def degrade(img: np.ndarray, realism: Realism, rng, maps=None) -> np.ndarray:

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import InputError
+from calibgraph.core.problem import mode_frames
 from calibgraph.core.version import __version__
 from calibgraph.io.files import atomic_write_text
 
@@ -146,8 +147,8 @@ class Result:
     # -- serialisation --------------------------------------------------------------------------
     def to_dict(self) -> dict:
 
-        ref_key = "T_base_cam" if self.mode == "eye_to_hand" else "T_flange_cam"
-        mount_key = "T_flange_board" if self.mode == "eye_to_hand" else "T_base_board"
+        frames = mode_frames(self.mode)
+        ref_key, mount_key = frames.camera_key, frames.board_key
         cams = {}
         for name, c in self.cameras.items():
             st, sr = sigmas_from_cov(c.covariance)
