@@ -2,6 +2,7 @@
 FR3), run in its own process: pylibfranka holds the GIL while connecting, so an in-process
 server would deadlock."""
 
+import importlib.util
 import os
 import random
 import signal
@@ -9,8 +10,6 @@ import socket
 import subprocess
 import sys
 import time
-
-import importlib.util
 
 import numpy as np
 import pytest
