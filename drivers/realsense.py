@@ -1,7 +1,12 @@
 """Intel RealSense D455 / L515 (and other D400 / L500 devices) through pyrealsense2 (the
 ``realsense`` extra).
 
-    pip install 'calibgraph[realsense]'      # pyrealsense2; Linux also needs apt libusb-1.0-0
+    pip install 'calibgraph[realsense]'      # pyrealsense2 and libusb-package
+
+On Linux the pyrealsense2 wheel links against ``libusb-1.0.so.0`` without shipping it; the
+``libusb-package`` wheel ships one, which is loaded (``RTLD_GLOBAL``) before pyrealsense2 so that
+no system package is needed (:data:`LIBUSB`; without libusb-package, the system's libusb-1.0-0 is
+used).
 
 Implements :class:`calibgraph.acquire.interfaces.Camera` for the **colour** stream.
 
@@ -60,17 +65,43 @@ try:
 except ImportError:
     pass
 
+
+def _load_libusb() -> str | None:
+    """Load the libusb that the ``libusb-package`` wheel ships, with ``RTLD_GLOBAL``, so that
+    pyrealsense2's dependency on ``libusb-1.0.so.0`` (that library's soname) resolves to it rather
+    than to a system library that a fresh machine does not have. Returns its path, or None when
+    libusb-package is not installed (then the system's libusb-1.0-0, if any, is used)."""
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):  # the macOS and Windows SDK wheels do not need it
+        return None
+    try:
+        import libusb_package
+
+        path = libusb_package.get_library_path()
+        if path is None:
+            return None
+        ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+        return str(path)
+    except (ImportError, OSError):
+        return None
+
+
+#: the libusb loaded for pyrealsense2 from libusb-package (None: not installed, or not Linux)
+LIBUSB = _load_libusb()
+
 try:  # the SDK is an optional extra; the engine and other drivers must import without it
     import pyrealsense2 as _rs
-except ImportError as _e:  # pragma: no cover - exercised only where pyrealsense2 is absent
+except ImportError as _e:  # pragma: no cover - exercised only where pyrealsense2 is absent or cannot load
     _rs = None
     _IMPORT_ERROR = str(_e)
 
 
 def _require_sdk():
     if _rs is None:
-        raise DeviceError("the RealSense driver needs pyrealsense2: pip install 'calibgraph[realsense]' "
-                          f"(and on Linux apt-get install libusb-1.0-0) [{_IMPORT_ERROR}].")
+        raise DeviceError("the RealSense driver needs pyrealsense2 and libusb: pip install 'calibgraph[realsense]' "
+                          f"(pyrealsense2 and libusb-package) [{_IMPORT_ERROR}].")
     return _rs
 
 

@@ -2,6 +2,7 @@
 FR3), run in its own process: pylibfranka holds the GIL while connecting, so an in-process
 server would deadlock."""
 
+import importlib.util
 import os
 import random
 import signal
@@ -12,10 +13,12 @@ import time
 
 import numpy as np
 import pytest
+from _sdk_helpers import import_sdk, require_realsense, sdk_unavailable
 
-pytest.importorskip("pylibfranka", reason="pylibfranka (calibgraph[franka]) is not installed")
-pytest.importorskip("franky_sim", reason="franky-sim (calibgraph[sim]) is not installed")
-pytest.importorskip("mujoco", reason="franky-sim needs MuJoCo")
+import_sdk("pylibfranka", "pip install 'calibgraph[franka]'")
+import_sdk("franky_sim", "pip install 'calibgraph[sim]'")  # its package imports no MuJoCo
+if importlib.util.find_spec("mujoco") is None:  # franky-sim's server needs MuJoCo's physics, not its rendering
+    sdk_unavailable("franky-sim needs MuJoCo (pip install 'calibgraph[sim]')")
 
 from calibgraph.acquire.interfaces import DeviceError  # noqa: E402
 from calibgraph.acquire.run import run_acquisition  # noqa: E402
@@ -58,9 +61,11 @@ def franky_sim():
     # watchdog can end such a hang, so the whole module is bounded (it needs ~30 s).
     faulthandler.dump_traceback_later(240, exit=True)
     ip = _free_loopback()
+    # MUJOCO_GL=disable: the server only steps the physics, so it needs no OpenGL library (with
+    # MUJOCO_GL=egl and no libEGL, `import mujoco` fails)
     p = subprocess.Popen([sys.executable, "-m", "franky_sim.run_server", "-s", "mujoco", "--hostname", ip],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                         env=dict(os.environ, PYTHONUNBUFFERED="1"), start_new_session=True,
+                         env=dict(os.environ, PYTHONUNBUFFERED="1", MUJOCO_GL="disable"), start_new_session=True,
                          preexec_fn=_die_with_parent)
     t_end = time.monotonic() + 60
     lines = []
@@ -179,7 +184,7 @@ def test_unreachable_address_fails_fast():
 
 def _record_realsense(path, n):
     """A short colour recording (.db3) from an SDK software device, to stand in for a live camera."""
-    rs = pytest.importorskip("pyrealsense2")
+    rs = require_realsense()
     dev = rs.software_device()
     sensor = dev.add_sensor("RGB Camera")
     intr = rs.intrinsics()

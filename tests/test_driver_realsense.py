@@ -2,17 +2,21 @@
 a recording made with rs.recorder (.db3) and played back with enable_device_from_file, and the
 mapping of librealsense distortion models to OpenCV's."""
 
+import os
+import sys
 import threading
 import time
 
 import numpy as np
 import pytest
+from _sdk_helpers import import_sdk, require_realsense
 
 # drivers.realsense first: it loads rclpy (if installed) before pyrealsense2, the load order in which
-# a process using both exits cleanly (see the note in drivers/realsense.py)
+# a process using both exits cleanly, and libusb from the libusb-package wheel before pyrealsense2
+# (see the notes in drivers/realsense.py)
 from drivers.realsense import RealSenseCamera, distortion_from_rs, intrinsics_from_rs  # noqa: E402
 
-rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 (calibgraph[realsense]; apt libusb-1.0-0) is not available")
+rs = require_realsense()  # skips the module (with the reason) when the SDK cannot be loaded
 
 from calibgraph.acquire.interfaces import DeviceError  # noqa: E402
 from calibgraph.core.camera import Intrinsics  # noqa: E402
@@ -80,6 +84,20 @@ class SoftwareColourCamera:
     def stop(self):
         self._stop = True
         self.thread.join(2)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the Linux SDK wheel is the one that needs libusb")
+def test_libusb_comes_from_the_libusb_package_wheel():
+    # pyrealsense2's wheel links libusb-1.0.so.0 without shipping it; the realsense extra brings
+    # libusb-package, whose copy drivers.realsense loads first, so no apt package is needed: the only
+    # libusb mapped in this process is that one
+    import drivers.realsense as drv
+
+    import_sdk("libusb_package", "pip install 'calibgraph[realsense]'")
+    assert drv.LIBUSB is not None
+    with open("/proc/self/maps") as f:
+        mapped = {ln.split()[-1] for ln in f if "libusb-1.0" in ln}
+    assert mapped == {os.path.realpath(drv.LIBUSB)}, mapped
 
 
 def test_distortion_models_map_to_opencv():

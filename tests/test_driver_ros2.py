@@ -8,12 +8,12 @@ import time
 
 import numpy as np
 import pytest
+from _sdk_helpers import import_sdk
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 200)))  # keep away from other runs on this host
-rclpy = pytest.importorskip("rclpy", reason="rclpy wheels not installed (pip install ros-rclpy ros-sensor-msgs "
-                                            "ros-geometry-msgs ros-rmw-fastrtps-cpp)")
-sensor_msgs = pytest.importorskip("sensor_msgs.msg")
+rclpy = import_sdk("rclpy", "pip install 'calibgraph[ros2]'")
+sensor_msgs = import_sdk("sensor_msgs.msg", "pip install 'calibgraph[ros2]'")
 
 from calibgraph.acquire.interfaces import DeviceError  # noqa: E402
 from drivers import ros2 as drv  # noqa: E402

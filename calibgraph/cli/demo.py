@@ -67,6 +67,7 @@ def run(args) -> int:
           f"board {cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm, "
           f"camera distances {', '.join(f'{np.hypot(*c.T_base_cam[:2, 3]):.1f}' for c in cell.cameras)} m")
     world = SimWorld(cell)
+    world.check_rendering()  # no OpenGL: one clear error now, not after planning
 
     bar = _bar(args.poses, "plan")
     traj = plan_trajectory(world, args.poses, seed=args.seed, progress=lambda k, n: bar.update(k - bar.n))

@@ -45,6 +45,7 @@ def run(args) -> int:
     say(f"building the simulated workcell {cell.name!r}: {len(cell.cameras)} cameras, board "
         f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm")
     world = SimWorld(cell)
+    world.check_rendering()  # no OpenGL: one clear error now, not after planning
     if args.trajectory:
         traj = load_trajectory(args.trajectory)
     else:

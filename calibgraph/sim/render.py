@@ -12,7 +12,7 @@ import numpy as np
 from calibgraph.core.camera import undistort_normalised
 from calibgraph.core.errors import InputError
 from calibgraph.sim import ik
-from calibgraph.sim.scene import ARM_JOINTS, SimulatorError, build_model, import_mujoco
+from calibgraph.sim.scene import ARM_JOINTS, GL_INSTALL, SimulatorError, build_model, import_mujoco
 from calibgraph.sim.workcell import Realism, Workcell
 
 
@@ -107,10 +107,17 @@ class SimWorld:
                 self._renderers[key] = self.mujoco.Renderer(self.model, height=h, width=w)
             except Exception as e:
                 raise SimulatorError(
-                    f"cannot open a headless OpenGL context ({e}); install libegl1 (MUJOCO_GL=egl) or "
-                    "libosmesa6 (MUJOCO_GL=osmesa)."
+                    f"cannot open a headless OpenGL context ({type(e).__name__}: {e}); for MUJOCO_GL=egl: "
+                    f"{GL_INSTALL['egl']}, for MUJOCO_GL=osmesa: {GL_INSTALL['osmesa']}."
                 ) from None
         return self._renderers[key]
+
+    def check_rendering(self) -> None:
+        """Open every camera's renderer now (they are kept for the renders), so that a machine whose
+        OpenGL cannot render fails at once with :class:`SimulatorError`, not after the planning."""
+        s = self.cell.realism.supersample
+        for c in self.cell.cameras:
+            self._renderer(c.intrinsics.width_px * s, c.intrinsics.height_px * s)
 
     def render_ideal(self, camera: str) -> np.ndarray:
         """Noise-free RGB render (H, W, 3) uint8 of ``camera`` at the current state, pinhole, no

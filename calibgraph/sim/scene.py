@@ -62,13 +62,62 @@ def ensure_gl_backend() -> None:
         os.environ["PYOPENGL_PLATFORM"] = os.environ["MUJOCO_GL"]
 
 
+# The system library each headless backend loads first, and the Debian packages it needs to render
+# (measured by hiding packages: EGL renders with these three and without libgl1; OSMesa with
+# libosmesa6 alone).
+_GL_LIBRARIES = {
+    "egl": ("libEGL.so.1",),
+    "osmesa": ("libOSMesa.so.8", "libOSMesa.so.6"),
+}
+GL_INSTALL = {
+    "egl": "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri",
+    "osmesa": "apt-get install libosmesa6",
+}
+
+
+def gl_backend_problem() -> str | None:
+    """Why MuJoCo's headless backend (``MUJOCO_GL``) cannot load here, in one sentence; None when
+    its system library loads (or the backend is not one of the headless ones checked here)."""
+    import ctypes
+
+    backend = os.environ.get("MUJOCO_GL", "").lower()
+    if backend not in _GL_LIBRARIES:
+        return None
+    errors = []
+    for name in _GL_LIBRARIES[backend]:
+        try:
+            ctypes.CDLL(name)
+            return None
+        except OSError as e:
+            errors.append(str(e))
+    other = "osmesa" if backend == "egl" else "egl"
+    return (f"MuJoCo's headless rendering (MUJOCO_GL={backend}) needs {_GL_LIBRARIES[backend][0]}, which is not "
+            f"installed ({errors[0]}): {GL_INSTALL[backend]} (or MUJOCO_GL={other} after {GL_INSTALL[other]}).")
+
+
 def import_mujoco():
-    """Import MuJoCo lazily with a headless GL backend; clear error when it is missing."""
+    """Import MuJoCo lazily with a headless GL backend; clear error when it or its system OpenGL
+    library is missing (without libEGL, ``import mujoco`` itself fails under MUJOCO_GL=egl)."""
+    import importlib.util
+    import sys
+
+    if sys.modules.get("mujoco") is not None:
+        return sys.modules["mujoco"]
     ensure_gl_backend()
+    try:  # (a None in sys.modules blocks the import, as the tests do to mimic a machine without it)
+        installed = "mujoco" not in sys.modules and importlib.util.find_spec("mujoco") is not None
+    except (ImportError, ValueError):
+        installed = False
+    if not installed:
+        raise SimulatorError("the simulator needs MuJoCo (pip install 'calibgraph[sim]').")
+    problem = gl_backend_problem()
+    if problem:
+        raise SimulatorError(problem)
     try:
         import mujoco
-    except ImportError:
-        raise SimulatorError("the simulator needs MuJoCo (pip install 'calibgraph[sim]').") from None
+    except Exception as e:  # PyOpenGL raises AttributeError when its platform library is missing
+        raise SimulatorError(f"MuJoCo is installed but cannot be imported (MUJOCO_GL={os.environ['MUJOCO_GL']}): "
+                             f"{type(e).__name__}: {e}") from None
     return mujoco
 
 
