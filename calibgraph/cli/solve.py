@@ -94,6 +94,22 @@ def format_summary(result, truth=None) -> str:
     return "\n".join(lines)
 
 
+def print_problems(problems, per_kind: int = 3) -> None:
+    """Warnings for images the detector could not use, grouped by kind: a recording where most
+    frames do not show the board gives one line per kind with a count, not hundreds of lines."""
+    import re
+
+    groups = {}
+    for f, msg in problems:
+        kind = re.sub(r"\(.*?\)|\d+(\.\d+)?", "#", str(msg)).strip()
+        groups.setdefault(kind, []).append((f, msg))
+    for items in groups.values():
+        for f, msg in items[:per_kind]:
+            print(f"warning: {f}: {msg}", file=sys.stderr)
+        if len(items) > per_kind:
+            print(f"warning: ... and {len(items) - per_kind} more images like these", file=sys.stderr)
+
+
 def run(args) -> int:
     from calibgraph.io.layouts import load_dataset
     from calibgraph.solver.batch import solve
@@ -103,8 +119,10 @@ def run(args) -> int:
         print(f"warning: {f}: {msg}", file=sys.stderr)
     opts = solver_options(args, ds)
     problem, detector = build_problem(ds, args.method, opts, progress=not args.quiet)
-    for f, msg in getattr(detector, "problems", []) or []:
-        print(f"warning: {f}: {msg}", file=sys.stderr)
+    print_problems(getattr(detector, "problems", []) or [])
+    if not args.quiet:
+        for note in getattr(detector, "notes", []) or []:
+            print(note)
     result = solve(problem)
     from dataclasses import replace
 

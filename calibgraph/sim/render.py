@@ -12,7 +12,13 @@ import numpy as np
 from calibgraph.core.camera import undistort_normalised
 from calibgraph.core.errors import InputError
 from calibgraph.sim import ik
-from calibgraph.sim.scene import ARM_JOINTS, GL_INSTALL, SimulatorError, build_model, import_mujoco
+from calibgraph.sim.scene import (
+    ARM_JOINTS,
+    GL_INSTALL,
+    SimulatorError,
+    build_model,
+    import_mujoco,
+)
 from calibgraph.sim.workcell import Realism, Workcell
 
 
