@@ -115,7 +115,7 @@ def test_converges_from_perturbed_starts():
         est = solver._solve_core(p, list(p.cameras), views, T0, _perturb(sc.truth.T_mount_board, rng))
         for n in p.cameras:
             # same optimum: differences far below the estimate's own 1-sigma (LM stopping tolerance only)
-            e_m, e_deg = pose_error(est.T_S_cam[n], ref.cameras[n].T_ref_cam)
+            e_m, e_deg = pose_error(est.T_ref_cam[n], ref.cameras[n].T_ref_cam)
             assert e_m < 0.05e-3 * np.linalg.norm(ref.cameras[n].sigma_translation_mm), (trial, n, e_m)
             assert e_deg < 0.05 * np.linalg.norm(ref.cameras[n].sigma_rotation_deg), (trial, n, e_deg)
     # and through the public API with a bad user guess

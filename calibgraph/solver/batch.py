@@ -40,8 +40,7 @@ from calibgraph.solver.initialise import (
     pnp_candidates,
     refine_translations,
 )
-from calibgraph.solver.keys import B, C, F
-from calibgraph.solver.keys import K as Kk
+from calibgraph.solver.keys import B, C, F, K
 from calibgraph.solver.observability import check_after_solve, check_before_solve
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView, Result
 
@@ -55,7 +54,7 @@ class _View:
     ids: np.ndarray
     p_board: np.ndarray
     uv: np.ndarray
-    A: np.ndarray  # robot pose prior, static <- moving
+    T_ref_mount: np.ndarray  # robot pose of the capture from forward kinematics (the prior)
     w: np.ndarray = None  # robust weights in [0, 1]; 0 = rejected corner
     active: bool = True
     reason: str = ""
@@ -63,9 +62,9 @@ class _View:
 
 @dataclass
 class _Estimate:
-    T_S_cam: dict
-    T_M_board: np.ndarray
-    A_est: dict
+    T_ref_cam: dict
+    T_mount_board: np.ndarray
+    T_ref_mount: dict
     iterations: int = 0
     cost: float = np.inf
     sigma_px: float = 1.0
@@ -79,14 +78,14 @@ def _robot_prior_poses(problem: Problem) -> dict:
     return {c.index: inv(c.T_base_flange) for c in problem.captures}
 
 
-def _fk_noise(opts, mode: str = "eye_to_hand", A: np.ndarray | None = None):
+def _fk_noise(opts, mode: str = "eye_to_hand", T_ref_mount: np.ndarray | None = None):
     """FK prior noise. The sigmas describe T_base_flange (perturbed at the flange); in eye-in-hand
     the variable is its inverse T_flange_base, whose right perturbation is -Ad(T_base_flange) xi, so
     the square-root information becomes diag(1/sigma) Ad(T_flange_base)."""
     s = np.array([opts.fk_sigma_rotation_rad] * 3 + [opts.fk_sigma_translation_m] * 3)
-    if mode == "eye_to_hand" or A is None:
+    if mode == "eye_to_hand" or T_ref_mount is None:
         return gtsam.noiseModel.Diagonal.Sigmas(s)
-    return gtsam.noiseModel.Gaussian.SqrtInformation(np.diag(1.0 / s) @ gtsam.Pose3(A).AdjointMap(), False)
+    return gtsam.noiseModel.Gaussian.SqrtInformation(np.diag(1.0 / s) @ gtsam.Pose3(T_ref_mount).AdjointMap(), False)
 
 
 def _loss_weights(r_sigma: np.ndarray, loss: str, scale: float) -> np.ndarray:
@@ -106,11 +105,11 @@ def _all_residuals(views, est: _Estimate, problem) -> list:
     for i, v in enumerate(views):
         by_cam.setdefault(v.camera, []).append(i)
     for cam, idx in by_cam.items():
-        T_cs = inv(est.T_S_cam[cam])
+        T_cs = inv(est.T_ref_cam[cam])
         pts, uvs, counts = [], [], []
         for i in idx:
             v = views[i]
-            T = T_cs @ est.A_est.get(v.capture, v.A) @ est.T_M_board
+            T = T_cs @ est.T_ref_mount.get(v.capture, v.T_ref_mount) @ est.T_mount_board
             pts.append(v.p_board @ T[:3, :3].T + T[:3, 3])
             uvs.append(v.uv)
             counts.append(len(v.ids))
@@ -162,27 +161,27 @@ def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: s
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     used_caps = sorted({v.capture for v in views if v.active})
-    A_prior = {v.capture: v.A for v in views}
+    T_ref_mount_fk = {v.capture: v.T_ref_mount for v in views}
     for k in used_caps:
-        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(A_prior[k]), _fk_noise(problem.options, problem.mode, A_prior[k])))
-        values.insert(F(k), gtsam.Pose3(est.A_est.get(k, A_prior[k])))
+        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(T_ref_mount_fk[k]), _fk_noise(problem.options, problem.mode, T_ref_mount_fk[k])))
+        values.insert(F(k), gtsam.Pose3(est.T_ref_mount.get(k, T_ref_mount_fk[k])))
     for name, i in slots.items():
-        values.insert(C(i), gtsam.Pose3(est.T_S_cam[name]))
-    values.insert(B(0), gtsam.Pose3(est.T_M_board))
+        values.insert(C(i), gtsam.Pose3(est.T_ref_cam[name]))
+    values.insert(B(0), gtsam.Pose3(est.T_mount_board))
     refine = problem.options.refine_intrinsics
     if refine:
         o = problem.options
         prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([o.intrinsics_sigma_px] * 4 + [o.distortion_sigma] * 2))
         for name, i in slots.items():
-            graph.add(gtsam.PriorFactorVector(Kk(i), intrinsics_vector(problem.cameras[name]), prior))
-            values.insert(Kk(i), intrinsics_vector(est.intr.get(name, problem.cameras[name])))
+            graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(problem.cameras[name]), prior))
+            values.insert(K(i), intrinsics_vector(est.intr.get(name, problem.cameras[name])))
     for v in views:
         if not v.active:
             continue
         keep = v.w > 0
         sw = np.sqrt(v.w[keep]) / sigma_px
         if refine:
-            graph.add(make_view_factor_intrinsics(C(slots[v.camera]), F(v.capture), B(0), Kk(slots[v.camera]),
+            graph.add(make_view_factor_intrinsics(C(slots[v.camera]), F(v.capture), B(0), K(slots[v.camera]),
                                                   v.p_board[keep], v.uv[keep], problem.cameras[v.camera], sw))
         else:
             graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board[keep], v.uv[keep],
@@ -245,40 +244,40 @@ def _lm(graph, values, max_iterations, form: str = "view"):
 
 def _extract(values, slots, views, est: _Estimate, form: str = "view") -> _Estimate:
     if form == "corner":
-        T_S_cam, T_M_board, A_new = factors_ppp.extract(values, slots, views)
-        A_est = dict(est.A_est)
-        A_est.update(A_new)
-        return _Estimate(T_S_cam=T_S_cam, T_M_board=T_M_board, A_est=A_est)
-    T_S_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
-    A_est = dict(est.A_est)
+        T_ref_cam, T_mount_board, T_ref_mount_new = factors_ppp.extract(values, slots, views)
+        T_ref_mount = dict(est.T_ref_mount)
+        T_ref_mount.update(T_ref_mount_new)
+        return _Estimate(T_ref_cam=T_ref_cam, T_mount_board=T_mount_board, T_ref_mount=T_ref_mount)
+    T_ref_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
+    T_ref_mount = dict(est.T_ref_mount)
     for k in {v.capture for v in views if v.active}:
-        A_est[k] = values.atPose3(F(k)).matrix()
+        T_ref_mount[k] = values.atPose3(F(k)).matrix()
     intr = dict(est.intr)
     for name, i in slots.items():
-        if values.exists(Kk(i)):
+        if values.exists(K(i)):
             base = est.intr.get(name) or est.extra["cameras"][name]
-            intr[name] = with_pinhole(base, values.atVector(Kk(i)))
-    out = _Estimate(T_S_cam=T_S_cam, T_M_board=values.atPose3(B(0)).matrix(), A_est=A_est, intr=intr)
+            intr[name] = with_pinhole(base, values.atVector(K(i)))
+    out = _Estimate(T_ref_cam=T_ref_cam, T_mount_board=values.atPose3(B(0)).matrix(), T_ref_mount=T_ref_mount, intr=intr)
     out.extra["cameras"] = est.extra.get("cameras")
     return out
 
 
-def _solve_core(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_board0: np.ndarray):
+def _solve_core(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray):
     """IRLS + outlier handling for one graph (all cameras in 'joint', one camera in 'single')."""
     form = "view" if problem.options.refine_intrinsics else _formulation(problem, names, len(views))
     try:
-        return _solve_core_with(problem, names, views, T_S_cam0, T_M_board0, form)
+        return _solve_core_with(problem, names, views, T_ref_cam0, T_mount_board0, form)
     except ObservabilityError:
         if form != "corner" or problem.options.formulation == "corner":
             raise
         # numerical failure of the corner graph: the per-view graph is the reference
-        return _solve_core_with(problem, names, views, T_S_cam0, T_M_board0, "view")
+        return _solve_core_with(problem, names, views, T_ref_cam0, T_mount_board0, "view")
 
 
-def _solve_core_with(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_board0: np.ndarray, form: str):
+def _solve_core_with(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray, form: str):
     opts = problem.options
     slots = {n: i for i, n in enumerate(names)}
-    est = _Estimate(T_S_cam=dict(T_S_cam0), T_M_board=T_M_board0, A_est={})
+    est = _Estimate(T_ref_cam=dict(T_ref_cam0), T_mount_board=T_mount_board0, T_ref_mount={})
     est.extra["cameras"] = problem.cameras
     for v in views:
         v.w = np.ones(len(v.ids))
@@ -398,14 +397,14 @@ def _pair_covariance(T_a: np.ndarray, T_b: np.ndarray, cov_joint_body: np.ndarra
 
 
 def _prepare_views(problem: Problem):
-    A = _robot_prior_poses(problem)
+    robot_poses = _robot_prior_poses(problem)
     views, rejected = [], []
     for d in problem.detections:
         if len(d.ids) < MIN_CORNERS_PER_VIEW:
             rejected.append(RejectedView(d.camera, d.capture, f"only {len(d.ids)} corners (need {MIN_CORNERS_PER_VIEW})"))
             continue
         views.append(_View(camera=d.camera, capture=d.capture, ids=d.ids, p_board=problem.points_board_m[d.ids],
-                           uv=d.uv_px, A=A[d.capture]))
+                           uv=d.uv_px, T_ref_mount=robot_poses[d.capture]))
     return views, rejected
 
 
@@ -417,16 +416,16 @@ def _candidates(problem, views):
         if len(R) == 0:
             bad.append(v)
             continue
-        out.setdefault(v.camera, []).append(ViewCandidates(v.camera, v.capture, v.A, R, t, rms))
+        out.setdefault(v.camera, []).append(ViewCandidates(v.camera, v.capture, v.T_ref_mount, R, t, rms))
     return out, bad
 
 
-def _init_score(problem, views, T_S_cam, T_M_board) -> float:
+def _init_score(problem, views, T_ref_cam, T_mount_board) -> float:
     """Median per-view RMS reprojection error (px) of an initial guess over the views it covers."""
-    vs = [v for v in views if v.camera in T_S_cam]
+    vs = [v for v in views if v.camera in T_ref_cam]
     if not vs:
         return np.inf
-    est = _Estimate(T_S_cam=T_S_cam, T_M_board=T_M_board, A_est={})
+    est = _Estimate(T_ref_cam=T_ref_cam, T_mount_board=T_mount_board, T_ref_mount={})
     rms = [np.sqrt(np.mean(r ** 2)) for r in _all_residuals(vs, est, problem)]
     return float(np.median(rms))
 
@@ -556,14 +555,14 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
         for n in gnames:
             cb = marg.marginalCovariance(C(slots[n]))
             body_cov[n] = (cb, est, marg, slots)
-            cov = _to_ref_axes(est.T_S_cam[n], cb)
+            cov = _to_ref_axes(est.T_ref_cam[n], cb)
             check_after_solve(n, cov)
             cv = [v for v in gviews if v.camera == n]
             used = [v for v in cv if v.active]
             intr = est.intr.get(n, problem.cameras[n])
             res_all, residuals = [], {}
             for v in cv:
-                uv_hat = project_chain(est.T_S_cam[n], est.A_est.get(v.capture, v.A), est.T_M_board, v.p_board, intr)
+                uv_hat = project_chain(est.T_ref_cam[n], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board, v.p_board, intr)
                 d = uv_hat - v.uv
                 residuals[v.capture] = {"ids": v.ids, "uv_detected_px": v.uv, "residual_px": d,
                                         "weight": v.w.copy(), "rejected": not v.active}
@@ -577,13 +576,13 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
             vrej = tuple(RejectedView(n, v.capture, v.reason) for v in cv if not v.active)
             vrej += tuple(r for r in rejected if r.camera == n)
             cam_results[n] = CameraResult(
-                name=n, ref_frame=ref, T_ref_cam=est.T_S_cam[n], covariance=cov,
+                name=n, ref_frame=ref, T_ref_cam=est.T_ref_cam[n], covariance=cov,
                 reprojection_rms_px=float(np.sqrt(np.mean(rn ** 2))) if rn.size else float("nan"),
                 reprojection_max_px=float(rn.max()) if rn.size else float("nan"),
                 views_used=len(used), views_rejected=vrej,
                 corners_used=int(sum((v.w > 0).sum() for v in used)),
                 corners_rejected=int(sum((v.w == 0).sum() for v in used)),
-                T_mount_board=None if joint else est.T_M_board,
+                T_mount_board=None if joint else est.T_mount_board,
                 residuals_px=residuals,
                 intrinsics=intr.to_dict(),
             )
@@ -607,14 +606,14 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
             pairs[(a, b)] = PairResult(a=a, b=b, T_a_b=inv(Ta) @ Tb, covariance=_pair_covariance(Ta, Tb, J))
     mount_cov = None
     T_mount = None
-    A_est = {}
+    T_ref_mount = {}
     if joint:
         est = groups[0][1]
-        T_mount = est.T_M_board
+        T_mount = est.T_mount_board
         mount_cov = _to_ref_axes(T_mount, est.extra["mount_cov_body"])
-        A_est = est.A_est
+        T_ref_mount = est.T_ref_mount
     if problem.mode == "eye_in_hand":
-        A_est = {k: inv(T) for k, T in A_est.items()}
+        T_ref_mount = {k: inv(T) for k, T in T_ref_mount.items()}
     settings = {k: getattr(opts, k) for k in opts.__dataclass_fields__}
     settings["formulation_used"] = groups[0][1].extra["formulation"]
     return Result(
@@ -622,7 +621,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
         mount_covariance=mount_cov, pairs=pairs, converged=True, iterations=iters, final_cost=cost,
         pixel_sigma_px=float(np.mean(sigma_px_all)), solve_time_s=time.perf_counter() - t0,
         rejected_views=tuple(rv for c in cam_results.values() for rv in c.views_rejected),
-        rejected_corners=tuple(all_rejected_corners), T_base_flange_est=A_est, settings=settings,
+        rejected_corners=tuple(all_rejected_corners), T_base_flange_est=T_ref_mount, settings=settings,
     )
 
 
@@ -645,7 +644,7 @@ def crlb(problem: Problem, T_ref_cam: dict, T_mount_board, pixel_sigma_px: float
     for names in groups:
         vs = [v for v in views if v.camera in names]
         mount = T_mount_board if problem.method == "joint" or not mounts_single else mounts_single[names[0]]
-        est = _Estimate(T_S_cam={n: T_ref_cam[n] for n in names}, T_M_board=mount, A_est=dict(true_A))
+        est = _Estimate(T_ref_cam={n: T_ref_cam[n] for n in names}, T_mount_board=mount, T_ref_mount=dict(true_A))
         slots = {n: i for i, n in enumerate(names)}
         graph, values = _build_graph(vs, slots, problem, est, pixel_sigma_px)
         marg = _Marginals(graph, values, _ordering(values))
