@@ -13,11 +13,28 @@ sees is consistent; corners beyond ``outlier_sigmas`` are rejected and listed, v
 most of their corners are rejected with a reason. Covariances come from ``gtsam.Marginals`` on the
 final weighted graph with the pixel sigma estimated from the residuals (a posteriori variance
 factor) unless it is given.
+
+Internal API. Besides :func:`solve` and :func:`crlb`, the steps of a solve are public names here for
+the iSAM2 path (:mod:`calibgraph.solver.incremental`), ``scripts/bench_solver.py`` and the tests;
+calibgraph does not re-export them, and they change with the solver:
+
+    View, Estimate           a view in the graph (with its robust weights); the graph's variables
+    prepare_views            the problem's detections as Views (too few corners: rejected)
+    view_candidates          both IPPE poses of every view (the initialiser's input)
+    best_initial_guess       the initialiser's hypotheses ranked by reprojection error
+    solve_from_start         IRLS + outlier handling + marginals for one graph from a given start
+    build_graph              factor graph and initial values of an Estimate
+    levenberg_marquardt      one LM run on a graph
+    fk_noise                 noise model of the forward-kinematics prior on F(k)
+    to_ref_axes              GTSAM body-frame pose covariance -> reference-frame axes
+
+``solve(problem, timings={})`` adds the wall time (s) spent in each of ``STAGES`` to the dict.
 """
 
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import gtsam
@@ -45,31 +62,52 @@ from calibgraph.solver.observability import check_after_solve, check_before_solv
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView, Result
 
 MIN_CORNERS_PER_VIEW = 4
+# what solve(..., timings=...) times: PnP candidates, the initialiser's consensus and its translation
+# solve (inside best_initial_guess), graph building, LM runs, elimination for the marginals
+STAGES = ("candidates", "initialise", "refine_translations", "build_graph", "lm", "marginals")
 
 
 @dataclass
-class _View:
+class View:
+    """One camera's detections in one capture, as the solver uses them (mutable: the solve sets the
+    robust weights and whether the view is active)."""
+
     camera: str
     capture: int
-    ids: np.ndarray
-    p_board: np.ndarray
-    uv: np.ndarray
-    T_ref_mount: np.ndarray  # robot pose of the capture from forward kinematics (the prior)
-    w: np.ndarray = None  # robust weights in [0, 1]; 0 = rejected corner
+    ids: np.ndarray  # (N,) corner ids
+    p_board_m: np.ndarray  # (N, 3) corners in the board frame
+    uv_px: np.ndarray  # (N, 2) detected corners
+    T_ref_mount: np.ndarray  # (4, 4) robot pose of the capture from forward kinematics (the prior)
+    w: np.ndarray = None  # (N,) robust weights in [0, 1]; 0 = rejected corner
     active: bool = True
-    reason: str = ""
+    reason: str = ""  # why the view is not active
 
 
 @dataclass
-class _Estimate:
-    T_ref_cam: dict
-    T_mount_board: np.ndarray
-    T_ref_mount: dict
+class Estimate:
+    """Values of the graph's variables, and after a solve its cost and what the marginals need."""
+
+    T_ref_cam: dict  # camera -> (4, 4)
+    T_mount_board: np.ndarray  # (4, 4)
+    T_ref_mount: dict  # capture -> (4, 4) estimated robot pose; a capture missing here starts at its FK pose
     iterations: int = 0
     cost: float = np.inf
     sigma_px: float = 1.0
-    intr: dict = field(default_factory=dict)  # camera -> refined Intrinsics (refine_intrinsics only)
+    intrinsics: dict = field(default_factory=dict)  # camera -> refined Intrinsics (refine_intrinsics only)
     extra: dict = field(default_factory=dict)
+
+
+@contextmanager
+def _timed(timings: dict | None, stage: str):
+    """Add the wall time of the block to ``timings[stage]`` (nothing when ``timings`` is None)."""
+    if timings is None:
+        yield
+        return
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        timings[stage] = timings.get(stage, 0.0) + time.perf_counter() - t0
 
 
 def _robot_prior_poses(problem: Problem) -> dict:
@@ -78,8 +116,8 @@ def _robot_prior_poses(problem: Problem) -> dict:
     return {c.index: inv(c.T_base_flange) for c in problem.captures}
 
 
-def _fk_noise(opts, mode: str = "eye_to_hand", T_ref_mount: np.ndarray | None = None):
-    """FK prior noise. The sigmas describe T_base_flange (perturbed at the flange); in eye-in-hand
+def fk_noise(opts, mode: str = "eye_to_hand", T_ref_mount: np.ndarray | None = None):
+    """Noise model of the forward-kinematics prior on F(k) = ``T_ref_mount``. The sigmas describe T_base_flange (perturbed at the flange); in eye-in-hand
     the variable is its inverse T_flange_base, whose right perturbation is -Ad(T_base_flange) xi, so
     the square-root information becomes diag(1/sigma) Ad(T_flange_base)."""
     s = np.array([opts.fk_sigma_rotation_rad] * 3 + [opts.fk_sigma_translation_m] * 3)
@@ -97,7 +135,7 @@ def _loss_weights(r_sigma: np.ndarray, loss: str, scale: float) -> np.ndarray:
     return 1.0 / (1.0 + (r_sigma / scale) ** 2)
 
 
-def _all_residuals(views, est: _Estimate, problem) -> list:
+def _all_residuals(views, est: Estimate, cameras: dict) -> list:
     """Residual norms (px) of every view, batched per camera: one projection call per camera
     instead of one per view (the per-view numpy overhead dominated large cells)."""
     out = [None] * len(views)
@@ -110,10 +148,10 @@ def _all_residuals(views, est: _Estimate, problem) -> list:
         for i in idx:
             v = views[i]
             T = T_cs @ est.T_ref_mount.get(v.capture, v.T_ref_mount) @ est.T_mount_board
-            pts.append(v.p_board @ T[:3, :3].T + T[:3, 3])
-            uvs.append(v.uv)
+            pts.append(v.p_board_m @ T[:3, :3].T + T[:3, 3])
+            uvs.append(v.uv_px)
             counts.append(len(v.ids))
-        uv_hat = est.intr.get(cam, problem.cameras[cam]).project(np.concatenate(pts))
+        uv_hat = est.intrinsics.get(cam, cameras[cam]).project(np.concatenate(pts))
         r = np.linalg.norm(uv_hat - np.concatenate(uvs), axis=1)
         r = np.where(np.isfinite(r), r, 1e6)
         for i, part in zip(idx, np.split(r, np.cumsum(counts)[:-1])):
@@ -152,7 +190,12 @@ def _check_cameras_keep_views(views, slots):
             )
 
 
-def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: str = "view"):
+def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str = "view"):
+    """(graph, initial values) of the active views' kept corners at the values of ``est``.
+
+    ``slots``: camera -> index of its C (and K) key; ``sigma_px``: pixel sigma of a full-weight corner;
+    ``form``: 'view' or 'corner' (see the module docstring).
+    """
     _check_cameras_keep_views(views, slots)
     if form == "corner":
         o = problem.options
@@ -163,7 +206,7 @@ def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: s
     used_caps = sorted({v.capture for v in views if v.active})
     T_ref_mount_fk = {v.capture: v.T_ref_mount for v in views}
     for k in used_caps:
-        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(T_ref_mount_fk[k]), _fk_noise(problem.options, problem.mode, T_ref_mount_fk[k])))
+        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(T_ref_mount_fk[k]), fk_noise(problem.options, problem.mode, T_ref_mount_fk[k])))
         values.insert(F(k), gtsam.Pose3(est.T_ref_mount.get(k, T_ref_mount_fk[k])))
     for name, i in slots.items():
         values.insert(C(i), gtsam.Pose3(est.T_ref_cam[name]))
@@ -174,7 +217,7 @@ def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: s
         prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([o.intrinsics_sigma_px] * 4 + [o.distortion_sigma] * 2))
         for name, i in slots.items():
             graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(problem.cameras[name]), prior))
-            values.insert(K(i), intrinsics_vector(est.intr.get(name, problem.cameras[name])))
+            values.insert(K(i), intrinsics_vector(est.intrinsics.get(name, problem.cameras[name])))
     for v in views:
         if not v.active:
             continue
@@ -182,9 +225,9 @@ def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: s
         sw = np.sqrt(v.w[keep]) / sigma_px
         if refine:
             graph.add(make_view_factor_intrinsics(C(slots[v.camera]), F(v.capture), B(0), K(slots[v.camera]),
-                                                  v.p_board[keep], v.uv[keep], problem.cameras[v.camera], sw))
+                                                  v.p_board_m[keep], v.uv_px[keep], problem.cameras[v.camera], sw))
         else:
-            graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board[keep], v.uv[keep],
+            graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board_m[keep], v.uv_px[keep],
                                        problem.cameras[v.camera], sw))
     return graph, values
 
@@ -225,7 +268,9 @@ def _order_for(values, form):
     return factors_ppp.ordering(values) if form == "corner" else _ordering(values)
 
 
-def _lm(graph, values, max_iterations, form: str = "view"):
+def levenberg_marquardt(graph, values, max_iterations, form: str = "view"):
+    """One LM run with the solver's elimination ordering: (values, iterations, final error).
+    A singular system raises ObservabilityError."""
     params = gtsam.LevenbergMarquardtParams()
     params.setOrdering(_order_for(values, form))
     params.setMaxIterations(max_iterations)
@@ -242,49 +287,57 @@ def _lm(graph, values, max_iterations, form: str = "view"):
     return out, opt.iterations(), graph.error(out)
 
 
-def _extract(values, slots, views, est: _Estimate, form: str = "view") -> _Estimate:
+def _extract(values, slots, views, est: Estimate, form: str = "view") -> Estimate:
     if form == "corner":
         T_ref_cam, T_mount_board, T_ref_mount_new = factors_ppp.extract(values, slots, views)
         T_ref_mount = dict(est.T_ref_mount)
         T_ref_mount.update(T_ref_mount_new)
-        return _Estimate(T_ref_cam=T_ref_cam, T_mount_board=T_mount_board, T_ref_mount=T_ref_mount)
+        return Estimate(T_ref_cam=T_ref_cam, T_mount_board=T_mount_board, T_ref_mount=T_ref_mount)
     T_ref_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
     T_ref_mount = dict(est.T_ref_mount)
     for k in {v.capture for v in views if v.active}:
         T_ref_mount[k] = values.atPose3(F(k)).matrix()
-    intr = dict(est.intr)
+    intr = dict(est.intrinsics)
     for name, i in slots.items():
         if values.exists(K(i)):
-            base = est.intr.get(name) or est.extra["cameras"][name]
+            base = est.intrinsics.get(name) or est.extra["cameras"][name]
             intr[name] = with_pinhole(base, values.atVector(K(i)))
-    out = _Estimate(T_ref_cam=T_ref_cam, T_mount_board=values.atPose3(B(0)).matrix(), T_ref_mount=T_ref_mount, intr=intr)
+    out = Estimate(T_ref_cam=T_ref_cam, T_mount_board=values.atPose3(B(0)).matrix(), T_ref_mount=T_ref_mount,
+                   intrinsics=intr)
     out.extra["cameras"] = est.extra.get("cameras")
     return out
 
 
-def _solve_core(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray):
-    """IRLS + outlier handling for one graph (all cameras in 'joint', one camera in 'single')."""
+def solve_from_start(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
+                     timings: dict | None = None) -> Estimate:
+    """IRLS + outlier handling + marginals for one graph (all cameras in 'joint', one camera in
+    'single') from the start ``T_ref_cam0`` (camera -> 4x4), ``T_mount_board0``; no initialiser.
+
+    Sets the views' weights, ``active`` and ``reason``. The Estimate's ``extra`` holds
+    ``marginals``, ``slots`` (camera -> C key index), ``formulation`` and ``mount_cov_body``.
+    """
     form = "view" if problem.options.refine_intrinsics else _formulation(problem, names, len(views))
     try:
-        return _solve_core_with(problem, names, views, T_ref_cam0, T_mount_board0, form)
+        return _solve_with_formulation(problem, names, views, T_ref_cam0, T_mount_board0, form, timings)
     except ObservabilityError:
         if form != "corner" or problem.options.formulation == "corner":
             raise
         # numerical failure of the corner graph: the per-view graph is the reference
-        return _solve_core_with(problem, names, views, T_ref_cam0, T_mount_board0, "view")
+        return _solve_with_formulation(problem, names, views, T_ref_cam0, T_mount_board0, "view", timings)
 
 
-def _solve_core_with(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray, form: str):
+def _solve_with_formulation(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
+                            form: str, timings: dict | None):
     opts = problem.options
     slots = {n: i for i, n in enumerate(names)}
-    est = _Estimate(T_ref_cam=dict(T_ref_cam0), T_mount_board=T_mount_board0, T_ref_mount={})
+    est = Estimate(T_ref_cam=dict(T_ref_cam0), T_mount_board=T_mount_board0, T_ref_mount={})
     est.extra["cameras"] = problem.cameras
     for v in views:
         v.w = np.ones(len(v.ids))
         v.active = True
         v.reason = ""
     # Gross view screening at the initial guess, so a few corrupted views cannot drag the first solve.
-    init_rms = np.array([np.sqrt(np.mean(r ** 2)) for r in _all_residuals(views, est, problem)])
+    init_rms = np.array([np.sqrt(np.mean(r ** 2)) for r in _all_residuals(views, est, problem.cameras)])
     thr0 = max(10.0 * np.median(init_rms), 15.0)
     for v, r in zip(views, init_rms):
         if r > thr0:
@@ -295,11 +348,13 @@ def _solve_core_with(problem: Problem, names: list, views: list, T_ref_cam0: dic
     total_it = 0
     for outer in range(4):
         for irls in range(6):
-            graph, values = _build_graph(views, slots, problem, est, sigma, form)
-            values, it, cost = _lm(graph, values, opts.max_iterations, form)
+            with _timed(timings, "build_graph"):
+                graph, values = build_graph(views, slots, problem, est, sigma, form)
+            with _timed(timings, "lm"):
+                values, it, cost = levenberg_marquardt(graph, values, opts.max_iterations, form)
             total_it += it
             est = _extract(values, slots, views, est, form)
-            res = {id(v): r for v, r in zip(views, _all_residuals(views, est, problem))}
+            res = {id(v): r for v, r in zip(views, _all_residuals(views, est, problem.cameras))}
             act = [v for v in views if v.active]
             norms = np.concatenate([res[id(v)][v.w > 0] for v in act])
             # median of a 2-D Gaussian residual norm is sqrt(2 ln 2) = 1.1774 per-axis sigmas
@@ -340,19 +395,22 @@ def _solve_core_with(problem: Problem, names: list, views: list, T_ref_cam0: dic
     if fixed_sigma:
         sigma_post = fixed_sigma
     else:
-        wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(act, _all_residuals(act, est, problem)))
+        wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(act, _all_residuals(act, est, problem.cameras)))
         sigma_post = float(np.sqrt(wr2 / max(n_obs - n_par, 1)))
         sigma_post = max(sigma_post, 1e-4)
-    graph, values = _build_graph(views, slots, problem, est, sigma_post, form)
+    with _timed(timings, "build_graph"):
+        graph, values = build_graph(views, slots, problem, est, sigma_post, form)
     if abs(sigma_post - sigma) > 0.05 * sigma:
         # the pixel/FK balance moved enough to shift the optimum: re-solve before the marginals
-        values, it, _ = _lm(graph, values, opts.max_iterations, form)
+        with _timed(timings, "lm"):
+            values, it, _ = levenberg_marquardt(graph, values, opts.max_iterations, form)
         total_it += it
         est = _extract(values, slots, views, est, form)
     cost = graph.error(values)
     est.iterations, est.cost, est.sigma_px = total_it, cost, sigma_post
     try:
-        marg = _Marginals(graph, values, _order_for(values, form))
+        with _timed(timings, "marginals"):
+            marg = _Marginals(graph, values, _order_for(values, form))
     except RuntimeError as e:
         raise ObservabilityError(
             f"covariance could not be computed ({str(e).splitlines()[0][:120]}): the views leave a parameter "
@@ -367,7 +425,7 @@ def _solve_core_with(problem: Problem, names: list, views: list, T_ref_cam0: dic
     return est
 
 
-def _to_ref_axes(T: np.ndarray, cov_body: np.ndarray) -> np.ndarray:
+def to_ref_axes(T: np.ndarray, cov_body: np.ndarray) -> np.ndarray:
     """GTSAM right-perturbation covariance -> rotation/position errors in the reference frame axes."""
     R = T[:3, :3]
     G = np.zeros((6, 6))
@@ -396,23 +454,26 @@ def _pair_covariance(T_a: np.ndarray, T_b: np.ndarray, cov_joint_body: np.ndarra
     return J @ cov_joint_body @ J.T
 
 
-def _prepare_views(problem: Problem):
+def prepare_views(problem: Problem) -> tuple[list, list]:
+    """(views, rejected): the problem's detections as :class:`View` s, and those with fewer than
+    MIN_CORNERS_PER_VIEW corners as :class:`RejectedView` s."""
     robot_poses = _robot_prior_poses(problem)
     views, rejected = [], []
     for d in problem.detections:
         if len(d.ids) < MIN_CORNERS_PER_VIEW:
             rejected.append(RejectedView(d.camera, d.capture, f"only {len(d.ids)} corners (need {MIN_CORNERS_PER_VIEW})"))
             continue
-        views.append(_View(camera=d.camera, capture=d.capture, ids=d.ids, p_board=problem.points_board_m[d.ids],
-                           uv=d.uv_px, T_ref_mount=robot_poses[d.capture]))
+        views.append(View(camera=d.camera, capture=d.capture, ids=d.ids, p_board_m=problem.points_board_m[d.ids],
+                          uv_px=d.uv_px, T_ref_mount=robot_poses[d.capture]))
     return views, rejected
 
 
-def _candidates(problem, views):
+def view_candidates(problem: Problem, views: list) -> tuple[dict, list]:
+    """(camera -> [ViewCandidates], views without a valid PnP solution): both IPPE poses of every view."""
     out = {}
     bad = []
     for v in views:
-        R, t, rms = pnp_candidates(v.p_board, v.uv, problem.cameras[v.camera])
+        R, t, rms = pnp_candidates(v.p_board_m, v.uv_px, problem.cameras[v.camera])
         if len(R) == 0:
             bad.append(v)
             continue
@@ -420,13 +481,13 @@ def _candidates(problem, views):
     return out, bad
 
 
-def _init_score(problem, views, T_ref_cam, T_mount_board) -> float:
+def _init_score(cameras: dict, views, T_ref_cam, T_mount_board) -> float:
     """Median per-view RMS reprojection error (px) of an initial guess over the views it covers."""
     vs = [v for v in views if v.camera in T_ref_cam]
     if not vs:
         return np.inf
-    est = _Estimate(T_ref_cam=T_ref_cam, T_mount_board=T_mount_board, T_ref_mount={})
-    rms = [np.sqrt(np.mean(r ** 2)) for r in _all_residuals(vs, est, problem)]
+    est = Estimate(T_ref_cam=T_ref_cam, T_mount_board=T_mount_board, T_ref_mount={})
+    rms = [np.sqrt(np.mean(r ** 2)) for r in _all_residuals(vs, est, cameras)]
     return float(np.median(rms))
 
 
@@ -447,41 +508,51 @@ def _subsample(cands: dict, views: list, max_views: int, seed: int):
     return out, [v for v in views if (v.camera, v.capture) in keep]
 
 
-def _best_initial_guess(problem, names, views, cands, joint, seed):
+def best_initial_guess(cameras: dict, views: list, cands: dict, joint: bool, seed: int = 0,
+                       timings: dict | None = None) -> tuple[dict, dict]:
     """Rank the initialiser's hypotheses by reprojection error after the linear translation solve.
+
+    ``cameras``: name -> Intrinsics, in slot order; ``cands``: from :func:`view_candidates`.
+    Returns (camera -> T_ref_cam, mounts) with mounts {0: T_mount_board} when ``joint``, else
+    camera -> its own mount; a camera that could not be initialised is missing.
 
     Per-view PnP rotations of a small far board can be tens of degrees off, and a wrong hypothesis
     can be as self-consistent in rotation as the right one; it cannot explain the corners.
     """
-    p_by_view = {(v.camera, v.capture): v.p_board for v in views}
-    uv_by_view = {(v.camera, v.capture): v.uv for v in views}
-    hyps = initialise(names, cands, joint=joint, seed=seed)
+    p_by_view = {(v.camera, v.capture): v.p_board_m for v in views}
+    uv_by_view = {(v.camera, v.capture): v.uv_px for v in views}
+    with _timed(timings, "initialise"):
+        hyps = initialise(list(cameras), cands, joint=joint, seed=seed)
+
+    def translations(*args):
+        with _timed(timings, "refine_translations"):
+            return refine_translations(*args)
+
     if joint:
         # Rank on a subsample (large cells have thousands of views), refine the winner on all.
         s_cands, s_views = _subsample(cands, views, INIT_SCORE_MAX_VIEWS, seed)
         best = None
         for T0, mounts in hyps:
             if len(hyps) > 1:
-                T1, m1 = refine_translations(s_cands, problem.cameras, T0, mounts[0], p_by_view, uv_by_view)
-                score = (-len(T1), _init_score(problem, s_views, T1, m1))
+                T1, m1 = translations(s_cands, cameras, T0, mounts[0], p_by_view, uv_by_view)
+                score = (-len(T1), _init_score(cameras, s_views, T1, m1))
             else:
                 score = (0, 0.0)
             if best is None or score < best[0]:
                 best = (score, T0, mounts[0])
-        T0, m0 = refine_translations(cands, problem.cameras, best[1], best[2], p_by_view, uv_by_view)
+        T0, m0 = translations(cands, cameras, best[1], best[2], p_by_view, uv_by_view)
         return T0, {0: m0}
     T_best, m_best, s_best = {}, {}, {}
     for T0, mounts in hyps:
         for n in mounts:
-            Tn, mn = refine_translations({n: cands.get(n, [])}, problem.cameras, {n: T0[n]}, mounts[n],
-                                         p_by_view, uv_by_view)
-            sc = _init_score(problem, [v for v in views if v.camera == n], {n: Tn[n]}, mn)
+            Tn, mn = translations({n: cands.get(n, [])}, cameras, {n: T0[n]}, mounts[n], p_by_view, uv_by_view)
+            sc = _init_score(cameras, [v for v in views if v.camera == n], {n: Tn[n]}, mn)
             if n not in s_best or sc < s_best[n]:
                 T_best[n], m_best[n], s_best[n] = Tn[n], mn, sc
     return T_best, m_best
 
 
-def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Result:
+def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings: dict | None = None) -> Result:
     """Calibrate all cameras of ``problem``.
 
     Args:
@@ -489,6 +560,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
         initial: optional initial guess ``{"T_ref_cam": {name: 4x4}, "T_mount_board": 4x4}``; the
             robust initialiser runs anyway and the start that ends with the lower cost wins.
         seed: RANSAC seed (results are deterministic for a given seed).
+        timings: when a dict, the wall time (s) of each stage in ``STAGES`` is added to it.
     Returns:
         :class:`Result`.
     Raises:
@@ -497,8 +569,9 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
     """
     t0 = time.perf_counter()
     opts = problem.options
-    views, rejected = _prepare_views(problem)
-    cands, bad = _candidates(problem, views)
+    views, rejected = prepare_views(problem)
+    with _timed(timings, "candidates"):
+        cands, bad = view_candidates(problem, views)
     for v in bad:
         rejected.append(RejectedView(v.camera, v.capture, "no valid PnP solution (corners degenerate or ids wrong)"))
     views = [v for v in views if v not in bad]
@@ -509,7 +582,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
     check_before_solve(problem, views_by_cam, frame_word)
     names = list(problem.cameras)
     joint = problem.method == "joint"
-    T0, mounts0 = _best_initial_guess(problem, names, views, cands, joint, seed)
+    T0, mounts0 = best_initial_guess(problem.cameras, views, cands, joint, seed, timings)
     missing = [n for n in names if n not in T0]
     if missing:
         raise ObservabilityError(
@@ -526,7 +599,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
         best, error = None, None
         for Ts, Tm in starts:
             try:
-                est = _solve_core(problem, names, views, Ts, Tm)
+                est = solve_from_start(problem, names, views, Ts, Tm, timings)
             except ObservabilityError as e:
                 error = e
                 continue
@@ -542,7 +615,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
         groups = []
         for n in names:
             vs = [v for v in views if v.camera == n]
-            est = _solve_core(problem, [n], vs, {n: T0[n]}, mounts0[n])
+            est = solve_from_start(problem, [n], vs, {n: T0[n]}, mounts0[n], timings)
             groups.append(([n], est, vs))
     sigma_px_all, iters, cost = [], 0, 0.0
     body_cov = {}
@@ -555,16 +628,16 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
         for n in gnames:
             cb = marg.marginalCovariance(C(slots[n]))
             body_cov[n] = (cb, est, marg, slots)
-            cov = _to_ref_axes(est.T_ref_cam[n], cb)
+            cov = to_ref_axes(est.T_ref_cam[n], cb)
             check_after_solve(n, cov)
             cv = [v for v in gviews if v.camera == n]
             used = [v for v in cv if v.active]
-            intr = est.intr.get(n, problem.cameras[n])
+            intr = est.intrinsics.get(n, problem.cameras[n])
             res_all, residuals = [], {}
             for v in cv:
-                uv_hat = project_chain(est.T_ref_cam[n], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board, v.p_board, intr)
-                d = uv_hat - v.uv
-                residuals[v.capture] = {"ids": v.ids, "uv_detected_px": v.uv, "residual_px": d,
+                uv_hat = project_chain(est.T_ref_cam[n], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board, v.p_board_m, intr)
+                d = uv_hat - v.uv_px
+                residuals[v.capture] = {"ids": v.ids, "uv_detected_px": v.uv_px, "residual_px": d,
                                         "weight": v.w.copy(), "rejected": not v.active}
                 if v.active:
                     keep = v.w > 0
@@ -610,7 +683,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
     if joint:
         est = groups[0][1]
         T_mount = est.T_mount_board
-        mount_cov = _to_ref_axes(T_mount, est.extra["mount_cov_body"])
+        mount_cov = to_ref_axes(T_mount, est.extra["mount_cov_body"])
         T_ref_mount = est.T_ref_mount
     if problem.mode == "eye_in_hand":
         T_ref_mount = {k: inv(T) for k, T in T_ref_mount.items()}
@@ -633,7 +706,7 @@ def crlb(problem: Problem, T_ref_cam: dict, T_mount_board, pixel_sigma_px: float
     Returns name -> 6x6 covariance (rotation first, reference-frame axes, as in the results).
     In 'single' mode pass ``mounts_single`` (name -> true mount) or the shared true mount is used for each.
     """
-    views, _ = _prepare_views(problem)
+    views, _ = prepare_views(problem)
     for v in views:
         v.w = np.ones(len(v.ids))
     true_A = {}
@@ -644,10 +717,10 @@ def crlb(problem: Problem, T_ref_cam: dict, T_mount_board, pixel_sigma_px: float
     for names in groups:
         vs = [v for v in views if v.camera in names]
         mount = T_mount_board if problem.method == "joint" or not mounts_single else mounts_single[names[0]]
-        est = _Estimate(T_ref_cam={n: T_ref_cam[n] for n in names}, T_mount_board=mount, T_ref_mount=dict(true_A))
+        est = Estimate(T_ref_cam={n: T_ref_cam[n] for n in names}, T_mount_board=mount, T_ref_mount=dict(true_A))
         slots = {n: i for i, n in enumerate(names)}
-        graph, values = _build_graph(vs, slots, problem, est, pixel_sigma_px)
+        graph, values = build_graph(vs, slots, problem, est, pixel_sigma_px)
         marg = _Marginals(graph, values, _ordering(values))
         for n in names:
-            out[n] = _to_ref_axes(T_ref_cam[n], marg.marginalCovariance(C(slots[n])))
+            out[n] = to_ref_axes(T_ref_cam[n], marg.marginalCovariance(C(slots[n])))
     return out

@@ -24,10 +24,10 @@ from calibgraph.core.problem import Capture, SolverOptions
 from calibgraph.core.transforms import inv
 from calibgraph.solver.batch import (
     MIN_CORNERS_PER_VIEW,
-    _best_initial_guess,
-    _fk_noise,
-    _to_ref_axes,
-    _View,
+    View,
+    best_initial_guess,
+    fk_noise,
+    to_ref_axes,
 )
 from calibgraph.solver.factors import make_view_factor, project_chain
 from calibgraph.solver.initialise import (
@@ -115,7 +115,7 @@ class IncrementalSolver:
             if cap.index not in self._fk_in_graph and not values.exists(F(cap.index)):
                 T_ref_mount = self._T_ref_mount(cap)
                 graph.add(gtsam.PriorFactorPose3(F(cap.index), gtsam.Pose3(T_ref_mount),
-                                                 _fk_noise(self.options, self.mode, T_ref_mount)))
+                                                 fk_noise(self.options, self.mode, T_ref_mount)))
                 values.insert(F(cap.index), gtsam.Pose3(T_ref_mount))
             graph.add(self._view_factor(cap, det))
             self._views_in_graph[det.camera] += 1
@@ -130,10 +130,10 @@ class IncrementalSolver:
         by_cam = {}
         for cap, det, vc in items:
             by_cam.setdefault(det.camera, []).append(vc)
-        views = [_View(camera=det.camera, capture=cap.index, ids=det.ids, p_board=self.points_board_m[det.ids],
-                       uv=det.uv_px, T_ref_mount=self._T_ref_mount(cap)) for cap, det, _ in items]
+        views = [View(camera=det.camera, capture=cap.index, ids=det.ids, p_board_m=self.points_board_m[det.ids],
+                      uv_px=det.uv_px, T_ref_mount=self._T_ref_mount(cap)) for cap, det, _ in items]
         try:
-            T0, mounts = _best_initial_guess(self, list(self.cameras), views, by_cam, True, 0)
+            T0, mounts = best_initial_guess(self.cameras, views, by_cam, joint=True, seed=0)
         except Exception:  # noqa: BLE001 - not enough consistent views yet; keep buffering
             return False
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -236,7 +236,7 @@ class IncrementalSolver:
                 T = self._estimate.atPose3(C(self._slots[name])).matrix()
                 cov = None
                 if self.with_covariance:
-                    cov = _to_ref_axes(T, self._isam.marginalCovariance(C(self._slots[name])))
+                    cov = to_ref_axes(T, self._isam.marginalCovariance(C(self._slots[name])))
                 cams[name] = CameraEstimate(T, cov, self._views_in_graph[name])
         return IncrementalEstimate(cameras=cams, T_mount_board=mount,
                                    pending={n: len(v) for n, v in self._pending.items() if v},
