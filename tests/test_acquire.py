@@ -118,7 +118,7 @@ def test_sigkill_mid_run_then_resume_loses_and_duplicates_nothing(tmp_path):
         p = subprocess.Popen([sys.executable, "-c", KILL_SCRIPT, str(out), str(n), "0.03"], env=env)
         t_end = time.monotonic() + 30
         while time.monotonic() < t_end and p.poll() is None:
-            if len(list((out / "captures").glob("*.json"))) >= target_done:
+            if len(list((out / "captures").glob("0*.json"))) >= target_done:  # not the .NNNNNN.json.tmp*.json being written
                 break
             time.sleep(0.005)
         assert p.poll() is None, "the capture subprocess ended before it could be killed"
