@@ -61,7 +61,16 @@ from calibgraph.core.problem import SolverOptions  # noqa: E402
 from calibgraph.core.targets import a4_board_54, thesis_board  # noqa: E402
 from calibgraph.core.transforms import inv, make_T, pose_error  # noqa: E402
 from calibgraph.sim.synth import Scene, make_scene, ring_cameras  # noqa: E402
-from calibgraph.solver import solver as cg_solver  # noqa: E402
+from calibgraph.solver.batch import (  # noqa: E402
+    STAGES,
+    Estimate,
+    build_graph,
+    crlb,
+    levenberg_marquardt,
+    prepare_views,
+    solve,
+)
+from calibgraph.solver.keys import C  # noqa: E402
 
 DISTANCES_M = (1.5, 3.0, 5.0)
 PRESETS = ("d455", "l515")
@@ -186,31 +195,31 @@ def _opencv_jobs(scene, exact_poses: bool = False, oracle: bool = False) -> dict
 def mle_from_truth(problem, truth, pixel_sigma_px) -> dict | None:
     """Reference estimator: plain least squares (known pixel sigma, no robust loss, no view screening)
     started at the truth. Its error vs the CRLB says how far the *problem* is from the bound in small
-    samples (nonlinearity); solve() vs this says how much the solver's own machinery costs. Uses
-    solver internals, so it returns None when they change."""
+    samples (nonlinearity); solve() vs this says how much the solver's own machinery costs. Built
+    from the solver's internal API (calibgraph.solver.batch); None when the LM run fails."""
+    views, _ = prepare_views(problem)
+    for v in views:
+        v.w = np.ones(len(v.ids))
+    names = list(problem.cameras)
+    slots = {n: i for i, n in enumerate(names)}
+    est = Estimate(T_ref_cam=dict(truth.T_ref_cam), T_mount_board=truth.T_mount_board,
+                   T_ref_mount=dict(truth.T_base_flange_true))
     try:
-        views, _ = cg_solver._prepare_views(problem)
-        for v in views:
-            v.w = np.ones(len(v.ids))
-        names = list(problem.cameras)
-        slots = {n: i for i, n in enumerate(names)}
-        est = cg_solver._Estimate(T_S_cam=dict(truth.T_ref_cam), T_M_board=truth.T_mount_board,
-                                  A_est=dict(truth.T_base_flange_true))
-        graph, values = cg_solver._build_graph(views, slots, problem, est, pixel_sigma_px)
-        out = cg_solver._lm(graph, values, 100)[0]
-        return {n: out.atPose3(cg_solver.C(i)).matrix() for n, i in slots.items()}
-    except Exception:  # noqa: BLE001 - optional diagnostic
+        graph, values = build_graph(views, slots, problem, est, pixel_sigma_px)
+        out = levenberg_marquardt(graph, values, 100)[0]
+    except CalibgraphError:  # optional diagnostic: a singular graph costs this column, not the trial
         return None
+    return {n: out.atPose3(C(i)).matrix() for n, i in slots.items()}
 
 
 def run_trial(cfg: Config, seed: int, with_opencv: bool) -> dict:
     scene = _scene(cfg, seed)
     prob, truth = scene.problem, scene.truth
-    crlb = cg_solver.crlb(prob, truth.T_ref_cam, truth.T_mount_board, cfg.pixel_sigma_px, truth.T_base_flange_true)
+    bound = crlb(prob, truth.T_ref_cam, truth.T_mount_board, cfg.pixel_sigma_px, truth.T_base_flange_true)
     error, result, solve_time_s = "", None, float("nan")
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        result = cg_solver.solve(prob)
+        result = solve(prob)
         solve_time_s = result.solve_time_s
     except Exception as e:  # noqa: BLE001 - a raising solve is a gross failure; keep its message
         error = f"{type(e).__name__}: {str(e).splitlines()[0][:300] if str(e) else ''}"
@@ -221,7 +230,7 @@ def run_trial(cfg: Config, seed: int, with_opencv: bool) -> dict:
     mle = mle_from_truth(prob, truth, cfg.pixel_sigma_px) if cfg.fk == "0" else None
     cams = []
     for i, name in enumerate(prob.cameras):
-        crlb_t, crlb_r = _sqrt_trace(crlb[name])
+        crlb_t, crlb_r = _sqrt_trace(bound[name])
         rec = {"camera": name, "distance_m": DISTANCES_M[i], "crlb_t_m": crlb_t, "crlb_r_deg": crlb_r,
                "views": sum(1 for d in prob.detections if d.camera == name)}
         if result is not None:
@@ -386,51 +395,6 @@ def _ratio_ci95(e: np.ndarray, c: np.ndarray) -> tuple[float, float]:
 # ---------------------------------------------------------------------------------------------
 # timings
 # ---------------------------------------------------------------------------------------------
-class _StageTimer:
-    """Wraps solver-module functions (looked up at call time) to time each stage of one solve."""
-
-    STAGES = ("_candidates", "initialise", "refine_translations", "_build_graph", "_lm")
-
-    def __init__(self):
-        self.t = {}
-
-    def __enter__(self):
-        self._orig = {}
-        for name in self.STAGES + ("_Marginals",):
-            if not hasattr(cg_solver, name):
-                continue
-            self._orig[name] = getattr(cg_solver, name)
-            label = "marginals" if name == "_Marginals" else name
-            setattr(cg_solver, name, self._wrap(label, self._orig[name]))
-        self._orig_gtsam = cg_solver.gtsam
-        proxy = _GtsamProxy(cg_solver.gtsam)
-        proxy.Marginals = self._wrap("marginals", cg_solver.gtsam.Marginals)
-        cg_solver.gtsam = proxy
-        return self
-
-    def __exit__(self, *exc):
-        for name, f in self._orig.items():
-            setattr(cg_solver, name, f)
-        cg_solver.gtsam = self._orig_gtsam
-
-    def _wrap(self, name, f):
-        def g(*a, **k):
-            t0 = time.perf_counter()
-            try:
-                return f(*a, **k)
-            finally:
-                self.t[name] = self.t.get(name, 0.0) + time.perf_counter() - t0
-        return g
-
-
-class _GtsamProxy:
-    def __init__(self, mod):
-        self._mod = mod
-
-    def __getattr__(self, name):
-        return getattr(self._mod, name)
-
-
 def time_batch(cfg: Config, repeats: int, seed: int, n_cams: int = 3, formulation="default") -> dict:
     if n_cams == 3:
         scene = _scene(cfg, seed, formulation=formulation)
@@ -441,11 +405,10 @@ def time_batch(cfg: Config, repeats: int, seed: int, n_cams: int = 3, formulatio
     runs = []
     for _ in range(repeats):
         c0 = time.process_time()
-        with _StageTimer() as st:
-            res = cg_solver.solve(prob)
+        timings = {}
+        res = solve(prob, timings=timings)  # the solver times its own stages (solver.batch.STAGES)
         cpu = time.process_time() - c0
-        stages = {k: st.t.get(k, 0.0) for k in ("_candidates", "initialise", "refine_translations", "_build_graph",
-                                                "_lm", "marginals")}
+        stages = {k: timings.get(k, 0.0) for k in STAGES}
         stages["other"] = res.solve_time_s - sum(stages.values())
         runs.append({"solve_time_s": res.solve_time_s, "cpu_time_s": cpu, "iterations": res.iterations, "stages_s": stages,
                      "loadavg_1min": os.getloadavg()[0]})

@@ -118,8 +118,7 @@ def test_sigkill_mid_run_then_resume_loses_and_duplicates_nothing(tmp_path):
         p = subprocess.Popen([sys.executable, "-c", KILL_SCRIPT, str(out), str(n), "0.03"], env=env)
         t_end = time.monotonic() + 30
         while time.monotonic() < t_end and p.poll() is None:
-            # "0*.json": pathlib's "*" also matches the writer's ".000010.json.tmp<pid>.json", which
-            # let the kill land one capture early (seen: 11 <= 10 failed)
+            # finished captures only ("0*.json"), never a hidden temporary file being written
             if len(list((out / "captures").glob("0*.json"))) >= target_done:
                 break
             time.sleep(0.005)

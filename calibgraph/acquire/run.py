@@ -261,12 +261,9 @@ def _format_estimate(est) -> str:
     return str(est)
 
 
-def _pose_diff(T0, T1):
-
-    return pose_error(T0, T1)
-
-
 class _Journal:
+    """``acquisition.json``: each pose's status and message, the runs, the trajectory's SHA-256."""
+
     def __init__(self, root: Path, traj_sha: str, n_poses: int):
         self.path = root / JOURNAL_NAME
         self.d = {"format": JOURNAL_FORMAT, "trajectory_sha256": traj_sha, "n_poses": n_poses, "poses": {},
@@ -327,269 +324,404 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
     Returns:
         :class:`AcquisitionReport`.
     """
-    t_start = time.monotonic()
-    out = Path(out_dir)
-    log = _make_log(progress)
-    safety = safety or SafetyLimits()
-    if not isinstance(trajectory, Trajectory):
-        trajectory = load_trajectory(trajectory) if isinstance(trajectory, (str, os.PathLike)) else Trajectory(tuple(trajectory))
-    check_speed(trajectory.speed_scale, safety)
-    cams = dict(cameras) if isinstance(cameras, dict) else {c.name: c for c in cameras}
-    if len(cams) == 0 and not dry_run:
-        raise InputError("capture: no cameras configured.")
-    if robot is None and not dry_run:
-        raise InputError("capture: no robot given (only a dry run can plan without one).")
-    if detector is None and not dry_run:
-        detector = detect_image
-    fk = fk_function(robot, safety)
-    robot_limits = robot.joint_limits() if robot is not None and callable(getattr(robot, "joint_limits", None)) else None
-    traj_sha = trajectory.sha256()
-    trace = []
+    settings = _Settings(settle_timeout_s, settle_dwell_s, settle_poll_s, max_camera_failures, grab_retries,
+                         min_corners, arrival_tolerance_rad, still_tolerance_m, still_tolerance_deg)
+    run = _Acquisition(robot, cameras, trajectory, out_dir, target, detector, safety, on_capture, progress, dry_run,
+                       mode, settings)
+    plan = run.start(resume)
+    if dry_run:
+        return run.dry_run_report(plan)
+    pending = run.prepare_dataset()
+    stopped = run.visit(pending)
+    return run.finish(stopped)
 
-    def enter(state, i=None):
-        trace.append((state.value, i))
 
-    # ---- START --------------------------------------------------------------------------------
-    enter(State.START)
-    journal = None
-    if not dry_run:
-        if out.exists() and (out / "dataset.yaml").exists() and not resume:
-            raise InputError(f"{out}: a dataset already exists here; pass --resume to continue it or choose a new --out.")
-        if resume and (out / "dataset.yaml").exists():
-            journal = _Journal.load(out)
-            if journal is not None and journal.d.get("trajectory_sha256") not in ("", traj_sha):
-                raise InputError(f"{out}: this dataset was captured with a different trajectory (SHA-256 differs); "
-                                 f"resume with the original one ({out / 'trajectory.yaml'}) or start a new dataset.")
-    resumed = journal is not None or (resume and (out / "dataset.yaml").exists())
-    if journal is None:
-        journal = _Journal(out, traj_sha, len(trajectory.poses))
+@dataclass(frozen=True)
+class _Settings:
+    """The timing and tolerance knobs of :func:`run_acquisition`."""
 
-    camera_errors = {c: [] for c in cams}
-    fails_in_row = {c: 0 for c in cams}
-    last_stamp = {}  # camera -> stamp of its last frame: a repeated stamp is a stale (re-delivered) frame
-    lost = []
-    intr = {}
-    for name, cam in ({} if dry_run else cams).items():  # a dry run touches no camera
+    settle_timeout_s: float
+    settle_dwell_s: float
+    settle_poll_s: float
+    max_camera_failures: int
+    grab_retries: int
+    min_corners: int
+    arrival_tolerance_rad: float
+    still_tolerance_m: float
+    still_tolerance_deg: float
+
+
+class _Acquisition:
+    """One run of the state machine: its inputs, the dataset's counts and journal, the cameras' state.
+
+    :func:`run_acquisition` drives it: ``start`` (START), then ``dry_run_report``, or ``prepare_dataset``,
+    ``visit`` (MOVE, SETTLE, ACQUIRE, NEXT for every pending pose) and ``finish`` (END).
+    """
+
+    def __init__(self, robot, cameras, trajectory, out_dir, target: Target, detector, safety, on_capture, progress,
+                 dry_run: bool, mode: str, settings: _Settings):
+        self.t_start = time.monotonic()
+        self.out = Path(out_dir)
+        self.log = _make_log(progress)
+        self.safety = safety or SafetyLimits()
+        if not isinstance(trajectory, Trajectory):
+            trajectory = (load_trajectory(trajectory) if isinstance(trajectory, (str, os.PathLike))
+                          else Trajectory(tuple(trajectory)))
+        check_speed(trajectory.speed_scale, self.safety)
+        self.cams = dict(cameras) if isinstance(cameras, dict) else {c.name: c for c in cameras}
+        if len(self.cams) == 0 and not dry_run:
+            raise InputError("capture: no cameras configured.")
+        if robot is None and not dry_run:
+            raise InputError("capture: no robot given (only a dry run can plan without one).")
+        if detector is None and not dry_run:
+            detector = detect_image
+        self.robot, self.trajectory, self.poses, self.target = robot, trajectory, trajectory.poses, target
+        self.detector, self.on_capture, self.dry_run, self.mode = detector, on_capture, dry_run, mode
+        self.settings = settings
+        self.fk = fk_function(robot, self.safety)
+        has_limits = robot is not None and callable(getattr(robot, "joint_limits", None))
+        self.robot_limits = robot.joint_limits() if has_limits else None
+        self.trace = []  # (state, pose index) transitions
+        self.journal = None
+        self.resumed = False
+        self.camera_errors = {c: [] for c in self.cams}
+        self.fails_in_row = {c: 0 for c in self.cams}
+        self.last_stamp = {}  # camera -> stamp of its last frame: a repeated stamp is a stale (re-delivered) frame
+        self.lost = []
+        self.intr = {}
+        self.n_via = sum(not p.capture for p in self.poses)
+        self.leads_to = _via_targets(self.poses)
+        self.outcomes = []
+        self.accepted = {c: 0 for c in self.cams}
+        self.rejected = {c: 0 for c in self.cams}
+        self.failed_leg = {}  # capture pose -> the via pose on the way to it that was not reached
+        self.last_estimate = None
+
+    def enter(self, state: State, i=None) -> None:
+        """Record a state transition in the trace."""
+        self.trace.append((state.value, i))
+
+    # ---- START --------------------------------------------------------------------------------------
+    def start(self, resume: bool) -> list:
+        """START: open (or, on resume, check) the journal, read the intrinsics, plan every pose; the plan."""
+        self.enter(State.START)
+        self._open_journal(resume)
+        self._read_intrinsics()
+        return self._plan()
+
+    def _open_journal(self, resume: bool) -> None:
+        """Load or start the journal; refuse an existing dataset without ``resume``, and another trajectory."""
+        out, traj_sha = self.out, self.trajectory.sha256()
+        journal = None
+        if not self.dry_run:
+            if out.exists() and (out / "dataset.yaml").exists() and not resume:
+                raise InputError(f"{out}: a dataset already exists here; pass --resume to continue it or choose a "
+                                 "new --out.")
+            if resume and (out / "dataset.yaml").exists():
+                journal = _Journal.load(out)
+                if journal is not None and journal.d.get("trajectory_sha256") not in ("", traj_sha):
+                    raise InputError(f"{out}: this dataset was captured with a different trajectory (SHA-256 "
+                                     f"differs); resume with the original one ({out / 'trajectory.yaml'}) or start a "
+                                     "new dataset.")
+        self.resumed = journal is not None or (resume and (out / "dataset.yaml").exists())
+        self.journal = journal if journal is not None else _Journal(out, traj_sha, len(self.poses))
+
+    def _read_intrinsics(self) -> None:
+        """Every camera's intrinsics (none in a dry run); a camera that cannot report them is lost."""
+        for name, cam in ({} if self.dry_run else self.cams).items():  # a dry run touches no camera
+            try:
+                self.intr[name] = cam.intrinsics()
+            except Exception as e:  # a camera that cannot even report intrinsics is lost, the others go on
+                self.camera_errors[name].append(f"intrinsics: {e}")
+                self.lost.append(name)
+                self.log(f"camera {name}: LOST at start ({type(e).__name__}: {e}); continuing without it")
+        live = [c for c in self.cams if c not in self.lost]
+        if not live and not self.dry_run:
+            raise DeviceError("capture: no camera could be opened: "
+                              + "; ".join(f"{c}: {m[-1]}" for c, m in self.camera_errors.items()))
+
+    def _plan(self) -> list:
+        """Check every motion once before anything moves (each from the last pose that passed); one Verdict per pose."""
+        plan_q = self.robot.joint_positions() if self.robot is not None else None
+        plan = []
+        for pose in self.poses:
+            v = check_motion(plan_q, pose.q_rad, self.safety, fk=self.fk, T_goal_stated=pose.T_base_flange,
+                             robot_limits=self.robot_limits)
+            plan.append(v)
+            if v.ok:
+                plan_q = pose.q_rad
+        n_bad = sum(not v.ok for v in plan)
+        self.log(f"plan: {len(plan) - n_bad}/{len(plan)} poses pass the safety checks"
+                 + (f"; {n_bad} will be skipped" if n_bad else "") + f"; speed scale {self.trajectory.speed_scale:g}")
+        return plan
+
+    def dry_run_report(self, plan: list) -> AcquisitionReport:
+        """A dry run's report: every pose 'planned', 'via' or 'skipped_unsafe' as the plan says."""
+        cut = {}  # as in a real run: a via pose that fails costs the pose it leads to
+        leads_to = self.leads_to
+        for i, v in enumerate(plan):
+            self.enter(State.MOVE, i)
+            ok_status = "planned" if self.poses[i].capture else "via"
+            if v.ok and (i in cut or leads_to.get(i, -1) in cut):
+                j = cut.get(i, cut.get(leads_to.get(i)))
+                v = Verdict(False, (f"via pose {j} on the way to it would be skipped",))
+            self.outcomes.append(PoseOutcome(i, ok_status if v.ok else "skipped_unsafe", v.message))
+            if not v.ok:
+                self.log(f"pose {i}: would be skipped: {v.message}")
+                if not self.poses[i].capture and leads_to[i] is not None:
+                    cut.setdefault(leads_to[i], i)
+        self.enter(State.END)
+        return AcquisitionReport(self.out, len(self.poses), True, False, tuple(self.outcomes), self.accepted,
+                                 self.rejected, {c: tuple(m) for c, m in self.camera_errors.items()}, tuple(self.lost),
+                                 None, time.monotonic() - self.t_start, tuple(self.trace), n_via_poses=self.n_via)
+
+    def prepare_dataset(self) -> list:
+        """Create or reopen the dataset folder (header, trajectory copy, counts, leftovers removed);
+        the poses still to visit, in trajectory order."""
+        out = self.out
+        out.mkdir(parents=True, exist_ok=True)
+        _write_or_check_header(out, self.target, self.intr, self.mode)
+        if not (out / "trajectory.yaml").exists():
+            save_trajectory(self.trajectory, out / "trajectory.yaml")
+        done = self._done_poses()
+        for c, n in (self.journal.d.get("rejected_per_camera") or {}).items():
+            self.rejected[c] = self.rejected.get(c, 0) + int(n)
+        for tmp in [*(out / "images").glob("*/.*.tmp*"), *(out / "captures").glob(".*.tmp*"), *out.glob(".*.tmp*")]:
+            tmp.unlink()
+        self.journal.d["runs"].append({"started_unix_s": time.time(), "resume": bool(self.resumed)})
+        self.journal.save()
+        # a via pose is only worth passing on the way to a pose still to capture (see the module docstring)
+        pending = [i for i in range(len(self.poses))
+                   if i not in done and (self.poses[i].capture or self.leads_to[i] not in done)]
+        for i in sorted(done):
+            message = self.journal.d["poses"].get(str(i), {}).get("message", "")
+            self.outcomes.append(PoseOutcome(i, "done_before", message))
+        if self.resumed:
+            n_go = sum(self.poses[i].capture for i in pending)
+            self.log(f"resume: {len(done)} poses done before, {n_go} to go"
+                     + (f" (and {len(pending) - n_go} via poses on the way)" if len(pending) > n_go else ""))
+        return pending
+
+    def _done_poses(self) -> set:
+        """Poses whose capture file exists (their views counted as accepted); the images a pose
+        without one left behind are removed, since that pose is redone."""
+        done = set()
+        for i in range(len(self.poses)):
+            cp = capture_path(self.out, i)
+            if self.poses[i].capture and cp.exists():
+                done.add(i)
+                try:
+                    views = json.loads(cp.read_text()).get("views", {})
+                except (OSError, ValueError):
+                    views = {}
+                for c in views:
+                    self.accepted[c] = self.accepted.get(c, 0) + 1
+            else:  # skipped or interrupted poses are tried again (the safety check re-runs first)
+                for c in self.cams:
+                    p = self.out / image_relpath(c, i)
+                    if p.exists():
+                        p.unlink()  # half-written pose: it is redone, so its images must not linger
+        return done
+
+    # ---- MOVE -> SETTLE -> ACQUIRE -> NEXT ------------------------------------------------------------
+    def visit(self, pending: list) -> str | None:
+        """Every pending pose through the states; why the run stopped early, or None when it did not."""
+        current = None
         try:
-            intr[name] = cam.intrinsics()
-        except Exception as e:  # a camera that cannot even report intrinsics is lost, the others go on
-            camera_errors[name].append(f"intrinsics: {e}")
-            lost.append(name)
-            log(f"camera {name}: LOST at start ({type(e).__name__}: {e}); continuing without it")
-    live = [c for c in cams if c not in lost]
-    if not live and not dry_run:
-        raise DeviceError("capture: no camera could be opened: " + "; ".join(f"{c}: {m[-1]}" for c, m in camera_errors.items()))
+            for i in pending:
+                current = i
+                live = [c for c in self.cams if c not in self.lost]
+                if not live:
+                    return "every camera is lost; fix the cameras and resume with --resume"
+                self._visit_pose(i, live)
+        except KeyboardInterrupt:
+            self.journal.d["runs"][-1]["stopped"] = "interrupted"
+            self.journal.save()
+            raise
+        except DeviceError as e:  # cameras never get here (their failures are caught per grab): the robot failed
+            return f"robot failed at pose {current}: {e}; check the robot and resume with --resume"
+        except OSError as e:
+            raise CalibgraphError(f"{self.out}: cannot write pose {current} ({e}); free disk space or fix permissions, "
+                                  "then resume with --resume (whole captures already written are kept).") from None
+        return None
 
-    # Plan everything once before anything moves: what would be skipped, and why.
-    plan_q = robot.joint_positions() if robot is not None else None
-    plan = []
-    for i, pose in enumerate(trajectory.poses):
-        v = check_motion(plan_q, pose.q_rad, safety, fk=fk, T_goal_stated=pose.T_base_flange, robot_limits=robot_limits)
-        plan.append(v)
-        if v.ok:
-            plan_q = pose.q_rad
-    n_bad = sum(not v.ok for v in plan)
-    log(f"plan: {len(plan) - n_bad}/{len(plan)} poses pass the safety checks"
-        + (f"; {n_bad} will be skipped" if n_bad else "") + f"; speed scale {trajectory.speed_scale:g}")
+    def _visit_pose(self, i: int, live: list) -> None:
+        """One pose: skipped when its detour failed, else MOVE, SETTLE, then pass it (via) or ACQUIRE it."""
+        pose = self.poses[i]
+        if i in self.failed_leg or self.leads_to.get(i, -1) in self.failed_leg:
+            j = self.failed_leg.get(i, self.failed_leg.get(self.leads_to.get(i)))
+            self._skip(i, "skipped_unsafe", f"via pose {j} on the way to it was not reached, and the direct motion "
+                                            "was planned as colliding" if pose.capture else
+                                            f"via pose {j} of the same detour was not reached")
+            return
+        if not self._move(i, pose):
+            return
+        q_rad = self._settle(i, pose)
+        if q_rad is None:
+            return
+        if not pose.capture:
+            self._pass_via(i)
+            return
+        self._acquire(i, q_rad, live)
 
-    poses = trajectory.poses
-    n_via = sum(not p.capture for p in poses)
-    leads_to = {}  # via pose -> the capture pose it leads to (None after the last capture pose)
+    def _move(self, i: int, pose) -> bool:
+        """MOVE: re-check the motion from the actual joints, then move; False when the pose is skipped.
+        A DeviceError (the robot failed) propagates and stops the run."""
+        self.enter(State.MOVE, i)
+        q_now = self.robot.joint_positions()
+        v = check_motion(q_now, pose.q_rad, self.safety, fk=self.fk, T_goal_stated=pose.T_base_flange,
+                         robot_limits=self.robot_limits)
+        if not v.ok:
+            self._skip(i, "skipped_unsafe", v.message)
+            return False
+        try:
+            self.robot.move_to_joints(pose.q_rad, speed_scale=self.trajectory.speed_scale)
+        except UnreachableError as e:
+            self._skip(i, "skipped_unreachable", str(e))
+            return False
+        return True
+
+    def _settle(self, i: int, pose):
+        """SETTLE: wait for the arm to stop (and dwell) and check it arrived; its joints (rad), or None when skipped."""
+        self.enter(State.SETTLE, i)
+        s = self.settings
+        if not _wait_settled(self.robot, s.settle_timeout_s, s.settle_poll_s):
+            self._skip(i, "not_settled", f"the robot was still moving after {s.settle_timeout_s:g} s")
+            return None
+        if s.settle_dwell_s > 0 and pose.capture:  # the dwell lets images get sharp; a via pose takes none
+            time.sleep(s.settle_dwell_s)
+        q_rad = np.asarray(self.robot.joint_positions(), float)
+        if np.max(np.abs(q_rad - pose.q_rad)) > s.arrival_tolerance_rad:
+            self._skip(i, "skipped_unreachable",
+                       f"the robot stopped {np.max(np.abs(q_rad - pose.q_rad)):.4f} rad from the target "
+                       f"(tolerance {s.arrival_tolerance_rad:g} rad)")
+            return None
+        return q_rad
+
+    def _pass_via(self, i: int) -> None:
+        """A via pose reached: journal it and go on (NEXT) without grabbing."""
+        self.journal.set(i, "via", "")
+        self.journal.save()
+        self.outcomes.append(PoseOutcome(i, "via", "passed through (no capture)"))
+        self.enter(State.NEXT, i)
+        self.log(f"pose {i + 1}/{len(self.poses)}: via pose passed (no capture)")
+
+    def _acquire(self, i: int, q_rad: np.ndarray, live: list) -> None:
+        """ACQUIRE: flange pose, grab, flange pose again; detect and write the accepted views, then the
+        capture file (the commit point of the pose) and the journal; then NEXT."""
+        self.enter(State.ACQUIRE, i)
+        T0 = np.asarray(self.robot.flange_pose(), float)
+        stamp_s = time.time()
+        frames = self._grab_all(i, live)
+        T1 = np.asarray(self.robot.flange_pose(), float)
+        dt_m, dr_deg = pose_error(T0, T1)
+        if dt_m > self.settings.still_tolerance_m or dr_deg > self.settings.still_tolerance_deg:
+            self._skip(i, "moved_during_grab",
+                       f"the flange moved {1e3 * dt_m:.2f} mm / {dr_deg:.3f} deg while the cameras grabbed")
+            return
+        views, dets, rej = self._detect_and_write(i, frames)
+        self.journal.d["rejected_per_camera"] = dict(self.rejected)
+        if not views:
+            self._no_views(i, rej)
+            return
+        cap = Capture(index=i, T_base_flange=T0, q_rad=q_rad, stamp_s=stamp_s)
+        write_capture(self.out, cap, views)  # the capture file is the commit point of this pose
+        for c in views:
+            self.accepted[c] = self.accepted.get(c, 0) + 1
+        self.journal.set(i, "captured", "", accepted=sorted(views), rejected=[c for c, _ in rej])
+        self.journal.save()
+        self.outcomes.append(PoseOutcome(i, "captured", "", tuple(sorted(views)), tuple(c for c, _ in rej)))
+        self._next(i, cap, dets, views, rej)
+
+    def _grab_all(self, i: int, live: list) -> dict:
+        """camera -> fresh frame of every live camera that delivered one; too many failures in a row lose a camera."""
+        frames = {}
+        for c in live:
+            fr = _grab(self.cams[c], c, self.settings.grab_retries, self.camera_errors, self.fails_in_row, self.log, i,
+                       self.last_stamp)
+            if fr is not None:
+                frames[c] = fr
+            elif self.fails_in_row[c] >= self.settings.max_camera_failures and c not in self.lost:
+                self.lost.append(c)
+                self.log(f"camera {c}: LOST after {self.fails_in_row[c]} failed grabs in a row; continuing with the "
+                         "others")
+        return frames
+
+    def _detect_and_write(self, i: int, frames: dict):
+        """Detect and filter every frame, write the accepted images: (views for the capture file,
+        their Detections, [(camera, why rejected)])."""
+        views, dets, rej = {}, [], []
+        for c, fr in frames.items():
+            ok, why = _detect_and_filter(self.detector, fr.image, self.target, self.intr[c],
+                                         self.settings.min_corners, c, i)
+            if ok is None:
+                rej.append((c, why))
+                self.rejected[c] = self.rejected.get(c, 0) + 1
+                continue
+            ids, uv = ok
+            rel = image_relpath(c, i)
+            write_image_atomic(self.out / rel, fr.image)
+            views[c] = dict(image=rel, stamp_s=float(fr.stamp_s), ids=ids, uv_px=uv)
+            dets.append(Detection(camera=c, capture=i, ids=ids, uv_px=uv, image=str(self.out / rel)))
+        return views, dets, rej
+
+    def _no_views(self, i: int, rej: list) -> None:
+        """A pose without any accepted view: journal why, then NEXT (no capture file)."""
+        msg = "; ".join(f"{c}: {w}" for c, w in rej) or "no camera delivered a frame"
+        self.journal.set(i, "no_views", msg, rejected=[c for c, _ in rej])
+        self.journal.save()
+        self.outcomes.append(PoseOutcome(i, "no_views", msg, (), tuple(c for c, _ in rej)))
+        self.enter(State.NEXT, i)
+        self.log(_progress_line(i, len(self.poses), {}, rej, self.accepted, self.lost, self.last_estimate))
+
+    def _next(self, i: int, cap: Capture, dets: list, views: dict, rej: list) -> None:
+        """NEXT: the incremental estimate (advisory: its failure costs nothing) and the progress line."""
+        self.enter(State.NEXT, i)
+        if self.on_capture is not None:
+            try:
+                self.last_estimate = self.on_capture(cap, dets)
+            except Exception as e:  # the estimate is advisory; the data is already safe on disk
+                self.log(f"incremental estimate unavailable after pose {i}: {type(e).__name__}: {e}")
+        self.log(_progress_line(i, len(self.poses), views, rej, self.accepted, self.lost, self.last_estimate))
+
+    def _skip(self, i: int, status: str, msg: str) -> None:
+        """Journal and report a skipped pose; a skipped via pose costs the capture pose it leads to."""
+        self.journal.set(i, status, msg)
+        self.journal.save()
+        self.outcomes.append(PoseOutcome(i, status, msg))
+        self.log(f"pose {i}: {status.replace('_', ' ')}: {msg}")
+        if not self.poses[i].capture and self.leads_to[i] is not None:
+            self.failed_leg.setdefault(self.leads_to[i], i)
+
+    # ---- END ----------------------------------------------------------------------------------------
+    def finish(self, stopped: str | None) -> AcquisitionReport:
+        """END: close the journal's run entry; the report of the run."""
+        self.journal.d["runs"][-1]["stopped"] = stopped
+        self.journal.d["runs"][-1]["lost_cameras"] = list(self.lost)
+        self.journal.save()
+        self.enter(State.END)
+        if stopped:
+            self.log(f"stopped: {stopped}")
+        return AcquisitionReport(self.out, len(self.poses), False, self.resumed,
+                                 tuple(sorted(self.outcomes, key=lambda o: o.index)), self.accepted, self.rejected,
+                                 {c: tuple(m) for c, m in self.camera_errors.items()}, tuple(self.lost), stopped,
+                                 time.monotonic() - self.t_start, tuple(self.trace), self.last_estimate, self.n_via)
+
+
+def _via_targets(poses) -> dict:
+    """via pose -> the capture pose it leads to (None after the last capture pose)."""
+    leads_to = {}
     nxt = None
     for i in range(len(poses) - 1, -1, -1):
         if poses[i].capture:
             nxt = i
         else:
             leads_to[i] = nxt
-    outcomes = []
-    accepted = {c: 0 for c in cams}
-    rejected = {c: 0 for c in cams}
-    if dry_run:
-        cut = {}  # as in a real run: a via pose that fails costs the pose it leads to
-        for i, v in enumerate(plan):
-            enter(State.MOVE, i)
-            ok_status = "planned" if poses[i].capture else "via"
-            if v.ok and (i in cut or leads_to.get(i, -1) in cut):
-                v = Verdict(False, (f"via pose {cut.get(i, cut.get(leads_to.get(i)))} on the way to it would be skipped",))
-            outcomes.append(PoseOutcome(i, ok_status if v.ok else "skipped_unsafe", v.message))
-            if not v.ok:
-                log(f"pose {i}: would be skipped: {v.message}")
-                if not poses[i].capture and leads_to[i] is not None:
-                    cut.setdefault(leads_to[i], i)
-        enter(State.END)
-        return AcquisitionReport(out, len(trajectory.poses), True, False, tuple(outcomes), accepted, rejected,
-                                 {c: tuple(m) for c, m in camera_errors.items()}, tuple(lost), None,
-                                 time.monotonic() - t_start, tuple(trace), n_via_poses=n_via)
-
-    out.mkdir(parents=True, exist_ok=True)
-    _write_or_check_header(out, target, intr, mode, resumed)
-    if not (out / "trajectory.yaml").exists():
-        save_trajectory(trajectory, out / "trajectory.yaml")
-    # Counts over the whole dataset, and cleanup of what an interrupted pose left behind.
-    done = set()
-    for i in range(len(trajectory.poses)):
-        cp = capture_path(out, i)
-        if poses[i].capture and cp.exists():
-            done.add(i)
-            try:
-                views = json.loads(cp.read_text()).get("views", {})
-            except (OSError, ValueError):
-                views = {}
-            for c in views:
-                accepted[c] = accepted.get(c, 0) + 1
-        else:  # skipped or interrupted poses are tried again (the safety check re-runs first)
-            for c in cams:
-                p = out / image_relpath(c, i)
-                if p.exists():
-                    p.unlink()  # half-written pose: it is redone, so its images must not linger
-    for c, n in (journal.d.get("rejected_per_camera") or {}).items():
-        rejected[c] = rejected.get(c, 0) + int(n)
-    for tmp in [*(out / "images").glob("*/.*.tmp*"), *(out / "captures").glob(".*.tmp*"), *out.glob(".*.tmp*")]:
-        tmp.unlink()
-    journal.d["runs"].append({"started_unix_s": time.time(), "resume": bool(resumed)})
-    journal.save()
-    # a via pose is only worth passing on the way to a pose still to capture (see the module docstring)
-    pending = [i for i in range(len(poses)) if i not in done and (poses[i].capture or leads_to[i] not in done)]
-    for i in sorted(done):
-        outcomes.append(PoseOutcome(i, "done_before", journal.d["poses"].get(str(i), {}).get("message", "")))
-    if resumed:
-        n_go = sum(poses[i].capture for i in pending)
-        log(f"resume: {len(done)} poses done before, {n_go} to go"
-            + (f" (and {len(pending) - n_go} via poses on the way)" if len(pending) > n_go else ""))
-    failed_leg = {}  # capture pose -> the via pose on the way to it that was not reached
-
-    def skip(i, status, msg):
-        _skip(journal, outcomes, log, i, status, msg)
-        if not poses[i].capture and leads_to[i] is not None:
-            failed_leg.setdefault(leads_to[i], i)
-
-    stopped = None
-    last_estimate = None
-    current = None
-    try:
-        for i in pending:
-            current = i
-            pose = trajectory.poses[i]
-            live = [c for c in cams if c not in lost]
-            if not live:
-                stopped = "every camera is lost; fix the cameras and resume with --resume"
-                break
-            if i in failed_leg or leads_to.get(i, -1) in failed_leg:
-                j = failed_leg.get(i, failed_leg.get(leads_to.get(i)))
-                skip(i, "skipped_unsafe", f"via pose {j} on the way to it was not reached, and the direct motion "
-                                          "was planned as colliding" if pose.capture else
-                                          f"via pose {j} of the same detour was not reached")
-                continue
-            # ---- MOVE ---------------------------------------------------------------------------
-            enter(State.MOVE, i)
-            q_now = robot.joint_positions()
-            v = check_motion(q_now, pose.q_rad, safety, fk=fk, T_goal_stated=pose.T_base_flange, robot_limits=robot_limits)
-            if not v.ok:
-                skip(i, "skipped_unsafe", v.message)
-                continue
-            try:
-                robot.move_to_joints(pose.q_rad, speed_scale=trajectory.speed_scale)
-            except UnreachableError as e:
-                skip(i, "skipped_unreachable", str(e))
-                continue
-            except DeviceError as e:
-                stopped = f"robot failed at pose {i}: {e}; check the robot and resume with --resume"
-                break
-            # ---- SETTLE -------------------------------------------------------------------------
-            enter(State.SETTLE, i)
-            if not _wait_settled(robot, settle_timeout_s, settle_poll_s):
-                skip(i, "not_settled", f"the robot was still moving after {settle_timeout_s:g} s")
-                continue
-            if settle_dwell_s > 0 and pose.capture:  # the dwell lets images get sharp; a via pose takes none
-                time.sleep(settle_dwell_s)
-            q_rad = np.asarray(robot.joint_positions(), float)
-            if np.max(np.abs(q_rad - pose.q_rad)) > arrival_tolerance_rad:
-                skip(i, "skipped_unreachable",
-                      f"the robot stopped {np.max(np.abs(q_rad - pose.q_rad)):.4f} rad from the target "
-                      f"(tolerance {arrival_tolerance_rad:g} rad)")
-                continue
-            if not pose.capture:
-                journal.set(i, "via", "")
-                journal.save()
-                outcomes.append(PoseOutcome(i, "via", "passed through (no capture)"))
-                enter(State.NEXT, i)
-                log(f"pose {i + 1}/{len(poses)}: via pose passed (no capture)")
-                continue
-            # ---- ACQUIRE ------------------------------------------------------------------------
-            enter(State.ACQUIRE, i)
-            T0 = np.asarray(robot.flange_pose(), float)
-            stamp_s = time.time()
-            frames = {}
-            for c in live:
-                fr = _grab(cams[c], c, grab_retries, camera_errors, fails_in_row, log, i, last_stamp)
-                if fr is not None:
-                    frames[c] = fr
-                elif fails_in_row[c] >= max_camera_failures and c not in lost:
-                    lost.append(c)
-                    log(f"camera {c}: LOST after {fails_in_row[c]} failed grabs in a row; continuing with the others")
-            T1 = np.asarray(robot.flange_pose(), float)
-            dt_m, dr_deg = _pose_diff(T0, T1)
-            if dt_m > still_tolerance_m or dr_deg > still_tolerance_deg:
-                skip(i, "moved_during_grab",
-                      f"the flange moved {1e3 * dt_m:.2f} mm / {dr_deg:.3f} deg while the cameras grabbed")
-                continue
-            views, dets, rej = {}, [], []
-            for c, fr in frames.items():
-                ok, why = _detect_and_filter(detector, fr.image, target, intr[c], min_corners, c, i)
-                if ok is None:
-                    rej.append((c, why))
-                    rejected[c] = rejected.get(c, 0) + 1
-                    continue
-                ids, uv = ok
-                rel = image_relpath(c, i)
-                write_image_atomic(out / rel, fr.image)
-                views[c] = dict(image=rel, stamp_s=float(fr.stamp_s), ids=ids, uv_px=uv)
-                dets.append(Detection(camera=c, capture=i, ids=ids, uv_px=uv, image=str(out / rel)))
-            journal.d["rejected_per_camera"] = dict(rejected)
-            if not views:
-                msg = "; ".join(f"{c}: {w}" for c, w in rej) or "no camera delivered a frame"
-                journal.set(i, "no_views", msg, rejected=[c for c, _ in rej])
-                journal.save()
-                outcomes.append(PoseOutcome(i, "no_views", msg, (), tuple(c for c, _ in rej)))
-                enter(State.NEXT, i)
-                log(_progress_line(i, len(trajectory.poses), {}, rej, accepted, lost, last_estimate))
-                continue
-            cap = Capture(index=i, T_base_flange=T0, q_rad=q_rad, stamp_s=stamp_s)
-            write_capture(out, cap, views)  # the capture file is the commit point of this pose
-            for c in views:
-                accepted[c] = accepted.get(c, 0) + 1
-            journal.set(i, "captured", "", accepted=sorted(views), rejected=[c for c, _ in rej])
-            journal.save()
-            outcomes.append(PoseOutcome(i, "captured", "", tuple(sorted(views)), tuple(c for c, _ in rej)))
-            # ---- NEXT ---------------------------------------------------------------------------
-            enter(State.NEXT, i)
-            if on_capture is not None:
-                try:
-                    last_estimate = on_capture(cap, dets)
-                except Exception as e:  # the estimate is advisory; the data is already safe on disk
-                    log(f"incremental estimate unavailable after pose {i}: {type(e).__name__}: {e}")
-            log(_progress_line(i, len(trajectory.poses), views, rej, accepted, lost, last_estimate))
-    except KeyboardInterrupt:
-        journal.d["runs"][-1]["stopped"] = "interrupted"
-        journal.save()
-        raise
-    except DeviceError as e:  # cameras never get here (their failures are caught per grab): the robot failed
-        stopped = f"robot failed at pose {current}: {e}; check the robot and resume with --resume"
-    except OSError as e:
-        raise CalibgraphError(f"{out}: cannot write pose {current} ({e}); free disk space or fix permissions, then "
-                              "resume with --resume (whole captures already written are kept).") from None
-    journal.d["runs"][-1]["stopped"] = stopped
-    journal.d["runs"][-1]["lost_cameras"] = list(lost)
-    journal.save()
-    enter(State.END)
-    if stopped:
-        log(f"stopped: {stopped}")
-    return AcquisitionReport(out, len(trajectory.poses), False, resumed, tuple(sorted(outcomes, key=lambda o: o.index)),
-                             accepted, rejected, {c: tuple(m) for c, m in camera_errors.items()}, tuple(lost), stopped,
-                             time.monotonic() - t_start, tuple(trace), last_estimate, n_via)
+    return leads_to
 
 
 def _make_log(progress):
+    """The progress sink: stderr lines (True), the given callable, or nothing (False)."""
     if callable(progress):
         return progress
     if progress:
@@ -597,14 +729,8 @@ def _make_log(progress):
     return lambda s: None
 
 
-def _skip(journal, outcomes, log, i, status, msg):
-    journal.set(i, status, msg)
-    journal.save()
-    outcomes.append(PoseOutcome(i, status, msg))
-    log(f"pose {i}: {status.replace('_', ' ')}: {msg}")
-
-
 def _wait_settled(robot, timeout_s, poll_s) -> bool:
+    """True once ``robot.is_settled()``, False after ``timeout_s``."""
     t_end = time.monotonic() + timeout_s
     while True:
         if robot.is_settled():
@@ -639,6 +765,7 @@ def _grab(cam, name, retries, errors, fails_in_row, log, i, last_stamp):
 
 
 def _detect_and_filter(detector, image, target, intr, min_corners, cam, i):
+    """((ids, uv_px), None) for a usable detection of the target in ``image``, else (None, why not)."""
     try:
         got, why = _normalise_detection(detector(image, target, intr))
     except Exception as e:  # a detector crash on one frame costs that view, not the run
@@ -662,6 +789,7 @@ def _detect_and_filter(detector, image, target, intr, min_corners, cam, i):
 
 
 def _progress_line(i, n, views, rej, accepted, lost, est) -> str:
+    """The NEXT state's line: this pose's views, the totals per camera and the incremental estimate."""
     seen = ", ".join(f"{c} ✓" for c in sorted(views)) or "no view"
     rj = "".join(f", {c} ✗ ({w})" for c, w in rej)
     tot = ", ".join(f"{c} {k}" + (" LOST" if c in lost else "") for c, k in sorted(accepted.items()))
@@ -669,7 +797,8 @@ def _progress_line(i, n, views, rej, accepted, lost, est) -> str:
     return f"pose {i + 1}/{n}: {seen}{rj} | views: {tot}" + (f" | {e}" if e else "")
 
 
-def _write_or_check_header(out: Path, target: Target, intr: dict, mode: str, resumed: bool) -> None:
+def _write_or_check_header(out: Path, target: Target, intr: dict, mode: str) -> None:
+    """Write dataset.yaml, or check that an existing one matches the target and cameras (adding cameras new to it)."""
     import yaml
 
     head = out / "dataset.yaml"

@@ -150,7 +150,8 @@ class SolverOptions:
             priors of ``intrinsics_sigma_px`` and ``distortion_sigma`` around the given values.
         formulation: 'view' (one vectorised CustomFactor per view, any OpenCV distortion),
             'corner' (one C++ ProjectionFactorPPP per corner, Cal3DS2 distortion only) or 'auto'
-            (corner when every camera fits Cal3DS2, else view). Both give the same estimate.
+            (corner when every camera fits Cal3DS2 and the graph has at least 1000 views, else
+            view). ``refine_intrinsics`` always uses view. Both give the same estimate.
     """
 
     fk_sigma_translation_m: float = 1e-4

@@ -129,11 +129,6 @@ def load_tolerances(config=None) -> dict:
     return tol
 
 
-def _as_dataset(dataset):
-
-    return as_dataset(dataset)
-
-
 def _mount_key(result: dict) -> str:
     return "T_base_board" if result.get("mode") == "eye_in_hand" else "T_flange_board"
 
@@ -165,7 +160,7 @@ def observations(source) -> dict:
     """Normalise a :class:`~calibgraph.core.problem.Problem`, a :class:`~calibgraph.io.dataset.Dataset` or a
     dataset folder into plain data: ``points_board_m`` (M, 3), ``cameras`` (name -> Intrinsics),
     ``T_base_flange`` (capture -> 4x4), ``views`` [(camera, capture, ids, uv_px, image path or None)]."""
-    src = _as_dataset(source)
+    src = as_dataset(source)
     if hasattr(src, "detections"):  # Problem
         views = [(d.camera, d.capture, d.ids, d.uv_px, d.image) for d in src.detections]
         pts = src.points_board_m
@@ -285,110 +280,119 @@ def write_report(result_dict: dict, out_html, config=None, dataset=None, result_
     R = result_dict
     if not isinstance(R, dict) or "cameras" not in R or not R["cameras"]:
         raise InputError("report: the result has no cameras; is it a calibgraph result.json?")
-    ds = _as_dataset(dataset)
+    ds = as_dataset(dataset)
     tol = load_tolerances(config)
     ref = ref_frame(R)
     names = list(R["cameras"])
-    residuals = R.get("residuals")
-    residual_source = "result.json"
-    if not residuals and ds is not None:
-        residuals = compute_residuals(R, ds)
-        residual_source = "recomputed from the dataset's detections and the poses in the result"
-    residuals = residuals or {}
+    residuals, residual_source = _residuals_and_source(R, ds)
     intr = {n: camera_intrinsics(R, n, ds) for n in names}
     cov = {n: np.asarray(R["cameras"][n]["covariance"], float) for n in names if "covariance" in R["cameras"][n]}
     poses = {n: camera_pose(R, n) for n in names}
-
     ws = _workspace_maps(R, tol, poses, cov, intr)
     verdicts = {n: _verdict(n, R["cameras"][n], tol, ws["worst"].get(n)) for n in names}
-    overall = all(v["pass"] for v in verdicts.values())
-    converged = (R.get("solver") or {}).get("converged", True)
-    overall = overall and bool(converged)
-
-    parts = []
-    a = parts.append
     title = f"calibgraph commissioning report — {len(names)} camera{'s' if len(names) != 1 else ''}, {R.get('mode', '?')}"
-    a(f"<h1>{_esc(title)}</h1>")
-    a(f'<p class="note">Generated {_esc(_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"))} by '
-      f'calibgraph {_esc(_version())}. Frame convention: {_esc(R.get("frame_convention", "T_a_b maps points from b to a"))}</p>')
-    cls = "pass" if overall else "fail"
-    why = "" if converged else " (the solver did not converge)"
-    failed = [n for n in names if not verdicts[n]["pass"]]
-    a(f'<div class="banner {cls}" id="verdict">Overall: {"PASS" if overall else "FAIL"}{_esc(why)}'
-      + (f" — failing: {_esc(', '.join(failed))}" if failed else "") + "</div>")
-
-    # summary table
-    a("<h2>Summary</h2>")
-    a(f'<table id="summary"><tr><th class="l">camera</th><th>position in {ref} (m)</th><th>roll, pitch, yaw (deg)</th>'
-      "<th>1σ translation x, y, z (mm)</th><th>1σ rotation x, y, z (deg)</th><th>reproj. RMS (px)</th>"
-      "<th>reproj. max (px)</th><th>views used</th><th>views rejected</th><th>verdict</th></tr>")
-    for n in names:
-        c = R["cameras"][n]
-        T = poses[n]
-        a(f'<tr data-camera="{_esc(n)}"><td class="l"><a href="#cam-{_esc(n)}">{_esc(n)}</a></td>'
-          f"<td>{_vec(T[:3, 3], '.4f')}</td><td>{_vec(np.degrees(R_to_rpy(T[:3, :3])), '.2f')}</td>"
-          f"<td>{_vec(c.get('sigma_translation_mm', [np.nan] * 3), '.3f')}</td>"
-          f"<td>{_vec(c.get('sigma_rotation_deg', [np.nan] * 3), '.4f')}</td>"
-          f"<td>{num(c.get('reprojection_rms_px'), '.3f')}</td><td>{num(c.get('reprojection_max_px'), '.3f')}</td>"
-          f"<td>{num(c.get('views_used'), '.0f')}</td><td>{num(len(c.get('views_rejected', [])), '.0f')}</td>"
-          f"<td>{_badge(verdicts[n]['pass'])}</td></tr>")
-    a("</table>")
-    a(f'<p class="note">1σ are along the {ref} frame axes (rotation: components of the rotation vector '
-      f"perturbation in {ref} axes). Roll, pitch, yaw: URDF fixed-axis convention R = Rz(yaw) Ry(pitch) Rx(roll).</p>")
-
-    # per camera
-    a("<h2>Cameras</h2>")
-    for n in names:
-        a(_camera_section(n, R, poses[n], cov.get(n), intr[n], verdicts[n], residuals.get(n, {}), ref, ws))
-
-    # pairs
-    a("<h2>Camera-to-camera poses</h2>")
-    pairs = R.get("camera_pairs") or {}
-    if pairs:
-        a('<table id="pairs"><tr><th class="l">pair T_a_b</th><th>translation (m)</th><th>distance (m)</th>'
-          "<th>roll, pitch, yaw (deg)</th><th>1σ translation (mm, a axes)</th><th>1σ rotation (deg, a axes)</th></tr>")
-        for key, p in pairs.items():
-            ka, kb = p.get("a"), p.get("b")
-            Tk = next((k for k in p if k.startswith("T_")), None)
-            if Tk is None:
-                continue
-            T = np.asarray(p[Tk], float)
-            a(f'<tr data-pair="{_esc(key)}"><td class="l">{_esc(Tk)} ({_esc(ka)} ← {_esc(kb)})</td><td>{_vec(T[:3, 3], ".4f")}</td>'
-              f"<td>{num(np.linalg.norm(T[:3, 3]), '.4f')}</td><td>{_vec(np.degrees(R_to_rpy(T[:3, :3])), '.2f')}</td>"
-              f"<td>{_vec(p.get('sigma_translation_mm', [np.nan] * 3), '.3f')}</td>"
-              f"<td>{_vec(p.get('sigma_rotation_deg', [np.nan] * 3), '.4f')}</td></tr>")
-        a("</table>")
-        a('<p class="note">T_a_b maps points from camera b\'s optical frame to camera a\'s; 1σ along a\'s axes.</p>')
-    else:
-        a('<p class="note">No camera pairs in the result (a single camera, or method \'single\').</p>')
-
-    # residuals
-    a("<h2>Residuals</h2>")
-    if residuals:
-        a(f'<p class="note">Per-corner residuals ({_esc(residual_source)}): residual = reprojected − detected corner.</p>')
-        a(_residual_plots(R, names, residuals))
-    else:
-        a('<p class="note">No per-corner residuals: the result has no <code>residuals</code> section and no dataset was '
-          "given (<code>calibgraph report RESULT --dataset DIR</code> recomputes them).</p>")
-
-    # workspace
-    a("<h2>Uncertainty in the workspace</h2>")
-    a(ws["html"])
-
-    # provenance
-    a("<h2>Provenance</h2>")
-    a(_provenance(R, ds, result_path, tol, config))
-    a(f'<script type="application/json" id="calibgraph-result">{_json_for_html(R)}</script>')
-
+    parts = [
+        _banner_html(R, title, names, verdicts),
+        _summary_html(R, names, poses, verdicts, ref),
+        "<h2>Cameras</h2>",
+        *(_camera_section(n, R, poses[n], cov.get(n), intr[n], verdicts[n], residuals.get(n, {}), ref, ws) for n in names),
+        _pairs_html(R),
+        _residuals_html(R, names, residuals, residual_source),
+        "<h2>Uncertainty in the workspace</h2>",
+        ws["html"],
+        "<h2>Provenance</h2>",
+        _provenance(R, ds, result_path, tol, config),
+        f'<script type="application/json" id="calibgraph-result">{_json_for_html(R)}</script>',
+    ]
     doc = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
            f"<title>{_esc(title)}</title><style>{CSS}</style></head><body>\n" + "\n".join(parts) + "\n</body></html>\n")
     atomic_write_text(out_html, doc)
     return Path(out_html)
 
 
-def _version() -> str:
+def _residuals_and_source(R: dict, ds) -> tuple[dict, str]:
+    """The per-corner residuals of the result, else recomputed from the dataset (else none); and their origin."""
+    residuals = R.get("residuals")
+    source = "result.json"
+    if not residuals and ds is not None:
+        residuals = compute_residuals(R, ds)
+        source = "recomputed from the dataset's detections and the poses in the result"
+    return residuals or {}, source
 
-    return __version__
+
+def _banner_html(R: dict, title: str, names: list, verdicts: dict) -> str:
+    """Title, generation note and the overall verdict (FAIL when a camera fails or the solver did not converge)."""
+    converged = (R.get("solver") or {}).get("converged", True)
+    overall = all(v["pass"] for v in verdicts.values()) and bool(converged)
+    why = "" if converged else " (the solver did not converge)"
+    failed = [n for n in names if not verdicts[n]["pass"]]
+    generated = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return "\n".join([
+        f"<h1>{_esc(title)}</h1>",
+        f'<p class="note">Generated {_esc(generated)} by calibgraph {_esc(__version__)}. '
+        f'Frame convention: {_esc(R.get("frame_convention", "T_a_b maps points from b to a"))}</p>',
+        f'<div class="banner {"pass" if overall else "fail"}" id="verdict">Overall: {"PASS" if overall else "FAIL"}'
+        f'{_esc(why)}' + (f" — failing: {_esc(', '.join(failed))}" if failed else "") + "</div>",
+    ])
+
+
+def _summary_html(R: dict, names: list, poses: dict, verdicts: dict, ref: str) -> str:
+    """The summary table: one row per camera (pose, 1σ, reprojection, views, verdict)."""
+    h = ["<h2>Summary</h2>",
+         f'<table id="summary"><tr><th class="l">camera</th><th>position in {ref} (m)</th><th>roll, pitch, yaw (deg)</th>'
+         "<th>1σ translation x, y, z (mm)</th><th>1σ rotation x, y, z (deg)</th><th>reproj. RMS (px)</th>"
+         "<th>reproj. max (px)</th><th>views used</th><th>views rejected</th><th>verdict</th></tr>"]
+    for n in names:
+        c = R["cameras"][n]
+        T = poses[n]
+        h.append(f'<tr data-camera="{_esc(n)}"><td class="l"><a href="#cam-{_esc(n)}">{_esc(n)}</a></td>'
+                 f"<td>{_vec(T[:3, 3], '.4f')}</td><td>{_vec(np.degrees(R_to_rpy(T[:3, :3])), '.2f')}</td>"
+                 f"<td>{_vec(c.get('sigma_translation_mm', [np.nan] * 3), '.3f')}</td>"
+                 f"<td>{_vec(c.get('sigma_rotation_deg', [np.nan] * 3), '.4f')}</td>"
+                 f"<td>{num(c.get('reprojection_rms_px'), '.3f')}</td><td>{num(c.get('reprojection_max_px'), '.3f')}</td>"
+                 f"<td>{num(c.get('views_used'), '.0f')}</td><td>{num(len(c.get('views_rejected', [])), '.0f')}</td>"
+                 f"<td>{_badge(verdicts[n]['pass'])}</td></tr>")
+    h.append("</table>")
+    h.append(f'<p class="note">1σ are along the {ref} frame axes (rotation: components of the rotation vector '
+             f"perturbation in {ref} axes). Roll, pitch, yaw: URDF fixed-axis convention R = Rz(yaw) Ry(pitch) Rx(roll).</p>")
+    return "\n".join(h)
+
+
+def _pairs_html(R: dict) -> str:
+    """The camera-to-camera poses T_a_b with their 1σ, or a note that the result has none."""
+    h = ["<h2>Camera-to-camera poses</h2>"]
+    pairs = R.get("camera_pairs") or {}
+    if not pairs:
+        h.append('<p class="note">No camera pairs in the result (a single camera, or method \'single\').</p>')
+        return "\n".join(h)
+    h.append('<table id="pairs"><tr><th class="l">pair T_a_b</th><th>translation (m)</th><th>distance (m)</th>'
+             "<th>roll, pitch, yaw (deg)</th><th>1σ translation (mm, a axes)</th><th>1σ rotation (deg, a axes)</th></tr>")
+    for key, p in pairs.items():
+        ka, kb = p.get("a"), p.get("b")
+        Tk = next((k for k in p if k.startswith("T_")), None)
+        if Tk is None:
+            continue
+        T = np.asarray(p[Tk], float)
+        h.append(f'<tr data-pair="{_esc(key)}"><td class="l">{_esc(Tk)} ({_esc(ka)} ← {_esc(kb)})</td>'
+                 f'<td>{_vec(T[:3, 3], ".4f")}</td>'
+                 f"<td>{num(np.linalg.norm(T[:3, 3]), '.4f')}</td><td>{_vec(np.degrees(R_to_rpy(T[:3, :3])), '.2f')}</td>"
+                 f"<td>{_vec(p.get('sigma_translation_mm', [np.nan] * 3), '.3f')}</td>"
+                 f"<td>{_vec(p.get('sigma_rotation_deg', [np.nan] * 3), '.4f')}</td></tr>")
+    h.append("</table>")
+    h.append('<p class="note">T_a_b maps points from camera b\'s optical frame to camera a\'s; 1σ along a\'s axes.</p>')
+    return "\n".join(h)
+
+
+def _residuals_html(R: dict, names: list, residuals: dict, source: str) -> str:
+    """The residual plots, or how to get them (give the dataset)."""
+    h = ["<h2>Residuals</h2>"]
+    if residuals:
+        h.append(f'<p class="note">Per-corner residuals ({_esc(source)}): residual = reprojected − detected corner.</p>')
+        h.append(_residual_plots(R, names, residuals))
+    else:
+        h.append('<p class="note">No per-corner residuals: the result has no <code>residuals</code> section and no '
+                 "dataset was given (<code>calibgraph report RESULT --dataset DIR</code> recomputes them).</p>")
+    return "\n".join(h)
 
 
 def _json_for_html(d: dict) -> str:
@@ -403,6 +407,7 @@ def _badge(ok) -> str:
 
 
 def _verdict(name: str, cam: dict, tol: dict, worst_ws_mm) -> dict:
+    """{'pass', 'rows': [(label, value, op, limit, ok)]}: one camera against its tolerances."""
     limits = dict(tol["defaults"])
     limits.update(tol["cameras"].get(name, {}))
     rows = []
@@ -422,6 +427,7 @@ def _verdict(name: str, cam: dict, tol: dict, worst_ws_mm) -> dict:
 
 
 def _camera_section(n, R, T, cov, intr, verdict, res, ref, ws) -> str:
+    """One camera: pose, 1σ and weakest directions, checks, rejected views, coverage and workspace maps."""
     c = R["cameras"][n]
     h = [f'<div class="cam" id="cam-{_esc(n)}"><h3>{_esc(n)} {_badge(verdict["pass"])}</h3>']
     q = R_to_quat_xyzw(T[:3, :3])
@@ -465,6 +471,7 @@ def _camera_section(n, R, T, cov, intr, verdict, res, ref, ws) -> str:
 
 
 def _coverage_plot(n, res, intr) -> str:
+    """Heat map of where in the image the camera saw corners."""
     uv = [np.asarray(v["uv_detected_px"], float).reshape(-1, 2) for v in res.values() if v.get("uv_detected_px")]
     if not uv:
         return svgplot.empty_plot(f"{n}: image coverage", "no detections available (give --dataset)")
@@ -564,6 +571,7 @@ def _workspace_maps(R, tol, poses, cov, intr) -> dict:
 
 
 def _edges(c):
+    """Bin edges around the given bin centres."""
     c = np.asarray(c, float)
     d = np.diff(c)
     return np.concatenate([[c[0] - d[0] / 2], c[:-1] + d / 2, [c[-1] + d[-1] / 2]])
@@ -587,6 +595,7 @@ def _default_workspace(R, wcfg):
 
 
 def _residual_plots(R, names, residuals) -> str:
+    """Per camera: histogram of the used corners' residual norms and residual norms per capture, rejections marked."""
     rejected_corners = {}
     for rc in R.get("rejected_corners") or []:
         rejected_corners.setdefault((rc["camera"], int(rc["capture"])), set()).add(int(rc["id"]))
@@ -649,12 +658,13 @@ def _residual_plots(R, names, residuals) -> str:
 
 
 def _provenance(R, ds, result_path, tol, config) -> str:
+    """Where the numbers come from: result file and hash, versions, dataset, solver outcome and settings, tolerances."""
     s = R.get("solver") or {}
     rows = [
         ("result file", f"{result_path} (sha256 {_sha256(result_path)[:16]}…)" if result_path else "(given as a dict)"),
         ("result format", R.get("format", "?")),
         ("calibgraph version that solved", R.get("calibgraph_version", "?")),
-        ("calibgraph version of this report", _version()),
+        ("calibgraph version of this report", __version__),
         ("dataset", R.get("dataset") or (str(ds.root) if ds is not None else "n/a")),
         ("mode / method", f"{R.get('mode', '?')} / {R.get('method', '?')}"),
         ("converged", s.get("converged", "?")),

@@ -1,23 +1,55 @@
 """Batch solver: robust initialisation -> IRLS Levenberg-Marquardt -> outlier rejection -> marginals.
 
-The graph (see :mod:`calibgraph.solver.keys` and :mod:`calibgraph.solver.factors`)::
+The graph (keys in :mod:`calibgraph.solver.keys`; ``ref`` is the robot base in eye-to-hand and the
+flange in eye-in-hand, ``mount`` the other one, the frame the board is fixed to)::
 
-    C(c)  camera poses              -- unknown, no prior
-    B(0)  board mount               -- unknown, no prior ('single': one graph per camera)
-    F(k)  robot pose of capture k   -- PriorFactorPose3 from forward kinematics (fk sigmas)
-    one CustomFactor per view (C(c), F(k), B(0)) with one residual pair per detected corner
+    C(c)  T_ref_cam of camera c         -- unknown, no prior
+    B(0)  T_mount_board, the board mount -- unknown, no prior ('single': one graph per camera)
+    F(k)  T_ref_mount of capture k      -- prior from forward kinematics (fk sigmas, :func:`fk_noise`)
+    K(c)  [fx, fy, cx, cy, k1, k2]      -- only with refine_intrinsics, prior around the given values
+
+and the detected corners, each a reprojection residual through
+:func:`~calibgraph.solver.factors.project_chain`, in one of two formulations of the same model:
+
+    'view'    one CustomFactor per view (C(c), F(k), B(0)[, K(c)]) with a residual pair per corner
+              (:mod:`calibgraph.solver.factors`); any OpenCV distortion model;
+    'corner'  one C++ projection factor per corner (:mod:`calibgraph.solver.factors_ppp`, which holds
+              F(k) and B(0) in another parametrisation); Cal3DS2 distortion (k1 k2 p1 p2) only.
+
+``SolverOptions.formulation`` chooses (:func:`_formulation`): 'view' or 'corner' as asked ('corner'
+with a k3..k6 camera is refused), and 'auto' (the default) takes 'corner' when every camera of the
+graph fits Cal3DS2 and the graph has at least CORNER_FORMULATION_MIN_VIEWS (1000) views with a PnP
+solution, 'view' otherwise. ``refine_intrinsics`` always uses 'view', whatever the option says.
+When the corner graph fails numerically under 'auto', that graph is solved again with 'view'.
 
 Robustness is at corner level: iteratively re-weighted least squares with Huber (or Cauchy)
 weights on each corner's residual norm, each LM run holding the weights fixed, so the cost LM
 sees is consistent; corners beyond ``outlier_sigmas`` are rejected and listed, views that lose
-most of their corners are rejected with a reason. Covariances come from ``gtsam.Marginals`` on the
-final weighted graph with the pixel sigma estimated from the residuals (a posteriori variance
-factor) unless it is given.
+most of their corners are rejected with a reason. Covariances are the marginals of the final
+weighted graph (eliminated in the solver's ordering, :class:`_Marginals`) with the pixel sigma
+estimated from the residuals (a posteriori variance factor) unless it is given.
+
+Internal API. Besides :func:`solve` and :func:`crlb`, the steps of a solve are public names here for
+the iSAM2 path (:mod:`calibgraph.solver.incremental`), ``scripts/bench_solver.py`` and the tests;
+calibgraph does not re-export them, and they change with the solver:
+
+    View, Estimate           a view in the graph (with its robust weights); the graph's variables
+    prepare_views            the problem's detections as Views (too few corners: rejected)
+    view_candidates          both IPPE poses of every view (the initialiser's input)
+    best_initial_guess       the initialiser's hypotheses ranked by reprojection error
+    solve_from_start         IRLS + outlier handling + marginals for one graph from a given start
+    build_graph              factor graph and initial values of an Estimate
+    levenberg_marquardt      one LM run on a graph
+    fk_noise                 noise model of the forward-kinematics prior on F(k)
+    to_ref_axes              GTSAM body-frame pose covariance -> reference-frame axes
+
+``solve(problem, timings={})`` adds the wall time (s) spent in each of ``STAGES`` to the dict.
 """
 
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import gtsam
@@ -40,53 +72,79 @@ from calibgraph.solver.initialise import (
     pnp_candidates,
     refine_translations,
 )
-from calibgraph.solver.keys import B, C, F
-from calibgraph.solver.keys import K as Kk
+from calibgraph.solver.keys import B, C, F, K
 from calibgraph.solver.observability import check_after_solve, check_before_solve
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView, Result
 
 MIN_CORNERS_PER_VIEW = 4
+# what solve(..., timings=...) times: PnP candidates, the initialiser's consensus and its translation
+# solve (inside best_initial_guess), graph building, LM runs, elimination for the marginals
+STAGES = ("candidates", "initialise", "refine_translations", "build_graph", "lm", "marginals")
 
 
 @dataclass
-class _View:
+class View:
+    """One camera's detections in one capture, as the solver uses them (mutable: the solve sets the
+    robust weights and whether the view is active)."""
+
     camera: str
     capture: int
-    ids: np.ndarray
-    p_board: np.ndarray
-    uv: np.ndarray
-    A: np.ndarray  # robot pose prior, static <- moving
-    w: np.ndarray = None  # robust weights in [0, 1]; 0 = rejected corner
+    ids: np.ndarray  # (N,) corner ids
+    p_board_m: np.ndarray  # (N, 3) corners in the board frame
+    uv_px: np.ndarray  # (N, 2) detected corners
+    T_ref_mount: np.ndarray  # (4, 4) robot pose of the capture from forward kinematics (the prior)
+    w: np.ndarray = None  # (N,) robust weights in [0, 1]; 0 = rejected corner
     active: bool = True
-    reason: str = ""
+    reason: str = ""  # why the view is not active
 
 
 @dataclass
-class _Estimate:
-    T_S_cam: dict
-    T_M_board: np.ndarray
-    A_est: dict
+class Estimate:
+    """Values of the graph's variables; after :func:`solve_from_start` also the solve's outcome."""
+
+    T_ref_cam: dict  # camera -> (4, 4)
+    T_mount_board: np.ndarray  # (4, 4)
+    T_ref_mount: dict  # capture -> (4, 4) estimated robot pose; a capture missing here starts at its FK pose
     iterations: int = 0
     cost: float = np.inf
     sigma_px: float = 1.0
-    intr: dict = field(default_factory=dict)  # camera -> refined Intrinsics (refine_intrinsics only)
-    extra: dict = field(default_factory=dict)
+    intrinsics: dict = field(default_factory=dict)  # camera -> refined Intrinsics (refine_intrinsics only)
+    slots: dict = field(default_factory=dict)  # camera -> index of its C (and K) key
+    formulation: str = ""  # 'view' or 'corner'
+    marginals: _Marginals | None = None  # of the final graph
+    mount_cov_body: np.ndarray | None = None  # (6, 6) covariance of T_mount_board, GTSAM body frame
+
+
+@contextmanager
+def _timed(timings: dict | None, stage: str):
+    """Add the wall time of the block to ``timings[stage]`` (nothing when ``timings`` is None)."""
+    if timings is None:
+        yield
+        return
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        timings[stage] = timings.get(stage, 0.0) + time.perf_counter() - t0
 
 
 def _robot_prior_poses(problem: Problem) -> dict:
+    """capture -> T_ref_mount as forward kinematics reports it (the prior of F(k))."""
     if problem.mode == "eye_to_hand":
         return {c.index: c.T_base_flange for c in problem.captures}
     return {c.index: inv(c.T_base_flange) for c in problem.captures}
 
 
-def _fk_noise(opts, mode: str = "eye_to_hand", A: np.ndarray | None = None):
-    """FK prior noise. The sigmas describe T_base_flange (perturbed at the flange); in eye-in-hand
-    the variable is its inverse T_flange_base, whose right perturbation is -Ad(T_base_flange) xi, so
-    the square-root information becomes diag(1/sigma) Ad(T_flange_base)."""
+def fk_noise(opts, mode: str = "eye_to_hand", T_ref_mount: np.ndarray | None = None):
+    """Noise model of the forward-kinematics prior on F(k) = ``T_ref_mount``.
+
+    The sigmas describe T_base_flange (perturbed at the flange); in eye-in-hand the variable is its
+    inverse T_flange_base, whose right perturbation is -Ad(T_base_flange) xi, so the square-root
+    information becomes diag(1/sigma) Ad(T_flange_base)."""
     s = np.array([opts.fk_sigma_rotation_rad] * 3 + [opts.fk_sigma_translation_m] * 3)
-    if mode == "eye_to_hand" or A is None:
+    if mode == "eye_to_hand" or T_ref_mount is None:
         return gtsam.noiseModel.Diagonal.Sigmas(s)
-    return gtsam.noiseModel.Gaussian.SqrtInformation(np.diag(1.0 / s) @ gtsam.Pose3(A).AdjointMap(), False)
+    return gtsam.noiseModel.Gaussian.SqrtInformation(np.diag(1.0 / s) @ gtsam.Pose3(T_ref_mount).AdjointMap(), False)
 
 
 def _loss_weights(r_sigma: np.ndarray, loss: str, scale: float) -> np.ndarray:
@@ -98,7 +156,7 @@ def _loss_weights(r_sigma: np.ndarray, loss: str, scale: float) -> np.ndarray:
     return 1.0 / (1.0 + (r_sigma / scale) ** 2)
 
 
-def _all_residuals(views, est: _Estimate, problem) -> list:
+def _all_residuals(views, est: Estimate, cameras: dict) -> list:
     """Residual norms (px) of every view, batched per camera: one projection call per camera
     instead of one per view (the per-view numpy overhead dominated large cells)."""
     out = [None] * len(views)
@@ -106,15 +164,15 @@ def _all_residuals(views, est: _Estimate, problem) -> list:
     for i, v in enumerate(views):
         by_cam.setdefault(v.camera, []).append(i)
     for cam, idx in by_cam.items():
-        T_cs = inv(est.T_S_cam[cam])
+        T_cs = inv(est.T_ref_cam[cam])
         pts, uvs, counts = [], [], []
         for i in idx:
             v = views[i]
-            T = T_cs @ est.A_est.get(v.capture, v.A) @ est.T_M_board
-            pts.append(v.p_board @ T[:3, :3].T + T[:3, 3])
-            uvs.append(v.uv)
+            T = T_cs @ est.T_ref_mount.get(v.capture, v.T_ref_mount) @ est.T_mount_board
+            pts.append(v.p_board_m @ T[:3, :3].T + T[:3, 3])
+            uvs.append(v.uv_px)
             counts.append(len(v.ids))
-        uv_hat = est.intr.get(cam, problem.cameras[cam]).project(np.concatenate(pts))
+        uv_hat = est.intrinsics.get(cam, cameras[cam]).project(np.concatenate(pts))
         r = np.linalg.norm(uv_hat - np.concatenate(uvs), axis=1)
         r = np.where(np.isfinite(r), r, 1e6)
         for i, part in zip(idx, np.split(r, np.cumsum(counts)[:-1])):
@@ -153,7 +211,12 @@ def _check_cameras_keep_views(views, slots):
             )
 
 
-def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: str = "view"):
+def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str = "view"):
+    """(graph, initial values) of the active views' kept corners at the values of ``est``.
+
+    ``slots``: camera -> index of its C (and K) key; ``sigma_px``: pixel sigma of a full-weight corner;
+    ``form``: 'view' or 'corner' (see the module docstring).
+    """
     _check_cameras_keep_views(views, slots)
     if form == "corner":
         o = problem.options
@@ -162,30 +225,31 @@ def _build_graph(views, slots, problem, est: _Estimate, sigma_px: float, form: s
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     used_caps = sorted({v.capture for v in views if v.active})
-    A_prior = {v.capture: v.A for v in views}
+    T_ref_mount_fk = {v.capture: v.T_ref_mount for v in views}
     for k in used_caps:
-        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(A_prior[k]), _fk_noise(problem.options, problem.mode, A_prior[k])))
-        values.insert(F(k), gtsam.Pose3(est.A_est.get(k, A_prior[k])))
+        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(T_ref_mount_fk[k]),
+                                         fk_noise(problem.options, problem.mode, T_ref_mount_fk[k])))
+        values.insert(F(k), gtsam.Pose3(est.T_ref_mount.get(k, T_ref_mount_fk[k])))
     for name, i in slots.items():
-        values.insert(C(i), gtsam.Pose3(est.T_S_cam[name]))
-    values.insert(B(0), gtsam.Pose3(est.T_M_board))
+        values.insert(C(i), gtsam.Pose3(est.T_ref_cam[name]))
+    values.insert(B(0), gtsam.Pose3(est.T_mount_board))
     refine = problem.options.refine_intrinsics
     if refine:
         o = problem.options
         prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([o.intrinsics_sigma_px] * 4 + [o.distortion_sigma] * 2))
         for name, i in slots.items():
-            graph.add(gtsam.PriorFactorVector(Kk(i), intrinsics_vector(problem.cameras[name]), prior))
-            values.insert(Kk(i), intrinsics_vector(est.intr.get(name, problem.cameras[name])))
+            graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(problem.cameras[name]), prior))
+            values.insert(K(i), intrinsics_vector(est.intrinsics.get(name, problem.cameras[name])))
     for v in views:
         if not v.active:
             continue
         keep = v.w > 0
         sw = np.sqrt(v.w[keep]) / sigma_px
         if refine:
-            graph.add(make_view_factor_intrinsics(C(slots[v.camera]), F(v.capture), B(0), Kk(slots[v.camera]),
-                                                  v.p_board[keep], v.uv[keep], problem.cameras[v.camera], sw))
+            graph.add(make_view_factor_intrinsics(C(slots[v.camera]), F(v.capture), B(0), K(slots[v.camera]),
+                                                  v.p_board_m[keep], v.uv_px[keep], problem.cameras[v.camera], sw))
         else:
-            graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board[keep], v.uv[keep],
+            graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board_m[keep], v.uv_px[keep],
                                        problem.cameras[v.camera], sw))
     return graph, values
 
@@ -226,7 +290,9 @@ def _order_for(values, form):
     return factors_ppp.ordering(values) if form == "corner" else _ordering(values)
 
 
-def _lm(graph, values, max_iterations, form: str = "view"):
+def levenberg_marquardt(graph, values, max_iterations, form: str = "view"):
+    """One LM run with the solver's elimination ordering: (values, iterations, final error).
+    A singular system raises ObservabilityError."""
     params = gtsam.LevenbergMarquardtParams()
     params.setOrdering(_order_for(values, form))
     params.setMaxIterations(max_iterations)
@@ -243,132 +309,186 @@ def _lm(graph, values, max_iterations, form: str = "view"):
     return out, opt.iterations(), graph.error(out)
 
 
-def _extract(values, slots, views, est: _Estimate, form: str = "view") -> _Estimate:
+def _extract(values, slots, views, est: Estimate, cameras: dict, form: str = "view") -> Estimate:
+    """The Estimate held by optimised ``values`` (robot poses of captures not in the graph kept)."""
     if form == "corner":
-        T_S_cam, T_M_board, A_new = factors_ppp.extract(values, slots, views)
-        A_est = dict(est.A_est)
-        A_est.update(A_new)
-        return _Estimate(T_S_cam=T_S_cam, T_M_board=T_M_board, A_est=A_est)
-    T_S_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
-    A_est = dict(est.A_est)
+        T_ref_cam, T_mount_board, T_ref_mount_new = factors_ppp.extract(values, slots, views)
+        T_ref_mount = dict(est.T_ref_mount)
+        T_ref_mount.update(T_ref_mount_new)
+        return Estimate(T_ref_cam=T_ref_cam, T_mount_board=T_mount_board, T_ref_mount=T_ref_mount)
+    T_ref_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
+    T_ref_mount = dict(est.T_ref_mount)
     for k in {v.capture for v in views if v.active}:
-        A_est[k] = values.atPose3(F(k)).matrix()
-    intr = dict(est.intr)
+        T_ref_mount[k] = values.atPose3(F(k)).matrix()
+    intr = dict(est.intrinsics)
     for name, i in slots.items():
-        if values.exists(Kk(i)):
-            base = est.intr.get(name) or est.extra["cameras"][name]
-            intr[name] = with_pinhole(base, values.atVector(Kk(i)))
-    out = _Estimate(T_S_cam=T_S_cam, T_M_board=values.atPose3(B(0)).matrix(), A_est=A_est, intr=intr)
-    out.extra["cameras"] = est.extra.get("cameras")
-    return out
+        if values.exists(K(i)):
+            base = est.intrinsics.get(name) or cameras[name]
+            intr[name] = with_pinhole(base, values.atVector(K(i)))
+    return Estimate(T_ref_cam=T_ref_cam, T_mount_board=values.atPose3(B(0)).matrix(), T_ref_mount=T_ref_mount,
+                    intrinsics=intr)
 
 
-def _solve_core(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_board0: np.ndarray):
-    """IRLS + outlier handling for one graph (all cameras in 'joint', one camera in 'single')."""
+def solve_from_start(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
+                     timings: dict | None = None) -> Estimate:
+    """IRLS + outlier handling + marginals for one graph (all cameras in 'joint', one camera in
+    'single') from the start ``T_ref_cam0`` (camera -> 4x4), ``T_mount_board0``; no initialiser.
+
+    Sets the views' weights, ``active`` and ``reason``. The Estimate carries the final cost, pixel
+    sigma, marginals, ``slots`` and the formulation used.
+    """
     form = "view" if problem.options.refine_intrinsics else _formulation(problem, names, len(views))
     try:
-        return _solve_core_with(problem, names, views, T_S_cam0, T_M_board0, form)
+        return _solve_with_formulation(problem, names, views, T_ref_cam0, T_mount_board0, form, timings)
     except ObservabilityError:
         if form != "corner" or problem.options.formulation == "corner":
             raise
         # numerical failure of the corner graph: the per-view graph is the reference
-        return _solve_core_with(problem, names, views, T_S_cam0, T_M_board0, "view")
+        return _solve_with_formulation(problem, names, views, T_ref_cam0, T_mount_board0, "view", timings)
 
 
-def _solve_core_with(problem: Problem, names: list, views: list, T_S_cam0: dict, T_M_board0: np.ndarray, form: str):
-    opts = problem.options
+def _solve_with_formulation(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
+                            form: str, timings: dict | None) -> Estimate:
+    """:func:`solve_from_start` in one formulation: screening, robust rounds, final graph and marginals."""
     slots = {n: i for i, n in enumerate(names)}
-    est = _Estimate(T_S_cam=dict(T_S_cam0), T_M_board=T_M_board0, A_est={})
-    est.extra["cameras"] = problem.cameras
+    est = Estimate(T_ref_cam=dict(T_ref_cam0), T_mount_board=T_mount_board0, T_ref_mount={})
+    sigma = _screen_views_at_start(problem, views, est)
+    iterations = 0
+    for _ in range(4):
+        est, sigma, it, res = _reweighted_solves(problem, views, slots, est, sigma, form, timings)
+        iterations += it
+        if not _readmit_or_reject_views(views, res, sigma, problem.options):
+            break
+    return _final_solve_and_marginals(problem, names, views, slots, est, sigma, iterations, form, timings)
+
+
+def _screen_views_at_start(problem: Problem, views: list, est: Estimate) -> float:
+    """Activate every view at full weight, set aside the views grossly off at the start (so that a
+    few corrupted views cannot drag the first solve); returns the starting pixel sigma."""
     for v in views:
         v.w = np.ones(len(v.ids))
         v.active = True
         v.reason = ""
-    # Gross view screening at the initial guess, so a few corrupted views cannot drag the first solve.
-    init_rms = np.array([np.sqrt(np.mean(r ** 2)) for r in _all_residuals(views, est, problem)])
+    init_rms = np.array([np.sqrt(np.mean(r ** 2)) for r in _all_residuals(views, est, problem.cameras)])
     thr0 = max(10.0 * np.median(init_rms), 15.0)
     for v, r in zip(views, init_rms):
         if r > thr0:
             v.active = False
             v.reason = f"inconsistent with the other views at initialisation (rms {r:.1f} px)"
-    fixed_sigma = opts.pixel_sigma_px
-    sigma = fixed_sigma or max(float(np.median(init_rms[init_rms <= thr0])), 0.5)
-    total_it = 0
-    for outer in range(4):
-        for irls in range(6):
-            graph, values = _build_graph(views, slots, problem, est, sigma, form)
-            values, it, cost = _lm(graph, values, opts.max_iterations, form)
-            total_it += it
-            est = _extract(values, slots, views, est, form)
-            res = {id(v): r for v, r in zip(views, _all_residuals(views, est, problem))}
-            act = [v for v in views if v.active]
-            norms = np.concatenate([res[id(v)][v.w > 0] for v in act])
-            # median of a 2-D Gaussian residual norm is sqrt(2 ln 2) = 1.1774 per-axis sigmas
-            sigma_new = fixed_sigma or max(float(np.median(norms)) / 1.1774, 1e-3)
-            change = 0.0
-            for v in act:
-                r = res[id(v)] / sigma_new
-                w_new = _loss_weights(r, opts.loss, opts.loss_scale)
-                w_new[r > opts.outlier_sigmas] = 0.0
-                change = max(change, float(np.abs(w_new - v.w).max()))
-                v.w = w_new
-            converged = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05
-            sigma = sigma_new
-            if converged:
-                break
-        # view level: re-admit consistent views, reject views that lost most corners
-        changed = False
-        for v in views:
-            r = res[id(v)] / sigma
-            kept = r <= opts.outlier_sigmas
-            ok = kept.mean() >= 0.5 and kept.sum() >= MIN_CORNERS_PER_VIEW
-            if v.active and not ok:
-                v.active = False
-                v.reason = (f"{(~kept).sum()} of {len(kept)} corners beyond {opts.outlier_sigmas:g} sigma "
-                            f"(median residual {np.median(res[id(v)]):.2f} px)")
-                changed = True
-            elif not v.active and ok:
-                v.active = True
-                v.reason = ""
-                v.w = np.where(kept, _loss_weights(r, opts.loss, opts.loss_scale), 0.0)
-                changed = True
-        if not changed:
+    return problem.options.pixel_sigma_px or max(float(np.median(init_rms[init_rms <= thr0])), 0.5)
+
+
+def _reweighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
+                       timings: dict | None):
+    """LM runs with fixed corner weights, re-weighted in between, until the weights and the pixel
+    sigma settle (at most 6 runs): (estimate, pixel sigma, LM iterations, residual norms by id(view))."""
+    opts = problem.options
+    iterations = 0
+    for _ in range(6):
+        with _timed(timings, "build_graph"):
+            graph, values = build_graph(views, slots, problem, est, sigma, form)
+        with _timed(timings, "lm"):
+            values, it, _ = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        iterations += it
+        est = _extract(values, slots, views, est, problem.cameras, form)
+        res = {id(v): r for v, r in zip(views, _all_residuals(views, est, problem.cameras))}
+        active = [v for v in views if v.active]
+        sigma_new = _pixel_sigma(active, res, opts.pixel_sigma_px)
+        change = _reweight(active, res, sigma_new, opts)
+        converged = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05
+        sigma = sigma_new
+        if converged:
             break
-    # a posteriori pixel sigma and the final weighted graph for the marginals
-    act = [v for v in views if v.active]
-    n_obs = 2 * sum(int((v.w > 0).sum()) for v in act)
+    return est, sigma, iterations, res
+
+
+def _pixel_sigma(active: list, res: dict, fixed_sigma_px: float | None) -> float:
+    """The given pixel sigma, else a robust estimate from the kept corners' residual norms."""
+    norms = np.concatenate([res[id(v)][v.w > 0] for v in active])
+    # median of a 2-D Gaussian residual norm is sqrt(2 ln 2) = 1.1774 per-axis sigmas
+    return fixed_sigma_px or max(float(np.median(norms)) / 1.1774, 1e-3)
+
+
+def _reweight(active: list, res: dict, sigma_px: float, opts) -> float:
+    """New robust weights of the active views' corners (0 beyond outlier_sigmas); the largest change."""
+    change = 0.0
+    for v in active:
+        r = res[id(v)] / sigma_px
+        w_new = _loss_weights(r, opts.loss, opts.loss_scale)
+        w_new[r > opts.outlier_sigmas] = 0.0
+        change = max(change, float(np.abs(w_new - v.w).max()))
+        v.w = w_new
+    return change
+
+
+def _readmit_or_reject_views(views: list, res: dict, sigma_px: float, opts) -> bool:
+    """View level: reject active views that lost most of their corners, re-admit set-aside views that
+    fit now; True when any view changed."""
+    changed = False
+    for v in views:
+        r = res[id(v)] / sigma_px
+        kept = r <= opts.outlier_sigmas
+        ok = kept.mean() >= 0.5 and kept.sum() >= MIN_CORNERS_PER_VIEW
+        if v.active and not ok:
+            v.active = False
+            v.reason = (f"{(~kept).sum()} of {len(kept)} corners beyond {opts.outlier_sigmas:g} sigma "
+                        f"(median residual {np.median(res[id(v)]):.2f} px)")
+            changed = True
+        elif not v.active and ok:
+            v.active = True
+            v.reason = ""
+            v.w = np.where(kept, _loss_weights(r, opts.loss, opts.loss_scale), 0.0)
+            changed = True
+    return changed
+
+
+def _a_posteriori_sigma(problem: Problem, names: list, views: list, est: Estimate) -> float:
+    """The given pixel sigma, else the a posteriori one: weighted residuals over the redundancy."""
+    opts = problem.options
+    if opts.pixel_sigma_px:
+        return opts.pixel_sigma_px
+    active = [v for v in views if v.active]
+    n_obs = 2 * sum(int((v.w > 0).sum()) for v in active)
     n_par = 6 * (len(names) + 1) + (6 * len(names) if opts.refine_intrinsics else 0)
-    if fixed_sigma:
-        sigma_post = fixed_sigma
-    else:
-        wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(act, _all_residuals(act, est, problem)))
-        sigma_post = float(np.sqrt(wr2 / max(n_obs - n_par, 1)))
-        sigma_post = max(sigma_post, 1e-4)
-    graph, values = _build_graph(views, slots, problem, est, sigma_post, form)
+    wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(active, _all_residuals(active, est, problem.cameras)))
+    return max(float(np.sqrt(wr2 / max(n_obs - n_par, 1))), 1e-4)
+
+
+def _final_solve_and_marginals(problem: Problem, names: list, views: list, slots: dict, est: Estimate, sigma: float,
+                               iterations: int, form: str, timings: dict | None) -> Estimate:
+    """The final weighted graph at the a posteriori pixel sigma (re-solved when that sigma moved the
+    pixel/FK balance by more than 5%), its cost and its marginals."""
+    opts = problem.options
+    sigma_post = _a_posteriori_sigma(problem, names, views, est)
+    with _timed(timings, "build_graph"):
+        graph, values = build_graph(views, slots, problem, est, sigma_post, form)
     if abs(sigma_post - sigma) > 0.05 * sigma:
         # the pixel/FK balance moved enough to shift the optimum: re-solve before the marginals
-        values, it, _ = _lm(graph, values, opts.max_iterations, form)
-        total_it += it
-        est = _extract(values, slots, views, est, form)
-    cost = graph.error(values)
-    est.iterations, est.cost, est.sigma_px = total_it, cost, sigma_post
+        with _timed(timings, "lm"):
+            values, it, _ = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        iterations += it
+        est = _extract(values, slots, views, est, problem.cameras, form)
+    est.iterations, est.cost, est.sigma_px = iterations, graph.error(values), sigma_post
+    est.marginals = _marginals(graph, values, form, timings)
+    est.slots, est.formulation = slots, form
+    est.mount_cov_body = (factors_ppp.mount_cov_body(est.marginals, values) if form == "corner"
+                          else est.marginals.marginalCovariance(B(0)))
+    return est
+
+
+def _marginals(graph, values, form: str, timings: dict | None) -> _Marginals:
+    """Marginals of the final graph; a singular one raises ObservabilityError with advice."""
     try:
-        marg = _Marginals(graph, values, _order_for(values, form))
+        with _timed(timings, "marginals"):
+            return _Marginals(graph, values, _order_for(values, form))
     except RuntimeError as e:
         raise ObservabilityError(
             f"covariance could not be computed ({str(e).splitlines()[0][:120]}): the views leave a parameter "
             "undetermined; add poses with the board tilted about different axes."
         ) from None
-    est.extra["marginals"] = marg
-    est.extra["slots"] = slots
-    est.extra["formulation"] = form
-    est.extra["mount_cov_body"] = (factors_ppp.mount_cov_body(marg, values) if form == "corner"
-                                   else marg.marginalCovariance(B(0)))
-    est.extra["n_obs"] = n_obs
-    return est
 
 
-def _to_ref_axes(T: np.ndarray, cov_body: np.ndarray) -> np.ndarray:
+def to_ref_axes(T: np.ndarray, cov_body: np.ndarray) -> np.ndarray:
     """GTSAM right-perturbation covariance -> rotation/position errors in the reference frame axes."""
     R = T[:3, :3]
     G = np.zeros((6, 6))
@@ -397,37 +517,40 @@ def _pair_covariance(T_a: np.ndarray, T_b: np.ndarray, cov_joint_body: np.ndarra
     return J @ cov_joint_body @ J.T
 
 
-def _prepare_views(problem: Problem):
-    A = _robot_prior_poses(problem)
+def prepare_views(problem: Problem) -> tuple[list, list]:
+    """(views, rejected): the problem's detections as :class:`View` s, and those with fewer than
+    MIN_CORNERS_PER_VIEW corners as :class:`RejectedView` s."""
+    robot_poses = _robot_prior_poses(problem)
     views, rejected = [], []
     for d in problem.detections:
         if len(d.ids) < MIN_CORNERS_PER_VIEW:
             rejected.append(RejectedView(d.camera, d.capture, f"only {len(d.ids)} corners (need {MIN_CORNERS_PER_VIEW})"))
             continue
-        views.append(_View(camera=d.camera, capture=d.capture, ids=d.ids, p_board=problem.points_board_m[d.ids],
-                           uv=d.uv_px, A=A[d.capture]))
+        views.append(View(camera=d.camera, capture=d.capture, ids=d.ids, p_board_m=problem.points_board_m[d.ids],
+                          uv_px=d.uv_px, T_ref_mount=robot_poses[d.capture]))
     return views, rejected
 
 
-def _candidates(problem, views):
+def view_candidates(problem: Problem, views: list) -> tuple[dict, list]:
+    """(camera -> [ViewCandidates], views without a valid PnP solution): both IPPE poses of every view."""
     out = {}
     bad = []
     for v in views:
-        R, t, rms = pnp_candidates(v.p_board, v.uv, problem.cameras[v.camera])
+        R, t, rms = pnp_candidates(v.p_board_m, v.uv_px, problem.cameras[v.camera])
         if len(R) == 0:
             bad.append(v)
             continue
-        out.setdefault(v.camera, []).append(ViewCandidates(v.camera, v.capture, v.A, R, t, rms))
+        out.setdefault(v.camera, []).append(ViewCandidates(v.camera, v.capture, v.T_ref_mount, R, t, rms))
     return out, bad
 
 
-def _init_score(problem, views, T_S_cam, T_M_board) -> float:
+def _init_score(cameras: dict, views, T_ref_cam, T_mount_board) -> float:
     """Median per-view RMS reprojection error (px) of an initial guess over the views it covers."""
-    vs = [v for v in views if v.camera in T_S_cam]
+    vs = [v for v in views if v.camera in T_ref_cam]
     if not vs:
         return np.inf
-    est = _Estimate(T_S_cam=T_S_cam, T_M_board=T_M_board, A_est={})
-    rms = [np.sqrt(np.mean(r ** 2)) for r in _all_residuals(vs, est, problem)]
+    est = Estimate(T_ref_cam=T_ref_cam, T_mount_board=T_mount_board, T_ref_mount={})
+    rms = [np.sqrt(np.mean(r ** 2)) for r in _all_residuals(vs, est, cameras)]
     return float(np.median(rms))
 
 
@@ -448,41 +571,51 @@ def _subsample(cands: dict, views: list, max_views: int, seed: int):
     return out, [v for v in views if (v.camera, v.capture) in keep]
 
 
-def _best_initial_guess(problem, names, views, cands, joint, seed):
+def best_initial_guess(cameras: dict, views: list, cands: dict, joint: bool, seed: int = 0,
+                       timings: dict | None = None) -> tuple[dict, dict]:
     """Rank the initialiser's hypotheses by reprojection error after the linear translation solve.
+
+    ``cameras``: name -> Intrinsics, in slot order; ``cands``: from :func:`view_candidates`.
+    Returns (camera -> T_ref_cam, mounts) with mounts {0: T_mount_board} when ``joint``, else
+    camera -> its own mount; a camera that could not be initialised is missing.
 
     Per-view PnP rotations of a small far board can be tens of degrees off, and a wrong hypothesis
     can be as self-consistent in rotation as the right one; it cannot explain the corners.
     """
-    p_by_view = {(v.camera, v.capture): v.p_board for v in views}
-    uv_by_view = {(v.camera, v.capture): v.uv for v in views}
-    hyps = initialise(names, cands, joint=joint, seed=seed)
+    p_by_view = {(v.camera, v.capture): v.p_board_m for v in views}
+    uv_by_view = {(v.camera, v.capture): v.uv_px for v in views}
+    with _timed(timings, "initialise"):
+        hyps = initialise(list(cameras), cands, joint=joint, seed=seed)
+
+    def translations(*args):
+        with _timed(timings, "refine_translations"):
+            return refine_translations(*args)
+
     if joint:
         # Rank on a subsample (large cells have thousands of views), refine the winner on all.
         s_cands, s_views = _subsample(cands, views, INIT_SCORE_MAX_VIEWS, seed)
         best = None
         for T0, mounts in hyps:
             if len(hyps) > 1:
-                T1, m1 = refine_translations(s_cands, problem.cameras, T0, mounts[0], p_by_view, uv_by_view)
-                score = (-len(T1), _init_score(problem, s_views, T1, m1))
+                T1, m1 = translations(s_cands, cameras, T0, mounts[0], p_by_view, uv_by_view)
+                score = (-len(T1), _init_score(cameras, s_views, T1, m1))
             else:
                 score = (0, 0.0)
             if best is None or score < best[0]:
                 best = (score, T0, mounts[0])
-        T0, m0 = refine_translations(cands, problem.cameras, best[1], best[2], p_by_view, uv_by_view)
+        T0, m0 = translations(cands, cameras, best[1], best[2], p_by_view, uv_by_view)
         return T0, {0: m0}
     T_best, m_best, s_best = {}, {}, {}
     for T0, mounts in hyps:
         for n in mounts:
-            Tn, mn = refine_translations({n: cands.get(n, [])}, problem.cameras, {n: T0[n]}, mounts[n],
-                                         p_by_view, uv_by_view)
-            sc = _init_score(problem, [v for v in views if v.camera == n], {n: Tn[n]}, mn)
+            Tn, mn = translations({n: cands.get(n, [])}, cameras, {n: T0[n]}, mounts[n], p_by_view, uv_by_view)
+            sc = _init_score(cameras, [v for v in views if v.camera == n], {n: Tn[n]}, mn)
             if n not in s_best or sc < s_best[n]:
                 T_best[n], m_best[n], s_best[n] = Tn[n], mn, sc
     return T_best, m_best
 
 
-def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Result:
+def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings: dict | None = None) -> Result:
     """Calibrate all cameras of ``problem``.
 
     Args:
@@ -490,140 +623,191 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0) -> Resul
         initial: optional initial guess ``{"T_ref_cam": {name: 4x4}, "T_mount_board": 4x4}``; the
             robust initialiser runs anyway and the start that ends with the lower cost wins.
         seed: RANSAC seed (results are deterministic for a given seed).
+        timings: when a dict, the wall time (s) of each stage in ``STAGES`` is added to it.
     Returns:
         :class:`Result`.
     Raises:
         ObservabilityError: a camera has too few views or the motion leaves a parameter undetermined.
-        SolverError: the optimisation did not produce a usable estimate.
+        InputError: formulation 'corner' was asked for a camera with k3..k6 distortion.
     """
     t0 = time.perf_counter()
-    opts = problem.options
-    views, rejected = _prepare_views(problem)
-    cands, bad = _candidates(problem, views)
-    for v in bad:
-        rejected.append(RejectedView(v.camera, v.capture, "no valid PnP solution (corners degenerate or ids wrong)"))
-    views = [v for v in views if v not in bad]
-    views_by_cam = {}
-    for v in views:
-        views_by_cam.setdefault(v.camera, []).append(v.capture)
-    frame_word = "board"
-    check_before_solve(problem, views_by_cam, frame_word)
+    views, cands, rejected = _usable_views(problem, timings)
+    check_before_solve(problem, _captures_by_camera(views))
     names = list(problem.cameras)
     joint = problem.method == "joint"
-    T0, mounts0 = _best_initial_guess(problem, names, views, cands, joint, seed)
-    missing = [n for n in names if n not in T0]
+    T_ref_cam0, mounts0 = _initial_guess(problem, views, cands, joint, seed, timings)
+    if joint:
+        groups = [_solve_joint(problem, names, views, T_ref_cam0, mounts0[0], initial, timings)]
+    else:
+        groups = [_solve_single(problem, n, views, T_ref_cam0[n], mounts0[n], timings) for n in names]
+    cov_body = {n: g.est.marginals.marginalCovariance(C(g.est.slots[n])) for g in groups for n in g.names}
+    cameras, rejected_corners = {}, []
+    for g in groups:
+        for n in g.names:
+            cameras[n], corners = _camera_result(problem, n, g.est, g.views, cov_body[n], rejected, joint)
+            rejected_corners += corners
+    T_mount_board, mount_cov, T_base_flange_est = _mount_and_robot_poses(problem, groups, joint)
+    settings = {k: getattr(problem.options, k) for k in problem.options.__dataclass_fields__}
+    settings["formulation_used"] = groups[0].est.formulation
+    return Result(
+        mode=problem.mode, method=problem.method, cameras=cameras, T_mount_board=T_mount_board,
+        mount_covariance=mount_cov, pairs=_pair_results(names, cameras, cov_body, groups, joint), converged=True,
+        iterations=sum(g.est.iterations for g in groups), final_cost=sum(g.est.cost for g in groups),
+        pixel_sigma_px=float(np.mean([g.est.sigma_px for g in groups])), solve_time_s=time.perf_counter() - t0,
+        rejected_views=tuple(rv for c in cameras.values() for rv in c.views_rejected),
+        rejected_corners=tuple(rejected_corners), T_base_flange_est=T_base_flange_est, settings=settings,
+    )
+
+
+@dataclass(frozen=True)
+class _Group:
+    """One solved graph: its cameras, its estimate and its views (one group in 'joint', one per camera in 'single')."""
+
+    names: list
+    est: Estimate
+    views: list
+
+
+def _usable_views(problem: Problem, timings: dict | None) -> tuple[list, dict, list]:
+    """(views, their PnP candidates by camera, refused views): views need enough corners and a PnP solution."""
+    views, rejected = prepare_views(problem)
+    with _timed(timings, "candidates"):
+        cands, bad = view_candidates(problem, views)
+    for v in bad:
+        rejected.append(RejectedView(v.camera, v.capture, "no valid PnP solution (corners degenerate or ids wrong)"))
+    bad_ids = {id(v) for v in bad}
+    return [v for v in views if id(v) not in bad_ids], cands, rejected
+
+
+def _captures_by_camera(views: list) -> dict:
+    """camera -> captures of its views (what the observability check counts)."""
+    out = {}
+    for v in views:
+        out.setdefault(v.camera, []).append(v.capture)
+    return out
+
+
+def _initial_guess(problem: Problem, views: list, cands: dict, joint: bool, seed: int, timings: dict | None):
+    """:func:`best_initial_guess`, refusing with advice when a camera could not be initialised."""
+    T_ref_cam0, mounts0 = best_initial_guess(problem.cameras, views, cands, joint, seed, timings)
+    missing = [n for n in problem.cameras if n not in T_ref_cam0]
     if missing:
         raise ObservabilityError(
             f"camera(s) {missing} could not be initialised: no consistent set of views (each view's PnP disagrees "
             "with the board mount found from the other cameras); check their intrinsics and the target spec."
         )
-    cam_results, pairs = {}, {}
-    ref = "base" if problem.mode == "eye_to_hand" else "flange"
-    all_rejected_corners = []
-    if joint:
-        starts = [(T0, mounts0[0])]
-        if initial:
-            starts.append((dict(initial["T_ref_cam"]), np.asarray(initial["T_mount_board"])))
-        best, error = None, None
-        for Ts, Tm in starts:
-            try:
-                est = _solve_core(problem, names, views, Ts, Tm)
-            except ObservabilityError as e:
-                error = e
-                continue
-            if best is None or est.cost < best[0].cost:
-                best = (est, [(v.camera, v.capture, v.active, v.reason, v.w.copy()) for v in views])
-        if best is None:
-            raise error
-        est, view_state = best
-        for v, (_, _, active, reason, w) in zip(views, view_state):
-            v.active, v.reason, v.w = active, reason, w
-        groups = [(names, est, views)]
-    else:
-        groups = []
-        for n in names:
-            vs = [v for v in views if v.camera == n]
-            est = _solve_core(problem, [n], vs, {n: T0[n]}, mounts0[n])
-            groups.append(([n], est, vs))
-    sigma_px_all, iters, cost = [], 0, 0.0
-    body_cov = {}
-    for gnames, est, gviews in groups:
-        marg = est.extra["marginals"]
-        slots = est.extra["slots"]
-        iters += est.iterations
-        cost += est.cost
-        sigma_px_all.append(est.sigma_px)
-        for n in gnames:
-            cb = marg.marginalCovariance(C(slots[n]))
-            body_cov[n] = (cb, est, marg, slots)
-            cov = _to_ref_axes(est.T_S_cam[n], cb)
-            check_after_solve(n, cov)
-            cv = [v for v in gviews if v.camera == n]
-            used = [v for v in cv if v.active]
-            intr = est.intr.get(n, problem.cameras[n])
-            res_all, residuals = [], {}
-            for v in cv:
-                uv_hat = project_chain(est.T_S_cam[n], est.A_est.get(v.capture, v.A), est.T_M_board, v.p_board, intr)
-                d = uv_hat - v.uv
-                residuals[v.capture] = {"ids": v.ids, "uv_detected_px": v.uv, "residual_px": d,
-                                        "weight": v.w.copy(), "rejected": not v.active}
-                if v.active:
-                    keep = v.w > 0
-                    res_all.append(d[keep])
-                    for cid, rr in zip(v.ids[~keep], np.linalg.norm(d[~keep], axis=1)):
-                        all_rejected_corners.append((n, v.capture, int(cid), float(rr)))
-            R = np.concatenate(res_all) if res_all else np.zeros((0, 2))
-            rn = np.linalg.norm(R, axis=1)
-            vrej = tuple(RejectedView(n, v.capture, v.reason) for v in cv if not v.active)
-            vrej += tuple(r for r in rejected if r.camera == n)
-            cam_results[n] = CameraResult(
-                name=n, ref_frame=ref, T_ref_cam=est.T_S_cam[n], covariance=cov,
-                reprojection_rms_px=float(np.sqrt(np.mean(rn ** 2))) if rn.size else float("nan"),
-                reprojection_max_px=float(rn.max()) if rn.size else float("nan"),
-                views_used=len(used), views_rejected=vrej,
-                corners_used=int(sum((v.w > 0).sum() for v in used)),
-                corners_rejected=int(sum((v.w == 0).sum() for v in used)),
-                T_mount_board=None if joint else est.T_M_board,
-                residuals_px=residuals,
-                intrinsics=intr.to_dict(),
-            )
-    # camera-to-camera poses; one joint marginal of all cameras (pairwise calls are O(n^2) solves)
+    return T_ref_cam0, mounts0
+
+
+def _solve_joint(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
+                 initial: dict | None, timings: dict | None) -> _Group:
+    """All cameras in one graph, from the initialiser's start and the user's (when given): the lower cost wins."""
+    starts = [(T_ref_cam0, T_mount_board0)]
+    if initial:
+        starts.append((dict(initial["T_ref_cam"]), np.asarray(initial["T_mount_board"])))
+    best, error = None, None
+    for T_ref_cam, T_mount_board in starts:
+        try:
+            est = solve_from_start(problem, names, views, T_ref_cam, T_mount_board, timings)
+        except ObservabilityError as e:
+            error = e
+            continue
+        if best is None or est.cost < best[0].cost:
+            best = (est, [(v.active, v.reason, v.w.copy()) for v in views])
+    if best is None:
+        raise error
+    est, view_state = best
+    for v, (active, reason, w) in zip(views, view_state):  # the views as the winning start left them
+        v.active, v.reason, v.w = active, reason, w
+    return _Group(names, est, views)
+
+
+def _solve_single(problem: Problem, name: str, views: list, T_ref_cam0: np.ndarray, T_mount_board0: np.ndarray,
+                  timings: dict | None) -> _Group:
+    """One camera in its own graph, with its own board mount."""
+    mine = [v for v in views if v.camera == name]
+    return _Group([name], solve_from_start(problem, [name], mine, {name: T_ref_cam0}, T_mount_board0, timings), mine)
+
+
+def _camera_result(problem: Problem, name: str, est: Estimate, views: list, cov_body: np.ndarray, rejected: list,
+                   joint: bool) -> tuple[CameraResult, list]:
+    """(CameraResult of one camera, its rejected corners): pose, covariance in reference axes, residuals."""
+    cov = to_ref_axes(est.T_ref_cam[name], cov_body)
+    check_after_solve(name, cov)
+    mine = [v for v in views if v.camera == name]
+    used = [v for v in mine if v.active]
+    intr = est.intrinsics.get(name, problem.cameras[name])
+    residuals, kept_px, rejected_corners = _view_residuals(name, est, mine, intr)
+    rn = np.linalg.norm(kept_px, axis=1)
+    views_rejected = tuple(RejectedView(name, v.capture, v.reason) for v in mine if not v.active)
+    views_rejected += tuple(r for r in rejected if r.camera == name)
+    result = CameraResult(
+        name=name, ref_frame="base" if problem.mode == "eye_to_hand" else "flange", T_ref_cam=est.T_ref_cam[name],
+        covariance=cov,
+        reprojection_rms_px=float(np.sqrt(np.mean(rn ** 2))) if rn.size else float("nan"),
+        reprojection_max_px=float(rn.max()) if rn.size else float("nan"),
+        views_used=len(used), views_rejected=views_rejected,
+        corners_used=int(sum((v.w > 0).sum() for v in used)),
+        corners_rejected=int(sum((v.w == 0).sum() for v in used)),
+        T_mount_board=None if joint else est.T_mount_board,
+        residuals_px=residuals,
+        intrinsics=intr.to_dict(),
+    )
+    return result, rejected_corners
+
+
+def _view_residuals(name: str, est: Estimate, views: list, intr) -> tuple[dict, np.ndarray, list]:
+    """Residuals (reprojected - detected, px) of one camera's views at the estimate: (capture ->
+    record for the result, kept corners' residuals of the active views (M, 2), rejected corners as
+    (camera, capture, corner id, residual px))."""
+    residuals, kept, rejected_corners = {}, [], []
+    for v in views:
+        uv_hat = project_chain(est.T_ref_cam[name], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
+                               v.p_board_m, intr)
+        d = uv_hat - v.uv_px
+        residuals[v.capture] = {"ids": v.ids, "uv_detected_px": v.uv_px, "residual_px": d,
+                                "weight": v.w.copy(), "rejected": not v.active}
+        if v.active:
+            keep = v.w > 0
+            kept.append(d[keep])
+            for cid, rr in zip(v.ids[~keep], np.linalg.norm(d[~keep], axis=1)):
+                rejected_corners.append((name, v.capture, int(cid), float(rr)))
+    return residuals, np.concatenate(kept) if kept else np.zeros((0, 2)), rejected_corners
+
+
+def _pair_results(names: list, cameras: dict, cov_body: dict, groups: list, joint: bool) -> dict:
+    """(a, b) -> PairResult for every camera pair; in 'joint' from one joint marginal of all cameras
+    (pairwise calls would be O(n^2) solves), in 'single' from independent per-camera marginals."""
     joint_cov = None
     if joint and len(names) > 1:
-        est0 = groups[0][1]
-        joint_cov = est0.extra["marginals"].joint([C(est0.extra["slots"][n]) for n in names])
+        est = groups[0].est
+        joint_cov = est.marginals.joint([C(est.slots[n]) for n in names])
+    pairs = {}
     for i, a in enumerate(names):
         for b in names[i + 1:]:
-            Ta, Tb = cam_results[a].T_ref_cam, cam_results[b].T_ref_cam
-            ca, est_a, marg_a, slots_a = body_cov[a]
-            cb, est_b, marg_b, slots_b = body_cov[b]
+            T_ref_a, T_ref_b = cameras[a].T_ref_cam, cameras[b].T_ref_cam
             if joint:
                 ia, ib = names.index(a), names.index(b)
                 sel = np.r_[6 * ia: 6 * ia + 6, 6 * ib: 6 * ib + 6]
-                J = joint_cov[np.ix_(sel, sel)]
+                cov_ab = joint_cov[np.ix_(sel, sel)]
             else:
-                J = np.zeros((12, 12))
-                J[:6, :6], J[6:, 6:] = ca, cb
-            pairs[(a, b)] = PairResult(a=a, b=b, T_a_b=inv(Ta) @ Tb, covariance=_pair_covariance(Ta, Tb, J))
-    mount_cov = None
-    T_mount = None
-    A_est = {}
-    if joint:
-        est = groups[0][1]
-        T_mount = est.T_M_board
-        mount_cov = _to_ref_axes(T_mount, est.extra["mount_cov_body"])
-        A_est = est.A_est
+                cov_ab = np.zeros((12, 12))
+                cov_ab[:6, :6], cov_ab[6:, 6:] = cov_body[a], cov_body[b]
+            pairs[(a, b)] = PairResult(a=a, b=b, T_a_b=inv(T_ref_a) @ T_ref_b,
+                                       covariance=_pair_covariance(T_ref_a, T_ref_b, cov_ab))
+    return pairs
+
+
+def _mount_and_robot_poses(problem: Problem, groups: list, joint: bool):
+    """(T_mount_board, its covariance in reference axes, capture -> estimated T_base_flange) of the
+    joint graph; (None, None, {}) in 'single' mode."""
+    if not joint:
+        return None, None, {}
+    est = groups[0].est
+    T_base_flange = est.T_ref_mount
     if problem.mode == "eye_in_hand":
-        A_est = {k: inv(T) for k, T in A_est.items()}
-    settings = {k: getattr(opts, k) for k in opts.__dataclass_fields__}
-    settings["formulation_used"] = groups[0][1].extra["formulation"]
-    return Result(
-        mode=problem.mode, method=problem.method, cameras=cam_results, T_mount_board=T_mount,
-        mount_covariance=mount_cov, pairs=pairs, converged=True, iterations=iters, final_cost=cost,
-        pixel_sigma_px=float(np.mean(sigma_px_all)), solve_time_s=time.perf_counter() - t0,
-        rejected_views=tuple(rv for c in cam_results.values() for rv in c.views_rejected),
-        rejected_corners=tuple(all_rejected_corners), T_base_flange_est=A_est, settings=settings,
-    )
+        T_base_flange = {k: inv(T) for k, T in T_base_flange.items()}
+    return est.T_mount_board, to_ref_axes(est.T_mount_board, est.mount_cov_body), T_base_flange
 
 
 def crlb(problem: Problem, T_ref_cam: dict, T_mount_board, pixel_sigma_px: float, T_base_flange_true: dict | None = None,
@@ -634,21 +818,21 @@ def crlb(problem: Problem, T_ref_cam: dict, T_mount_board, pixel_sigma_px: float
     Returns name -> 6x6 covariance (rotation first, reference-frame axes, as in the results).
     In 'single' mode pass ``mounts_single`` (name -> true mount) or the shared true mount is used for each.
     """
-    views, _ = _prepare_views(problem)
+    views, _ = prepare_views(problem)
     for v in views:
         v.w = np.ones(len(v.ids))
-    true_A = {}
+    T_ref_mount_true = {}
     if T_base_flange_true:
-        true_A = {k: (T if problem.mode == "eye_to_hand" else inv(T)) for k, T in T_base_flange_true.items()}
+        T_ref_mount_true = {k: (T if problem.mode == "eye_to_hand" else inv(T)) for k, T in T_base_flange_true.items()}
     groups = [list(problem.cameras)] if problem.method == "joint" else [[n] for n in problem.cameras]
     out = {}
     for names in groups:
         vs = [v for v in views if v.camera in names]
         mount = T_mount_board if problem.method == "joint" or not mounts_single else mounts_single[names[0]]
-        est = _Estimate(T_S_cam={n: T_ref_cam[n] for n in names}, T_M_board=mount, A_est=dict(true_A))
+        est = Estimate(T_ref_cam={n: T_ref_cam[n] for n in names}, T_mount_board=mount, T_ref_mount=dict(T_ref_mount_true))
         slots = {n: i for i, n in enumerate(names)}
-        graph, values = _build_graph(vs, slots, problem, est, pixel_sigma_px)
+        graph, values = build_graph(vs, slots, problem, est, pixel_sigma_px)
         marg = _Marginals(graph, values, _ordering(values))
         for n in names:
-            out[n] = _to_ref_axes(T_ref_cam[n], marg.marginalCovariance(C(slots[n])))
+            out[n] = to_ref_axes(T_ref_cam[n], marg.marginalCovariance(C(slots[n])))
     return out

@@ -1,9 +1,10 @@
 """The view factor: every detected corner of one view is a reprojection residual.
 
-Model (generic over modes; "static" S is the robot base in eye-to-hand and the flange in
-eye-in-hand, "moving" M the other one):
+Model (generic over modes: ``ref`` is the robot base in eye-to-hand and the flange in eye-in-hand,
+``mount`` the other one, the frame the board is fixed to; ``T_ref_mount[k]`` is the robot pose of
+capture k, T_base_flange in eye-to-hand and T_flange_base in eye-in-hand):
 
-    p_cam = T_S_cam^-1 @ T_S_M[k] @ T_M_board @ p_board          (project_chain)
+    p_cam = T_ref_cam^-1 @ T_ref_mount[k] @ T_mount_board @ p_board   (project_chain)
     r_i   = sqrt(w_i) / sigma_px * (project(p_cam_i) - uv_i)       (2 rows per corner)
 
 One ``gtsam.CustomFactor`` per view with vectorised numpy keeps the corner as the unit of
@@ -22,10 +23,10 @@ from calibgraph.core.camera import Intrinsics
 _MIN_DEPTH_M = 1e-3
 
 
-def project_chain(T_S_cam: np.ndarray, T_S_M: np.ndarray, T_M_board: np.ndarray, p_board_m: np.ndarray,
+def project_chain(T_ref_cam: np.ndarray, T_ref_mount: np.ndarray, T_mount_board: np.ndarray, p_board_m: np.ndarray,
                   intr: Intrinsics) -> np.ndarray:
     """Pure model: board points (N, 3) -> pixels (N, 2) through the kinematic chain."""
-    T_cam_board = np.linalg.inv(T_S_cam) @ T_S_M @ T_M_board
+    T_cam_board = np.linalg.inv(T_ref_cam) @ T_ref_mount @ T_mount_board
     p_cam = p_board_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
     return intr.project(p_cam)
 
@@ -37,17 +38,18 @@ def _cross_rows(a: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.stack([ay * pz - az * py, az * px - ax * pz, ax * py - ay * px], axis=-1)
 
 
-def view_residual(T_S_cam, T_S_M, T_M_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w, want_jacobians=True):
+def view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w,
+                  want_jacobians=True):
     """Residual (2N,) and Jacobians (2N, 6) w.r.t. camera, robot pose and mount.
 
     ``sqrt_w`` (N,) already includes 1 / sigma_px.
     """
-    R_sc, t_sc = T_S_cam[:3, :3], T_S_cam[:3, 3]
-    R_sm, t_sm = T_S_M[:3, :3], T_S_M[:3, 3]
-    R_mb, t_mb = T_M_board[:3, :3], T_M_board[:3, 3]
-    p_m = p_board_m @ R_mb.T + t_mb
-    p_s = p_m @ R_sm.T + t_sm
-    p_c = (p_s - t_sc) @ R_sc  # R_sc^T (p_s - t_sc), row-wise
+    R_rc, t_rc = T_ref_cam[:3, :3], T_ref_cam[:3, 3]
+    R_rm, t_rm = T_ref_mount[:3, :3], T_ref_mount[:3, 3]
+    R_mb, t_mb = T_mount_board[:3, :3], T_mount_board[:3, 3]
+    p_m = p_board_m @ R_mb.T + t_mb  # corners in the mount frame
+    p_r = p_m @ R_rm.T + t_rm  # ... in the reference frame
+    p_c = (p_r - t_rc) @ R_rc  # R_rc^T (p_r - t_rc), row-wise: in the camera frame
     # Keep the residual finite when a corner falls behind the camera during iterations.
     p_c_safe = p_c.copy()
     p_c_safe[:, 2] = np.maximum(p_c_safe[:, 2], _MIN_DEPTH_M)
@@ -59,11 +61,11 @@ def view_residual(T_S_cam, T_S_M, T_M_board, p_board_m, uv_px, intr: Intrinsics,
     Jp = Jp * sqrt_w[:, None, None]
     n = p_board_m.shape[0]
     # Row vector a^T [p]x equals cross(a, p), so every "J @ skew(p)" below is a batched cross product.
-    # camera (right perturbation of T_S_cam): d p_c = [p_c]x omega - v
+    # camera (right perturbation of T_ref_cam): d p_c = [p_c]x omega - v
     H_c = np.concatenate([_cross_rows(Jp, p_c), -Jp], axis=2)
-    # robot pose: d p_s = R_sm(-[p_m]x omega + v), d p_c = R_sc^T d p_s
-    R_cs_sm = R_sc.T @ R_sm
-    JF = Jp @ R_cs_sm
+    # robot pose: d p_r = R_rm(-[p_m]x omega + v), d p_c = R_rc^T d p_r
+    R_cm = R_rc.T @ R_rm
+    JF = Jp @ R_cm
     H_f = np.concatenate([-_cross_rows(JF, p_m), JF], axis=2)
     # mount: d p_m = R_mb(-[p_b]x omega + v)
     JB = JF @ R_mb
@@ -81,10 +83,10 @@ def make_view_factor(key_cam, key_robot, key_mount, p_board_m: np.ndarray, uv_px
     model = gtsam.noiseModel.Unit.Create(2 * p_board_m.shape[0])
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
-        T_sc = values.atPose3(key_cam).matrix()
-        T_sm = values.atPose3(key_robot).matrix()
-        T_mb = values.atPose3(key_mount).matrix()
-        e, J = view_residual(T_sc, T_sm, T_mb, p_board_m, uv_px, intr, sqrt_w, want_jacobians=H is not None)
+        T_ref_cam = values.atPose3(key_cam).matrix()
+        T_ref_mount = values.atPose3(key_robot).matrix()
+        T_mount_board = values.atPose3(key_mount).matrix()
+        e, J = view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr, sqrt_w, want_jacobians=H is not None)
         if H is not None:
             H[0], H[1], H[2] = J
         return e
@@ -123,16 +125,16 @@ def make_view_factor_intrinsics(key_cam, key_robot, key_mount, key_intr, p_board
     model = gtsam.noiseModel.Unit.Create(2 * n)
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
-        T_sc = values.atPose3(key_cam).matrix()
-        T_sm = values.atPose3(key_robot).matrix()
-        T_mb = values.atPose3(key_mount).matrix()
+        T_ref_cam = values.atPose3(key_cam).matrix()
+        T_ref_mount = values.atPose3(key_robot).matrix()
+        T_mount_board = values.atPose3(key_mount).matrix()
         k6 = values.atVector(key_intr)
         cur = with_pinhole(intr, k6)
-        e, J = view_residual(T_sc, T_sm, T_mb, p_board_m, uv_px, cur, sqrt_w, want_jacobians=H is not None)
+        e, J = view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, cur, sqrt_w, want_jacobians=H is not None)
         if H is not None:
             H[0], H[1], H[2] = J
-            T_cb = np.linalg.inv(T_sc) @ T_sm @ T_mb
-            p_c = p_board_m @ T_cb[:3, :3].T + T_cb[:3, 3]
+            T_cam_board = np.linalg.inv(T_ref_cam) @ T_ref_mount @ T_mount_board
+            p_c = p_board_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
             z = np.maximum(p_c[:, 2], _MIN_DEPTH_M)
             x, y = p_c[:, 0] / z, p_c[:, 1] / z
             r2 = x * x + y * y

@@ -3,13 +3,14 @@
 GTSAM's PPP factor projects a landmark through ``pose * transform``. Written for the board frame
 as the landmark frame, the chain becomes
 
-    T_board_cam = H(k) * C(c),   H(k) = T_board_S[k] = (A_k T_M_board)^-1
+    T_board_cam = H(k) * C(c),   H(k) = T_board_ref[k] = (T_ref_mount[k] T_mount_board)^-1
 
-so each corner is ``PPP(uv, pose=H(k), transform=C(c), point=P(id))``. The robot prior ties H(k)
-to the board mount: ``BetweenFactorPose3(M, H(k), A_k^-1)`` with ``M = T_board_M`` (the mount
-inverse), because ``M^-1 H(k) = T_M_S[k] = A_k^-1``. The FK covariance, defined on A_k with a
-right perturbation, becomes ``Ad(A_k) Sigma Ad(A_k)^T`` on A_k^-1. Board points are variables
-held by 1 micrometre priors.
+(C(c) = T_ref_cam; ``ref`` and ``mount`` as in :mod:`calibgraph.solver.factors`), so each corner
+is ``PPP(uv, pose=H(k), transform=C(c), point=P(id))``. The robot prior ties H(k) to the board
+mount: ``BetweenFactorPose3(M, H(k), T_ref_mount[k]^-1)`` with ``M = T_board_mount`` (the mount
+inverse), because ``M^-1 H(k) = T_mount_ref[k] = T_ref_mount[k]^-1``. The FK covariance, defined
+on T_base_flange with a right perturbation, becomes ``Ad(T_base_flange) Sigma Ad(T_base_flange)^T``
+on its inverse. Board points are variables held by 1 micrometre priors.
 
 No Python runs inside the optimiser, which makes this the fast path for large cells. It needs the
 Cal3DS2 distortion model (k1, k2, p1, p2); cameras with k3..k6 use the per-view CustomFactor.
@@ -32,7 +33,7 @@ FK_SIGMA_FLOOR = np.array([1e-6] * 3 + [1e-6] * 3)
 
 
 def H(k: int) -> int:
-    """Key of T_board_S for capture k."""
+    """Key of T_board_ref for capture k."""
     return gtsam.symbol("h", k)
 
 
@@ -41,7 +42,7 @@ def P(i: int) -> int:
     return gtsam.symbol("p", i)
 
 
-M0 = gtsam.symbol("m", 0)  # T_board_M, the inverse board mount
+M0 = gtsam.symbol("m", 0)  # T_board_mount, the inverse board mount
 PPP = gtsam_unstable.ProjectionFactorPPPCal3DS2
 
 
@@ -67,13 +68,13 @@ def cal3ds2(intr) -> gtsam.Cal3DS2:
 
 
 def build(views, slots, problem, est, sigma_px, fk_sigmas):
-    """Graph and initial values; ``est`` is the solver's _Estimate (T_S_cam, T_M_board, A_est)."""
+    """Graph and initial values; ``est`` is the solver's Estimate (T_ref_cam, T_mount_board, T_ref_mount)."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
-    M = inv(est.T_M_board)
+    M = inv(est.T_mount_board)
     values.insert(M0, gtsam.Pose3(M))
     for name, i in slots.items():
-        values.insert(C(i), gtsam.Pose3(est.T_S_cam[name]))
+        values.insert(C(i), gtsam.Pose3(est.T_ref_cam[name]))
     cals = {name: cal3ds2(problem.cameras[name]) for name in slots}
     pix = gtsam.noiseModel.Isotropic.Sigma(2, sigma_px)
     point_noise = gtsam.noiseModel.Isotropic.Sigma(3, POINT_SIGMA_M)
@@ -85,23 +86,23 @@ def build(views, slots, problem, est, sigma_px, fk_sigmas):
         k = v.capture
         if k not in done_caps:
             done_caps.add(k)
-            A_prior = v.A
-            # Information of A^-1's right perturbation is Ad(A)^-T Sigma^-1 Ad(A)^-1, so its square root
-            # is diag(1/sigma) Ad(A^-1): exact, without inverting a covariance spanning 1e-16..1e-8.
-            # In eye-in-hand A itself is T_flange_base, the inverse of the pose the sigmas describe,
-            # so the between measurement A^-1 = T_base_flange carries them directly.
+            T_ref_mount_fk = v.T_ref_mount
+            # With A = T_ref_mount: information of A^-1's right perturbation is Ad(A)^-T Sigma^-1 Ad(A)^-1,
+            # so its square root is diag(1/sigma) Ad(A^-1): exact, without inverting a covariance spanning
+            # 1e-16..1e-8. In eye-in-hand A itself is T_flange_base, the inverse of the pose the sigmas
+            # describe, so the between measurement A^-1 = T_base_flange carries them directly.
             s_inv = np.diag(1.0 / np.maximum(fk_sigmas, FK_SIGMA_FLOOR))
-            sqrt_info = s_inv if problem.mode == "eye_in_hand" else s_inv @ gtsam.Pose3(inv(A_prior)).AdjointMap()
-            graph.add(gtsam.BetweenFactorPose3(M0, H(k), gtsam.Pose3(inv(A_prior)),
+            sqrt_info = s_inv if problem.mode == "eye_in_hand" else s_inv @ gtsam.Pose3(inv(T_ref_mount_fk)).AdjointMap()
+            graph.add(gtsam.BetweenFactorPose3(M0, H(k), gtsam.Pose3(inv(T_ref_mount_fk)),
                                                gtsam.noiseModel.Gaussian.SqrtInformation(sqrt_info, False)))
-            values.insert(H(k), gtsam.Pose3(inv(est.A_est.get(k, A_prior) @ est.T_M_board)))
+            values.insert(H(k), gtsam.Pose3(inv(est.T_ref_mount.get(k, T_ref_mount_fk) @ est.T_mount_board)))
         cal = cals[v.camera]
         ci = C(slots[v.camera])
         hk = H(k)
         keep = v.w > 0
         ids = v.ids[keep].tolist()
         ws = v.w[keep].tolist()
-        for cid, uv, w in zip(ids, v.uv[keep], ws):
+        for cid, uv, w in zip(ids, v.uv_px[keep], ws):
             noise = pix if w >= 1.0 else gtsam.noiseModel.Isotropic.Sigma(2, sigma_px / np.sqrt(w))
             graph.add(PPP(uv, noise, hk, ci, PKEYS[cid], cal, False, False))
         used_points.update(ids)
@@ -125,17 +126,17 @@ def ordering(values) -> gtsam.Ordering:
 
 
 def extract(values, slots, views):
-    """(T_S_cam dict, T_M_board, A_est dict) from optimised values."""
-    T_S_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
+    """(T_ref_cam dict, T_mount_board, T_ref_mount dict) from optimised values."""
+    T_ref_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
     M = values.atPose3(M0).matrix()
-    A_est = {}
+    T_ref_mount = {}
     for k in {v.capture for v in views if v.active}:
-        A_est[k] = inv(values.atPose3(H(k)).matrix()) @ M
-    return T_S_cam, inv(M), A_est
+        T_ref_mount[k] = inv(values.atPose3(H(k)).matrix()) @ M
+    return T_ref_cam, inv(M), T_ref_mount
 
 
 def mount_cov_body(marg, values):
-    """Right-perturbation covariance of T_M_board from that of M = T_board_M."""
+    """Right-perturbation covariance of T_mount_board from that of M = T_board_mount."""
     M = values.atPose3(M0)
     Ad = M.AdjointMap()
     return Ad @ marg.marginalCovariance(M0) @ Ad.T

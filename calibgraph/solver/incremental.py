@@ -24,10 +24,10 @@ from calibgraph.core.problem import Capture, SolverOptions
 from calibgraph.core.transforms import inv
 from calibgraph.solver.batch import (
     MIN_CORNERS_PER_VIEW,
-    _best_initial_guess,
-    _fk_noise,
-    _to_ref_axes,
-    _View,
+    View,
+    best_initial_guess,
+    fk_noise,
+    to_ref_axes,
 )
 from calibgraph.solver.factors import make_view_factor, project_chain
 from calibgraph.solver.initialise import (
@@ -101,11 +101,9 @@ class IncrementalSolver:
             self.pixel_sigma_px = self.options.pixel_sigma_px
 
     # -- helpers -------------------------------------------------------------------------------
-    def _A(self, cap: Capture) -> np.ndarray:
+    def _T_ref_mount(self, cap: Capture) -> np.ndarray:
+        """The robot pose of ``cap`` as the graph's F(k): T_base_flange, or T_flange_base in eye-in-hand."""
         return cap.T_base_flange if self.mode == "eye_to_hand" else inv(cap.T_base_flange)
-
-    def _fk_noise(self, A=None):
-        return _fk_noise(self.options, self.mode, A)
 
     def _view_factor(self, cap, det):
         p = self.points_board_m[det.ids]
@@ -115,8 +113,10 @@ class IncrementalSolver:
     def _add_views(self, graph, values, items):
         for cap, det, _ in items:
             if cap.index not in self._fk_in_graph and not values.exists(F(cap.index)):
-                graph.add(gtsam.PriorFactorPose3(F(cap.index), gtsam.Pose3(self._A(cap)), self._fk_noise(self._A(cap))))
-                values.insert(F(cap.index), gtsam.Pose3(self._A(cap)))
+                T_ref_mount = self._T_ref_mount(cap)
+                graph.add(gtsam.PriorFactorPose3(F(cap.index), gtsam.Pose3(T_ref_mount),
+                                                 fk_noise(self.options, self.mode, T_ref_mount)))
+                values.insert(F(cap.index), gtsam.Pose3(T_ref_mount))
             graph.add(self._view_factor(cap, det))
             self._views_in_graph[det.camera] += 1
 
@@ -124,16 +124,16 @@ class IncrementalSolver:
         items = [it for n in self.cameras for it in self._pending[n]]
         if len(items) < self.min_views_init:
             return False
-        s1, s2 = rotation_spread_deg([self._A(c) for c, _, _ in items])
+        s1, s2 = rotation_spread_deg([self._T_ref_mount(c) for c, _, _ in items])
         if s2 < 2.0:
             return False
         by_cam = {}
         for cap, det, vc in items:
             by_cam.setdefault(det.camera, []).append(vc)
-        views = [_View(camera=det.camera, capture=cap.index, ids=det.ids, p_board=self.points_board_m[det.ids],
-                       uv=det.uv_px, A=self._A(cap)) for cap, det, _ in items]
+        views = [View(camera=det.camera, capture=cap.index, ids=det.ids, p_board_m=self.points_board_m[det.ids],
+                      uv_px=det.uv_px, T_ref_mount=self._T_ref_mount(cap)) for cap, det, _ in items]
         try:
-            T0, mounts = _best_initial_guess(self, list(self.cameras), views, by_cam, True, 0)
+            T0, mounts = best_initial_guess(self.cameras, views, by_cam, joint=True, seed=0)
         except Exception:  # noqa: BLE001 - not enough consistent views yet; keep buffering
             return False
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -163,9 +163,10 @@ class IncrementalSolver:
         return out
 
     def _gate(self, cap, det) -> str | None:
-        T_sc = self._estimate.atPose3(C(self._slots[det.camera])).matrix()
-        T_mb = self._estimate.atPose3(B(0)).matrix()
-        uv = project_chain(T_sc, self._A(cap), T_mb, self.points_board_m[det.ids], self.cameras[det.camera])
+        T_ref_cam = self._estimate.atPose3(C(self._slots[det.camera])).matrix()
+        T_mount_board = self._estimate.atPose3(B(0)).matrix()
+        uv = project_chain(T_ref_cam, self._T_ref_mount(cap), T_mount_board, self.points_board_m[det.ids],
+                           self.cameras[det.camera])
         rms = float(np.sqrt(np.nanmean(np.sum((uv - det.uv_px) ** 2, axis=1))))
         limit = max(10.0, 20.0 * self.pixel_sigma_px)
         if not np.isfinite(rms) or rms > limit:
@@ -189,7 +190,7 @@ class IncrementalSolver:
             if len(R) == 0:
                 self._gated.append((det.camera, capture.index, "no valid PnP solution"))
                 continue
-            items.append((capture, det, ViewCandidates(det.camera, capture.index, self._A(capture), R, t, rms)))
+            items.append((capture, det, ViewCandidates(det.camera, capture.index, self._T_ref_mount(capture), R, t, rms)))
         if not self._initialised:
             for it in items:
                 self._pending[it[1].camera].append(it)
@@ -208,8 +209,8 @@ class IncrementalSolver:
                 else:
                     self._pending[name].append(it)
                     if len(self._pending[name]) >= 3:
-                        T_mb = self._estimate.atPose3(B(0)).matrix()
-                        T, n_agree = camera_from_mount([x[2] for x in self._pending[name]], T_mb)
+                        T_mount_board = self._estimate.atPose3(B(0)).matrix()
+                        T, n_agree = camera_from_mount([x[2] for x in self._pending[name]], T_mount_board)
                         if T is not None and n_agree >= 3:
                             values.insert(C(self._slots[name]), gtsam.Pose3(T))
                             graph.add(gtsam.PriorFactorPose3(C(self._slots[name]), gtsam.Pose3(T), WEAK_PRIOR))
@@ -235,7 +236,7 @@ class IncrementalSolver:
                 T = self._estimate.atPose3(C(self._slots[name])).matrix()
                 cov = None
                 if self.with_covariance:
-                    cov = _to_ref_axes(T, self._isam.marginalCovariance(C(self._slots[name])))
+                    cov = to_ref_axes(T, self._isam.marginalCovariance(C(self._slots[name])))
                 cams[name] = CameraEstimate(T, cov, self._views_in_graph[name])
         return IncrementalEstimate(cameras=cams, T_mount_board=mount,
                                    pending={n: len(v) for n, v in self._pending.items() if v},

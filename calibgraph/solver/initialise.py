@@ -14,8 +14,9 @@ consensus across views:
 3. Every camera pose is then re-derived from the shared mount: each view proposes
    ``Z = A_k Y B_k^-1`` for each candidate; the largest agreeing cluster wins.
 
-Generic notation: Z = pose of the camera in the static frame, Y = board mount in the moving frame,
-A_k = robot pose of capture k (static <- moving), B_k = T_cam_board from PnP.
+Notation of the AX = ZB literature, in the solver's frames (``ref`` is the robot base in
+eye-to-hand and the flange in eye-in-hand, ``mount`` the other one): Z = T_ref_cam, Y =
+T_mount_board, A_k = T_ref_mount of capture k (the robot pose), B_k = T_cam_board from PnP.
 """
 
 from __future__ import annotations
@@ -35,11 +36,11 @@ MAX_MOUNT_SEEDS = 5
 
 @dataclass(frozen=True)
 class ViewCandidates:
-    """PnP candidates of one view: rotations (m, 3, 3), translations (m, 3), rms (m,)."""
+    """PnP candidates of T_cam_board for one view: rotations (m, 3, 3), translations (m, 3), rms (m,)."""
 
     camera: str
     capture: int
-    A: np.ndarray  # (4, 4) robot pose, static <- moving
+    T_ref_mount: np.ndarray  # (4, 4) robot pose of the capture (A_k)
     R: np.ndarray
     t: np.ndarray
     rms_px: np.ndarray
@@ -116,7 +117,7 @@ def _solve_rotations(rows_by_cam: dict, n_cams: int):
 def _stack(views):
     """Flatten all candidates: (R (M,3,3), A_rot (M,3,3), owner view (M,), index within view (M,))."""
     R = np.concatenate([v.R for v in views]) if views else np.zeros((0, 3, 3))
-    A = np.concatenate([np.broadcast_to(v.A[:3, :3], (len(v.R), 3, 3)) for v in views]) if views else R
+    A = np.concatenate([np.broadcast_to(v.T_ref_mount[:3, :3], (len(v.R), 3, 3)) for v in views]) if views else R
     owner = np.concatenate([np.full(len(v.R), i) for i, v in enumerate(views)]).astype(int) if views else np.zeros(0, int)
     j = np.concatenate([np.arange(len(v.R)) for v in views]).astype(int) if views else np.zeros(0, int)
     return R, A, owner, j
@@ -151,13 +152,13 @@ def ransac_camera(views: list, rng: np.random.Generator, iterations: int = 300, 
     while it < max(needed, 30) and it < iterations:
         it += 1
         pick = rng.choice(usable, size=3, replace=False)
-        A_rots = [views[i].A[:3, :3] for i in pick]
+        A_rots = [views[i].T_ref_mount[:3, :3] for i in pick]
         # skip samples with (nearly) no relative robot rotation: the system is then degenerate
         if max(_angle_deg(A_rots[0], A_rots[1]), _angle_deg(A_rots[0], A_rots[2])) < 3.0:
             continue
         # IPPE ranks its two solutions by reprojection error; the better one is right most of the time
         choice = [0 if (len(views[i].R) == 1 or rng.uniform() < 0.75) else 1 for i in pick]
-        rows = {0: [(views[i].A[:3, :3], views[i].R[c]) for i, c in zip(pick, choice)]}
+        rows = {0: [(views[i].T_ref_mount[:3, :3], views[i].R[c]) for i, c in zip(pick, choice)]}
         RZ, RY, _ = _solve_rotations(rows, 1)
         errs, idx = _best_candidate_errors(RZ[0], RY, views, stacked)
         inl = errs < ROT_INLIER_DEG
@@ -182,7 +183,7 @@ def ransac_camera(views: list, rng: np.random.Generator, iterations: int = 300, 
         for _ in range(2):
             if inl.sum() < 3:
                 break
-            rows = {0: [(views[i].A[:3, :3], views[i].R[idx[i]]) for i in np.flatnonzero(inl)]}
+            rows = {0: [(views[i].T_ref_mount[:3, :3], views[i].R[idx[i]]) for i in np.flatnonzero(inl)]}
             RZ1, RY1, _ = _solve_rotations(rows, 1)
             errs, idx = _best_candidate_errors(RZ1[0], RY1, views, stacked)
             inl = errs < ROT_INLIER_DEG
@@ -218,12 +219,12 @@ def _robust_translations(entries, n_cams, RZ):
     return tZ, tY
 
 
-def camera_from_mount(views: list, T_M_board: np.ndarray):
-    """Camera pose (static frame) by consensus over views given the board mount. Returns (T, n_agree)."""
+def camera_from_mount(views: list, T_mount_board: np.ndarray):
+    """T_ref_cam by consensus over views given the board mount. Returns (T, n_agree)."""
     props = []
     for v in views:
         for j in range(len(v.R)):
-            props.append(v.A @ T_M_board @ inv(make_T(v.R[j], v.t[j])))
+            props.append(v.T_ref_mount @ T_mount_board @ inv(make_T(v.R[j], v.t[j])))
     if not props:
         return None, 0
     props = np.array(props)
@@ -245,7 +246,7 @@ def initialise(cameras: list, views_by_cam: dict, joint: bool, seed: int = 0) ->
         views_by_cam: name -> list of ViewCandidates.
         joint: one shared mount (True) or one mount per camera (False).
     Returns:
-        A list of (T_S_cam dict, mounts dict) with mounts keyed 0 in joint mode or by camera name in
+        A list of (T_ref_cam dict, mounts dict) with mounts keyed 0 in joint mode or by camera name in
         single mode. In single mode each entry holds one hypothesis per camera (entry i uses each
         camera's i-th hypothesis, or its best when it has fewer).
     Raises:
@@ -266,16 +267,16 @@ def initialise(cameras: list, views_by_cam: dict, joint: bool, seed: int = 0) ->
     if not joint:
         n_alt = max(len(h) for h in per_cam.values())
         for a in range(n_alt):
-            T_S_cam, mounts = {}, {}
+            T_ref_cam, mounts = {}, {}
             for name, hyps in per_cam.items():
                 RZ, RY, inl, idx = hyps[min(a, len(hyps) - 1)]
                 vs = views_by_cam[name]
-                entries = [(0, vs[i].A, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
+                entries = [(0, vs[i].T_ref_mount, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
                 tZ, tY = _robust_translations(entries, 1, [RZ])
                 mounts[name] = make_T(RY, tY)
                 T, _ = camera_from_mount(vs, mounts[name])
-                T_S_cam[name] = T if T is not None else make_T(RZ, tZ[0])
-            out.append((T_S_cam, mounts))
+                T_ref_cam[name] = T if T is not None else make_T(RZ, tZ[0])
+            out.append((T_ref_cam, mounts))
         return out
     # joint: every distinct hypothesis of every camera seeds the shared mount; cameras whose own
     # hypotheses agree with the seed join the linear solve
@@ -296,17 +297,17 @@ def initialise(cameras: list, views_by_cam: dict, joint: bool, seed: int = 0) ->
                 agreeing.append((name, match[0]))
         for slot, (name, (RZ, RY, inl, idx)) in enumerate(agreeing):
             vs = views_by_cam[name]
-            rows[slot] = [(vs[i].A[:3, :3], vs[i].R[idx[i]]) for i in np.flatnonzero(inl)]
-            entries += [(slot, vs[i].A, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
+            rows[slot] = [(vs[i].T_ref_mount[:3, :3], vs[i].R[idx[i]]) for i in np.flatnonzero(inl)]
+            entries += [(slot, vs[i].T_ref_mount, vs[i].R[idx[i]], vs[i].t[idx[i]]) for i in np.flatnonzero(inl)]
         RZs, RY, _ = _solve_rotations(rows, len(agreeing))
         tZs, tY = _robust_translations(entries, len(agreeing), RZs)
-        T_M_board = make_T(RY, tY)
-        T_S_cam = {}
+        T_mount_board = make_T(RY, tY)
+        T_ref_cam = {}
         for name in cameras:
-            T, n_agree = camera_from_mount(views_by_cam.get(name, []), T_M_board)
+            T, n_agree = camera_from_mount(views_by_cam.get(name, []), T_mount_board)
             if T is not None:
-                T_S_cam[name] = T
-        out.append((T_S_cam, {0: T_M_board}))
+                T_ref_cam[name] = T
+        out.append((T_ref_cam, {0: T_mount_board}))
     return out
 
 
@@ -325,7 +326,7 @@ def rotation_spread_deg(A_list) -> tuple[float, float]:
     return float(np.degrees(s[0])), float(np.degrees(s[1]))
 
 
-def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_S_cam: dict, T_M_board: np.ndarray,
+def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_ref_cam: dict, T_mount_board: np.ndarray,
                         p_board_by_view: dict, uv_by_view: dict):
     """Translations of all cameras and of the mount from every corner, given the rotations.
 
@@ -333,24 +334,24 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_S_cam: dict, T_
     corner gives two linear equations ``x_n z - x = 0``, ``y_n z - y = 0`` (normalised, undistorted
     image coordinates). Far better conditioned than averaging per-view PnP depths. Views whose
     rotation disagrees with the consensus are left out; the worst views are trimmed once.
-    Returns new (T_S_cam, T_M_board).
+    Returns new (T_ref_cam, T_mount_board).
     """
-    names = [n for n in T_S_cam if n in views_by_cam]
+    names = [n for n in T_ref_cam if n in views_by_cam]
     slot = {n: i for i, n in enumerate(names)}
     nu = 3 * (len(names) + 1)
-    RY = T_M_board[:3, :3]
+    RY = T_mount_board[:3, :3]
     blocks = []  # (A rows, b, view key)
     for n in names:
-        RZ = T_S_cam[n][:3, :3]
+        RZ = T_ref_cam[n][:3, :3]
         intr = intr_by_cam[n]
         for v in views_by_cam[n]:
-            err = _angle_deg(RZ @ v.R, (v.A[:3, :3] @ RY)[None]).min() if len(v.R) else np.inf
+            err = _angle_deg(RZ @ v.R, (v.T_ref_mount[:3, :3] @ RY)[None]).min() if len(v.R) else np.inf
             if err > ROT_INLIER_DEG:
                 continue
             key = (n, v.capture)
             pb = p_board_by_view[key]
             xy = cv2.undistortPoints(uv_by_view[key].reshape(-1, 1, 2).astype(np.float64), intr.K, intr.dist).reshape(-1, 2)
-            RA, tA = v.A[:3, :3], v.A[:3, 3]
+            RA, tA = v.T_ref_mount[:3, :3], v.T_ref_mount[:3, 3]
             q = (pb @ (RA @ RY).T + tA - 0.0) @ RZ  # R_Z^T (R_A R_Y p + t_A)
             MY = RZ.T @ RA
             MZ = -RZ.T
@@ -367,13 +368,13 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_S_cam: dict, T_
                 rhs.append(-coef_q)
             blocks.append((np.vstack(rows), np.concatenate(rhs), key))
     if len(blocks) < 3:
-        return T_S_cam, T_M_board
+        return T_ref_cam, T_mount_board
     use = list(range(len(blocks)))
     AtA = [blk[0].T @ blk[0] for blk in blocks]
     Atb = [blk[0].T @ blk[1] for blk in blocks]
     # A weak pull towards the current translations keeps directions the kept views do not determine
     # (a camera whose views all fell out, a mount seen edge-on) where they were instead of singular.
-    x0 = np.concatenate([T_S_cam[n][:3, 3] for n in names] + [T_M_board[:3, 3]])
+    x0 = np.concatenate([T_ref_cam[n][:3, 3] for n in names] + [T_mount_board[:3, 3]])
     for _ in range(2):
         N = sum(AtA[i] for i in use)
         lam = 1e-9 * max(np.trace(N) / len(N), 1e-12)
@@ -383,5 +384,5 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_S_cam: dict, T_
         if keep == use or len(keep) < 3:
             break
         use = keep
-    out = {n: make_T(T_S_cam[n][:3, :3], x[3 * slot[n]: 3 * slot[n] + 3]) if n in slot else T_S_cam[n] for n in T_S_cam}
+    out = {n: make_T(T_ref_cam[n][:3, :3], x[3 * slot[n]: 3 * slot[n] + 3]) if n in slot else T_ref_cam[n] for n in T_ref_cam}
     return out, make_T(RY, x[3 * len(names):])

@@ -1,11 +1,14 @@
 """All GTSAM keys of the calibration graph, in one place.
 
-    C(c)  pose of camera c in the reference frame: T_base_cam (eye-to-hand) or T_flange_cam (eye-in-hand)
-    B(m)  board mount m: T_flange_board (eye-to-hand) or T_base_board (eye-in-hand); m = 0 in 'joint'
-          mode, m = camera index in 'single' mode
-    K(c)  intrinsics [fx, fy, cx, cy] of camera c (only with refine_intrinsics)
-    F(k)  robot pose of capture k with its forward-kinematics prior: T_base_flange (eye-to-hand) or
-          T_flange_base (eye-in-hand)
+``ref`` is the robot base in eye-to-hand and the flange in eye-in-hand; ``mount`` is the other one,
+the frame the board is fixed to.
+
+    C(c)  T_ref_cam of camera c (slot c): T_base_cam (eye-to-hand) or T_flange_cam (eye-in-hand)
+    B(0)  T_mount_board, the board mount: T_flange_board (eye-to-hand) or T_base_board (eye-in-hand);
+          'single' mode builds one graph per camera, each with its own B(0)
+    K(c)  intrinsics [fx, fy, cx, cy, k1, k2] of camera c (only with refine_intrinsics)
+    F(k)  T_ref_mount of capture k, the robot pose with its forward-kinematics prior: T_base_flange
+          (eye-to-hand) or T_flange_base (eye-in-hand)
 """
 
 from gtsam.symbol_shorthand import B, C, F, K  # noqa: F401
