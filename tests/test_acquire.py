@@ -387,7 +387,7 @@ def test_cli_dry_run_plans_without_robot_or_cameras(tmp_path, capsys):
 
 
 def test_cli_capture_on_the_mujoco_cell_then_resume_is_a_no_op(tmp_path, capsys):
-    from _sim_helpers import require_sim
+    from helpers import require_sim
 
     # MuJoCo must be first imported by calibgraph.sim, which picks the headless GL backend
     require_sim()  # skips (fails with CALIBGRAPH_SIM_REQUIRED=1) without MuJoCo, franky-sim or headless GL

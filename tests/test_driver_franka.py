@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 import pytest
-from _sdk_helpers import import_sdk, require_realsense, sdk_unavailable
+from helpers import import_sdk, require_realsense, sdk_unavailable
 
 import_sdk("pylibfranka", "pip install 'calibgraph[franka]'")
 import_sdk("franky_sim", "pip install 'calibgraph[sim]'")  # its package imports no MuJoCo

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from _sdk_helpers import import_sdk, require_realsense
+from helpers import import_sdk, require_realsense
 
 # drivers.realsense first: it loads rclpy (if installed) before pyrealsense2, the load order in which
 # a process using both exits cleanly, and libusb from the libusb-package wheel before pyrealsense2

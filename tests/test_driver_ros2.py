@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from _sdk_helpers import import_sdk
+from helpers import import_sdk
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 200)))  # keep away from other runs on this host

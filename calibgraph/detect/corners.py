@@ -726,28 +726,30 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
 
 
 def _search_region(roi, upscale, min_pitch_px, run_roi, attempt, finish):
-    """Guided search of one region: full resolution, then (``upscale="auto"``) x2 and x3 while
-    the squares are under ``min_pitch_px``; the first passing detection, else the best failure.
-    Up-scaled searches use OpenCV's quick check (no SB fallback): where the estimate expected a
-    board but none is (occluded, blurred), a miss costs ~0.1 s instead of seconds."""
-    factors = (1, 2, 3) if upscale == "auto" else (1 if upscale in (1, "off", None, False) else int(upscale),)
-    best = None
-    for k in factors:
-        got = attempt(run_roi, roi, k, k > 1)
+    """Guided search of one region, as the blind search treats a candidate region: full
+    resolution, then (``upscale="auto"``) x2 and x3 while the squares are under ``min_pitch_px``;
+    the first passing detection, else the best failure. Before the up-scaled full searches, a
+    quick probe (OpenCV's fast check at x2 and x3, no SB) must see a board: where the estimate
+    expected one but none is (occluded, out of focus), a miss costs ~0.1 s instead of seconds."""
+    if upscale != "auto":
+        k = 1 if upscale in (1, "off", None, False) else int(upscale)
+        got = attempt(run_roi, roi, k, False)
+        return finish(got, k) if got is not None else None
+    got = attempt(run_roi, roi, 1, False)
+    best = finish(got, 1) if got is not None else None
+    if best is not None and best.ok and best.pitch_px >= min_pitch_px:
+        return best
+    if best is None and all(attempt(run_roi, roi, k, True) is None for k in (2, 3)):
+        return None
+    for k in (2, 3):
+        got = attempt(run_roi, roi, k, False)
         if got is None:
             continue
         det = finish(got, k)
-        if det.ok and (det.pitch_px >= min_pitch_px or k == factors[-1] or upscale != "auto"):
+        if det.ok:
             return det
-        if best is None or (det.ok and not best.ok):
+        if best is None:
             best = det
-    if (best is None or not best.ok) and len(factors) > 1:
-        # tiny squares defeat the quick check even up-scaled: one full search (SB) at the largest factor
-        got = attempt(run_roi, roi, factors[-1], False)
-        if got is not None:
-            det = finish(got, factors[-1])
-            if best is None or det.ok:
-                best = det
     return best
 
 

@@ -28,7 +28,7 @@ from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.problem import Problem, SolverOptions, mode_frames
 from calibgraph.core.transforms import inv
 from calibgraph.detect.corners import dataset_detector
-from calibgraph.detect.guided import ViewHint, detect_with_hint, predict_view
+from calibgraph.detect.guided import GUIDED_MIN_PITCH_PX, ViewHint, detect_with_hint, predict_view
 from calibgraph.io.dataset import Dataset
 from calibgraph.solver.batch import solve
 
@@ -97,10 +97,11 @@ class GuidedDatasetDetector:
             cache_problems += _cache_problems(deep)
             coarse = self._coarse_solve(survey_caps)
         cache_problems += _cache_problems(quick)
-        # every other view, and the survey views the quick pass missed of cameras it placed
-        # (a small board it did not up-scale for), are searched where the estimate says
+        # every other view, and the survey views of placed cameras that the quick pass missed or
+        # found with small squares (not up-scaled: less accurate), are searched where the estimate says
         rest = [v for v in todo if (v.camera, v.capture) not in survey
-                or (v.camera in placed and (v.camera, v.capture) not in again and not self.results[(v.camera, v.capture)].ok)]
+                or (v.camera in placed and (v.camera, v.capture) not in again
+                    and not _good_native(self.results[(v.camera, v.capture)]))]
         if coarse is not None:
             self.hints = _predict(ds, coarse, rest)
         target = ds.target
@@ -166,6 +167,12 @@ class GuidedDatasetDetector:
         if det is None or not det.ok:
             return None
         return det.ids, det.uv_px
+
+
+def _good_native(det) -> bool:
+    """A quick-survey detection that needs no second, guided look: found, with squares large
+    enough that the blind detector would not have up-scaled them either."""
+    return det.ok and det.pitch_px >= GUIDED_MIN_PITCH_PX
 
 
 def _cache_problems(detector) -> list:
