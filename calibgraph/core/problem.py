@@ -62,6 +62,23 @@ def mode_frames(mode: str | None) -> ModeFrames:
 
 METHODS = ("joint", "single")
 LOSSES = ("huber", "cauchy", "none")
+INTRINSICS_MODES = ("auto", "estimate", "fixed")
+# 1-sigma of given intrinsics by source: (focal, relative; principal point, fraction of the image
+# width; k1 and k2). Factory values of RGB-D cameras are often 1-2 % off in focal length; a proper
+# calibration file is good to a few tenths of a percent.
+INTRINSICS_PRIORS = {"factory": (0.02, 0.01, 0.05), "calibration": (0.003, 0.002, 0.01)}
+# the prior of intrinsics found inadequate by their residuals: wide, only keeping the problem well posed
+WIDE_INTRINSICS_PRIOR = (0.10, 0.05, 0.5)
+
+
+def intrinsics_prior_sigmas(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
+    """1-sigma of the prior on [fx, fy, cx, cy, k1, k2] of a camera (see ``SolverOptions.intrinsics``)."""
+    if options.intrinsics == "estimate":
+        return np.array([options.intrinsics_sigma_px] * 4 + [options.distortion_sigma] * 2)
+    f_rel, c_frac, k = WIDE_INTRINSICS_PRIOR if wide else INTRINSICS_PRIORS[options.intrinsics_source]
+    fx, fy = intr.K[0, 0], intr.K[1, 1]
+    c = c_frac * max(intr.width_px, 1)
+    return np.array([f_rel * fx, f_rel * fy, c, c, k, k])
 
 
 @dataclass(frozen=True)
@@ -146,8 +163,20 @@ class SolverOptions:
             are rejected and listed; views losing most corners are rejected as a whole.
         min_views_per_camera: below this a camera is refused with an observability error.
         max_iterations: LM iterations per solve.
-        refine_intrinsics: also estimate fx, fy, cx, cy and the radial k1, k2 of every camera, with
-            priors of ``intrinsics_sigma_px`` and ``distortion_sigma`` around the given values.
+        intrinsics: how the given intrinsics are treated. 'auto' (default): as uncertain — fx, fy,
+            cx, cy, k1, k2 of every camera are estimated under a prior whose width depends on
+            ``intrinsics_source``, so each camera's covariance is marginal over them; a camera whose
+            residuals show the intrinsics to be inadequate (large, radial) is re-solved with a wide
+            prior and the result says so. 'estimate': always the wide prior
+            (``intrinsics_sigma_px``, ``distortion_sigma``). 'fixed': taken as exact (the
+            covariance is then conditional on them).
+        intrinsics_source: where the given intrinsics come from, setting their prior (1-sigma):
+            'factory' (device or datasheet values: f 2 %, principal point 1 % of the width, k1, k2
+            0.05), 'calibration' (a camera calibration file: f 0.3 %, principal point 0.2 % of the
+            width, k1, k2 0.01).
+        refine_intrinsics: the former switch for ``intrinsics='estimate'`` (kept: True means that).
+        board_scale: estimate a scale factor of the printed board (printer scaling) under a prior of
+            ``board_scale_sigma``, shared by all views; False takes the declared pitch as exact.
         formulation: 'view' (one vectorised CustomFactor per view, any OpenCV distortion),
             'corner' (one C++ ProjectionFactorPPP per corner, Cal3DS2 distortion only) or 'auto'
             (corner when every camera fits Cal3DS2 and the graph has at least 1000 views, else
@@ -162,9 +191,13 @@ class SolverOptions:
     outlier_sigmas: float = 5.0
     min_views_per_camera: int = 3
     max_iterations: int = 100
+    intrinsics: str = "auto"
+    intrinsics_source: str = "factory"
     refine_intrinsics: bool = False
     intrinsics_sigma_px: float = 5.0
     distortion_sigma: float = 0.1
+    board_scale: bool = True
+    board_scale_sigma: float = 0.02
     formulation: str = "auto"
 
     def __post_init__(self):
@@ -174,6 +207,15 @@ class SolverOptions:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"solver: {name} must be positive, got {v}.")
+        if self.intrinsics not in INTRINSICS_MODES:
+            raise InputError(f"solver: intrinsics must be one of {INTRINSICS_MODES}, got {self.intrinsics!r}.")
+        if self.intrinsics_source not in INTRINSICS_PRIORS:
+            raise InputError(f"solver: intrinsics_source must be one of {tuple(INTRINSICS_PRIORS)}, "
+                             f"got {self.intrinsics_source!r}.")
+        if self.refine_intrinsics:
+            object.__setattr__(self, "intrinsics", "estimate")
+        if not (np.isfinite(self.board_scale_sigma) and self.board_scale_sigma > 0):
+            raise InputError(f"solver: board_scale_sigma must be positive, got {self.board_scale_sigma}.")
         if self.formulation not in ("auto", "view", "corner"):
             raise InputError(f"solver: formulation must be 'auto', 'view' or 'corner', got {self.formulation!r}.")
         if self.pixel_sigma_px is not None and not (self.pixel_sigma_px > 0):

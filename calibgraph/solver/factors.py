@@ -110,49 +110,79 @@ def intrinsics_vector(intr: Intrinsics) -> np.ndarray:
     return np.array([intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2], intr.dist8[0], intr.dist8[1]])
 
 
-def make_view_factor_intrinsics(key_cam, key_robot, key_mount, key_intr, p_board_m, uv_px, intr: Intrinsics,
-                                sqrt_w) -> gtsam.CustomFactor:
-    """View factor that also estimates the camera's [fx, fy, cx, cy, k1, k2] (a Vector6 variable).
+def _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, cur: Intrinsics, k6, e, sqrt_w):
+    """Weighted d residual / d [fx, fy, cx, cy, k1, k2] (2N, 6) at the current intrinsics ``cur``.
 
     With x, y the undistorted and x_d, y_d the distorted normalised coordinates, r2 = x^2 + y^2 and
     b the rational denominator (1 without k4..k6): d u / d(fx, cx) = (x_d, 1), d v / d(fy, cy) =
     (y_d, 1), d(x_d, y_d) / d k1 = (x, y) r2 / b and / d k2 = (x, y) r2^2 / b.
+    """
+    n = p_board_m.shape[0]
+    T_cam_board = np.linalg.inv(T_ref_cam) @ T_ref_mount @ T_mount_board
+    p_c = p_board_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    z = np.maximum(p_c[:, 2], _MIN_DEPTH_M)
+    x, y = p_c[:, 0] / z, p_c[:, 1] / z
+    r2 = x * x + y * y
+    k4, k5, k6_ = cur.dist8[5:8]
+    b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6_))
+    uv = e.reshape(n, 2) / sqrt_w[:, None] + uv_px
+    yd = (uv[:, 1] - k6[3]) / k6[1]
+    xd = (uv[:, 0] - k6[2] - cur.K[0, 1] * yd) / k6[0]
+    fx, s, fy = cur.K[0, 0], cur.K[0, 1], cur.K[1, 1]
+    Jk = np.zeros((n, 2, 6))
+    Jk[:, 0, 0] = xd
+    Jk[:, 0, 2] = 1.0
+    Jk[:, 1, 1] = yd
+    Jk[:, 1, 3] = 1.0
+    for col, rp in ((4, r2 / b), (5, r2 * r2 / b)):
+        Jk[:, 0, col] = (fx * x + s * y) * rp
+        Jk[:, 1, col] = fy * y * rp
+    return (Jk * sqrt_w[:, None, None]).reshape(2 * n, 6)
+
+
+def make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, intr: Intrinsics, sqrt_w,
+                            key_intr=None, key_scale=None) -> gtsam.CustomFactor:
+    """View factor with, optionally, the camera's intrinsics ``key_intr`` ([fx, fy, cx, cy, k1, k2],
+    a Vector6 variable) and the board's scale factor ``key_scale`` (a Vector1 variable ``s``: the
+    printed board's points are ``s * p_board_m``) as variables too.
+
+    The scale's Jacobian is the chain through the mount: d p_cam / d s = R_cam_board p_board.
     """
     p_board_m = np.ascontiguousarray(p_board_m, float)
     uv_px = np.ascontiguousarray(uv_px, float)
     sqrt_w = np.ascontiguousarray(sqrt_w, float)
     n = p_board_m.shape[0]
     model = gtsam.noiseModel.Unit.Create(2 * n)
+    keys = [key_cam, key_robot, key_mount] + [k for k in (key_intr, key_scale) if k is not None]
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
         T_ref_cam = values.atPose3(key_cam).matrix()
         T_ref_mount = values.atPose3(key_robot).matrix()
         T_mount_board = values.atPose3(key_mount).matrix()
-        k6 = values.atVector(key_intr)
-        cur = with_pinhole(intr, k6)
-        e, J = view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, cur, sqrt_w, want_jacobians=H is not None)
+        scale = float(values.atVector(key_scale)[0]) if key_scale is not None else 1.0
+        p_b = p_board_m * scale
+        k6 = values.atVector(key_intr) if key_intr is not None else None
+        cur = with_pinhole(intr, k6) if k6 is not None else intr
+        e, J = view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_b, uv_px, cur, sqrt_w,
+                             want_jacobians=H is not None)
         if H is not None:
             H[0], H[1], H[2] = J
-            T_cam_board = np.linalg.inv(T_ref_cam) @ T_ref_mount @ T_mount_board
-            p_c = p_board_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
-            z = np.maximum(p_c[:, 2], _MIN_DEPTH_M)
-            x, y = p_c[:, 0] / z, p_c[:, 1] / z
-            r2 = x * x + y * y
-            k4, k5, k6_ = cur.dist8[5:8]
-            b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6_))
-            uv = e.reshape(n, 2) / sqrt_w[:, None] + uv_px
-            yd = (uv[:, 1] - k6[3]) / k6[1]
-            xd = (uv[:, 0] - k6[2] - cur.K[0, 1] * yd) / k6[0]
-            fx, s, fy = cur.K[0, 0], cur.K[0, 1], cur.K[1, 1]
-            Jk = np.zeros((n, 2, 6))
-            Jk[:, 0, 0] = xd
-            Jk[:, 0, 2] = 1.0
-            Jk[:, 1, 1] = yd
-            Jk[:, 1, 3] = 1.0
-            for col, rp in ((4, r2 / b), (5, r2 * r2 / b)):
-                Jk[:, 0, col] = (fx * x + s * y) * rp
-                Jk[:, 1, col] = fy * y * rp
-            H[3] = (Jk * sqrt_w[:, None, None]).reshape(2 * n, 6)
+            idx = 3
+            if key_intr is not None:
+                H[idx] = _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, p_b, uv_px, cur, k6, e, sqrt_w)
+                idx += 1
+            if key_scale is not None:
+                # the mount Jacobian's translation block is d residual / d p_mount rotated into the
+                # board axes (d p_m = R_mb v): so d residual / d s = H_b[:, 3:] @ p_board
+                H_b = J[2].reshape(n, 2, 6)
+                H[idx] = np.einsum("nij,nj->ni", H_b[:, :, 3:], p_board_m).reshape(2 * n, 1)
         return e
 
-    return gtsam.CustomFactor(model, [key_cam, key_robot, key_mount, key_intr], error_func)
+    return gtsam.CustomFactor(model, keys, error_func)
+
+
+def make_view_factor_intrinsics(key_cam, key_robot, key_mount, key_intr, p_board_m, uv_px, intr: Intrinsics,
+                                sqrt_w) -> gtsam.CustomFactor:
+    """View factor that also estimates the camera's [fx, fy, cx, cy, k1, k2] (a Vector6 variable);
+    see :func:`make_calibration_factor`."""
+    return make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, intr, sqrt_w, key_intr=key_intr)
