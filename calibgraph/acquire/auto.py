@@ -98,7 +98,7 @@ class AutoOptions:
     speed_scale: float = 0.2
     dq_max_rad_s: tuple = tuple(FRANKA_LIMITS["fr3"]["dq_max_rad_s"])
     seed: int = 0
-    candidates_per_step: int = 60
+    candidates_per_step: int = 20
     settle_dwell_s: float = 0.0
     settle_timeout_s: float = 10.0
     min_corners: int = 6
@@ -189,6 +189,7 @@ class _Loop:
     first_view: dict = field(default_factory=dict)  # camera -> (T_base_board, R (m,3,3), t (m,3))
     rejections: dict = field(default_factory=dict)  # camera -> {reason: count}
     pixel_sigma_px: float | None = None
+    cov_scale: dict = field(default_factory=dict)  # camera -> variance factor bringing iSAM2 to the batch 1-sigma
     est: object = None
     lost: list = field(default_factory=list)
     messages: list = field(default_factory=list)
@@ -236,20 +237,40 @@ class _Loop:
             return self.est.T_mount_board
         return self.cell.T_flange_board
 
+    def cov(self, name):
+        ce = self.est.cameras.get(name) if self.est else None
+        if ce is None or ce.covariance is None:
+            return None
+        return ce.covariance * self.cov_scale.get(name, 1.0)
+
     def beliefs(self) -> dict:
         out = {}
         for n, ce in (self.est.cameras if self.est else {}).items():
-            out[n] = CameraBelief(n, self.intr[n], ce.T_ref_cam, ce.covariance, ce.views)
+            out[n] = CameraBelief(n, self.intr[n], ce.T_ref_cam, self.cov(n), ce.views)
         return out
 
     def sigmas(self) -> dict:
-        return {n: _sig(ce.covariance) for n, ce in (self.est.cameras if self.est else {}).items()}
+        """camera -> [1-sigma mm, deg] the loop works with (iSAM2, scaled to the last batch solve)."""
+        return {n: _sig(self.cov(n)) for n in (self.est.cameras if self.est else {})}
+
+    def calibrate_to(self, res):
+        """Scale each camera's iSAM2 covariance so its shortfall matches the batch result ``res``:
+        the batch solver (IRLS, estimated pixel noise) is the reference the stop rule trusts."""
+        tol = (self.opts.tolerance_mm, self.opts.tolerance_deg)
+        for n, c in res.cameras.items():
+            ce = self.est.cameras.get(n) if self.est else None
+            if ce is None or ce.covariance is None:
+                continue
+            r_isam, r_batch = shortfall(ce.covariance, *tol), shortfall(c.covariance, *tol)
+            if np.isfinite(r_isam) and r_isam > 0:
+                self.cov_scale[n] = float(np.clip((r_batch / r_isam) ** 2, 0.25, 16.0))
 
     # -- journal -----------------------------------------------------------------------------------
     def save_log(self, stop=None):
         d = {"format": PLAN_LOG_FORMAT, "cell": self.cell.name, "cameras": list(self.intr),
              "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.opts.__dict__.items()},
-             "pixel_sigma_px": self.pixel_sigma_px, "steps": self.steps, "messages": self.messages}
+             "pixel_sigma_px": self.pixel_sigma_px, "cov_scale": self.cov_scale, "steps": self.steps,
+             "messages": self.messages}
         if stop is not None:
             d["stop"] = stop
         atomic_write_text(self.out / PLAN_LOG_NAME, json.dumps(d, indent=1))
@@ -476,6 +497,7 @@ def run_auto(robot, cameras, cell, world, out_dir, detector=None, safety: Safety
         d = json.loads((out / PLAN_LOG_NAME).read_text())
         L.steps = list(d.get("steps", []))
         L.pixel_sigma_px = d.get("pixel_sigma_px")
+        L.cov_scale = dict(d.get("cov_scale") or {})
         L.messages = list(d.get("messages", []))
         logged = {s["step"] for s in L.steps}
         L.replay()
@@ -588,8 +610,13 @@ def _active(L):
             L.pixel_sigma_px = float(res.pixel_sigma_px)
             L.messages.append(f"pixel sigma {L.pixel_sigma_px:.3f} px estimated from the survey's {L.n_captures} captures")
             L.replay()
+            L.calibrate_to(res)
+        else:
+            L.messages.append(f"batch solve of the survey failed ({err}); planning with iSAM2's default pixel noise")
         L.save_log()
-    planner = ActivePlanner(L.world, L.cell, L.opts.dq_max_rad_s, L.opts.speed_scale, seed=L.opts.seed + 1)
+    o = IncrementalSolver(L.cell.target.points_board_m, {}).options
+    planner = ActivePlanner(L.world, L.cell, L.opts.dq_max_rad_s, L.opts.speed_scale, seed=L.opts.seed + 1,
+                            fk_sigma_translation_m=o.fk_sigma_translation_m, fk_sigma_rotation_rad=o.fk_sigma_rotation_rad)
     last_batch_at = -1
     while True:
         b = L.beliefs()
@@ -599,9 +626,10 @@ def _active(L):
             if res is not None and all(_within(L, c.covariance) for c in res.cameras.values()):
                 L.batch = res
                 return "converged"
-            if res is not None:  # the batch solver's pixel sigma is the reference: re-scale and go on
+            if res is not None:  # the batch solver is the reference: re-scale iSAM2 to it and go on
                 L.pixel_sigma_px = float(res.pixel_sigma_px)
                 L.replay()
+                L.calibrate_to(res)
                 L.save_log()
                 continue
         if not _budget_left(L):

@@ -161,7 +161,7 @@ def refinement_stops(world, cell, camera: str, T_base_board_seen: np.ndarray, p_
             break
         a = 2 * np.pi * (i + 0.5 * (i // n)) / n
         tilt = np.radians(tilt_deg) * np.array([np.cos(a), np.sin(a), 0.0])
-        centre = c0 + rng.uniform(-0.08, 0.08, 3)
+        centre = c0 + rng.uniform(-0.15, 0.15, 3) * np.array([1.0, 1.0, 0.8])
         T_bb = board_pose_facing(p_cam_m, centre, cell.target, tilt, np.radians(rng.uniform(-20, 20)))
         got = reach_pose(world, T_bb, cell.T_flange_board, seeds_at(az, q_prev), free)
         if got is None:
