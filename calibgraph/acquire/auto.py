@@ -589,8 +589,16 @@ def _refine(L, done, tries, final=False):
 
 
 def _batch(L):
+    """Batch solve of the dataset so far, over the cameras placed by the live solver (a camera
+    never seen, or seen too little to place, would make the whole solve refuse)."""
     try:
         problem, _ = build_problem(load_dataset(L.out), "joint", None, progress=False)
+        keep = _placed(L) & set(problem.cameras)
+        if not keep:
+            return None, "no camera placed yet"
+        if keep != set(problem.cameras):
+            problem = problem.with_(cameras={c: i for c, i in problem.cameras.items() if c in keep},
+                                    detections=tuple(d for d in problem.detections if d.camera in keep))
         return solve(problem, seed=L.opts.seed), None
     except CalibgraphError as e:
         return None, str(e)
