@@ -214,15 +214,13 @@ def main(argv=None):
         wd = read_yaml(path, "workcell")
         for seed in seeds:
             row = {"cell": cell_name, "seed": seed}
-            for method, fn in (("active", lambda: run_active(wd, path, seed, max_poses)),
-                               ("planner", lambda: run_planner(wd, path, seed, n_plan)),
-                               ("random", lambda: run_random(wd, path, seed, n_plan)),
-                               ("thesis_110", lambda: run_planner(wd, path, seed, 110))):
+            for method, fn, n in (("active", run_active, max_poses), ("planner", run_planner, n_plan),
+                                  ("random", run_random, n_plan), ("thesis_110", run_planner, 110)):
                 if args.quick and method == "thesis_110":
                     continue
                 t0 = time.perf_counter()
                 try:
-                    row[method] = fn()
+                    row[method] = fn(wd, path, seed, n)
                 except Exception as e:  # noqa: BLE001 - a method that cannot run on a cell is a result too
                     row[method] = {"captures": None, "note": f"{type(e).__name__}: {e}"}
                 print(f"{cell_name} seed {seed} {method}: {_fmt(row[method])} ({time.perf_counter() - t0:.0f} s)",

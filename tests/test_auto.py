@@ -18,7 +18,11 @@ from calibgraph.core.targets import a4_board_54
 from calibgraph.core.transforms import exp_so3, inv, look_at, make_T, pose_error
 from calibgraph.io.files import read_yaml
 from calibgraph.plan.active import view_information
-from calibgraph.plan.cell import cell_from_dict, cell_from_world_dict, default_T_flange_board
+from calibgraph.plan.cell import (
+    cell_from_dict,
+    cell_from_world_dict,
+    default_T_flange_board,
+)
 from calibgraph.plan.survey import board_pose_facing
 from tests.helpers import REPO, require_sim
 
@@ -149,7 +153,7 @@ def test_a_camera_that_never_sees_the_board_is_named_and_the_others_still_calibr
     require_sim()
     d = {"name": "blind", "board": "a4_54", "ring": {"distances_m": [2.5], "height_above_floor_m": 1.6, "spread_deg": 0},
          "cameras": {"blind": {"preset": "l515", "position_m": [-2.0, 2.0, 0.8], "look_at_m": [-4.0, 4.0, 0.8]}}}
-    rep, wc = _run(d, tmp_path / "auto", max_poses=40, tol=(2.0, 0.1))
+    rep, _ = _run(d, tmp_path / "auto", max_poses=40, tol=(2.0, 0.1))
     assert "cam0" in rep.result.cameras and rep.cameras["cam0"].startswith("within tolerance")
     assert rep.cameras["blind"].startswith("NOT FOUND") and "blind" not in rep.result.cameras
     assert not rep.converged and "blind" in rep.summary()
@@ -185,3 +189,17 @@ def test_cli_auto_refuses_bad_input_with_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all(line.startswith("calibgraph capture: error:") for line in err)
     assert "--sim-world" in err[0] and "nope.yaml" in err[1] and "max-poses" in err[2]
+
+
+def test_convergence_section_plots_the_plan_log(tmp_path):
+    from calibgraph.report.convergence import convergence_section, convergence_series
+
+    log = {"options": {"tolerance_mm": 0.5}, "stop": {"reason": "every camera within"},
+           "steps": [{"status": "captured", "achieved": {}}, {"status": "skipped_unsafe", "achieved": {"a": [9, 1]}},
+                     {"status": "captured", "achieved": {"a": [2.0, 0.1]}},
+                     {"status": "no_views", "achieved": {"a": [1.5, 0.05], "b": [0.9, 0.02]}}]}
+    assert convergence_series(log) == {"a": ([2, 3], [2.0, 1.5]), "b": ([3], [0.9])}
+    (tmp_path / "plan_log.json").write_text(json.dumps(log))
+    html = convergence_section(tmp_path)
+    assert "<svg" in html and "tolerance 0.5 mm" in html and "every camera within" in html
+    assert convergence_section(tmp_path / "none") == ""

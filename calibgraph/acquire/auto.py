@@ -142,7 +142,9 @@ class AutoReport:
         return sum(s["status"] in ("captured", "no_views") for s in self.steps)
 
     def summary(self) -> str:
-        lines = [f"{'dry run' if self.dry_run else 'autonomous capture'} into {self.out_dir}: {self.captures} capture poses, "
+        if self.dry_run:
+            return f"{self.stop_reason}; {self.robot_time_s:.0f} s of robot motion if every round runs; nothing moved"
+        lines = [f"autonomous capture into {self.out_dir}: {self.captures} capture poses, "
                  f"robot motion {self.robot_time_s:.0f} s; {self.stop_reason}"]
         lines += [f"  {c}: {s}" for c, s in self.cameras.items()]
         lines += [f"  note: {m}" for m in self.messages]
@@ -441,7 +443,7 @@ def dry_run_survey(cell, world, safety: SafetyLimits, options: AutoOptions, q_st
     q = world.start_configuration() if q_start is None else np.asarray(q_start, float)
     steps, t = [], 0.0
     for k in range(len(SURVEY_ROUNDS)):
-        for s in survey_round(world, cell, k, q, options.seed):
+        for s in survey_round(world, cell, k, q):
             motion = free_motion(world, q, s.q_rad)
             v = check_motion(q, s.q_rad, safety, fk=fk, T_goal_stated=s.T_base_flange)
             status = "planned" if (v.ok and motion is not None) else "skipped_unsafe"
@@ -539,7 +541,7 @@ def _survey(L):
         if set(live) <= _placed(L):
             break
         q = np.asarray(L.robot.joint_positions(), float)
-        stops = survey_round(L.world, L.cell, k, q, L.opts.seed, free=L.free)
+        stops = survey_round(L.world, L.cell, k, q, free=L.free)
         L.world.set_q(q)
         for st in stops:
             if st.label in done:

@@ -98,14 +98,13 @@ def _direction(az_rad, el_rad):
     return np.array([np.cos(el_rad) * np.cos(az_rad), np.cos(el_rad) * np.sin(az_rad), np.sin(el_rad)])
 
 
-def survey_round(world, cell, k: int, q_start=None, seed: int = 0, free=None) -> list:
+def survey_round(world, cell, k: int, q_start=None, free=None) -> list:
     """The reachable stops of survey round ``k`` (0-based; [] past the last round), in sweep order.
 
     Round 0 starts with two stops aimed at each hinted camera. ``free(q) -> bool`` adds a check
     of the planner's own (keep-out volumes)."""
     if k >= len(SURVEY_ROUNDS):
         return []
-    rng = np.random.default_rng(seed * 1000 + k)
     off_deg, el_deg, r, h = SURVEY_ROUNDS[k]
     lo, hi = world.q_lo[0] + world.limit_margin_rad, world.q_hi[0] - world.limit_margin_rad
     wanted = []  # (azimuth, direction the board faces, radius, height, label, why)
