@@ -5,6 +5,18 @@
     calibgraph capture --workcell cell.yaml --trajectory traj.yaml --dry-run  # plan + safety checks only
     calibgraph solve DATASET
 
+Autonomous (``--auto``, camera placements unknown; see :mod:`calibgraph.acquire.auto`)::
+
+    calibgraph capture --auto --robot sim --sim-world WORLD.yaml [--workcell CELL.yaml] --out DIR
+    calibgraph capture --auto --workcell CELL.yaml --out DIR --robot franka --i-have-cleared-the-cell
+    calibgraph capture --auto --workcell CELL.yaml --out DIR --dry-run      # shows the survey, moves nothing
+    calibgraph capture --auto ... --out DIR --resume                          # after a kill
+
+The simulator renders WORLD.yaml (true placements); the planner reads only CELL.yaml
+(:mod:`calibgraph.plan.cell`: cameras without placements, optional hints, obstacles, keep-out
+boxes), or WORLD.yaml with every placement stripped when ``--workcell`` is omitted. It writes the
+dataset, ``plan_log.json``, ``result.json`` and (simulated) ``ground_truth.json``.
+
 A real robot (``driver: franka``) never moves without ``--i-have-cleared-the-cell``; ``--dry-run``
 connects to nothing that moves and opens no camera.
 
@@ -47,7 +59,8 @@ _SIM_ROBOT_KEYS = {"fk_sigma_translation_m", "fk_sigma_rotation_deg"}
 def add_parser(sub):
     p = sub.add_parser("capture", help="drive the robot and record a dataset (real or simulated cell)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("--workcell", type=Path, required=True, help="workcell YAML (robot, cameras, safety)")
+    p.add_argument("--workcell", type=Path, default=None,
+                   help="workcell YAML (robot, cameras, safety); with --auto the cell without placements")
     p.add_argument("--trajectory", type=Path, default=None,
                    help="trajectory YAML (calibgraph-trajectory/1); with --resume defaults to DATASET/trajectory.yaml")
     p.add_argument("--out", type=Path, required=True, help="dataset folder to write")
@@ -62,6 +75,15 @@ def add_parser(sub):
                    help="extra wait after the robot reports still (default 0.3 s real, 0 s sim)")
     p.add_argument("--incremental", action="store_true", help="show the live 1-sigma per camera (iSAM2)")
     p.add_argument("--quiet", action="store_true")
+    a = p.add_argument_group("autonomous calibration (--auto)")
+    a.add_argument("--auto", action="store_true",
+                   help="discover the cameras, choose each pose by expected information gain, stop at the tolerance")
+    a.add_argument("--sim-world", type=Path, default=None,
+                   help="with --robot sim: the simulated workcell to render (true placements; the planner never reads them)")
+    a.add_argument("--tolerance-mm", type=float, default=0.5, help="1-sigma translation norm to reach (default 0.5 mm)")
+    a.add_argument("--tolerance-deg", type=float, default=0.03, help="1-sigma rotation norm to reach (default 0.03 deg)")
+    a.add_argument("--max-poses", type=int, default=60, help="capture poses allowed, survey included (default 60)")
+    a.add_argument("--seed", type=int, default=0, help="seed of the pose sampling")
     return p
 
 
@@ -139,6 +161,12 @@ def run(args) -> int:
     from calibgraph.plan.trajectory import Trajectory, load_trajectory
 
     log = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    if args.auto:
+        return run_auto_capture(args, log)
+    if args.sim_world is not None:
+        raise InputError("capture: --sim-world is for --auto runs; a trajectory replay simulates the --workcell itself.")
+    if args.workcell is None:
+        raise InputError("capture: give --workcell (the cell: robot, cameras, safety).")
     d = _read_yaml(args.workcell, "workcell")
     robot_cfg, cam_cfg, safety, target, mode = workcell_hardware(d, str(args.workcell))
     driver = args.robot or robot_cfg.get("driver", "sim")
@@ -227,6 +255,123 @@ def run(args) -> int:
         if not args.dry_run:
             print(f"next: calibgraph solve {args.out}")
         return 0
+    finally:
+        for c in closers:
+            try:
+                c.close()
+            except Exception:  # closing is best effort; the data is already on disk
+                pass
+
+
+def run_auto_capture(args, log) -> int:
+    """``capture --auto``: the autonomous loop on the simulated or the real cell."""
+    import numpy as np
+
+    from calibgraph.acquire.auto import AutoOptions, dry_run_survey, run_auto
+    from calibgraph.acquire.safety import SafetyLimits
+    from calibgraph.core.errors import InputError
+    from calibgraph.plan.cell import cell_from_dict, cell_from_world_dict
+
+    if args.trajectory is not None:
+        raise InputError("capture --auto plans its own poses; drop --trajectory.")
+    opts = AutoOptions(tolerance_mm=args.tolerance_mm, tolerance_deg=args.tolerance_deg, max_poses=args.max_poses,
+                       speed_scale=args.speed_scale if args.speed_scale is not None else 0.2, seed=args.seed,
+                       settle_dwell_s=args.settle_dwell_s or 0.0)
+    cell_d = _read_yaml(args.workcell, "cell") if args.workcell else None
+    world_d = _read_yaml(args.sim_world, "simulated world") if args.sim_world else None
+    driver = args.robot or ((cell_d or {}).get("robot") or {}).get("driver", "sim")
+    if driver not in ROBOT_DRIVERS:
+        raise InputError(f"{args.workcell}: robot driver {driver!r} unknown; choose one of {ROBOT_DRIVERS}.")
+    if driver == "sim" and world_d is None:
+        raise InputError("capture --auto --robot sim needs --sim-world WORLD.yaml (the cell the simulator renders).")
+    if driver != "sim" and cell_d is None:
+        raise InputError("capture --auto on a real robot needs --workcell CELL.yaml (cameras, obstacles, safety).")
+    cell = cell_from_dict(cell_d, str(args.workcell)) if cell_d is not None else cell_from_world_dict(world_d, str(args.sim_world))
+    safety = SafetyLimits()
+    if cell_d is not None:
+        _, _, safety, _, _ = workcell_hardware({k: v for k, v in cell_d.items() if k != "cameras"}, str(args.workcell))
+    from calibgraph.sim.planning import planning_world
+
+    pworld = planning_world(cell)
+    robot, cameras, closers, detector, sim = None, {}, [], None, None
+    try:
+        if driver == "sim":
+            from calibgraph.sim.devices import make_devices
+            from calibgraph.sim.render import SimWorld
+            from calibgraph.sim.simulate import VisibilityGatedDetector
+            from calibgraph.sim.workcell import workcell_from_dict
+
+            wcell = workcell_from_dict(sim_workcell_dict(world_d), str(args.sim_world))
+            missing = [c for c in cell.camera_names if c not in wcell.camera_names]
+            if missing:
+                raise InputError(f"{args.workcell}: cameras {missing} are not in the simulated world {args.sim_world} "
+                                 f"(it has {wcell.camera_names}).")
+            if wcell.target != cell.target:
+                raise InputError(f"{args.workcell}: board {cell.target.to_dict()} differs from the simulated world's "
+                                 f"{wcell.target.to_dict()}.")
+            sim = SimWorld(wcell)
+            robot, sim_cams = make_devices(sim, wcell.fk_sigma_translation_m, np.radians(wcell.fk_sigma_rotation_deg),
+                                           wcell.seed)
+            cameras = {c: sim_cams[c] for c in cell.camera_names}
+            detector = VisibilityGatedDetector(sim, None)
+            sim.skip_hidden_renders = True
+        else:
+            if not args.dry_run and not args.cleared:
+                raise InputError("capture: a real robot is configured; it will not move without "
+                                 "--i-have-cleared-the-cell. Run with --dry-run first to see the survey.")
+            from drivers.franka import FrankaRobot
+
+            robot_cfg = (cell_d or {}).get("robot") or {}
+            ip = args.robot_ip or robot_cfg.get("ip")
+            if not ip:
+                raise InputError(f"{args.workcell}: robot.ip (or --robot-ip) is needed for the franka driver.")
+            try:
+                robot = FrankaRobot(ip, model=robot_cfg.get("model", "fr3"), realtime=bool(robot_cfg.get("realtime", True)),
+                                    settle_velocity_rad_s=float(robot_cfg.get("settle_velocity_rad_s", 0.005)))
+            except Exception as e:
+                if not args.dry_run:
+                    raise
+                log(f"robot at {ip}: not connected ({e}); planning the survey from the home posture")
+        if robot is not None:
+            closers.append(robot)
+        if args.dry_run:
+            q0 = robot.joint_positions() if robot is not None else None
+            rep = dry_run_survey(cell, pworld, safety, opts, q0, log)
+            print(rep.summary())
+            return 0
+        if driver != "sim":
+            for name in cell.camera_names:
+                spec = (cell_d.get("cameras") or {}).get(name) or {}
+                hw = {k: v for k, v in spec.items() if k not in ("hint", "preset", "intrinsics")}
+                try:
+                    cam = open_camera(name, hw, str(args.workcell))
+                except InputError:
+                    raise
+                except Exception as e:  # a camera that cannot open is reported; the others go on
+                    log(f"camera {name}: cannot open ({type(e).__name__}: {e}); continuing without it")
+                    continue
+                cameras[name] = cam
+                closers.append(cam)
+            if not cameras:
+                raise InputError(f"{args.workcell}: no camera could be opened.")
+        try:
+            rep = run_auto(robot, cameras, cell, pworld, args.out, detector=detector, safety=safety, options=opts,
+                           resume=args.resume, progress=log)
+        except KeyboardInterrupt:
+            where = f"--sim-world {args.sim_world}" if sim is not None else f"--workcell {args.workcell}"
+            print(f"calibgraph capture: interrupted; everything captured so far is in {args.out}. Continue with: "
+                  f"calibgraph capture --auto {where} --out {args.out} --resume", file=sys.stderr)
+            return 130
+        finally:
+            if sim is not None:
+                from calibgraph.sim.simulate import write_ground_truth
+
+                if (args.out / "captures").is_dir():
+                    write_ground_truth(args.out, sim.cell, sim)
+        print(rep.summary())
+        if rep.result is not None:
+            print(f"wrote {args.out / 'result.json'} and {args.out / 'plan_log.json'}")
+        return 0 if rep.converged else 3
     finally:
         for c in closers:
             try:

@@ -29,6 +29,10 @@ def add_parser(sub):
     p.add_argument("--rrd", dest="rrd", action="store_true", default=True, help="write a rerun recording (default)")
     p.add_argument("--no-rrd", dest="rrd", action="store_false", help="skip the rerun recording")
     p.add_argument("--no-report", dest="report", action="store_false", default=True, help="skip the HTML report")
+    p.add_argument("--auto", action="store_true",
+                   help="autonomous run: camera placements unknown to the planner; discover, refine by information "
+                        "gain, stop at the tolerance (see calibgraph capture --auto)")
+    p.add_argument("--max-poses", type=int, default=60, help="with --auto: capture poses allowed (default 60)")
     return p
 
 
@@ -66,6 +70,8 @@ def run(args) -> int:
     print(f"workcell: {len(cell.cameras)} x {', '.join(sorted({c.preset for c in cell.cameras}))} cameras, "
           f"board {cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm, "
           f"camera distances {', '.join(f'{np.hypot(*c.T_base_cam[:2, 3]):.1f}' for c in cell.cameras)} m")
+    if args.auto:
+        return _run_auto(args, cell, out, ds_dir, t_start)
     world = SimWorld(cell)
     world.check_rendering()  # no OpenGL: one clear error now, not after planning
 
@@ -139,3 +145,38 @@ def run(args) -> int:
                 print(f"rerun recording skipped: {type(e).__name__}: {e}", file=sys.stderr)
     print(f"demo finished in {time.monotonic() - t_start:.0f} s; dataset with ground truth in {ds_dir}")
     return 0
+
+
+def _run_auto(args, cell, out, ds_dir, t_start) -> int:
+    """``demo --auto``: the autonomous loop on the demo cell, placements hidden from the planner."""
+    import numpy as np
+
+    from calibgraph.acquire.auto import AutoOptions, run_auto
+    from calibgraph.core.transforms import pose_error
+    from calibgraph.plan.cell import cell_from_world_dict
+    from calibgraph.sim.devices import make_devices
+    from calibgraph.sim.planning import planning_world
+    from calibgraph.sim.render import SimWorld
+    from calibgraph.sim.simulate import VisibilityGatedDetector, write_ground_truth
+    from calibgraph.sim.workcell import workcell_to_dict
+
+    plan_cell = cell_from_world_dict(workcell_to_dict(cell), "demo cell")
+    world = SimWorld(cell)
+    robot, cams = make_devices(world, cell.fk_sigma_translation_m, np.radians(cell.fk_sigma_rotation_deg), cell.seed)
+    world.skip_hidden_renders = True
+    rep = run_auto(robot, cams, plan_cell, planning_world(plan_cell), ds_dir, detector=VisibilityGatedDetector(world),
+                   options=AutoOptions(max_poses=args.max_poses, seed=args.seed),
+                   progress=lambda line: print(line, file=sys.stderr, flush=True))
+    write_ground_truth(ds_dir, cell, world)
+    print(rep.summary())
+    if rep.result is not None:
+        print(f"{'camera':8s} {'views':>5s} {'1σ mm':>7s} {'1σ deg':>7s} {'err mm':>7s} {'err deg':>8s} {'err/1σ':>7s}")
+        for n, c in rep.result.cameras.items():
+            e_m, e_deg = pose_error(c.T_ref_cam, cell.camera(n).T_base_cam)
+            s_mm = float(np.linalg.norm(c.sigma_translation_mm))
+            print(f"{n:8s} {c.views_used:5d} {s_mm:7.3f} {float(np.linalg.norm(c.sigma_rotation_deg)):7.4f} "
+                  f"{e_m * 1e3:7.3f} {e_deg:8.4f} {e_m * 1e3 / s_mm:7.2f}")
+        print(f"captures {rep.captures} (survey included), robot motion {rep.robot_time_s:.0f} s; "
+              f"result in {ds_dir / 'result.json'}, plan log in {ds_dir / 'plan_log.json'}")
+    print(f"demo finished in {time.monotonic() - t_start:.0f} s; dataset with ground truth in {ds_dir}")
+    return 0 if rep.converged else 3

@@ -44,7 +44,7 @@ from calibgraph.core.transforms import board_facing, inv, make_T
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
 from calibgraph.plan.visibility import visible_cameras
 
-__all__ = ["RobotWorld", "plan_trajectory", "TRANSIT_Q_RAD"]
+__all__ = ["RobotWorld", "plan_trajectory", "free_motion", "TRANSIT_Q_RAD"]
 
 # Compact transit posture (elbow folded, board held close above the base); its joint 1 is set to
 # the base angle of the motion it serves. It is the simulator's home posture.
@@ -221,6 +221,21 @@ def _plan(world, n_poses, seed, shared_fraction, tilt_deg, roll_deg, radius_m, h
     if n_via:
         notes.insert(0, f"{n_via} via poses inserted where the straight joint motion between two poses collides")
     return Trajectory(poses=tuple(seq), workcell=cell.name, seed=seed, notes=tuple(notes))
+
+
+def free_motion(world, q0_rad, q1_rad, max_step_rad: float = 0.03):
+    """Joint targets ``[via..., q1]`` whose straight joint motions from ``q0`` are collision-free
+    (no via when the direct motion is), or None when no transit pose helps. The world's state is
+    restored."""
+    q_saved = world.q()
+    try:
+        q0, q1 = np.asarray(q0_rad, float), np.asarray(q1_rad, float)
+        if not world.path_collision(q0, q1, max_step_rad):
+            return [q1.copy()]
+        vias = _find_vias(world, q0, q1, max_step_rad)
+        return None if vias is None else [*vias, q1.copy()]
+    finally:
+        world.set_q(q_saved)
 
 
 def _views(poses) -> dict:

@@ -262,6 +262,16 @@ def build_spec(cell: Workcell, max_size_px=(1920, 1080)):
         g.pos = [-0.05, 0.0, -ped_h / 2 - 0.001]
         g.rgba = [0.25, 0.27, 0.3, 1.0]
 
+    # declared static geometry: solid boxes render and collide; keep-out volumes only collide
+    for b in cell.obstacles:
+        g = wb.add_geom()
+        g.name = f"{'keepout' if b.keep_out else 'obstacle'}_{b.name}"
+        g.type = mujoco.mjtGeom.mjGEOM_BOX
+        g.size = (np.asarray(b.size_m, float) / 2).tolist()
+        g.pos = np.asarray(b.centre_m, float).tolist()
+        g.rgba = [0.8, 0.3, 0.2, 0.0] if b.keep_out else [0.55, 0.5, 0.45, 1.0]
+        g.group = 3 if b.keep_out else 0
+
     # flange site and board mount
     link7 = spec.body("fr3_link7")
     s = link7.add_site()
@@ -349,7 +359,7 @@ def build_spec(cell: Workcell, max_size_px=(1920, 1080)):
 
 def build_model(cell: Workcell):
     """Compile the cell into an ``MjModel``."""
-    sizes = [(c.intrinsics.width_px, c.intrinsics.height_px) for c in cell.cameras]
+    sizes = [(c.intrinsics.width_px, c.intrinsics.height_px) for c in cell.cameras] or [(640, 480)]
     spec = build_spec(cell, (max(s[0] for s in sizes), max(s[1] for s in sizes)))
     try:
         return spec.compile()

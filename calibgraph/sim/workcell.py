@@ -34,9 +34,14 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics, preset
 from calibgraph.core.errors import InputError
-from calibgraph.core.targets import Target, a4_board_54, thesis_board
-from calibgraph.core.transforms import check_pose, exp_so3, look_at, make_T
+from calibgraph.core.targets import Target
+from calibgraph.core.transforms import check_pose, look_at
 from calibgraph.io.files import read_yaml
+from calibgraph.plan.cell import board_by_name, boxes_from_list, default_T_flange_board
+from calibgraph.plan.cell import pose_from_spec as _pose_from_spec
+
+__all__ = ["Realism", "SimCameraSpec", "Workcell", "board_by_name", "default_T_flange_board", "load_workcell",
+           "ring_workcell", "ring_cameras", "workcell_from_dict", "workcell_to_dict"]
 
 # Where the robot presents the board, relative to a camera's azimuth: radius from the base z axis
 # and height in the base frame. Cameras aim here, so the board lands near their image centre.
@@ -100,19 +105,6 @@ class SimCameraSpec:
     preset: str = ""
 
 
-def default_T_flange_board(target: Target) -> np.ndarray:
-    """Board mount used when a workcell does not give one.
-
-    The board's printed face looks along the flange z axis (board z = -flange z), 6 cm out from
-    the flange, its centre slightly off the flange axis (an asymmetric mount exercises the solver
-    better than a perfectly centred one).
-    """
-    centre_b = target.points_board_m.mean(axis=0)
-    R_fb = exp_so3([0.0, np.pi, 0.0]) @ exp_so3([0.0, 0.0, np.radians(7.0)])
-    # choose t so that the board centre lands at (0.01, -0.015, 0.06) in the flange frame
-    t = np.array([0.01, -0.015, 0.06]) - R_fb @ centre_b
-    return make_T(R_fb, t)
-
 
 @dataclass(frozen=True)
 class Workcell:
@@ -128,6 +120,10 @@ class Workcell:
         seed: seed of the image noise and of the robot's kinematic error.
         fk_sigma_translation_m, fk_sigma_rotation_deg: error of the flange pose the robot reports
             (its kinematic model is not exact), 1-sigma per axis, drawn once per pose.
+        obstacles: static boxes (:class:`calibgraph.plan.cell.Box`): tables, fences (rendered,
+            collide) and keep-out volumes (collide only).
+        planning_only: a model of the robot and the static geometry without cameras (what the
+            autonomous loop plans in before it knows where the cameras are); nothing renders.
     """
 
     name: str
@@ -139,6 +135,8 @@ class Workcell:
     seed: int = 0
     fk_sigma_translation_m: float = 5e-5
     fk_sigma_rotation_deg: float = 0.005
+    obstacles: tuple = ()
+    planning_only: bool = False
 
     def __post_init__(self):
         if not (self.fk_sigma_translation_m >= 0 and self.fk_sigma_rotation_deg >= 0):
@@ -146,11 +144,12 @@ class Workcell:
         if self.target.kind != "checkerboard":
             raise InputError(f"workcell {self.name!r}: the simulator renders checkerboards only, got {self.target.kind!r}.")
         names = [c.name for c in self.cameras]
-        if not names:
+        if not names and not self.planning_only:
             raise InputError(f"workcell {self.name!r}: no cameras; add a 'ring' or 'cameras' section.")
         if len(set(names)) != len(names):
             raise InputError(f"workcell {self.name!r}: duplicate camera names {names}.")
         object.__setattr__(self, "cameras", tuple(self.cameras))
+        object.__setattr__(self, "obstacles", tuple(self.obstacles))
 
     @property
     def camera_names(self) -> list:
@@ -169,19 +168,6 @@ class Workcell:
     def with_(self, **changes) -> "Workcell":
         return replace(self, **changes)
 
-
-def board_by_name(spec) -> Target:
-    """'a4_54' (7x10 squares of 25 mm), 'thesis' (5x4 squares of 46 mm) or a Target dict."""
-    if isinstance(spec, Target):
-        return spec
-    if isinstance(spec, dict):
-        return Target.from_dict(spec)
-    key = str(spec).lower()
-    if key in ("a4_54", "a4", "54"):
-        return a4_board_54()
-    if key in ("thesis", "thesis_46", "5x4"):
-        return thesis_board()
-    raise InputError(f"unknown board {spec!r}; use 'a4_54', 'thesis' or a target mapping (kind, rows, cols, pitch_m).")
 
 
 def _camera_intrinsics(preset_name: str, realism: Realism) -> Intrinsics:
@@ -231,23 +217,13 @@ def ring_workcell(n_cameras: int = 3, distance_m: float = 3.0, preset_name: str 
                     realism=realism, seed=seed)
 
 
-def _pose_from_spec(d: dict, what: str) -> np.ndarray:
-    if "T" in d:
-
-        return check_pose(np.asarray(d["T"], float), what)
-    t = np.asarray(d.get("translation_m", [0, 0, 0]), float)
-    R = exp_so3(np.asarray(d.get("rotvec_rad", [0, 0, 0]), float))
-    if "rpy_deg" in d:
-        r, p, y = np.radians(np.asarray(d["rpy_deg"], float))
-        R = exp_so3([0, 0, y]) @ exp_so3([0, p, 0]) @ exp_so3([r, 0, 0])
-    return make_T(R, t)
-
 
 def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
     """Build a :class:`Workcell` from its YAML mapping (see the module docstring)."""
     if not isinstance(d, dict):
         raise InputError(f"{where}: must be a mapping.")
-    known = {"name", "board", "floor_z_m", "mount", "realism", "ring", "cameras", "seed", "description", "robot"}
+    known = {"name", "board", "floor_z_m", "mount", "realism", "ring", "cameras", "seed", "description", "robot",
+             "obstacles", "keep_out"}
     unknown = set(d) - known
     if unknown:
         raise InputError(f"{where}: unknown keys {sorted(unknown)}; allowed: {sorted(known)}.")
@@ -286,7 +262,8 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
     return Workcell(name=str(d.get("name", Path(where).stem)), target=target, T_flange_board=T_fb, cameras=tuple(cams),
                     realism=realism, floor_z_m=floor_z, seed=int(d.get("seed", 0)),
                     fk_sigma_translation_m=float(robot.get("fk_sigma_translation_m", 5e-5)),
-                    fk_sigma_rotation_deg=float(robot.get("fk_sigma_rotation_deg", 0.005)))
+                    fk_sigma_rotation_deg=float(robot.get("fk_sigma_rotation_deg", 0.005)),
+                    obstacles=tuple(boxes_from_list(d.get("obstacles"), where, False) + boxes_from_list(d.get("keep_out"), where, True)))
 
 
 def load_workcell(path) -> Workcell:
@@ -312,4 +289,13 @@ def workcell_to_dict(cell: Workcell) -> dict:
                     for c in cell.cameras},
         "seed": cell.seed,
         "robot": {"fk_sigma_translation_m": cell.fk_sigma_translation_m, "fk_sigma_rotation_deg": cell.fk_sigma_rotation_deg},
+        **_boxes_to_dict(cell.obstacles),
     }
+
+
+def _boxes_to_dict(boxes) -> dict:
+    out = {}
+    for b in boxes:
+        out.setdefault("keep_out" if b.keep_out else "obstacles", []).append(
+            {"name": b.name, "centre_m": b.centre_m.tolist(), "size_m": b.size_m.tolist()})
+    return out

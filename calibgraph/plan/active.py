@@ -1,0 +1,386 @@
+"""Active refinement: the next robot pose by expected information gain per second of motion.
+
+After the survey every camera that saw the board has a coarse pose ``T_base_cam`` and a 6x6
+marginal covariance (iSAM2, rotation first, in base axes: the left rotation vector and the
+camera-centre offset). A candidate flange pose is scored by what the corners it would show add
+to that covariance:
+
+    I_view(c) = sum_i J_i^T J_i / sigma_px^2,   J_i = d uv_i / d(dr, dt)   (2x6 per corner)
+    Sigma'_c  = (Sigma_c^-1 + I_view(c))^-1
+
+for every camera ``c`` that sees the whole board from its *estimated* pose (the visibility model
+:func:`calibgraph.plan.visibility.board_visible`, with an image margin grown by the pixel shift
+the pose's 3-sigma would cause). A camera's shortfall is ``rho_c = max(|sigma_t| / tol_mm,
+|sigma_r| / tol_deg)`` (norms of the per-axis 1-sigma); the score is
+
+    gain = sum_c max(rho_c, 1)^2 - max(rho'_c, 1)^2        (cameras already within tolerance add 0)
+
+per second of robot motion (joint-space time at the speed scale, plus the settle time), so the
+worst camera counts most and a pose that helps two cameras at once wins over one that helps one.
+The view's flange pose is marginalised under the FK prior (a 12x12 Schur complement per camera
+and candidate); the board mount is treated as known while scoring (the graph estimates it from
+every view), so the prediction is slightly optimistic, and the loop checks the achieved 1-sigma
+after every capture (``plan_log.json`` holds both).
+
+Candidates come from a pool of reachable, collision-free configurations (IK within the joint
+limits on the planning world, keep-out volumes round the estimated cameras checked), topped up
+every step with new board poses aimed at the cameras still short of tolerance; a candidate is
+used once. Choosing costs well under a second on two cores: IK only for the top-up, the scoring
+is vectorised numpy, path checks only for the best few.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibgraph.core.transforms import inv
+from calibgraph.plan.planner import free_motion
+from calibgraph.plan.survey import board_pose_facing, reach_pose, seeds_at
+from calibgraph.plan.visibility import board_visible, square_px
+
+__all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_information", "sigma_norms", "shortfall",
+           "motion_time_s", "keepout_violation", "explain_shortfall"]
+
+SETTLE_S = 0.5  # what every motion costs on top of the joint-space time (the simulated robot's model too)
+STAND_RADIUS_M = 0.25  # keep-out radius round an estimated camera stand, before its uncertainty
+
+
+@dataclass(frozen=True)
+class CameraBelief:
+    """What the loop knows about a camera: intrinsics, estimated ``T_base_cam`` (4, 4) and its
+    6x6 covariance (rotation first, base axes; None while only a single-view guess exists)."""
+
+    name: str
+    intrinsics: object
+    T_base_cam: np.ndarray
+    covariance: np.ndarray | None = None
+    views: int = 0
+
+
+def sigma_norms(cov: np.ndarray) -> tuple:
+    """(translation 1-sigma norm in mm, rotation 1-sigma norm in deg) of a rotation-first 6x6."""
+    d = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return float(np.linalg.norm(d[3:]) * 1e3), float(np.degrees(np.linalg.norm(d[:3])))
+
+
+def shortfall(cov, tol_mm: float, tol_deg: float) -> float:
+    """max(|sigma_t| / tol_mm, |sigma_r| / tol_deg): <= 1 within tolerance (inf when unknown)."""
+    if cov is None:
+        return float("inf")
+    t, r = sigma_norms(cov)
+    return max(t / tol_mm, r / tol_deg)
+
+
+def view_information(intrinsics, T_base_cam: np.ndarray, T_base_board: np.ndarray, points_board_m: np.ndarray,
+                     pixel_sigma_px: float, T_flange_board: np.ndarray | None = None,
+                     fk_sigma_translation_m: float = 0.0, fk_sigma_rotation_rad: float = 0.0) -> np.ndarray:
+    """Fisher information (6x6, rotation first, base axes) on ``T_base_cam`` of one view of the
+    board points.
+
+    Perturbing the camera by ``R <- exp(dr) R, c <- c + dt`` moves a point seen at
+    ``p_cam = R^T (p - c)`` by ``R^T [p - c]x dr - R^T dt``. With an FK prior (the flange pose of
+    the view is itself uncertain, 1-sigma ``fk_sigma_*``, perturbed at the flange as the solver
+    does) the flange is marginalised out: the Schur complement of the 12x12 information of
+    (camera, flange) with the prior on the flange block. Without it a far camera's gain is
+    overstated several times: at 0.05 px corner noise the robot's 0.1 mm / 0.01 deg dominates.
+    """
+    R, c = T_base_cam[:3, :3], T_base_cam[:3, 3]
+    p = points_board_m @ T_base_board[:3, :3].T + T_base_board[:3, 3]
+    p_cam = (p - c) @ R
+    _, Jp = intrinsics.project(p_cam, with_jacobian=True)  # (N, 2, 3)
+    ok = np.all(np.isfinite(Jp), axis=(1, 2))
+    Jp, p = Jp[ok], p[ok]
+    D = np.empty((len(p), 3, 6))
+    D[:, :, :3] = np.einsum("ji,njk->nik", R, _skew_rows(p - c))
+    D[:, :, 3:] = -R.T
+    Jc = np.einsum("nij,njk->nik", Jp, D).reshape(-1, 6)  # (2N, 6)
+    w = 1.0 / pixel_sigma_px ** 2
+    I_cc = w * Jc.T @ Jc
+    if T_flange_board is None or not (fk_sigma_translation_m > 0 and fk_sigma_rotation_rad > 0):
+        return I_cc
+    # flange right-perturbation xi = [w, v]: p = T_bf exp(xi) p_f moves by R_bf ([-p_f]x w + v)
+    T_bf = T_base_board @ np.linalg.inv(T_flange_board)
+    p_f = (p - T_bf[:3, 3]) @ T_bf[:3, :3]
+    E = np.empty((len(p), 3, 6))
+    E[:, :, :3] = -np.einsum("ij,njk->nik", R.T @ T_bf[:3, :3], _skew_rows(p_f))
+    E[:, :, 3:] = R.T @ T_bf[:3, :3]
+    Jf = np.einsum("nij,njk->nik", Jp, E).reshape(-1, 6)
+    prior = np.diag(1.0 / np.array([fk_sigma_rotation_rad] * 3 + [fk_sigma_translation_m] * 3) ** 2)
+    I_cf = w * Jc.T @ Jf
+    I_ff = w * Jf.T @ Jf + prior
+    return I_cc - I_cf @ np.linalg.solve(I_ff, I_cf.T)
+
+
+def _skew_rows(v: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) skew matrices of the rows of ``v`` (N, 3)."""
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
+    return S
+
+
+def motion_time_s(q0, q1, dq_max_rad_s, speed_scale: float) -> float:
+    """Time of a straight joint-space motion at ``speed_scale`` of the joint velocity limits, plus settling."""
+    dq = np.abs(np.asarray(q1, float) - np.asarray(q0, float))
+    return float(np.max(dq / (np.asarray(dq_max_rad_s, float) * speed_scale))) + SETTLE_S
+
+
+def _pixel_margin(b: CameraBelief, distance_m: float) -> float:
+    """Image margin (px) covering the 3-sigma pixel shift of the board under the pose's uncertainty."""
+    if b.covariance is None:
+        return 150.0
+    f = float(b.intrinsics.K[0, 0])
+    s_rot = np.sqrt(max(np.max(np.linalg.eigvalsh(b.covariance[:3, :3])), 0.0))
+    s_t = np.sqrt(max(np.max(np.linalg.eigvalsh(b.covariance[3:, 3:])), 0.0))
+    return float(min(12.0 + 3.0 * f * (s_rot + s_t / max(distance_m, 0.3)), 200.0))
+
+
+def keepout_violation(points_m: np.ndarray, beliefs: dict, floor_z_m: float) -> str | None:
+    """Name of the estimated camera whose stand volume (a vertical cylinder from the floor to 0.15 m
+    above the camera, radius 0.25 m + 3 sigma of its horizontal position) holds one of ``points_m``."""
+    P = np.asarray(points_m, float).reshape(-1, 3)
+    for b in beliefs.values():
+        c = b.T_base_cam[:3, 3]
+        s_xy = 0.5 if b.covariance is None else float(np.sqrt(max(np.max(np.linalg.eigvalsh(b.covariance[3:5, 3:5])), 0)))
+        r = STAND_RADIUS_M + 3.0 * min(s_xy, 0.5)
+        inside = (np.hypot(P[:, 0] - c[0], P[:, 1] - c[1]) < r) & (P[:, 2] < c[2] + 0.15) & (P[:, 2] > floor_z_m)
+        if np.any(inside):
+            return b.name
+    return None
+
+
+@dataclass(eq=False)
+class Candidate:
+    """A reachable, collision-free configuration and the flange pose it gives; ``aimed``: the
+    cameras its board pose was sampled for."""
+
+    q_rad: np.ndarray
+    T_base_flange: np.ndarray
+    aimed: tuple
+    probe_m: np.ndarray = field(repr=False, default=None)  # flange + board outline, base frame
+    last_gain: float = 0.0
+
+
+@dataclass(frozen=True)
+class Choice:
+    """The pose chosen, its expected effect and the motion to it.
+
+    Attributes:
+        candidate: the :class:`Candidate`.
+        motion: joint targets ``[via..., goal]`` (straight joint motions, collision-free).
+        time_s: predicted motion time (vias included).
+        gain: score numerator (sum of squared shortfall reductions).
+        sees: cameras expected to see the whole board.
+        predicted: camera -> (1-sigma mm, 1-sigma deg) expected after the capture.
+        why: one line for the plan log.
+    """
+
+    candidate: Candidate
+    motion: list
+    time_s: float
+    gain: float
+    sees: tuple
+    predicted: dict
+    why: str
+
+
+class ActivePlanner:
+    """Candidate pool + scoring (see the module docstring).
+
+    Args:
+        world: the planning :class:`~calibgraph.plan.planner.RobotWorld` (robot and declared
+            geometry only).
+        cell: the :class:`~calibgraph.plan.cell.CellDescription`.
+        dq_max_rad_s: (7,) joint velocity limits for the motion-time model.
+        speed_scale: fraction of them the robot moves at.
+        seed: sampling seed.
+        fk_sigma_translation_m, fk_sigma_rotation_rad: the solver's FK prior (its defaults), marginalised
+            out of each view's information.
+    """
+
+    def __init__(self, world, cell, dq_max_rad_s, speed_scale: float = 0.2, seed: int = 0, tilt_deg: float = 50.0,
+                 roll_deg: float = 30.0, radius_m=(0.30, 0.75), height_m=(0.15, 0.80),
+                 fk_sigma_translation_m: float = 1e-4, fk_sigma_rotation_rad: float = float(np.radians(0.01))):
+        self.world, self.cell = world, cell
+        self.fk_sigmas = (float(fk_sigma_translation_m), float(fk_sigma_rotation_rad))
+        self.dq_max = np.asarray(dq_max_rad_s, float)
+        self.speed_scale = float(speed_scale)
+        self.rng = np.random.default_rng(seed)
+        self.tilt, self.roll = np.radians(tilt_deg), np.radians(roll_deg)
+        self.radius_m, self.height_m = radius_m, height_m
+        self.pool: list = []
+        tgt = cell.target
+        corners = [0, tgt.cols - 1, (tgt.rows - 1) * tgt.cols, tgt.n_points - 1]
+        self._outline_b = tgt.points_board_m[corners]
+
+    # -- pool ----------------------------------------------------------------------------------------
+    def _probe(self, T_bf, T_fb):
+        T_bb = T_bf @ T_fb
+        return np.vstack([T_bf[:3, 3], self._outline_b @ T_bb[:3, :3].T + T_bb[:3, 3]])
+
+    def top_up(self, beliefs: dict, weights: dict, n_new: int, q_now, T_flange_board) -> int:
+        """Sample ``n_new`` board poses aimed at the cameras (chosen with probability ~ ``weights``,
+        a third of them between two cameras) and add the reachable, collision-free ones to the
+        pool. Returns how many were added."""
+        names = [n for n in beliefs if weights.get(n, 0) > 0] or list(beliefs)
+        if not names:
+            return 0
+        w = np.array([max(float(weights.get(n, 0.0)), 1e-6) for n in names])
+        w /= w.sum()
+        eyes = {n: beliefs[n].T_base_cam[:3, 3] for n in beliefs}
+        az = {n: float(np.arctan2(e[1], e[0])) for n, e in eyes.items()}
+        q_saved = self.world.q()
+        added = 0
+        try:
+            for _ in range(n_new):
+                cam = names[self.rng.choice(len(names), p=w)]
+                others = [o for o in beliefs if o != cam and abs(np.angle(np.exp(1j * (az[o] - az[cam])))) < np.radians(120)]
+                if others and self.rng.uniform() < 0.33:
+                    o = others[self.rng.integers(len(others))]
+                    a = float(np.angle(np.exp(1j * az[cam]) + np.exp(1j * az[o])))
+                    eye, aimed, tilt = 0.5 * (eyes[cam] + eyes[o]), (cam, o), self.tilt * self.rng.uniform(0, 0.4)
+                else:
+                    a, eye, aimed, tilt = az[cam], eyes[cam], (cam,), self.tilt * self.rng.uniform(0.2, 1.0)
+                a += self.rng.uniform(-1, 1) * np.radians(40)
+                r = self.rng.uniform(*self.radius_m)
+                centre = np.array([r * np.cos(a), r * np.sin(a), self.rng.uniform(*self.height_m)])
+                t_axis = self.rng.uniform(0, 2 * np.pi)
+                T_bb = board_pose_facing(eye, centre, self.cell.target, tilt * np.array([np.cos(t_axis), np.sin(t_axis), 0]),
+                                         self.roll * self.rng.uniform(-1, 1))
+                lo, hi = self.world.q_lo[0] + 0.1, self.world.q_hi[0] - 0.1
+                near = q_now is not None and abs(np.angle(np.exp(1j * (q_now[0] - a)))) < 0.6
+                seeds = seeds_at(float(np.clip(a, lo, hi)), q_now if near else None, 2, self.rng)
+                got = reach_pose(self.world, T_bb, T_flange_board, seeds)
+                if got is None:
+                    continue
+                q, T_bf = got
+                probe = self._probe(T_bf, T_flange_board)
+                if keepout_violation(probe, beliefs, self.cell.floor_z_m):
+                    continue
+                self.pool.append(Candidate(q, T_bf, aimed, probe))
+                added += 1
+        finally:
+            self.world.set_q(q_saved)
+        return added
+
+    # -- scoring ---------------------------------------------------------------------------------------
+    def predict(self, cand: Candidate, beliefs: dict, T_flange_board, pixel_sigma_px: float, occlusion: bool = True):
+        """camera -> Fisher information (6x6) of the view ``cand`` would give, for every camera that
+        sees the whole board from its estimated pose. Leaves the world at the candidate."""
+        T_bb = cand.T_base_flange @ T_flange_board
+        out = {}
+        if occlusion:
+            self.world.set_q(cand.q_rad)
+        for n, b in beliefs.items():
+            d = float(np.linalg.norm(T_bb[:3, 3] - b.T_base_cam[:3, 3]))
+            if not board_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb, margin_px=_pixel_margin(b, d),
+                                 occluded=self.world.occluded if occlusion else None):
+                continue
+            out[n] = view_information(b.intrinsics, b.T_base_cam, T_bb, self.cell.target.points_board_m, pixel_sigma_px,
+                                      T_flange_board, *self.fk_sigmas)
+        return out
+
+    def choose(self, beliefs: dict, T_flange_board, pixel_sigma_px: float, tol_mm: float, tol_deg: float, q_now,
+               n_top_up: int = 20, max_step_rad: float = 0.03, max_pool: int = 160) -> Choice | None:
+        """The best candidate (highest gain per second) with a collision-free motion from ``q_now``,
+        or None when no candidate shows the board to a camera short of tolerance. Only cameras
+        with a covariance are scored; ``beliefs`` without one still shape the keep-outs.
+
+        Scoring runs without the occlusion test (pure geometry, vectorised); the best dozen are
+        then checked for occlusion by the arm (ray casts at the candidate's configuration) and
+        re-scored with the cameras it hides removed, and for a free motion from ``q_now``."""
+        scored = {n: b for n, b in beliefs.items() if b.covariance is not None}
+        rho = {n: shortfall(b.covariance, tol_mm, tol_deg) for n, b in scored.items()}
+        short = {n: r for n, r in rho.items() if r > 1.0}
+        if not short:
+            return None
+        self.top_up(beliefs, {n: r ** 2 for n, r in short.items()}, n_top_up, q_now, T_flange_board)
+        # drop candidates that an updated keep-out now forbids
+        self.pool = [c for c in self.pool if not keepout_violation(c.probe_m, beliefs, self.cell.floor_z_m)]
+        info_inv = {n: np.linalg.inv(b.covariance) for n, b in scored.items()}
+
+        def score(cand, occlusion):
+            info = self.predict(cand, scored, T_flange_board, pixel_sigma_px, occlusion=occlusion)
+            gain, pred = 0.0, {}
+            for n, I in info.items():
+                cov_new = np.linalg.inv(info_inv[n] + I)
+                pred[n] = sigma_norms(cov_new)
+                if n in short:
+                    gain += max(rho[n], 1.0) ** 2 - max(shortfall(cov_new, tol_mm, tol_deg), 1.0) ** 2
+            t = motion_time_s(q_now, cand.q_rad, self.dq_max, self.speed_scale)
+            return gain / t, gain, tuple(sorted(info)), pred
+
+        q_saved = self.world.q()
+        try:
+            ranked = []
+            for cand in self.pool:
+                rate, gain, sees, pred = score(cand, False)
+                cand.last_gain = gain
+                if gain > 1e-9:
+                    ranked.append((rate, cand))
+            if len(self.pool) > max_pool:  # forget what helps no camera that is short now
+                self.pool = [c for c in self.pool if c.last_gain > 1e-9] or self.pool[-max_pool:]
+            ranked.sort(key=lambda r: -r[0])
+            rescored = []
+            for _, cand in ranked[:12]:
+                rate, gain, sees, pred = score(cand, True)
+                if gain > 1e-9:
+                    rescored.append((rate, gain, cand, sees, pred))
+            rescored.sort(key=lambda r: -r[0])
+            for rate, gain, cand, sees, pred in rescored:
+                motion = free_motion(self.world, q_now, cand.q_rad, max_step_rad)
+                self.pool.remove(cand)
+                if motion is None:
+                    continue
+                T, q = 0.0, np.asarray(q_now, float)
+                for qq in motion:
+                    T += motion_time_s(q, qq, self.dq_max, self.speed_scale)
+                    q = qq
+                worst = max(short, key=short.get)
+                why = (f"best of {len(ranked)} candidates that help ({len(self.pool) + 1} in the pool): seen by "
+                       f"{', '.join(sees)}; worst camera {worst} at {short[worst]:.2f}x tolerance; gain {gain:.3g} "
+                       f"in {T:.1f} s" + (f" ({len(motion) - 1} via poses)" if len(motion) > 1 else ""))
+                return Choice(cand, motion, T, gain, sees, pred, why)
+        finally:
+            self.world.set_q(q_saved)
+        return None
+
+
+def explain_shortfall(name: str, belief: CameraBelief, views: list, target, tol_mm: float, tol_deg: float) -> str:
+    """Why camera ``name`` is short of tolerance and what would help, from its estimate and the
+    board poses it saw (``views``: list of T_base_board)."""
+    if belief is None or belief.covariance is None:
+        return f"{name}: no pose estimate (fewer than 3 consistent views); show it the board from several tilts"
+    t, r = sigma_norms(belief.covariance)
+    parts = [f"{name}: 1σ {t:.2f} mm / {r:.3f}° against {tol_mm:g} mm / {tol_deg:g}° after {len(views)} views"]
+    if not views:
+        return parts[0]
+    dists = [float(np.linalg.norm(T[:3, 3] - belief.T_base_cam[:3, 3])) for T in views]
+    sq = []
+    for T in views:
+        T_cb = inv(belief.T_base_cam) @ T
+        p = target.points_board_m @ T_cb[:3, :3].T + T_cb[:3, 3]
+        sq.append(square_px(belief.intrinsics.project(p), target))
+    normals = np.array([inv(belief.T_base_cam)[:3, :3] @ T[:3, 2] for T in views])
+    spread = float(np.degrees(np.arccos(np.clip(np.min(normals @ normals.mean(axis=0) / np.linalg.norm(normals.mean(axis=0))),
+                                                -1, 1)))) if len(views) > 1 else 0.0
+    reasons, helps = [], []
+    if np.median(dists) > 2.5:
+        reasons.append(f"far ({np.median(dists):.1f} m)")
+        helps.append("move it closer or use a larger board")
+    if np.median(sq) < 12:
+        reasons.append(f"board small in its image (squares {np.median(sq):.0f} px)")
+        helps.append("a larger board, or a lens with a longer focal length")
+    if spread < 20:
+        reasons.append(f"few viewing angles (board tilts within {spread:.0f}°)")
+        helps.append("reachable poses that tilt the board more towards it (it may sit outside the arm's good reach)")
+    if len(views) < 8:
+        reasons.append(f"only {len(views)} views")
+        helps.append("a larger --max-poses budget")
+    if not reasons:
+        reasons.append("the budget ran out")
+        helps.append("a larger --max-poses budget")
+    return f"{parts[0]}: {', '.join(reasons)}; would help: {'; '.join(dict.fromkeys(helps))}"

@@ -1,0 +1,71 @@
+"""Simulated cameras that deliver projected corners instead of rendered images.
+
+For tests and planning benchmarks, where what matters is which poses are chosen, not how the
+corners were found: a camera "grabs" a tiny placeholder frame, and :meth:`CornerOracle.detect`
+returns the true corners (through the true chain of the world, at the robot's true joints) plus
+seeded Gaussian pixel noise, when the board is fully visible, large enough and unoccluded in the
+true camera (:func:`calibgraph.plan.visibility.board_visibility`), else None. The robot is the
+kinematic :class:`~calibgraph.sim.devices.SimRobot` of the same world.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calibgraph.acquire.interfaces import DeviceError, Frame
+from calibgraph.core.transforms import inv
+from calibgraph.plan.visibility import board_visibility
+from calibgraph.sim.devices import SimRobot
+
+
+class CornerOracle:
+    """Detector for :class:`CornerCamera` frames (see the module docstring)."""
+
+    def __init__(self, world, pixel_sigma_px: float = 0.1, seed: int = 0):
+        self.world = world
+        self.pixel_sigma_px = float(pixel_sigma_px)
+        self.rng = np.random.default_rng(seed)
+        self.frames = {}
+
+    def __call__(self, image, target, intrinsics=None):
+        cam = self.frames.pop(id(image), None)
+        if cam is None or not board_visibility(self.world, cam, self.world.T_base_board(), margin_px=2.0,
+                                               max_angle_deg=70.0, min_square_px=4.0):
+            return None
+        spec = self.world.cell.camera(cam)
+        T_cb = inv(spec.T_base_cam) @ self.world.T_base_board()
+        p = target.points_board_m @ T_cb[:3, :3].T + T_cb[:3, 3]
+        uv = spec.intrinsics.project(p) + self.rng.normal(scale=self.pixel_sigma_px, size=(len(p), 2))
+        return np.arange(len(p)), uv
+
+
+class CornerCamera:
+    """A fixed camera of the world whose frames :class:`CornerOracle` turns into corners."""
+
+    def __init__(self, world, name: str, oracle: CornerOracle):
+        self.world, self.name, self.oracle = world, name, oracle
+        self.spec = world.cell.camera(name)
+        self._closed = False
+
+    def intrinsics(self):
+        return self.spec.intrinsics
+
+    def grab(self) -> Frame:
+        if self._closed:
+            raise DeviceError(f"camera {self.name}: used after close().")
+        img = np.zeros((2, 2), np.uint8)
+        self.oracle.frames[id(img)] = self.name
+        self.world.clock_s += 1.0 / 30.0
+        return Frame(camera=self.name, image=img, stamp_s=self.world.clock_s)
+
+    def close(self) -> None:
+        self._closed = True
+
+
+def corner_devices(world, pixel_sigma_px: float = 0.1, seed: int = 0):
+    """(SimRobot, {name: CornerCamera}, CornerOracle) of a world; the robot reports its flange
+    with the cell's FK error."""
+    cell = world.cell
+    robot = SimRobot(world, cell.fk_sigma_translation_m, np.radians(cell.fk_sigma_rotation_deg), seed)
+    oracle = CornerOracle(world, pixel_sigma_px, seed)
+    return robot, {c: CornerCamera(world, c, oracle) for c in cell.camera_names}, oracle

@@ -1,0 +1,205 @@
+"""Autonomous calibration (capture --auto): cell without placements, information model, the loop.
+
+The loop tests run on the MuJoCo planning model with cameras that deliver projected corners
+(:mod:`calibgraph.sim.synthetic`, 0.05 px: what the batch solver estimates on rendered L515 frames
+at 3 m), so they take seconds, not minutes; nothing is timed.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calibgraph.core.camera import preset
+from calibgraph.core.errors import InputError
+from calibgraph.core.targets import a4_board_54
+from calibgraph.core.transforms import exp_so3, inv, look_at, make_T, pose_error
+from calibgraph.io.files import read_yaml
+from calibgraph.plan.active import view_information
+from calibgraph.plan.cell import (
+    cell_from_dict,
+    cell_from_world_dict,
+    default_T_flange_board,
+)
+from calibgraph.plan.survey import board_pose_facing
+from tests.helpers import REPO, require_sim
+
+DEFAULT = REPO / "datasets" / "workcells" / "default.yaml"
+
+
+# -- the information model --------------------------------------------------------------------------
+def _scene():
+    intr, tg = preset("l515"), a4_board_54()
+    T_bc = look_at([3.0, 0.5, 0.8], [0.5, 0.0, 0.45])
+    T_bb = board_pose_facing([3.0, 0.5, 0.8], [0.55, 0.05, 0.45], tg, [0.3, 0.1, 0.0])
+    return intr, tg, T_bc, T_bb
+
+
+def _uv(intr, P, T_bc, T_bb):
+    p = P @ T_bb[:3, :3].T + T_bb[:3, 3]
+    return intr.project((p - T_bc[:3, 3]) @ T_bc[:3, :3]).ravel()
+
+
+def test_view_information_is_the_numeric_fisher_information():
+    intr, tg, T_bc, T_bb = _scene()
+    P, eps, s_px = tg.points_board_m, 1e-7, 0.5
+    J = np.zeros((2 * len(P), 6))
+    for i in range(6):  # camera perturbed as the covariance is expressed: R <- exp(dr) R, c <- c + dt
+        d = np.zeros(6)
+        d[i] = eps
+        Tp, Tm = T_bc.copy(), T_bc.copy()
+        Tp[:3, :3], Tm[:3, :3] = exp_so3(d[:3]) @ T_bc[:3, :3], exp_so3(-d[:3]) @ T_bc[:3, :3]
+        Tp[:3, 3] += d[3:]
+        Tm[:3, 3] -= d[3:]
+        J[:, i] = (_uv(intr, P, Tp, T_bb) - _uv(intr, P, Tm, T_bb)) / (2 * eps)
+    I_num = J.T @ J / s_px**2
+    I = view_information(intr, T_bc, T_bb, P, s_px)
+    assert np.abs(I - I_num).max() < 1e-6 * np.abs(I_num).max()  # measured 2e-10
+
+    # with the flange uncertain (FK prior, perturbed at the flange): J^T (S_px + Jf S_fk Jf^T)^-1 J
+    T_fb = default_T_flange_board(tg)
+    T_bf = T_bb @ inv(T_fb)
+    Jf = np.zeros_like(J)
+    for i in range(6):
+        d = np.zeros(6)
+        d[i] = eps
+        Jf[:, i] = (_uv(intr, P, T_bc, T_bf @ make_T(exp_so3(d[:3]), d[3:]) @ T_fb)
+                    - _uv(intr, P, T_bc, T_bf @ make_T(exp_so3(-d[:3]), -d[3:]) @ T_fb)) / (2 * eps)
+    s_t, s_r = 1e-4, np.radians(0.01)
+    S = np.diag([s_r] * 3 + [s_t] * 3) ** 2
+    I_fk_num = J.T @ np.linalg.solve(s_px**2 * np.eye(len(J)) + Jf @ S @ Jf.T, J)
+    I_fk = view_information(intr, T_bc, T_bb, P, s_px, T_fb, s_t, s_r)
+    assert np.abs(I_fk - I_fk_num).max() < 1e-6 * np.abs(I_fk_num).max()  # measured 2e-10
+    assert np.trace(I_fk) < np.trace(I)  # an uncertain flange always costs information
+
+
+# -- the cell without placements ------------------------------------------------------------------------
+def test_world_becomes_a_cell_without_placements():
+    d = read_yaml(DEFAULT, "world")
+    d["cameras"] = {"side": {"preset": "d455", "position_m": [2.0, 1.0, 0.8], "look_at_m": [0.5, 0, 0.4]}}
+    cell = cell_from_world_dict(d, "w")
+    assert cell.camera_names == ["cam0", "cam1", "cam2", "side"]
+    assert cell.camera("side").intrinsics.width_px == 1280 and cell.camera("side").hint is None
+    with pytest.raises(InputError, match="placement"):
+        cell_from_dict({"cameras": {"a": {"preset": "l515", "position_m": [1, 2, 3]}}}, "cell.yaml")
+
+
+def test_hints_and_obstacles_parse_and_bad_ones_are_refused():
+    cell = cell_from_dict({"cameras": {"a": {"hint": {"azimuth_deg": 90}}, "b": {"hint": {"position_m": [0, -3, 1]}}},
+                           "obstacles": [{"name": "table", "centre_m": [0.7, 0, -0.1], "size_m": [0.6, 1.2, 0.1]}],
+                           "keep_out": [{"centre_m": [-1, 0, 0.5], "size_m": [0.4, 2, 2]}]}, "cell.yaml")
+    assert np.allclose(cell.camera("a").hint.towards()[:2] / np.linalg.norm(cell.camera("a").hint.towards()[:2]), [0, 1])
+    assert [b.keep_out for b in cell.obstacles] == [False, True]
+    for bad, msg in (({"a": {"hint": {"sigma_m": 1}}}, "needs position_m"), ({"a": {"hint": {"colour": 1}}}, "unknown keys"),
+                     ({}, "no cameras")):
+        with pytest.raises(InputError, match=msg):
+            cell_from_dict({"cameras": bad}, "cell.yaml")
+    with pytest.raises(InputError, match="centre_m and size_m"):
+        cell_from_dict({"cameras": {"a": {}}, "obstacles": [{"centre_m": [0, 0, 0]}]}, "cell.yaml")
+
+
+# -- the loop ------------------------------------------------------------------------------------------
+def _run(world_d, out, cell=None, max_poses=40, tol=(0.5, 0.03), fail_after=None, resume=False, seed=0):
+    from calibgraph.acquire.auto import AutoOptions, run_auto
+    from calibgraph.sim.planning import planning_world
+    from calibgraph.sim.render import SimWorld
+    from calibgraph.sim.synthetic import corner_devices
+    from calibgraph.sim.workcell import workcell_from_dict
+
+    wc = workcell_from_dict(world_d, "world")
+    sim = SimWorld(wc)
+    cell = cell or cell_from_world_dict(world_d, "world")
+    robot, cams, oracle = corner_devices(sim, 0.05, seed)
+    if fail_after is not None:  # a kill in the middle of the loop: Ctrl-C during a grab
+        cam = cams[wc.camera_names[0]]
+        grab, n = cam.grab, [0]
+
+        def killing_grab():
+            n[0] += 1
+            if n[0] > fail_after:
+                raise KeyboardInterrupt
+            return grab()
+
+        cam.grab = killing_grab
+    opts = AutoOptions(tolerance_mm=tol[0], tolerance_deg=tol[1], max_poses=max_poses, seed=seed)
+    return run_auto(robot, cams, cell, planning_world(cell), out, detector=oracle, options=opts, resume=resume,
+                    progress=False), wc
+
+
+def test_auto_calibrates_the_default_cell_with_a_wrong_hint(tmp_path):
+    require_sim()
+    d = read_yaml(DEFAULT, "world")
+    cell_d = {"board": "a4_54", "cameras": {"cam0": {"preset": "l515"}, "cam2": {"preset": "l515"},
+                                            # cam1 stands at azimuth 0, 3 m: the hint is 30 deg and ~1.6 m off
+                                            "cam1": {"preset": "l515", "hint": {"position_m": [2.3, 1.3, 0.3], "sigma_m": 0.5}}}}
+    rep, wc = _run(d, tmp_path / "auto", cell=cell_from_dict(cell_d, "cell"))
+    assert rep.converged, rep.summary()
+    assert rep.captures <= 40  # measured 24-38 over seeds
+    for c in wc.camera_names:
+        r = rep.result.cameras[c]
+        e_m, _ = pose_error(r.T_ref_cam, wc.camera(c).T_base_cam)
+        assert np.linalg.norm(r.sigma_translation_mm) <= 0.5 + 1e-9
+        assert e_m * 1e3 < 3 * np.linalg.norm(r.sigma_translation_mm), (c, e_m)  # within 3 sigma
+    log = json.loads((tmp_path / "auto" / "plan_log.json").read_text())
+    active = [s for s in log["steps"] if s["phase"] == "active"]
+    assert active and all(s["predicted"] and s["achieved"] and s["why"] for s in active)
+    assert log["stop"]["converged"] and (tmp_path / "auto" / "result.json").is_file()
+    assert any(s["label"].startswith("hint cam1") for s in log["steps"])
+
+
+def test_a_camera_that_never_sees_the_board_is_named_and_the_others_still_calibrate(tmp_path):
+    require_sim()
+    d = {"name": "blind", "board": "a4_54", "ring": {"distances_m": [2.5], "height_above_floor_m": 1.6, "spread_deg": 0},
+         "cameras": {"blind": {"preset": "l515", "position_m": [-2.0, 2.0, 0.8], "look_at_m": [-4.0, 4.0, 0.8]}}}
+    rep, _ = _run(d, tmp_path / "auto", max_poses=40, tol=(2.0, 0.1))
+    assert "cam0" in rep.result.cameras and rep.cameras["cam0"].startswith("within tolerance")
+    assert rep.cameras["blind"].startswith("NOT FOUND") and "blind" not in rep.result.cameras
+    assert not rep.converged and "blind" in rep.summary()
+
+
+def test_resume_after_a_kill_in_the_loop_loses_nothing(tmp_path):
+    require_sim()
+    d = read_yaml(DEFAULT, "world")
+    out = tmp_path / "auto"
+    with pytest.raises(KeyboardInterrupt):
+        _run(d, out, fail_after=18)  # survey done (12-15 captures), in the active loop
+    before = json.loads((out / "plan_log.json").read_text())["steps"]
+    files = sorted(p.name for p in (out / "captures").glob("*.json"))
+    assert len(before) == 18 and any(s["phase"] == "active" for s in before)
+    rep, _ = _run(d, out, resume=True)
+    after = json.loads((out / "plan_log.json").read_text())["steps"]
+    assert after[: len(before)] == before  # the steps before the kill are kept as they were
+    assert [s["step"] for s in after] == list(range(len(after)))
+    assert set(files) <= {p.name for p in (out / "captures").glob("*.json")}
+    assert not any(s["label"] in {b["label"] for b in before if b["phase"].startswith("survey")}
+                   for s in after[len(before):])  # no survey stop is repeated
+    assert rep.converged, rep.summary()
+
+
+def test_cli_auto_refuses_bad_input_with_one_line(tmp_path, capsys):
+    from calibgraph.cli.main import main
+
+    assert main(["capture", "--auto", "--robot", "sim", "--out", str(tmp_path / "o")]) == 2
+    assert main(["capture", "--auto", "--robot", "sim", "--sim-world", str(tmp_path / "nope.yaml"),
+                 "--out", str(tmp_path / "o")]) == 2
+    assert main(["capture", "--auto", "--robot", "sim", "--sim-world", str(DEFAULT), "--max-poses", "1",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and all(line.startswith("calibgraph capture: error:") for line in err)
+    assert "--sim-world" in err[0] and "nope.yaml" in err[1] and "max-poses" in err[2]
+
+
+def test_convergence_section_plots_the_plan_log(tmp_path):
+    from calibgraph.report.convergence import convergence_section, convergence_series
+
+    log = {"options": {"tolerance_mm": 0.5}, "stop": {"reason": "every camera within"},
+           "steps": [{"status": "captured", "achieved": {}}, {"status": "skipped_unsafe", "achieved": {"a": [9, 1]}},
+                     {"status": "captured", "achieved": {"a": [2.0, 0.1]}},
+                     {"status": "no_views", "achieved": {"a": [1.5, 0.05], "b": [0.9, 0.02]}}]}
+    assert convergence_series(log) == {"a": ([2, 3], [2.0, 1.5]), "b": ([3], [0.9])}
+    (tmp_path / "plan_log.json").write_text(json.dumps(log))
+    html = convergence_section(tmp_path)
+    assert "<svg" in html and "tolerance 0.5 mm" in html and "every camera within" in html
+    assert convergence_section(tmp_path / "none") == ""
