@@ -2,6 +2,8 @@
 without the board) detects, guided by a survey's coarse solve, the same views as a blind search,
 confirms the empty frames empty, and solves to the same calibration."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -27,7 +29,7 @@ def recording(tmp_path_factory):
     import cv2
 
     root = tmp_path_factory.mktemp("rec")
-    intr = Intrinsics.from_hfov(640, 480, 45.0)
+    intr = replace(Intrinsics.from_hfov(640, 480, 45.0), source="exact")  # the renderer's own camera
     cams = {n: (T, intr) for n, (T, _) in ring_cameras([1.3, 1.5, 1.7, 1.9], spread_deg=300).items()}
     sc = make_scene(cameras=cams, n_poses=28, pixel_sigma_px=0.0, seed=3, shared_fraction=0.0, max_view_angle_deg=55.0)
     board = a4_board_54()

@@ -18,8 +18,10 @@ def _feed(inc, p, corrupt=()):
 
 
 def test_incremental_matches_batch_and_reports_sigma():
+    from dataclasses import replace
+
     sc = make_scene(n_poses=50, pixel_sigma_px=0.3, seed=6)
-    p = sc.problem
+    p = sc.problem.with_(options=replace(sc.problem.options, board_scale=False))  # iSAM2's model: declared board size
     inc = IncrementalSolver(p.points_board_m, p.cameras, options=p.options, pixel_sigma_px=0.3)
     est = _feed(inc, p)
     batch = solver.solve(p)

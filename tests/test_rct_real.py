@@ -55,6 +55,7 @@ def test_peer_layout_reads_and_charuco_is_detected(rct_dir):
 
 def test_calibrate_end_to_end_through_the_cli(rct_dir, tmp_path):
     pytest.importorskip("calibgraph.solver.batch")
+    from calibgraph.core.camera import Intrinsics
     from calibgraph.detect.corners import dataset_detector
     from calibgraph.io.layouts import load_dataset
 
@@ -76,8 +77,8 @@ def test_calibrate_end_to_end_through_the_cli(rct_dir, tmp_path):
     ds = load_dataset(rct_dir)
     det = dataset_detector(ds, progress=False)
     det.run()
-    intr = ds.cameras["camera"]
-    P = ds.target.points_board_m
+    intr = Intrinsics.from_dict(cam["intrinsics"])  # the camera model the calibration found
+    P = ds.target.points_board_m * r["board_scale"]["scale"]  # and the board as it found it printed
     d_mm, d_deg, peer_view = [], [], []
     for c in ds.captures:
         d = det.results[("camera", c.index)]

@@ -51,7 +51,7 @@ from calibgraph.core.errors import CalibgraphError, InputError
 from calibgraph.core.problem import Capture, Detection
 from calibgraph.core.transforms import pose_error
 from calibgraph.detect.corners import detect_image
-from calibgraph.io.dataset import capture_path, image_relpath, write_capture, write_header
+from calibgraph.io.dataset import image_relpath, write_capture, write_header
 from calibgraph.io.files import atomic_write_bytes, atomic_write_text
 from calibgraph.io.layouts import load_dataset
 from calibgraph.plan.active import (

@@ -21,7 +21,14 @@ def add_parser(sub):
     p.add_argument("--fk-sigma-mm", type=float, default=None, help="forward-kinematics translation 1-sigma, mm")
     p.add_argument("--fk-sigma-deg", type=float, default=None, help="forward-kinematics rotation 1-sigma, deg")
     p.add_argument("--refine-intrinsics", action="store_true",
-                   help="also estimate fx, fy, cx, cy, k1, k2 of every camera (priors around the given values)")
+                   help="estimate fx, fy, cx, cy, k1, k2 of every camera under a fixed prior (5 px, 0.1) around the given values")
+    p.add_argument("--fixed-intrinsics", action="store_true",
+                   help="take the given intrinsics as exact (the 1-sigma is then conditional on them)")
+    p.add_argument("--intrinsics-source", choices=("calibration", "factory", "exact"), default=None,
+                   help="where the given intrinsics come from when dataset.yaml does not say: their prior "
+                        "(calibration: f 0.3 %%, factory: f 2 %%; default calibration)")
+    p.add_argument("--fixed-board-scale", action="store_true",
+                   help="take the target's declared size as exact (default: estimate a printer scale factor)")
     p.add_argument("--rrd", type=Path, default=None, help="also write a rerun recording")
     p.add_argument("--quiet", action="store_true")
     return p
@@ -43,8 +50,16 @@ def solver_options(args, dataset):
         d["fk_sigma_translation_m"] = args.fk_sigma_mm * 1e-3
     if args.fk_sigma_deg:
         d["fk_sigma_rotation_rad"] = float(np.radians(args.fk_sigma_deg))
+    if getattr(args, "refine_intrinsics", False) and getattr(args, "fixed_intrinsics", False):
+        raise InputError("--refine-intrinsics and --fixed-intrinsics contradict each other; give one.")
     if getattr(args, "refine_intrinsics", False):
         d["refine_intrinsics"] = True
+    if getattr(args, "fixed_intrinsics", False):
+        d["intrinsics"] = "fixed"
+    if getattr(args, "intrinsics_source", None):
+        d["intrinsics_source"] = args.intrinsics_source
+    if getattr(args, "fixed_board_scale", False):
+        d["board_scale"] = False
     try:
         return SolverOptions(**d)
     except TypeError as e:
@@ -131,9 +146,11 @@ def run(args) -> int:
     result.save(out)
     if not args.quiet:
         print(format_summary(result))
-        if result.pixel_sigma_px > 1.0 and not opts.refine_intrinsics:
+        for note in result.notes:
+            print(f"note: {note}")
+        if result.pixel_sigma_px > 1.0 and opts.intrinsics == "fixed":
             print(f"hint: residuals of {result.pixel_sigma_px:.2f} px per axis are large for a sub-pixel detector; "
-                  "if the intrinsics come without (or with wrong) distortion, try --refine-intrinsics")
+                  "if the intrinsics come without (or with wrong) distortion, drop --fixed-intrinsics")
         print(f"wrote {out}")
     if args.rrd:
         try:

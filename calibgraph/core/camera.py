@@ -13,6 +13,7 @@ import numpy as np
 from calibgraph.core.errors import InputError
 
 _ALLOWED_DIST = (0, 4, 5, 8)
+INTRINSICS_SOURCES = ("", "exact", "factory", "calibration")
 
 
 @dataclass(frozen=True)
@@ -23,12 +24,16 @@ class Intrinsics:
         K: (3, 3) camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] in pixels.
         dist: (n,) distortion coefficients in OpenCV order, n in {0, 4, 5, 8}.
         width_px, height_px: image size.
+        source: where these values come from, which sets how far the solver trusts them
+            (``SolverOptions.intrinsics``): 'exact' (a simulation's own camera: held fixed),
+            'factory', 'calibration', or '' (not said: the solver's default source).
     """
 
     K: np.ndarray
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
     width_px: int = 0
     height_px: int = 0
+    source: str = ""
 
     def __post_init__(self):
         K = np.asarray(self.K, dtype=float)
@@ -46,6 +51,8 @@ class Intrinsics:
             raise InputError("intrinsics: distortion coefficients contain NaN/inf.")
         if int(self.width_px) < 0 or int(self.height_px) < 0:
             raise InputError("intrinsics: image size must be non-negative.")
+        if self.source not in INTRINSICS_SOURCES:
+            raise InputError(f"intrinsics: source must be one of {INTRINSICS_SOURCES[1:]}, got {self.source!r}.")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist)
         object.__setattr__(self, "width_px", int(self.width_px))
@@ -68,12 +75,15 @@ class Intrinsics:
         return d
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "K": self.K.tolist(),
             "dist": self.dist.tolist(),
             "width_px": self.width_px,
             "height_px": self.height_px,
         }
+        if self.source:
+            d["source"] = self.source
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "Intrinsics":
@@ -86,7 +96,7 @@ class Intrinsics:
                 raise InputError(f"intrinsics: missing key {e}; give K (3x3) or fx, fy, cx, cy.") from None
         dist = d.get("dist", d.get("distortion", [0.0] * 5))
         return cls(K=K, dist=np.asarray(dist, float), width_px=int(d.get("width_px", d.get("width", 0))),
-                   height_px=int(d.get("height_px", d.get("height", 0))))
+                   height_px=int(d.get("height_px", d.get("height", 0))), source=str(d.get("source") or ""))
 
     # -- model ----------------------------------------------------------------------------------
     def project(self, p_cam_m: np.ndarray, with_jacobian: bool = False):

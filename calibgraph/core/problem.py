@@ -71,11 +71,23 @@ INTRINSICS_PRIORS = {"factory": (0.02, 0.01, 0.05), "calibration": (0.003, 0.002
 WIDE_INTRINSICS_PRIOR = (0.10, 0.05, 0.5)
 
 
+def intrinsics_source(intr: Intrinsics, options: "SolverOptions") -> str:
+    """Where a camera's given intrinsics come from: its own ``source``, else the options' default."""
+    return intr.source or options.intrinsics_source
+
+
+def intrinsics_estimated(intr: Intrinsics, options: "SolverOptions") -> bool:
+    """True when the solver treats this camera's intrinsics as unknowns (with a prior)."""
+    if options.intrinsics == "fixed":
+        return False
+    return options.intrinsics == "estimate" or intrinsics_source(intr, options) != "exact"
+
+
 def intrinsics_prior_sigmas(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
     """1-sigma of the prior on [fx, fy, cx, cy, k1, k2] of a camera (see ``SolverOptions.intrinsics``)."""
     if options.intrinsics == "estimate":
         return np.array([options.intrinsics_sigma_px] * 4 + [options.distortion_sigma] * 2)
-    f_rel, c_frac, k = WIDE_INTRINSICS_PRIOR if wide else INTRINSICS_PRIORS[options.intrinsics_source]
+    f_rel, c_frac, k = WIDE_INTRINSICS_PRIOR if wide else INTRINSICS_PRIORS[intrinsics_source(intr, options)]
     fx, fy = intr.K[0, 0], intr.K[1, 1]
     c = c_frac * max(intr.width_px, 1)
     return np.array([f_rel * fx, f_rel * fy, c, c, k, k])
@@ -170,10 +182,11 @@ class SolverOptions:
             prior and the result says so. 'estimate': always the wide prior
             (``intrinsics_sigma_px``, ``distortion_sigma``). 'fixed': taken as exact (the
             covariance is then conditional on them).
-        intrinsics_source: where the given intrinsics come from, setting their prior (1-sigma):
-            'factory' (device or datasheet values: f 2 %, principal point 1 % of the width, k1, k2
-            0.05), 'calibration' (a camera calibration file: f 0.3 %, principal point 0.2 % of the
-            width, k1, k2 0.01).
+        intrinsics_source: where the given intrinsics come from when a camera's ``Intrinsics.source``
+            does not say, setting their prior (1-sigma): 'factory' (device or datasheet values: f 2 %,
+            principal point 1 % of the width, k1, k2 0.05), 'calibration' (the default; a camera
+            calibration file: f 0.3 %, principal point 0.2 % of the width, k1, k2 0.01), 'exact'
+            (held fixed, as a simulation's own cameras are).
         refine_intrinsics: the former switch for ``intrinsics='estimate'`` (kept: True means that).
         board_scale: estimate a scale factor of the printed board (printer scaling) under a prior of
             ``board_scale_sigma``, shared by all views; False takes the declared pitch as exact.
@@ -192,7 +205,7 @@ class SolverOptions:
     min_views_per_camera: int = 3
     max_iterations: int = 100
     intrinsics: str = "auto"
-    intrinsics_source: str = "factory"
+    intrinsics_source: str = "calibration"
     refine_intrinsics: bool = False
     intrinsics_sigma_px: float = 5.0
     distortion_sigma: float = 0.1
@@ -209,8 +222,8 @@ class SolverOptions:
                 raise InputError(f"solver: {name} must be positive, got {v}.")
         if self.intrinsics not in INTRINSICS_MODES:
             raise InputError(f"solver: intrinsics must be one of {INTRINSICS_MODES}, got {self.intrinsics!r}.")
-        if self.intrinsics_source not in INTRINSICS_PRIORS:
-            raise InputError(f"solver: intrinsics_source must be one of {tuple(INTRINSICS_PRIORS)}, "
+        if self.intrinsics_source not in (*INTRINSICS_PRIORS, "exact"):
+            raise InputError(f"solver: intrinsics_source must be one of {(*INTRINSICS_PRIORS, 'exact')}, "
                              f"got {self.intrinsics_source!r}.")
         if self.refine_intrinsics:
             object.__setattr__(self, "intrinsics", "estimate")

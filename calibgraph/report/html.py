@@ -50,6 +50,7 @@ from calibgraph.core.version import __version__
 from calibgraph.io.files import atomic_write_text, read_yaml
 from calibgraph.io.layouts import as_dataset
 from calibgraph.report import svgplot
+from calibgraph.report.convergence import convergence_section
 from calibgraph.report.exports import (
     R_to_rpy,
     camera_intrinsics,
@@ -196,7 +197,8 @@ def compute_residuals(result: dict, source) -> dict:
     obs = observations(source)
     mode = result.get("mode", "eye_to_hand")
     mk = _mount_key(result)
-    pts = obs["points_board_m"]
+    # the board as the solver found it printed (its scale factor; 1 in results without one)
+    pts = obs["points_board_m"] * float((result.get("board_scale") or {}).get("scale") or 1.0)
     refined = {int(k): np.asarray(v, float) for k, v in (result.get("robot_flange_poses_refined") or {}).items()}
     out = {}
     for name, cam in result["cameras"].items():
@@ -300,6 +302,7 @@ def write_report(result_dict: dict, out_html, config=None, dataset=None, result_
         _residuals_html(R, names, residuals, residual_source),
         "<h2>Uncertainty in the workspace</h2>",
         ws["html"],
+        convergence_section(ds.root if ds is not None else None),
         "<h2>Provenance</h2>",
         _provenance(R, ds, result_path, tol, config),
         f'<script type="application/json" id="calibgraph-result">{_json_for_html(R)}</script>',

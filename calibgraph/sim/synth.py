@@ -8,7 +8,7 @@ board is presented with varied tilts, some poses visible from several cameras at
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -59,7 +59,7 @@ def ring_cameras(distances_m, height_m: float = 1.6, presets=("l515",), spread_d
         eye = centre_m + np.array([d * np.cos(ang), d * np.sin(ang), 0.0])
         eye[2] = height_m
         T = look_at(eye, centre_m + np.array([0, 0, 0.05]))
-        intr = preset(presets[i % len(presets)])
+        intr = replace(preset(presets[i % len(presets)]), source="exact")  # a simulation's own cameras
         cams[f"cam{i}"] = (T, intr)
     return cams
 
@@ -179,7 +179,7 @@ def _make_eye_in_hand(cameras, target, n_poses, pixel_sigma_px, fk_t, fk_r, T_ba
     board_centre_b = pts.mean(axis=0)
     if cameras is None:
         # one camera on the flange, looking along flange z, offset 6 cm
-        cameras = {"wrist": (make_T(exp_so3([0, 0, np.pi / 2]), [0.06, 0.0, 0.04]), preset("d455"))}
+        cameras = {"wrist": (make_T(exp_so3([0, 0, np.pi / 2]), [0.06, 0.0, 0.04]), replace(preset("d455"), source="exact"))}
     if T_base_board is None:
         # board lying on the table in front of the robot, facing up (board z down into the table)
         T_base_board = make_T(exp_so3([np.pi, 0, 0]), [0.55, -0.1, 0.02])

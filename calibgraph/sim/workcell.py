@@ -171,11 +171,11 @@ class Workcell:
 
 
 def _camera_intrinsics(preset_name: str, realism: Realism) -> Intrinsics:
+    """The simulated camera's intrinsics; 'exact': the renderer uses these very values, so the
+    solver holds them fixed (a dataset made to test intrinsics errors edits them and their source)."""
     intr = preset(preset_name)
-    if realism.distortion:
-        intr = Intrinsics(K=intr.K, dist=np.asarray(realism.distortion_coeffs), width_px=intr.width_px,
-                          height_px=intr.height_px)
-    return intr
+    dist = np.asarray(realism.distortion_coeffs) if realism.distortion else intr.dist
+    return Intrinsics(K=intr.K, dist=dist, width_px=intr.width_px, height_px=intr.height_px, source="exact")
 
 
 def ring_cameras(distances_m, height_above_floor_m: float = 1.6, presets=("l515",), spread_deg: float = 360.0,

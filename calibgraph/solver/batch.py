@@ -6,7 +6,9 @@ flange in eye-in-hand, ``mount`` the other one, the frame the board is fixed to)
     C(c)  T_ref_cam of camera c         -- unknown, no prior
     B(0)  T_mount_board, the board mount -- unknown, no prior ('single': one graph per camera)
     F(k)  T_ref_mount of capture k      -- prior from forward kinematics (fk sigmas, :func:`fk_noise`)
-    K(c)  [fx, fy, cx, cy, k1, k2]      -- only with refine_intrinsics, prior around the given values
+    K(c)  [fx, fy, cx, cy, k1, k2]      -- unless intrinsics='fixed': prior around the given values,
+                                           as wide as their source says (SolverOptions.intrinsics)
+    S(0)  board scale factor s          -- unless board_scale=False: prior N(1, board_scale_sigma)
 
 and the detected corners, each a reprojection residual through
 :func:`~calibgraph.solver.factors.project_chain`, in one of two formulations of the same model:
@@ -19,7 +21,8 @@ and the detected corners, each a reprojection residual through
 ``SolverOptions.formulation`` chooses (:func:`_formulation`): 'view' or 'corner' as asked ('corner'
 with a k3..k6 camera is refused), and 'auto' (the default) takes 'corner' when every camera of the
 graph fits Cal3DS2 and the graph has at least CORNER_FORMULATION_MIN_VIEWS (1000) views with a PnP
-solution, 'view' otherwise. ``refine_intrinsics`` always uses 'view', whatever the option says.
+solution, 'view' otherwise. A graph that estimates intrinsics or the board scale (the defaults) is
+always 'view': the corner factors hold both fixed.
 When the corner graph fails numerically under 'auto', that graph is solved again with 'view'.
 
 Robustness is at corner level: iteratively re-weighted least squares with Huber (or Cauchy)
@@ -56,13 +59,13 @@ import gtsam
 import numpy as np
 
 from calibgraph.core.errors import InputError, ObservabilityError
-from calibgraph.core.problem import Problem
+from calibgraph.core.problem import Problem, intrinsics_estimated, intrinsics_prior_sigmas, intrinsics_source
 from calibgraph.core.transforms import inv, log_so3
 from calibgraph.solver import factors_ppp
 from calibgraph.solver.factors import (
     intrinsics_vector,
+    make_calibration_factor,
     make_view_factor,
-    make_view_factor_intrinsics,
     project_chain,
     with_pinhole,
 )
@@ -72,11 +75,12 @@ from calibgraph.solver.initialise import (
     pnp_candidates,
     refine_translations,
 )
-from calibgraph.solver.keys import B, C, F, K
+from calibgraph.solver.keys import B, C, F, K, S
 from calibgraph.solver.observability import check_after_solve, check_before_solve
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView, Result
 
 MIN_CORNERS_PER_VIEW = 4
+INTRINSICS_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2")
 # what solve(..., timings=...) times: PnP candidates, the initialiser's consensus and its translation
 # solve (inside best_initial_guess), graph building, LM runs, elimination for the marginals
 STAGES = ("candidates", "initialise", "refine_translations", "build_graph", "lm", "marginals")
@@ -108,7 +112,9 @@ class Estimate:
     iterations: int = 0
     cost: float = np.inf
     sigma_px: float = 1.0
-    intrinsics: dict = field(default_factory=dict)  # camera -> refined Intrinsics (refine_intrinsics only)
+    intrinsics: dict = field(default_factory=dict)  # camera -> estimated Intrinsics (unless intrinsics='fixed')
+    board_scale: float = 1.0  # estimated scale of the printed board (1 when board_scale=False)
+    wide_intrinsics: frozenset = frozenset()  # cameras whose intrinsics get the wide prior (found inadequate)
     slots: dict = field(default_factory=dict)  # camera -> index of its C (and K) key
     formulation: str = ""  # 'view' or 'corner'
     marginals: _Marginals | None = None  # of the final graph
@@ -169,7 +175,7 @@ def _all_residuals(views, est: Estimate, cameras: dict) -> list:
         for i in idx:
             v = views[i]
             T = T_cs @ est.T_ref_mount.get(v.capture, v.T_ref_mount) @ est.T_mount_board
-            pts.append(v.p_board_m @ T[:3, :3].T + T[:3, 3])
+            pts.append((est.board_scale * v.p_board_m) @ T[:3, :3].T + T[:3, 3])
             uvs.append(v.uv_px)
             counts.append(len(v.ids))
         uv_hat = est.intrinsics.get(cam, cameras[cam]).project(np.concatenate(pts))
@@ -186,6 +192,11 @@ CORNER_FORMULATION_MIN_VIEWS = 1000
 def _formulation(problem: Problem, names, n_views: int) -> str:
     """Which graph to build: 'view' (per-view CustomFactor) or 'corner' (C++ factor per corner)."""
     f = problem.options.formulation
+    if any(intrinsics_estimated(problem.cameras[n], problem.options) for n in names) or problem.options.board_scale:
+        if f == "corner":
+            raise InputError("solver: formulation 'corner' holds the intrinsics and the board's size fixed; with it, "
+                             "set intrinsics='fixed' and board_scale=False (--fixed-intrinsics --fixed-board-scale).")
+        return "view"  # the corner factors hold intrinsics and the board's size fixed
     fits = all(factors_ppp.supports(problem.cameras[n]) for n in names)
     if f == "corner" and not fits:
         raise InputError("solver: formulation 'corner' needs Cal3DS2 distortion (k1 k2 p1 p2 only); "
@@ -233,21 +244,29 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
     for name, i in slots.items():
         values.insert(C(i), gtsam.Pose3(est.T_ref_cam[name]))
     values.insert(B(0), gtsam.Pose3(est.T_mount_board))
-    refine = problem.options.refine_intrinsics
+    o = problem.options
+    refine = {name for name in slots if intrinsics_estimated(problem.cameras[name], o)}
     if refine:
-        o = problem.options
-        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([o.intrinsics_sigma_px] * 4 + [o.distortion_sigma] * 2))
         for name, i in slots.items():
-            graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(problem.cameras[name]), prior))
-            values.insert(K(i), intrinsics_vector(est.intrinsics.get(name, problem.cameras[name])))
+            if name not in refine:
+                continue
+            given = problem.cameras[name]
+            sig = intrinsics_prior_sigmas(given, o, wide=name in est.wide_intrinsics)
+            graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(given), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+            values.insert(K(i), intrinsics_vector(est.intrinsics.get(name, given)))
+    if o.board_scale:
+        graph.add(gtsam.PriorFactorVector(S(0), np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, o.board_scale_sigma)))
+        values.insert(S(0), np.array([est.board_scale]))
     for v in views:
         if not v.active:
             continue
         keep = v.w > 0
         sw = np.sqrt(v.w[keep]) / sigma_px
-        if refine:
-            graph.add(make_view_factor_intrinsics(C(slots[v.camera]), F(v.capture), B(0), K(slots[v.camera]),
-                                                  v.p_board_m[keep], v.uv_px[keep], problem.cameras[v.camera], sw))
+        if refine or o.board_scale:
+            graph.add(make_calibration_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board_m[keep],
+                                              v.uv_px[keep], problem.cameras[v.camera], sw,
+                                              key_intr=K(slots[v.camera]) if v.camera in refine else None,
+                                              key_scale=S(0) if o.board_scale else None))
         else:
             graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board_m[keep], v.uv_px[keep],
                                        problem.cameras[v.camera], sw))
@@ -276,9 +295,14 @@ class _Marginals:
 
     def __init__(self, graph, values, ordering):
         self._bt = graph.linearize(values).eliminateMultifrontal(ordering)
+        self._keys = set(values.keys())
 
     def marginalCovariance(self, key) -> np.ndarray:  # noqa: N802 - mirrors gtsam.Marginals
         return self._bt.marginalCovariance(key)
+
+    def has(self, key) -> bool:
+        """True when ``key`` is a variable of the eliminated graph."""
+        return self._keys is None or key in self._keys
 
     def joint(self, keys) -> np.ndarray:
         """Joint covariance of Pose3 variables, 6 rows/cols per key in the order given."""
@@ -325,33 +349,38 @@ def _extract(values, slots, views, est: Estimate, cameras: dict, form: str = "vi
         if values.exists(K(i)):
             base = est.intrinsics.get(name) or cameras[name]
             intr[name] = with_pinhole(base, values.atVector(K(i)))
+    scale = float(values.atVector(S(0))[0]) if values.exists(S(0)) else est.board_scale
     return Estimate(T_ref_cam=T_ref_cam, T_mount_board=values.atPose3(B(0)).matrix(), T_ref_mount=T_ref_mount,
-                    intrinsics=intr)
+                    intrinsics=intr, board_scale=scale, wide_intrinsics=est.wide_intrinsics)
 
 
 def solve_from_start(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
-                     timings: dict | None = None) -> Estimate:
+                     timings: dict | None = None, wide_intrinsics: frozenset = frozenset()) -> Estimate:
     """IRLS + outlier handling + marginals for one graph (all cameras in 'joint', one camera in
     'single') from the start ``T_ref_cam0`` (camera -> 4x4), ``T_mount_board0``; no initialiser.
 
     Sets the views' weights, ``active`` and ``reason``. The Estimate carries the final cost, pixel
-    sigma, marginals, ``slots`` and the formulation used.
+    sigma, marginals, ``slots`` and the formulation used. ``wide_intrinsics``: cameras whose
+    intrinsics get the wide prior (found inadequate by a first solve).
     """
-    form = "view" if problem.options.refine_intrinsics else _formulation(problem, names, len(views))
+    form = _formulation(problem, names, len(views))
     try:
-        return _solve_with_formulation(problem, names, views, T_ref_cam0, T_mount_board0, form, timings)
+        return _solve_with_formulation(problem, names, views, T_ref_cam0, T_mount_board0, form, timings,
+                                       wide_intrinsics)
     except ObservabilityError:
         if form != "corner" or problem.options.formulation == "corner":
             raise
         # numerical failure of the corner graph: the per-view graph is the reference
-        return _solve_with_formulation(problem, names, views, T_ref_cam0, T_mount_board0, "view", timings)
+        return _solve_with_formulation(problem, names, views, T_ref_cam0, T_mount_board0, "view", timings,
+                                       wide_intrinsics)
 
 
 def _solve_with_formulation(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
-                            form: str, timings: dict | None) -> Estimate:
+                            form: str, timings: dict | None, wide_intrinsics: frozenset = frozenset()) -> Estimate:
     """:func:`solve_from_start` in one formulation: screening, robust rounds, final graph and marginals."""
     slots = {n: i for i, n in enumerate(names)}
-    est = Estimate(T_ref_cam=dict(T_ref_cam0), T_mount_board=T_mount_board0, T_ref_mount={})
+    est = Estimate(T_ref_cam=dict(T_ref_cam0), T_mount_board=T_mount_board0, T_ref_mount={},
+                   wide_intrinsics=frozenset(wide_intrinsics))
     sigma = _screen_views_at_start(problem, views, est)
     iterations = 0
     for _ in range(4):
@@ -449,7 +478,8 @@ def _a_posteriori_sigma(problem: Problem, names: list, views: list, est: Estimat
         return opts.pixel_sigma_px
     active = [v for v in views if v.active]
     n_obs = 2 * sum(int((v.w > 0).sum()) for v in active)
-    n_par = 6 * (len(names) + 1) + (6 * len(names) if opts.refine_intrinsics else 0)
+    n_intr = sum(intrinsics_estimated(problem.cameras[n], opts) for n in names)
+    n_par = 6 * (len(names) + 1) + 6 * n_intr + int(opts.board_scale)
     wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(active, _all_residuals(active, est, problem.cameras)))
     return max(float(np.sqrt(wr2 / max(n_obs - n_par, 1))), 1e-4)
 
@@ -636,8 +666,12 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
     names = list(problem.cameras)
     joint = problem.method == "joint"
     T_ref_cam0, mounts0 = _initial_guess(problem, views, cands, joint, seed, timings)
+    notes = []
     if joint:
-        groups = [_solve_joint(problem, names, views, T_ref_cam0, mounts0[0], initial, timings)]
+        group = _solve_joint(problem, names, views, T_ref_cam0, mounts0[0], initial, timings)
+        if problem.options.intrinsics == "auto":
+            group = _widen_inadequate_intrinsics(problem, names, group, notes, timings)
+        groups = [group]
     else:
         groups = [_solve_single(problem, n, views, T_ref_cam0[n], mounts0[n], timings) for n in names]
     cov_body = {n: g.est.marginals.marginalCovariance(C(g.est.slots[n])) for g in groups for n in g.names}
@@ -647,6 +681,8 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
             cameras[n], corners = _camera_result(problem, n, g.est, g.views, cov_body[n], rejected, joint)
             rejected_corners += corners
     T_mount_board, mount_cov, T_base_flange_est = _mount_and_robot_poses(problem, groups, joint)
+    scale, scale_sigma = _board_scale(problem, groups, notes)
+    notes += _intrinsics_notes(cameras)
     settings = {k: getattr(problem.options, k) for k in problem.options.__dataclass_fields__}
     settings["formulation_used"] = groups[0].est.formulation
     return Result(
@@ -656,7 +692,138 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
         pixel_sigma_px=float(np.mean([g.est.sigma_px for g in groups])), solve_time_s=time.perf_counter() - t0,
         rejected_views=tuple(rv for c in cameras.values() for rv in c.views_rejected),
         rejected_corners=tuple(rejected_corners), T_base_flange_est=T_base_flange_est, settings=settings,
+        board_scale=scale, board_scale_sigma=scale_sigma, notes=tuple(notes),
     )
+
+
+# A camera whose kept corners miss by more than this (px RMS), mostly along the radial direction,
+# has intrinsics the prior of their source cannot fix (e.g. a file without the lens's distortion):
+# sub-pixel detectors on sharp boards leave 0.05-0.3 px.
+INADEQUATE_RMS_PX = 0.5
+INADEQUATE_RADIAL_FRACTION = 0.25
+
+
+def _radial_structure(est: Estimate, views: list, name: str, intr) -> tuple[float, float]:
+    """(RMS px of the kept corners' residuals, fraction of their energy along a radial
+    distortion pattern about the principal point) of camera ``name``."""
+    d_all, b_all = [], []
+    for v in views:
+        if v.camera != name or not v.active:
+            continue
+        keep = v.w > 0
+        uv_hat = project_chain(est.T_ref_cam[name], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
+                               est.board_scale * v.p_board_m[keep], intr)
+        d_all.append(uv_hat - v.uv_px[keep])
+        x = (v.uv_px[keep] - intr.K[:2, 2]) / np.array([intr.K[0, 0], intr.K[1, 1]])
+        b_all.append(x * np.sum(x * x, axis=1, keepdims=True) * np.array([intr.K[0, 0], intr.K[1, 1]]))
+    if not d_all:
+        return 0.0, 0.0
+    d, b = np.concatenate(d_all), np.concatenate(b_all)
+    e_d = float(np.sum(d * d))
+    if e_d <= 0 or float(np.sum(b * b)) <= 0:
+        return 0.0, 0.0
+    alpha = float(np.sum(d * b) / np.sum(b * b))
+    return float(np.sqrt(e_d / len(d))), alpha ** 2 * float(np.sum(b * b)) / e_d
+
+
+CHI2_6_999 = 22.46  # chi-square, 6 dof, 0.999 quantile
+
+
+def _intrinsics_disagreement(problem: Problem, est: Estimate, name: str) -> float:
+    """Squared Mahalanobis distance (6 dof) between the estimated and the given intrinsics of a
+    camera, against the covariance of that difference (prior minus posterior): large when the data
+    disagree with the given values more than their source's prior allows."""
+    if est.marginals is None or not intrinsics_estimated(problem.cameras[name], problem.options):
+        return 0.0
+    given = problem.cameras[name]
+    delta = intrinsics_vector(est.intrinsics.get(name, given)) - intrinsics_vector(given)
+    P_prior = np.diag(intrinsics_prior_sigmas(given, problem.options, wide=name in est.wide_intrinsics) ** 2)
+    P_post = est.marginals.marginalCovariance(K(est.slots[name]))
+    w, V = np.linalg.eigh(0.5 * (P_prior - P_post + (P_prior - P_post).T))
+    keep = w > 1e-9 * max(float(w.max()), 1e-30)
+    z = V[:, keep].T @ delta
+    return float(np.sum(z * z / w[keep]))
+
+
+def _widen_inadequate_intrinsics(problem: Problem, names: list, group: _Group, notes: list,
+                                 timings: dict | None) -> _Group:
+    """Re-solve with a wide intrinsics prior for the cameras whose data reject their given
+    intrinsics (the estimate moved further than the source's prior allows: chi-square, 6 dof,
+    p < 0.001; or residuals still large and radial); keep it when it fits, and say so in ``notes``."""
+    est, views = group.est, group.views
+    bad = {}
+    for n in names:
+        if not intrinsics_estimated(problem.cameras[n], problem.options):
+            continue
+        d2 = _intrinsics_disagreement(problem, est, n)
+        rms, radial = _radial_structure(est, views, n, est.intrinsics.get(n, problem.cameras[n]))
+        if d2 > CHI2_6_999 or (rms > INADEQUATE_RMS_PX and radial > INADEQUATE_RADIAL_FRACTION):
+            bad[n] = (d2, rms)
+    if not bad:
+        return group
+    state = [(v.active, v.reason, v.w.copy()) for v in views]
+    try:
+        est2 = solve_from_start(problem, names, views, est.T_ref_cam, est.T_mount_board, timings,
+                                wide_intrinsics=frozenset(bad))
+    except ObservabilityError:
+        for v, (active, reason, w) in zip(views, state):
+            v.active, v.reason, v.w = active, reason, w
+        notes += [f"camera {n}: the data disagree with its given intrinsics (chi-square {d2:.0f} on 6 dof), and "
+                  "they cannot be estimated from these views; check the intrinsics" for n, (d2, _) in bad.items()]
+        return group
+    for n, (d2, rms) in bad.items():
+        given = intrinsics_vector(problem.cameras[n])
+        new = intrinsics_vector(est2.intrinsics.get(n, problem.cameras[n]))
+        rms2 = _radial_structure(est2, views, n, est2.intrinsics.get(n, problem.cameras[n]))[0]
+        src = intrinsics_source(problem.cameras[n], problem.options)
+        notes.append(f"camera {n}: the data disagree with its given ({src}) intrinsics (chi-square {d2:.0f} on 6 dof; "
+                     f"residual {rms:.2f} -> {rms2:.2f} px): estimated with a wide prior, fx {100 * (new[0] / given[0] - 1):+.2f} %, "
+                     f"fy {100 * (new[1] / given[1] - 1):+.2f} %, cx {new[2] - given[2]:+.1f} px, cy {new[3] - given[3]:+.1f} px, "
+                     f"k1 {new[4] - given[4]:+.3f}, k2 {new[5] - given[5]:+.3f} (1-sigma in the result; "
+                     "--fixed-intrinsics keeps the given ones)")
+    return _Group(group.names, est2, views)
+
+
+def _board_scale(problem: Problem, groups: list, notes: list) -> tuple[float, float | None]:
+    """(estimated board scale, its 1-sigma) of the joint graph — (1, None) when not estimated — and a
+    note when the board's printed size differs from the declared one by more than 3 sigma."""
+    est = groups[0].est
+    if not problem.options.board_scale or len(groups) != 1 or est.marginals is None or not est.marginals.has(S(0)):
+        return 1.0, None
+    s = est.board_scale
+    sigma = float(np.sqrt(max(est.marginals.marginalCovariance(S(0))[0, 0], 0.0)))
+    if abs(s - 1.0) > 3 * sigma:
+        pts = problem.points_board_m
+        d = np.linalg.norm(pts[1:] - pts[:1], axis=1)
+        pitch = float(d[d > 1e-9].min()) if np.any(d > 1e-9) else 0.0
+        notes.append(f"the board is {100 * (s - 1):+.2f} % (± {100 * sigma:.2f} %) the size the target spec declares: "
+                     f"printed at {100 * s:.1f} %" + (f" (pitch {1e3 * pitch * s:.2f} mm, not {1e3 * pitch:.2f} mm)" if pitch
+                                                     else "")
+                     + "; the calibration accounts for it — check the print with a ruler and fix the target spec")
+    return s, sigma
+
+
+def _intrinsics_notes(cameras: dict) -> list:
+    """A note per camera whose estimated focal length or principal point is more than 3 sigma and
+    0.2 % (focal) / 2 px (principal point) away from the given values."""
+    out = []
+    for n, c in cameras.items():
+        d = c.intrinsics or {}
+        if not d.get("estimated") or d.get("prior") == "wide":
+            continue
+        given, sig = d["given"], d["sigma"]
+        K = np.asarray(d["K"], float)
+        est = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}
+        f_rel = [(est[k] - given[k]) / given[k] for k in ("fx", "fy")]
+        f_sig = [sig[k] / given[k] for k in ("fx", "fy")]
+        if all(abs(r) > max(3 * s, 0.002) for r, s in zip(f_rel, f_sig)):
+            out.append(f"camera {n}: focal length estimated {100 * np.mean(f_rel):+.2f} % (± {100 * np.mean(f_sig):.2f} %) "
+                       "from the given intrinsics; the poses and 1-sigma account for it")
+        for k in ("cx", "cy"):
+            if abs(est[k] - given[k]) > max(3 * sig[k], 2.0):
+                out.append(f"camera {n}: principal point {k} estimated {est[k] - given[k]:+.1f} px (± {sig[k]:.1f}) "
+                           "from the given value")
+    return out
 
 
 @dataclass(frozen=True)
@@ -741,6 +908,14 @@ def _camera_result(problem: Problem, name: str, est: Estimate, views: list, cov_
     rn = np.linalg.norm(kept_px, axis=1)
     views_rejected = tuple(RejectedView(name, v.capture, v.reason) for v in mine if not v.active)
     views_rejected += tuple(r for r in rejected if r.camera == name)
+    intr_dict = intr.to_dict()
+    if est.marginals is not None and intrinsics_estimated(problem.cameras[name], problem.options):
+        sig = np.sqrt(np.clip(np.diag(est.marginals.marginalCovariance(K(est.slots[name]))), 0, None))
+        given = intrinsics_vector(problem.cameras[name])
+        intr_dict["estimated"] = True
+        intr_dict["prior"] = "wide" if name in est.wide_intrinsics else intrinsics_source(problem.cameras[name], problem.options)
+        intr_dict["sigma"] = dict(zip(INTRINSICS_NAMES, sig.tolist()))
+        intr_dict["given"] = dict(zip(INTRINSICS_NAMES, given.tolist()))
     result = CameraResult(
         name=name, ref_frame="base" if problem.mode == "eye_to_hand" else "flange", T_ref_cam=est.T_ref_cam[name],
         covariance=cov,
@@ -751,7 +926,7 @@ def _camera_result(problem: Problem, name: str, est: Estimate, views: list, cov_
         corners_rejected=int(sum((v.w == 0).sum() for v in used)),
         T_mount_board=None if joint else est.T_mount_board,
         residuals_px=residuals,
-        intrinsics=intr.to_dict(),
+        intrinsics=intr_dict,
     )
     return result, rejected_corners
 
@@ -763,7 +938,7 @@ def _view_residuals(name: str, est: Estimate, views: list, intr) -> tuple[dict, 
     residuals, kept, rejected_corners = {}, [], []
     for v in views:
         uv_hat = project_chain(est.T_ref_cam[name], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
-                               v.p_board_m, intr)
+                               est.board_scale * v.p_board_m, intr)
         d = uv_hat - v.uv_px
         residuals[v.capture] = {"ids": v.ids, "uv_detected_px": v.uv_px, "residual_px": d,
                                 "weight": v.w.copy(), "rejected": not v.active}

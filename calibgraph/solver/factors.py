@@ -102,7 +102,7 @@ def with_pinhole(intr: Intrinsics, k6: np.ndarray) -> Intrinsics:
     if len(k6) > 4:
         dist = dist.copy()
         dist[:2] = k6[4:6]
-    return Intrinsics(K=K, dist=dist, width_px=intr.width_px, height_px=intr.height_px)
+    return Intrinsics(K=K, dist=dist, width_px=intr.width_px, height_px=intr.height_px, source=intr.source)
 
 
 def intrinsics_vector(intr: Intrinsics) -> np.ndarray:

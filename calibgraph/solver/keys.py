@@ -6,11 +6,12 @@ the frame the board is fixed to.
     C(c)  T_ref_cam of camera c (slot c): T_base_cam (eye-to-hand) or T_flange_cam (eye-in-hand)
     B(0)  T_mount_board, the board mount: T_flange_board (eye-to-hand) or T_base_board (eye-in-hand);
           'single' mode builds one graph per camera, each with its own B(0)
-    K(c)  intrinsics [fx, fy, cx, cy, k1, k2] of camera c (only with refine_intrinsics)
+    K(c)  intrinsics [fx, fy, cx, cy, k1, k2] of camera c (unless the intrinsics are fixed)
+    S(0)  the board's scale factor s (printed points at s * p_board; unless the scale is fixed)
     F(k)  T_ref_mount of capture k, the robot pose with its forward-kinematics prior: T_base_flange
           (eye-to-hand) or T_flange_base (eye-in-hand)
 """
 
-from gtsam.symbol_shorthand import B, C, F, K  # noqa: F401
+from gtsam.symbol_shorthand import B, C, F, K, S  # noqa: F401
 
-__all__ = ["B", "C", "F", "K"]
+__all__ = ["B", "C", "F", "K", "S"]

@@ -135,6 +135,9 @@ class Result:
     T_base_flange_est: dict = field(default_factory=dict, repr=False)  # capture -> refined flange pose
     settings: dict = field(default_factory=dict)
     dataset: str = ""
+    board_scale: float = 1.0  # estimated scale of the printed board against its spec (1 when not estimated)
+    board_scale_sigma: float | None = None  # its 1-sigma (None when not estimated)
+    notes: tuple = ()  # what the solver noticed and did, one line each (inadequate intrinsics, board scale)
 
     @property
     def T_flange_board(self):
@@ -196,6 +199,8 @@ class Result:
                 "solve_time_s": self.solve_time_s,
                 "settings": self.settings,
             },
+            "board_scale": {"scale": self.board_scale, "sigma": self.board_scale_sigma},
+            "notes": list(self.notes),
             "rejected_corners": [
                 {"camera": c, "capture": k, "id": i, "residual_px": r} for (c, k, i, r) in self.rejected_corners
             ],
