@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibgraph.core.errors import InputError
+from calibgraph.core.kinematics import franka_fk  # noqa: F401 - the one Franka FK, re-exported for callers
 
 # Franka Robotics datasheet values (rad, rad/s). Panda and FR3 differ in joints 1-4 and 6.
 FRANKA_LIMITS = {
@@ -50,39 +51,6 @@ FRANKA_LIMITS = {
         ddq_max_rad_s2=[10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 10.0],
     ),
 }
-
-# Craig (modified) DH parameters of the Panda / FR3 arm: (a_m, d_m, alpha_rad) per joint, then the
-# flange 0.107 m along z of link 7. Both arms share this kinematic chain.
-_FRANKA_DH = (
-    (0.0, 0.333, 0.0),
-    (0.0, 0.0, -np.pi / 2),
-    (0.0, 0.316, np.pi / 2),
-    (0.0825, 0.0, np.pi / 2),
-    (-0.0825, 0.384, -np.pi / 2),
-    (0.0, 0.0, np.pi / 2),
-    (0.088, 0.0, np.pi / 2),
-)
-_FRANKA_FLANGE_D_M = 0.107
-
-
-def _mdh(a, d, alpha, theta) -> np.ndarray:
-    ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(theta), np.sin(theta)
-    return np.array([[ct, -st, 0.0, a], [st * ca, ct * ca, -sa, -d * sa], [st * sa, ct * sa, ca, d * ca], [0, 0, 0, 1.0]])
-
-
-def franka_fk(q_rad) -> np.ndarray:
-    """T_base_flange (4, 4) of a Panda / FR3 arm for joint angles ``q_rad`` (7,).
-
-    The flange frame is libfranka's ``F`` frame (``O_T_EE @ inv(F_T_EE)``), not the hand's EE/TCP.
-    """
-    q = np.asarray(q_rad, float).reshape(-1)
-    if q.size != 7:
-        raise InputError(f"franka_fk: expected 7 joint angles, got {q.size}.")
-    T = np.eye(4)
-    for (a, d, al), th in zip(_FRANKA_DH, q):
-        T = T @ _mdh(a, d, al, th)
-    return T @ _mdh(0.0, _FRANKA_FLANGE_D_M, 0.0, 0.0)
-
 
 KINEMATICS = {"franka": franka_fk, "panda": franka_fk, "fr3": franka_fk}
 
