@@ -194,6 +194,13 @@ class SolverOptions:
             'corner' (one C++ ProjectionFactorPPP per corner, Cal3DS2 distortion only) or 'auto'
             (corner when every camera fits Cal3DS2 and the graph has at least 1000 views, else
             view). ``refine_intrinsics`` always uses view. Both give the same estimate.
+        kinematics: 'none' (default: the FK prior on each flange pose) or 'joint-offsets' (the flange
+            poses follow from the reported joint angles plus estimated joint zero offsets, see
+            :mod:`calibgraph.solver.kinematics`; needs ``q_rad`` in every capture).
+        kinematics_model: the arm's kinematic model: 'franka' (Panda / FR3, built in) or a URDF path.
+        joint_offset_prior_rad: 1-sigma prior of each estimated joint offset.
+        kinematics_staging: 'staged' (cameras with an inflated FK prior, then offsets, then all
+            jointly) or 'joint' (all at once).
     """
 
     fk_sigma_translation_m: float = 1e-4
@@ -212,6 +219,10 @@ class SolverOptions:
     board_scale: bool = True
     board_scale_sigma: float = 0.02
     formulation: str = "auto"
+    kinematics: str = "none"
+    kinematics_model: str = "franka"
+    joint_offset_prior_rad: float = 0.01
+    kinematics_staging: str = "joint"
 
     def __post_init__(self):
         if self.loss not in LOSSES:
@@ -231,6 +242,12 @@ class SolverOptions:
             raise InputError(f"solver: board_scale_sigma must be positive, got {self.board_scale_sigma}.")
         if self.formulation not in ("auto", "view", "corner"):
             raise InputError(f"solver: formulation must be 'auto', 'view' or 'corner', got {self.formulation!r}.")
+        if self.kinematics not in ("none", "joint-offsets"):
+            raise InputError(f"solver: kinematics must be 'none' or 'joint-offsets', got {self.kinematics!r}.")
+        if self.kinematics_staging not in ("staged", "joint"):
+            raise InputError(f"solver: kinematics_staging must be 'staged' or 'joint', got {self.kinematics_staging!r}.")
+        if not (np.isfinite(self.joint_offset_prior_rad) and self.joint_offset_prior_rad > 0):
+            raise InputError(f"solver: joint_offset_prior_rad must be positive, got {self.joint_offset_prior_rad}.")
         if self.pixel_sigma_px is not None and not (self.pixel_sigma_px > 0):
             raise InputError("solver: pixel_sigma_px must be positive or None.")
 

@@ -9,6 +9,9 @@ flange in eye-in-hand, ``mount`` the other one, the frame the board is fixed to)
     K(c)  [fx, fy, cx, cy, k1, k2]      -- unless intrinsics='fixed': prior around the given values,
                                            as wide as their source says (SolverOptions.intrinsics)
     S(0)  board scale factor s          -- unless board_scale=False: prior N(1, board_scale_sigma)
+    O(0)  free joint zero offsets       -- only with kinematics='joint-offsets': F(k) then has a factor
+                                           to O(0) through FK(q_k + o) instead of its fixed prior
+                                           (:mod:`calibgraph.solver.kinematics`, always 'view')
 
 and the detected corners, each a reprojection residual through
 :func:`~calibgraph.solver.factors.project_chain`, in one of two formulations of the same model:
@@ -53,7 +56,7 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -62,6 +65,7 @@ from calibgraph.core.errors import InputError, ObservabilityError
 from calibgraph.core.problem import Problem, intrinsics_estimated, intrinsics_prior_sigmas, intrinsics_source
 from calibgraph.core.transforms import inv, log_so3
 from calibgraph.solver import factors_ppp
+from calibgraph.solver import kinematics as kin
 from calibgraph.solver.factors import (
     intrinsics_vector,
     make_calibration_factor,
@@ -75,7 +79,7 @@ from calibgraph.solver.initialise import (
     pnp_candidates,
     refine_translations,
 )
-from calibgraph.solver.keys import B, C, F, K, S
+from calibgraph.solver.keys import B, C, F, K, O, S
 from calibgraph.solver.observability import check_after_solve, check_before_solve
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView, Result
 
@@ -119,6 +123,7 @@ class Estimate:
     formulation: str = ""  # 'view' or 'corner'
     marginals: _Marginals | None = None  # of the final graph
     mount_cov_body: np.ndarray | None = None  # (6, 6) covariance of T_mount_board, GTSAM body frame
+    joint_offsets: np.ndarray | None = None  # free joint offsets (rad) with kinematics='joint-offsets'
 
 
 @contextmanager
@@ -192,6 +197,11 @@ CORNER_FORMULATION_MIN_VIEWS = 1000
 def _formulation(problem: Problem, names, n_views: int) -> str:
     """Which graph to build: 'view' (per-view CustomFactor) or 'corner' (C++ factor per corner)."""
     f = problem.options.formulation
+    if problem.options.kinematics != "none":
+        if f == "corner":
+            raise InputError("solver: formulation 'corner' has no kinematic factors; use 'view' or 'auto' with "
+                             "--estimate-kinematics.")
+        return "view"
     if any(intrinsics_estimated(problem.cameras[n], problem.options) for n in names) or problem.options.board_scale:
         if f == "corner":
             raise InputError("solver: formulation 'corner' holds the intrinsics and the board's size fixed; with it, "
@@ -237,10 +247,19 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
     values = gtsam.Values()
     used_caps = sorted({v.capture for v in views if v.active})
     T_ref_mount_fk = {v.capture: v.T_ref_mount for v in views}
+    ks = kin.setup(problem)
     for k in used_caps:
-        graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(T_ref_mount_fk[k]),
-                                         fk_noise(problem.options, problem.mode, T_ref_mount_fk[k])))
+        if ks is None:
+            graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(T_ref_mount_fk[k]),
+                                             fk_noise(problem.options, problem.mode, T_ref_mount_fk[k])))
+        else:
+            graph.add(kin.make_kinematic_factor(F(k), O(0), ks.q_rad[k], ks, fk_noise(problem.options)))
         values.insert(F(k), gtsam.Pose3(est.T_ref_mount.get(k, T_ref_mount_fk[k])))
+    if ks is not None:
+        nf = len(ks.free)
+        graph.add(gtsam.PriorFactorVector(O(0), np.zeros(nf),
+                                          gtsam.noiseModel.Isotropic.Sigma(nf, problem.options.joint_offset_prior_rad)))
+        values.insert(O(0), est.joint_offsets if est.joint_offsets is not None else np.zeros(nf))
     for name, i in slots.items():
         values.insert(C(i), gtsam.Pose3(est.T_ref_cam[name]))
     values.insert(B(0), gtsam.Pose3(est.T_mount_board))
@@ -305,7 +324,7 @@ class _Marginals:
         return self._keys is None or key in self._keys
 
     def joint(self, keys) -> np.ndarray:
-        """Joint covariance of Pose3 variables, 6 rows/cols per key in the order given."""
+        """Joint covariance of the variables ``keys`` (Pose3: 6 rows/cols, vectors: their size), in the order given."""
         jm = self._bt.jointMarginalCovariance(list(keys))
         return np.block([[np.asarray(jm.at(a, b)) for b in keys] for a in keys])
 
@@ -350,23 +369,26 @@ def _extract(values, slots, views, est: Estimate, cameras: dict, form: str = "vi
             base = est.intrinsics.get(name) or cameras[name]
             intr[name] = with_pinhole(base, values.atVector(K(i)))
     scale = float(values.atVector(S(0))[0]) if values.exists(S(0)) else est.board_scale
+    offsets = np.asarray(values.atVector(O(0))) if values.exists(O(0)) else est.joint_offsets
     return Estimate(T_ref_cam=T_ref_cam, T_mount_board=values.atPose3(B(0)).matrix(), T_ref_mount=T_ref_mount,
-                    intrinsics=intr, board_scale=scale, wide_intrinsics=est.wide_intrinsics)
+                    intrinsics=intr, board_scale=scale, wide_intrinsics=est.wide_intrinsics, joint_offsets=offsets)
 
 
 def solve_from_start(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
-                     timings: dict | None = None, wide_intrinsics: frozenset = frozenset()) -> Estimate:
+                     timings: dict | None = None, wide_intrinsics: frozenset = frozenset(),
+                     joint_offsets0: np.ndarray | None = None) -> Estimate:
     """IRLS + outlier handling + marginals for one graph (all cameras in 'joint', one camera in
     'single') from the start ``T_ref_cam0`` (camera -> 4x4), ``T_mount_board0``; no initialiser.
 
     Sets the views' weights, ``active`` and ``reason``. The Estimate carries the final cost, pixel
     sigma, marginals, ``slots`` and the formulation used. ``wide_intrinsics``: cameras whose
-    intrinsics get the wide prior (found inadequate by a first solve).
+    intrinsics get the wide prior (found inadequate by a first solve); ``joint_offsets0``: the free
+    joint offsets to start from (kinematics='joint-offsets'; default zero).
     """
     form = _formulation(problem, names, len(views))
     try:
         return _solve_with_formulation(problem, names, views, T_ref_cam0, T_mount_board0, form, timings,
-                                       wide_intrinsics)
+                                       wide_intrinsics, joint_offsets0)
     except ObservabilityError:
         if form != "corner" or problem.options.formulation == "corner":
             raise
@@ -376,11 +398,12 @@ def solve_from_start(problem: Problem, names: list, views: list, T_ref_cam0: dic
 
 
 def _solve_with_formulation(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
-                            form: str, timings: dict | None, wide_intrinsics: frozenset = frozenset()) -> Estimate:
+                            form: str, timings: dict | None, wide_intrinsics: frozenset = frozenset(),
+                            joint_offsets0: np.ndarray | None = None) -> Estimate:
     """:func:`solve_from_start` in one formulation: screening, robust rounds, final graph and marginals."""
     slots = {n: i for i, n in enumerate(names)}
     est = Estimate(T_ref_cam=dict(T_ref_cam0), T_mount_board=T_mount_board0, T_ref_mount={},
-                   wide_intrinsics=frozenset(wide_intrinsics))
+                   wide_intrinsics=frozenset(wide_intrinsics), joint_offsets=joint_offsets0)
     sigma = _screen_views_at_start(problem, views, est)
     iterations = 0
     for _ in range(4):
@@ -480,6 +503,7 @@ def _a_posteriori_sigma(problem: Problem, names: list, views: list, est: Estimat
     n_obs = 2 * sum(int((v.w > 0).sum()) for v in active)
     n_intr = sum(intrinsics_estimated(problem.cameras[n], opts) for n in names)
     n_par = 6 * (len(names) + 1) + 6 * n_intr + int(opts.board_scale)
+    n_par += 0 if est.joint_offsets is None else len(est.joint_offsets)
     wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(active, _all_residuals(active, est, problem.cameras)))
     return max(float(np.sqrt(wr2 / max(n_obs - n_par, 1))), 1e-4)
 
@@ -667,8 +691,15 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
     joint = problem.method == "joint"
     T_ref_cam0, mounts0 = _initial_guess(problem, views, cands, joint, seed, timings)
     notes = []
+    ks = kin.setup(problem)
+    if ks is not None:
+        kin.check_motion(ks, sorted({v.capture for v in views}))
     if joint:
-        group = _solve_joint(problem, names, views, T_ref_cam0, mounts0[0], initial, timings)
+        offsets0 = None
+        if ks is not None and problem.options.kinematics_staging == "staged":
+            T_ref_cam0, mounts0, offsets0 = _kinematics_stages(problem, names, views, T_ref_cam0, mounts0, initial,
+                                                               ks, timings)
+        group = _solve_joint(problem, names, views, T_ref_cam0, mounts0[0], initial, timings, offsets0)
         if problem.options.intrinsics == "auto":
             group = _widen_inadequate_intrinsics(problem, names, group, notes, timings)
         groups = [group]
@@ -685,6 +716,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
     notes += _intrinsics_notes(cameras)
     settings = {k: getattr(problem.options, k) for k in problem.options.__dataclass_fields__}
     settings["formulation_used"] = groups[0].est.formulation
+    robot = _robot_result(problem, ks, names, groups[0], notes) if ks is not None else None
     return Result(
         mode=problem.mode, method=problem.method, cameras=cameras, T_mount_board=T_mount_board,
         mount_covariance=mount_cov, pairs=_pair_results(names, cameras, cov_body, groups, joint), converged=True,
@@ -692,8 +724,50 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
         pixel_sigma_px=float(np.mean([g.est.sigma_px for g in groups])), solve_time_s=time.perf_counter() - t0,
         rejected_views=tuple(rv for c in cameras.values() for rv in c.views_rejected),
         rejected_corners=tuple(rejected_corners), T_base_flange_est=T_base_flange_est, settings=settings,
-        board_scale=scale, board_scale_sigma=scale_sigma, notes=tuple(notes),
+        board_scale=scale, board_scale_sigma=scale_sigma, notes=tuple(notes), robot=robot,
     )
+
+
+def _kinematics_stages(problem: Problem, names: list, views: list, T_ref_cam0: dict, mounts0: dict,
+                       initial: dict | None, ks, timings: dict | None):
+    """Stages 1 and 2 of kinematics_staging='staged': the cameras with the FK prior inflated (and no
+    offsets), then the offsets that best explain the flange poses that solve found. Returns the start
+    of the joint solve: (T_ref_cam, {0: T_mount_board}, free offsets)."""
+    o = problem.options
+    loose = replace(o, kinematics="none", fk_sigma_rotation_rad=o.fk_sigma_rotation_rad * kin.STAGE1_FK_INFLATION,
+                    fk_sigma_translation_m=o.fk_sigma_translation_m * kin.STAGE1_FK_INFLATION)
+    g1 = _solve_joint(problem.with_(options=loose), names, views, T_ref_cam0, mounts0[0], initial, timings)
+    fk_sigmas = np.array([o.fk_sigma_rotation_rad] * 3 + [o.fk_sigma_translation_m] * 3)
+    offsets = kin.offsets_from_poses(ks, g1.est.T_ref_mount, o.joint_offset_prior_rad, fk_sigmas)
+    return g1.est.T_ref_cam, {0: g1.est.T_mount_board}, offsets
+
+
+def _robot_result(problem: Problem, ks, names: list, group: _Group, notes: list) -> dict:
+    """``Result.robot``: the offsets with their marginal covariance joint with the camera poses, the mount
+    and the board scale (for the correlations); refuses offsets the data do not determine."""
+    est = group.est
+    keys, labels = [O(0)], []
+    for n in names:
+        keys.append(C(est.slots[n]))
+        labels += [f"{n} {a}" for a in ("rx", "ry", "rz", "x", "y", "z")]
+    keys.append(B(0))
+    labels += [f"mount {a}" for a in ("rx", "ry", "rz", "x", "y", "z")]
+    if est.marginals.has(S(0)):
+        keys.append(S(0))
+        labels.append("board scale")
+    cov = est.marginals.joint(keys)
+    nf = len(ks.free)
+    captures = sorted({v.capture for v in group.views if v.active})
+    kin.check_after_solve(ks, np.sqrt(np.clip(np.diag(cov)[:nf], 0, None)), problem.options.joint_offset_prior_rad,
+                          captures)
+    out = kin.robot_result(ks, est.joint_offsets, cov, labels, problem.options.joint_offset_prior_rad,
+                           problem.options.kinematics_staging)
+    o, s = np.asarray(out["joint_offsets_rad"]), out["joint_offsets_sigma_rad"]
+    big = [f"joint {i + 1} {1e3 * o[i]:+.2f} ± {1e3 * s[i]:.2f} mrad" for i in ks.free if abs(o[i]) > 3 * s[i]]
+    if big:
+        notes.append("the robot's joint zero offsets differ from zero: " + ", ".join(big) +
+                     " (calibgraph export writes a corrected URDF)")
+    return out
 
 
 # A camera whose kept corners miss by more than this (px RMS), mostly along the radial direction,
@@ -764,7 +838,7 @@ def _widen_inadequate_intrinsics(problem: Problem, names: list, group: _Group, n
     state = [(v.active, v.reason, v.w.copy()) for v in views]
     try:
         est2 = solve_from_start(problem, names, views, est.T_ref_cam, est.T_mount_board, timings,
-                                wide_intrinsics=frozenset(bad))
+                                wide_intrinsics=frozenset(bad), joint_offsets0=est.joint_offsets)
     except ObservabilityError:
         for v, (active, reason, w) in zip(views, state):
             v.active, v.reason, v.w = active, reason, w
@@ -867,7 +941,7 @@ def _initial_guess(problem: Problem, views: list, cands: dict, joint: bool, seed
 
 
 def _solve_joint(problem: Problem, names: list, views: list, T_ref_cam0: dict, T_mount_board0: np.ndarray,
-                 initial: dict | None, timings: dict | None) -> _Group:
+                 initial: dict | None, timings: dict | None, joint_offsets0: np.ndarray | None = None) -> _Group:
     """All cameras in one graph, from the initialiser's start and the user's (when given): the lower cost wins."""
     starts = [(T_ref_cam0, T_mount_board0)]
     if initial:
@@ -875,7 +949,8 @@ def _solve_joint(problem: Problem, names: list, views: list, T_ref_cam0: dict, T
     best, error = None, None
     for T_ref_cam, T_mount_board in starts:
         try:
-            est = solve_from_start(problem, names, views, T_ref_cam, T_mount_board, timings)
+            est = solve_from_start(problem, names, views, T_ref_cam, T_mount_board, timings,
+                                   joint_offsets0=joint_offsets0)
         except ObservabilityError as e:
             error = e
             continue

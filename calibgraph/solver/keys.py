@@ -10,8 +10,10 @@ the frame the board is fixed to.
     S(0)  the board's scale factor s (printed points at s * p_board; unless the scale is fixed)
     F(k)  T_ref_mount of capture k, the robot pose with its forward-kinematics prior: T_base_flange
           (eye-to-hand) or T_flange_base (eye-in-hand)
+    O(0)  the robot's free joint zero offsets (rad), only with kinematics='joint-offsets'; then F(k) has a
+          kinematic factor to O(0) instead of its fixed prior (:mod:`calibgraph.solver.kinematics`)
 """
 
-from gtsam.symbol_shorthand import B, C, F, K, S  # noqa: F401
+from gtsam.symbol_shorthand import B, C, F, K, O, S  # noqa: F401
 
-__all__ = ["B", "C", "F", "K", "S"]
+__all__ = ["B", "C", "F", "K", "O", "S"]

@@ -16,6 +16,10 @@
   and ``covariance`` (6x6, rotation first, in frame a's axes).
 - ``board_mount``: covariance and sigmas of the board mount.
 - ``solver``: converged, iterations, final cost, pixel sigma used, time, settings.
+- ``robot`` (with kinematics='joint-offsets'): ``joint_offsets_rad`` (n; physical angle = reported +
+  offset), ``joint_offsets_sigma_rad`` (None for fixed joints), ``fixed`` ({joint, reason}),
+  ``estimated``, ``offset_correlations``, ``strongest_correlations`` (each offset's largest
+  correlation with a camera pose, the mount or the board scale), ``model``, ``staging``.
 - ``residuals.<camera>.<capture>``: ``ids``, ``uv_detected_px`` (N,2), ``residual_px`` (N,2) =
   reprojected - detected, ``rejected`` (whole view), ``corner_rejected`` (N,) booleans.
 """
@@ -138,6 +142,7 @@ class Result:
     board_scale: float = 1.0  # estimated scale of the printed board against its spec (1 when not estimated)
     board_scale_sigma: float | None = None  # its 1-sigma (None when not estimated)
     notes: tuple = ()  # what the solver noticed and did, one line each (inadequate intrinsics, board scale)
+    robot: dict | None = None  # estimated joint offsets (kinematics='joint-offsets'), see the module docstring
 
     @property
     def T_flange_board(self):
@@ -201,6 +206,7 @@ class Result:
             },
             "board_scale": {"scale": self.board_scale, "sigma": self.board_scale_sigma},
             "notes": list(self.notes),
+            **({"robot": self.robot} if self.robot is not None else {}),
             "rejected_corners": [
                 {"camera": c, "capture": k, "id": i, "residual_px": r} for (c, k, i, r) in self.rejected_corners
             ],
