@@ -94,26 +94,31 @@ def _axis_setup(n_squares: int, centre: np.ndarray, kappa: np.ndarray):
     return c_wave, c_box, (w_all[None] * left).sum(1), (b_all[None] * left).sum(1)
 
 
-def _local_homographies(uv_px: np.ndarray, ij: np.ndarray, scale_px: np.ndarray, origin_px: np.ndarray):
-    """(N, 3, 3) G mapping local pixels ``u = (x - origin) / scale`` (homogeneous) to board squares
-    relative to each corner, from the corner and its detected neighbours (up to 3x3)."""
+def _local_homographies(uv_px: np.ndarray, ij: np.ndarray, sel: np.ndarray, scale_px: np.ndarray,
+                        origin_px: np.ndarray, reach: int = 1):
+    """(n, 3, 3) G of the corners ``sel``, mapping local pixels ``u = (x - origin) / scale``
+    (homogeneous) to board squares relative to the corner, from the corner and its neighbours
+    up to ``reach`` steps away (all corners' ``uv_px`` are used)."""
     import cv2
 
     where = {(int(a), int(b)): n for n, (a, b) in enumerate(ij)}
-    G = np.zeros((len(uv_px), 3, 3))
-    for n, (i, j) in enumerate(ij):
-        nb = [where[(i + di, j + dj)] for di in (-1, 0, 1) for dj in (-1, 0, 1) if (i + di, j + dj) in where]
+    G = np.zeros((len(sel), 3, 3))
+    span = range(-reach, reach + 1)
+    for k, n in enumerate(sel):
+        i, j = ij[n]
+        nb = [where[(i + di, j + dj)] for di in span for dj in span if (i + di, j + dj) in where]
         board = np.array([[ij[m, 1] - j, ij[m, 0] - i] for m in nb], float)
-        loc = (uv_px[nb] - origin_px[n]) / scale_px[n]
+        loc = (uv_px[nb] - origin_px[k]) / scale_px[k]
         H = None
         if len(nb) >= 4:
             H, _ = cv2.findHomography(board, loc, 0)
-        if H is None:
-            # Collinear neighbours (a 1-row board): a similarity from the one line.
+        if H is None or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) < 1e-12:
+            # Degenerate neighbours (collinear, or a bad corner among few): start from identity.
             H = np.eye(3)
-            H[:2, 2] = (uv_px[n] - origin_px[n]) / scale_px[n]
+            H[:2, 2] = (uv_px[n] - origin_px[k]) / scale_px[k]
         Gn = np.linalg.inv(H)
-        G[n] = Gn / Gn[2, 2]
+        # G22 = 1 is the gauge of the fit; a corner that maps to the horizon has no fit.
+        G[k] = Gn / Gn[2, 2] if abs(Gn[2, 2]) > 1e-9 else np.eye(3)
     return G
 
 
@@ -182,39 +187,23 @@ def _weights(XY, w_sq, valid):
     return np.clip((1.0 - t) / 0.25, 0.0, 1.0) * valid
 
 
-def refine_checkerboard(grey: np.ndarray, target: Target, ids: np.ndarray, uv_px: np.ndarray,
-                        max_iterations: int = 30) -> BoardFit:
-    """Refine detected inner corners of a checkerboard by fitting the board model (module
-    docstring) to the pixels of ``grey`` around each corner.
-
-    Args:
-        grey: (H, W) the original 8-bit image (not up-scaled: interpolation would add its own shift).
-        target: the checkerboard spec.
-        ids: (N,) point ids of the corners (rows of ``target.grid_ij``).
-        uv_px: (N, 2) their detected positions, accurate to a fraction of a square.
-        max_iterations: Levenberg-Marquardt iterations.
-    Returns:
-        :class:`BoardFit`.
-    """
-    ids = np.asarray(ids, int)
-    uv0 = np.asarray(uv_px, float).reshape(-1, 2)
-    N = len(ids)
-    if N == 0:
-        z = np.zeros(0)
-        return BoardFit(uv0.copy(), z.astype(bool), z, z)
-    img = np.asarray(grey, float)
+def _fit_corners(img: np.ndarray, target: Target, ij: np.ndarray, uv_all: np.ndarray, sel: np.ndarray,
+                 max_iterations: int):
+    """Fit the corners ``sel`` (indices into ``uv_all``, whose other rows serve as neighbours):
+    (uv (n, 2), ok (n,), sigma_px (n,), rms_grey (n,))."""
+    N = len(sel)
+    uv0 = uv_all[sel]
     H_img, W_img = img.shape
-    ij = target.grid_ij[ids]
     # Local pitch: the longest step to a detected grid neighbour (the window must cover the
     # neighbours' lines in the widest direction too).
     where = {(int(a), int(b)): n for n, (a, b) in enumerate(ij)}
     pitch, short = np.zeros(N), np.zeros(N)
-    for n, (i, j) in enumerate(ij):
-        steps = [np.linalg.norm(uv0[where[(i + a, j + b)]] - uv0[n])
+    for n, (i, j) in enumerate(ij[sel]):
+        steps = [np.linalg.norm(uv_all[where[(i + a, j + b)]] - uv0[n])
                  for a, b in ((0, 1), (1, 0), (0, -1), (-1, 0)) if (i + a, j + b) in where]
         pitch[n], short[n] = (max(steps), min(steps)) if steps else (10.0, 10.0)
     origin = np.round(uv0)
-    G = _local_homographies(uv0, ij, pitch, origin)
+    G = _local_homographies(uv_all, ij, sel, pitch, origin)
     w_sq = np.minimum(WINDOW_SQ, WINDOW_PX / pitch)
     # Pixel box holding every corner's window (+ taper slack); one size for all, masked per corner.
     box_sq = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
@@ -234,8 +223,8 @@ def refine_checkerboard(grey: np.ndarray, target: Target, ids: np.ndarray, uv_px
     # Lines that can reach a window: the window plus ~4 sigma of blur (sigma up to 2.5 px).
     K = int(min(4, np.floor(w_sq.max() + 10.0 / pitch.min())))
     kap = np.arange(-K, K + 1, dtype=float)
-    setup_u = _axis_setup(target.cols + 1, ij[:, 1] + 1, kap)
-    setup_v = _axis_setup(target.rows + 1, ij[:, 0] + 1, kap)
+    setup_u = _axis_setup(target.cols + 1, ij[sel, 1] + 1, kap)
+    setup_v = _axis_setup(target.rows + 1, ij[sel, 0] + 1, kap)
 
     theta = np.zeros((N, N_PARAMS))
     theta[:, 0:3], theta[:, 3:6], theta[:, 6:8] = G[:, 0], G[:, 1], G[:, 2, :2]
@@ -302,5 +291,74 @@ def refine_checkerboard(grey: np.ndarray, target: Target, ids: np.ndarray, uv_px
     # times) but stays in its own quarter of the shortest neighbouring square.
     ok = (np.isfinite(uv).all(1) & (shift < 0.3 * short) & (sigma > 0.2) & (sigma < 4.0)
           & (np.abs(contrast) > 10.0) & (rms < 0.25 * np.abs(contrast)))
+    return uv, ok, sigma, rms
+
+
+def _predict_from_neighbours(uv: np.ndarray, ij: np.ndarray, good: np.ndarray, n: int):
+    """Position of corner ``n`` from the homography of the good corners up to two steps away
+    (None when they are fewer than 4 or degenerate)."""
+    import cv2
+
+    d = np.abs(ij - ij[n]).max(axis=1)
+    nb = np.nonzero(good & (d <= 2) & (d > 0))[0]
+    if len(nb) < 4:
+        return None
+    H, _ = cv2.findHomography((ij[nb] - ij[n])[:, ::-1].astype(float), uv[nb], 0)
+    if H is None or abs(H[2, 2]) < 1e-12:
+        return None
+    return H[:2, 2] / H[2, 2]
+
+
+def refine_checkerboard(grey: np.ndarray, target: Target, ids: np.ndarray, uv_px: np.ndarray,
+                        max_iterations: int = 30) -> BoardFit:
+    """Refine detected inner corners of a checkerboard by fitting the board model (module
+    docstring) to the pixels of ``grey`` around each corner.
+
+    Args:
+        grey: (H, W) the original 8-bit image (not up-scaled: interpolation would add its own shift).
+        target: the checkerboard spec.
+        ids: (N,) point ids of the corners (rows of ``target.grid_ij``).
+        uv_px: (N, 2) their detected positions, accurate to a fraction of a square.
+        max_iterations: Levenberg-Marquardt iterations.
+    Returns:
+        :class:`BoardFit`.
+    """
+    ids = np.asarray(ids, int)
+    uv0 = np.asarray(uv_px, float).reshape(-1, 2)
+    N = len(ids)
+    if N == 0:
+        z = np.zeros(0)
+        return BoardFit(uv0.copy(), z.astype(bool), z, z)
+    img = np.asarray(grey, float)
+    ij = target.grid_ij[ids]
+    try:
+        uv, ok, sigma, rms = _fit_corners(img, target, ij, uv0, np.arange(N), max_iterations)
+    except np.linalg.LinAlgError:
+        # Some corner's normal equations are singular (a degenerate start); the fits are
+        # independent, so one by one keeps the others.
+        uv, ok, sigma, rms = uv0.copy(), np.zeros(N, bool), np.full(N, np.nan), np.full(N, np.nan)
+        for n in range(N):
+            try:
+                fit = _fit_corners(img, target, ij, uv0, np.array([n]), max_iterations)
+            except np.linalg.LinAlgError:
+                continue
+            uv[n], ok[n], sigma[n], rms[n] = (a[0] for a in fit)
+    if not ok.all() and ok.sum() >= 4:
+        # A detector corner far off (SB or classic on an up-scaled tilted board, now and then
+        # by > 1 px) is beyond the fit's reach: start it again from its refined neighbours.
+        guess = np.where(ok[:, None], uv, uv0)
+        redo = []
+        for n in np.nonzero(~ok)[0]:
+            p = _predict_from_neighbours(guess, ij, ok, n)
+            if p is not None:
+                guess[n] = p
+                redo.append(n)
+        if redo:
+            redo = np.array(redo)
+            try:
+                uv2, ok2, s2, r2 = _fit_corners(img, target, ij, guess, redo, max_iterations)
+                uv[redo], ok[redo], sigma[redo], rms[redo] = uv2, ok2, s2, r2
+            except np.linalg.LinAlgError:
+                pass  # they keep the detector's position
     out = np.where(ok[:, None], uv, uv0)
     return BoardFit(uv_px=out, refined=ok, sigma_px=sigma, rms_grey=rms)
