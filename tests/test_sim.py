@@ -180,6 +180,13 @@ def test_workcell_yaml_round_trip_and_errors(tmp_path):
     default = load_workcell(Path(__file__).resolve().parents[1] / "datasets" / "workcells" / "default.yaml")
     d = [np.hypot(*c.T_base_cam[:2, 3]) for c in default.cameras]
     assert np.allclose(d, 3.0) and np.allclose([c.T_base_cam[2, 3] for c in default.cameras], 0.8)
+    o = [0.0, 1e-3, -2e-3, 0.5e-3, 0.0, 1e-3, 0.0]
+    cell = workcell_from_dict({"ring": {"distances_m": [2.0]}, "robot": {"joint_offsets_rad": o}})
+    assert cell.joint_offsets_rad == tuple(o) and default.joint_offsets_rad == (0.0,) * 7
+    assert workcell_from_dict(yaml.safe_load(yaml.safe_dump(workcell_to_dict(cell)))).joint_offsets_rad == tuple(o)
+    for bad in ([0.0] * 6, [0.0] * 6 + ["x"], 0.1):
+        with pytest.raises(InputError, match="joint_offsets_rad"):
+            workcell_from_dict({"ring": {"distances_m": [2.0]}, "robot": {"joint_offsets_rad": bad}})
     with pytest.raises(InputError, match="unknown keys"):
         workcell_from_dict({"ring": {"distances_m": [2.0]}, "camras": {}})
     with pytest.raises(InputError, match="no cameras"):

@@ -67,3 +67,43 @@ def test_cli_sim_writes_dataset_with_ground_truth(tmp_path):
         assert np.allclose(gt2["T_base_flange_true"][k], T, atol=1e-12)
     # an existing dataset is refused with advice
     assert main(["sim", "--workcell", str(cell), "--out", str(out), "--poses", "2", "--quiet"]) == 2
+
+
+def test_cli_sim_with_joint_offsets_reports_what_a_real_arm_does(tmp_path):
+    # the arm's joint zeros are off: it reports q_rad = true - offsets and the nominal FK of those,
+    # the images follow the true angles, and ground_truth.json records the offsets
+    require_sim()
+    from calibgraph.acquire.safety import franka_fk
+    from calibgraph.cli.main import main
+    from calibgraph.io.ground_truth import load_ground_truth
+    from calibgraph.io.layouts import load_dataset
+
+    o = np.array([0.0, 0.002, -0.001, 0.0015, -0.002, 0.001, 0.0])
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(CELL.replace("fk_sigma_rotation_deg: 0.005}",
+                                 f"fk_sigma_rotation_deg: 0.005, joint_offsets_rad: {o.tolist()}}}"))
+    out = tmp_path / "ds"
+    assert main(["sim", "--workcell", str(cell), "--out", str(out), "--poses", "3", "--quiet"]) == 0
+    ds = load_dataset(out)
+    gt = load_ground_truth(out)
+    assert np.allclose(gt["joint_offsets_rad"], o, atol=0) and gt["raw"]["robot"]["joint_offsets_rad"] == o.tolist()
+    assert gt["raw"]["workcell"]["robot"]["joint_offsets_rad"] == o.tolist()
+    assert len(ds.captures) == 3
+    for cap in ds.captures:
+        raw = gt["raw"]["captures"][str(cap.index)]
+        assert np.allclose(np.asarray(raw["q_rad_true"]) - o, cap.q_rad, atol=1e-12)
+        # reported pose: nominal FK of the reported angles, up to the 5e-5 m / 0.005 deg repeatability
+        e_m, e_deg = pose_error(cap.T_base_flange, franka_fk(cap.q_rad))
+        assert e_m < 5e-4 and e_deg < 0.05
+        # true pose: FK of the true angles; 1-2 mrad on joints 2-6 move the flange by about a millimetre,
+        # well beyond the repeatability (3 x 5e-5 x sqrt(3) m)
+        assert np.allclose(gt["T_base_flange_true"][cap.index], franka_fk(cap.q_rad + o), atol=1e-9)
+        assert pose_error(cap.T_base_flange, gt["T_base_flange_true"][cap.index])[0] > 3e-4
+    pts = ds.target.points_board_m
+    for v in ds.views:
+        T_cb = inv(gt["T_base_cam"][v.camera]) @ gt["T_base_flange_true"][v.capture] @ gt["T_flange_board"]
+        uv = ds.cameras[v.camera].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+        assert np.abs(v.uv_px - uv[v.ids]).max() < 1.0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(CELL.replace("fk_sigma_rotation_deg: 0.005}", "fk_sigma_rotation_deg: 0.005, joint_offsets_rad: [0, 1]}"))
+    assert main(["sim", "--workcell", str(bad), "--out", str(tmp_path / "ds3"), "--poses", "3", "--quiet"]) == 2

@@ -23,7 +23,8 @@ _CONVENTION = ("T_a_b maps points from frame b to frame a: p_a = T_a_b @ p_b (4x
 
 def load_ground_truth(dataset_dir) -> dict:
     """Read ``ground_truth.json`` with poses as numpy arrays:
-    ``{"T_flange_board", "T_base_cam": {cam: 4x4}, "T_base_flange_true": {capture: 4x4}, "raw": dict}``."""
+    ``{"T_flange_board", "T_base_cam": {cam: 4x4}, "T_base_flange_true": {capture: 4x4},
+    "joint_offsets_rad": (7,) (zeros when the file has none), "raw": dict}``."""
     p = Path(dataset_dir) / GT_NAME
     try:
         d = json.loads(p.read_text())
@@ -33,6 +34,7 @@ def load_ground_truth(dataset_dir) -> dict:
         "T_flange_board": np.asarray(d["T_flange_board"], float),
         "T_base_cam": {c: np.asarray(v["T_base_cam"], float) for c, v in d["cameras"].items()},
         "T_base_flange_true": {int(k): np.asarray(v["T_base_flange_true"], float) for k, v in d["captures"].items()},
+        "joint_offsets_rad": np.asarray((d.get("robot") or {}).get("joint_offsets_rad") or np.zeros(7), float),
         "raw": d,
     }
 

@@ -5,7 +5,9 @@ the time a joint-space move at ``speed_scale`` of the FR3's joint velocity limit
 a simulated clock, not wall time) and ends settled. It reports its flange pose the way a real
 controller does, through its forward kinematics, with an optional per-pose error
 (``fk_sigma_*``: the robot's kinematic model is never exact); the true pose stays in the world
-and goes to the ground truth.
+and goes to the ground truth. With joint zero offsets (the workcell's ``joint_offsets_rad``) the
+world turns to the true angles = commanded (encoder) angles + offsets, while the robot reports the
+encoder angles and the nominal FK of them, as a real arm with uncalibrated joint zeros does.
 
 The robot starts at :func:`calibgraph.sim.ik.start_configuration` (the simulator's home when the
 world is in the model's all-zero pose, which no real arm can take), the configuration
@@ -36,10 +38,16 @@ class SimRobot:
         fk_sigma_translation_m, fk_sigma_rotation_rad: 1-sigma of the error between the reported
             and the true flange pose, drawn once per motion (Panda class: ~0.1 mm / 0.01 deg).
         seed: seed of that error.
+        joint_offsets_rad: (7,) joint zero offsets, physical angle = reported + offset (default: the
+            world's workcell's ``joint_offsets_rad``). Joint targets and limits are in reported angles.
     """
 
-    def __init__(self, world, fk_sigma_translation_m: float = 0.0, fk_sigma_rotation_rad: float = 0.0, seed: int = 0):
+    def __init__(self, world, fk_sigma_translation_m: float = 0.0, fk_sigma_rotation_rad: float = 0.0, seed: int = 0,
+                 joint_offsets_rad=None):
         self.world = world
+        if joint_offsets_rad is None:
+            joint_offsets_rad = getattr(getattr(world, "cell", None), "joint_offsets_rad", None)
+        self.joint_offsets_rad = np.zeros(7) if joint_offsets_rad is None else np.asarray(joint_offsets_rad, float).reshape(7)
         self.fk_sigma_translation_m = float(fk_sigma_translation_m)
         self.fk_sigma_rotation_rad = float(fk_sigma_rotation_rad)
         self._rng = np.random.default_rng(seed)
@@ -50,13 +58,17 @@ class SimRobot:
 
     # -- Robot protocol ---------------------------------------------------------------------------
     def joint_positions(self) -> np.ndarray:
+        """Reported (encoder) angles: the true ones minus the joint offsets."""
         self._check_open()
-        return self.world.q()
+        return self.world.q() - self.joint_offsets_rad
 
     def flange_pose(self) -> np.ndarray:
-        """Reported T_base_flange: true pose times the current kinematic error."""
+        """Reported T_base_flange: the nominal FK of the reported angles (the true pose when there are no
+        joint offsets) times the current kinematic error."""
         self._check_open()
-        return self.world.T_base_flange() @ self._T_error
+        if not self.joint_offsets_rad.any():
+            return self.world.T_base_flange() @ self._T_error
+        return self.forward_kinematics(self.joint_positions()) @ self._T_error
 
     def true_flange_pose(self) -> np.ndarray:
         """Noise-free T_base_flange (ground truth; a real robot cannot tell you this)."""
@@ -75,21 +87,22 @@ class SimRobot:
         if not (0 < speed_scale <= 1):
             raise UnreachableError(f"simulated FR3: speed_scale must be in (0, 1], got {speed_scale}.")
         q_now = self.world.q()
-        hits = in_collision(self.world, q)  # leaves the model at q: put the arm back where it is
+        hits = in_collision(self.world, q + self.joint_offsets_rad)  # leaves the model there: put the arm back
         self.world.set_q(q_now)
         if hits:
             raise UnreachableError(f"simulated FR3: the goal configuration collides ({hits[0][0]} with {hits[0][1]}).")
-        hits = path_collision(self.world, q_now, q)
+        hits = path_collision(self.world, q_now, q + self.joint_offsets_rad)
         if hits:
             raise UnreachableError(f"simulated FR3: the straight joint motion to the goal collides ({hits[0][0]} with "
                                    f"{hits[0][1]}); the arm stopped before moving. Plan via poses around the obstacle "
                                    "(calibgraph.plan.planner.plan_trajectory does).")
-        dq = np.abs(q - self.world.q())
+        q_true = q + self.joint_offsets_rad
+        dq = np.abs(q_true - self.world.q())
         self.world.clock_s += float(np.max(dq / (FR3_MAX_JOINT_VELOCITY_RAD_S * speed_scale))) + 0.5
-        self.world.set_q(q)
+        self.world.set_q(q_true)
         self._T_error = make_T(exp_so3(self._rng.normal(scale=self.fk_sigma_rotation_rad, size=3)),
                                self._rng.normal(scale=self.fk_sigma_translation_m, size=3))
-        self.true_flange_poses.append((self.world.clock_s, q.copy(), self.world.T_base_flange()))
+        self.true_flange_poses.append((self.world.clock_s, q_true.copy(), self.world.T_base_flange()))
 
     def is_settled(self) -> bool:
         self._check_open()
@@ -104,7 +117,8 @@ class SimRobot:
         return self.world.q_lo.copy(), self.world.q_hi.copy()
 
     def forward_kinematics(self, q_rad) -> np.ndarray:
-        """T_base_flange at ``q_rad`` from the MuJoCo model (the state is left unchanged)."""
+        """T_base_flange at ``q_rad`` from the MuJoCo model, the robot's nominal kinematics (the state is
+        left unchanged)."""
         q0 = self.world.q()
         self.world.set_q(np.asarray(q_rad, float))
         T = self.world.T_base_flange()
@@ -165,8 +179,9 @@ class SimCamera:
         self._closed = True
 
 
-def make_devices(world, fk_sigma_translation_m: float = 0.0, fk_sigma_rotation_rad: float = 0.0, seed: int = 0):
-    """(SimRobot, {name: SimCamera}) of a world."""
-    robot = SimRobot(world, fk_sigma_translation_m, fk_sigma_rotation_rad, seed)
+def make_devices(world, fk_sigma_translation_m: float = 0.0, fk_sigma_rotation_rad: float = 0.0, seed: int = 0,
+                 joint_offsets_rad=None):
+    """(SimRobot, {name: SimCamera}) of a world (joint offsets default to the workcell's)."""
+    robot = SimRobot(world, fk_sigma_translation_m, fk_sigma_rotation_rad, seed, joint_offsets_rad)
     cams = {c: SimCamera(world, c) for c in world.cell.camera_names}
     return robot, cams

@@ -10,11 +10,13 @@ on hardware (detection on the spot, atomic capture files, journal). It then writ
      "mode": "eye_to_hand",
      "T_flange_board": 4x4,
      "cameras": {"cam0": {"T_base_cam": 4x4, "intrinsics": {K, dist, width_px, height_px}, "preset": "l515"}},
-     "captures": {"0": {"T_base_flange_true": 4x4, "T_base_flange_reported": 4x4, "q_rad": [...]}},
-     "robot": {"fk_sigma_translation_m": ..., "fk_sigma_rotation_deg": ...},
+     "captures": {"0": {"T_base_flange_true": 4x4, "T_base_flange_reported": 4x4, "q_rad": [...],
+                        "q_rad_true": [...]}},
+     "robot": {"fk_sigma_translation_m": ..., "fk_sigma_rotation_deg": ..., "joint_offsets_rad": [7 values]},
      "realism": {...}, "workcell": {...explicit workcell mapping...}}
 
-``T_base_flange_true`` is the noise-free flange pose; the capture files hold the reported one.
+``T_base_flange_true`` is the noise-free flange pose at the true joint angles (``q_rad_true`` =
+reported ``q_rad`` + ``robot.joint_offsets_rad``); the capture files hold the reported one.
 """
 
 from __future__ import annotations
@@ -36,8 +38,8 @@ from calibgraph.sim.workcell import Workcell, workcell_to_dict
 def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
     """Write ``ground_truth.json`` for the captures already in ``out_dir``.
 
-    True flange poses come from the joint angles stored in each capture file (exact in the
-    simulation) through the MuJoCo model's kinematics.
+    True flange poses come from the joint angles stored in each capture file plus the cell's joint
+    offsets (exact in the simulation) through the MuJoCo model's kinematics.
     """
     from dataclasses import asdict
 
@@ -46,15 +48,17 @@ def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
 
         world = SimWorld(cell)
     caps = {}
+    offsets = np.asarray(cell.joint_offsets_rad, float)
     for f in sorted((out / "captures").glob("*.json")):
         d = json.loads(f.read_text())
         q = d.get("q_rad")
         if q is None:
             continue
         q0 = world.q()
-        world.set_q(np.asarray(q, float))
+        q_true = np.asarray(q, float) + offsets
+        world.set_q(q_true)
         caps[str(d["index"])] = {"T_base_flange_true": world.T_base_flange().tolist(),
-                                 "T_base_flange_reported": d["T_base_flange"], "q_rad": q}
+                                 "T_base_flange_reported": d["T_base_flange"], "q_rad": q, "q_rad_true": q_true.tolist()}
         world.set_q(q0)
     gt = {
         "mode": "eye_to_hand",
@@ -63,7 +67,7 @@ def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
                              "preset": c.preset} for c in cell.cameras},
         "captures": caps,
         "robot": {"model": "franka_fr3 (franky-sim MJCF)", "fk_sigma_translation_m": cell.fk_sigma_translation_m,
-                  "fk_sigma_rotation_deg": cell.fk_sigma_rotation_deg},
+                  "fk_sigma_rotation_deg": cell.fk_sigma_rotation_deg, "joint_offsets_rad": offsets.tolist()},
         "realism": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cell.realism).items()},
         "workcell": workcell_to_dict(cell),
     }

@@ -11,7 +11,8 @@ YAML::
     name: default
     board: a4_54                  # a4_54 | thesis | {kind: checkerboard, rows: 6, cols: 9, pitch_m: 0.025}
     floor_z_m: -0.8
-    robot: {fk_sigma_translation_m: 5.0e-5, fk_sigma_rotation_deg: 0.005}   # reported-pose error
+    robot: {fk_sigma_translation_m: 5.0e-5, fk_sigma_rotation_deg: 0.005,   # reported-pose error
+            joint_offsets_rad: [0, 0.001, 0, 0, 0, 0, 0]}   # optional: the arm's joint zero offsets
     mount: {translation_m: [0.01, -0.015, 0.06], rotvec_rad: [0.0, 3.14159, 0.0]}   # T_flange_board (optional)
     realism: {noise_sigma_dn: 2.0, blur_sigma_px: 0.6, exposure: 1.0, motion_blur_px: 0.0,
               distortion: false}
@@ -19,6 +20,11 @@ YAML::
            presets: [l515]}     # cameras on a ring around the robot base ...
     cameras:                    # ... and/or explicit ones
       side: {preset: d455, position_m: [2.0, 1.0, 0.8], look_at_m: [0.5, 0.0, 0.4]}
+
+``robot.joint_offsets_rad`` (7 values, default zeros) gives the simulated arm the error a real
+arm's joint zero offsets make: it reports ``q_rad`` = true angles - offsets and ``T_base_flange`` =
+the nominal forward kinematics of the reported angles, while the world (images, ground truth)
+follows the true angles.
 
 ``ring.spread_deg: 360`` spreads cameras evenly around the robot; a smaller spread puts them on
 one side (the thesis's one-side layout), centred on ``start_deg`` (0 = in front of the robot,
@@ -120,6 +126,7 @@ class Workcell:
         seed: seed of the image noise and of the robot's kinematic error.
         fk_sigma_translation_m, fk_sigma_rotation_deg: error of the flange pose the robot reports
             (its kinematic model is not exact), 1-sigma per axis, drawn once per pose.
+        joint_offsets_rad: (7,) the arm's joint zero offsets (physical angle = reported + offset).
         obstacles: static boxes (:class:`calibgraph.plan.cell.Box`): tables, fences (rendered,
             collide) and keep-out volumes (collide only).
         planning_only: a model of the robot and the static geometry without cameras (what the
@@ -135,6 +142,7 @@ class Workcell:
     seed: int = 0
     fk_sigma_translation_m: float = 5e-5
     fk_sigma_rotation_deg: float = 0.005
+    joint_offsets_rad: tuple = (0.0,) * 7
     obstacles: tuple = ()
     planning_only: bool = False
 
@@ -143,6 +151,11 @@ class Workcell:
             raise InputError(f"workcell {self.name!r}: robot fk sigmas must be >= 0.")
         if self.target.kind != "checkerboard":
             raise InputError(f"workcell {self.name!r}: the simulator renders checkerboards only, got {self.target.kind!r}.")
+        o = np.asarray(self.joint_offsets_rad, float).reshape(-1)
+        if o.size != 7 or not np.all(np.isfinite(o)) or np.any(np.abs(o) > 0.2):
+            raise InputError(f"workcell {self.name!r}: robot joint_offsets_rad needs 7 finite values of at most 0.2 rad "
+                             f"(one per FR3 joint), got {list(np.asarray(self.joint_offsets_rad).reshape(-1))}.")
+        object.__setattr__(self, "joint_offsets_rad", tuple(float(x) for x in o))
         names = [c.name for c in self.cameras]
         if not names and not self.planning_only:
             raise InputError(f"workcell {self.name!r}: no cameras; add a 'ring' or 'cameras' section.")
@@ -256,13 +269,21 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
     mount = d.get("mount")
     T_fb = _pose_from_spec(mount, f"{where}: mount") if mount else default_T_flange_board(target)
     robot = d.get("robot") or {}
-    unknown = set(robot) - {"fk_sigma_translation_m", "fk_sigma_rotation_deg"}
+    if not isinstance(robot, dict):
+        raise InputError(f"{where}: robot must be a mapping (fk_sigma_translation_m, fk_sigma_rotation_deg, joint_offsets_rad).")
+    unknown = set(robot) - {"fk_sigma_translation_m", "fk_sigma_rotation_deg", "joint_offsets_rad"}
     if unknown:
-        raise InputError(f"{where}: robot: unknown keys {sorted(unknown)}; allowed: fk_sigma_translation_m, fk_sigma_rotation_deg.")
+        raise InputError(f"{where}: robot: unknown keys {sorted(unknown)}; allowed: fk_sigma_translation_m, "
+                         "fk_sigma_rotation_deg, joint_offsets_rad.")
+    offsets = robot.get("joint_offsets_rad", [0.0] * 7)
+    try:
+        offsets = tuple(float(x) for x in offsets)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: robot: joint_offsets_rad must be a list of 7 numbers (rad), got {offsets!r}.") from None
     return Workcell(name=str(d.get("name", Path(where).stem)), target=target, T_flange_board=T_fb, cameras=tuple(cams),
                     realism=realism, floor_z_m=floor_z, seed=int(d.get("seed", 0)),
                     fk_sigma_translation_m=float(robot.get("fk_sigma_translation_m", 5e-5)),
-                    fk_sigma_rotation_deg=float(robot.get("fk_sigma_rotation_deg", 0.005)),
+                    fk_sigma_rotation_deg=float(robot.get("fk_sigma_rotation_deg", 0.005)), joint_offsets_rad=offsets,
                     obstacles=tuple(boxes_from_list(d.get("obstacles"), where, False) + boxes_from_list(d.get("keep_out"), where, True)))
 
 
@@ -288,7 +309,8 @@ def workcell_to_dict(cell: Workcell) -> dict:
         "cameras": {c.name: {"preset": c.preset or "l515", "T_base_cam": np.asarray(c.T_base_cam).tolist()}
                     for c in cell.cameras},
         "seed": cell.seed,
-        "robot": {"fk_sigma_translation_m": cell.fk_sigma_translation_m, "fk_sigma_rotation_deg": cell.fk_sigma_rotation_deg},
+        "robot": {"fk_sigma_translation_m": cell.fk_sigma_translation_m, "fk_sigma_rotation_deg": cell.fk_sigma_rotation_deg,
+                  "joint_offsets_rad": list(cell.joint_offsets_rad)},
         **_boxes_to_dict(cell.obstacles),
     }
 
