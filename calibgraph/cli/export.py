@@ -1,6 +1,10 @@
-"""``calibgraph export RESULT --format urdf|ros2-launch|opencv-yaml|yaml|json --out DIR``, and
+"""``calibgraph export RESULT --format urdf|ros2-launch|opencv-yaml|yaml|json|robot --out DIR``, and
 ``calibgraph export DATASET --format mchec --out DIR`` (a dataset in the Multi-Camera-Hand-Eye-
-Calibration layout, for moving data between the two tools)."""
+Calibration layout, for moving data between the two tools).
+
+A result solved with ``--estimate-kinematics joint-offsets`` also gets, with ``--format urdf`` (or
+alone with ``--format robot``), the arm's corrected URDF (offsets folded into the joint origins)
+and ``joint_offsets.yaml`` for the controller."""
 
 from __future__ import annotations
 
@@ -16,7 +20,8 @@ def add_parser(sub):
     p.add_argument("result", type=Path, help="result.json or result.yaml written by `calibgraph solve` "
                                               "(a dataset folder for --format mchec)")
     p.add_argument("--format", dest="fmt", choices=tuple(FORMATS) + ("mchec",), required=True, action="append",
-                   help="output format; repeat for several")
+                   help="output format; repeat for several (robot: the corrected arm URDF and joint_offsets.yaml of a "
+                        "result solved with --estimate-kinematics; urdf writes them too)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--dataset", type=Path, default=None,
                    help="dataset folder for intrinsics when the result has none (opencv-yaml)")

@@ -29,6 +29,14 @@ def add_parser(sub):
                         "(calibration: f 0.3 %%, factory: f 2 %%; default calibration)")
     p.add_argument("--fixed-board-scale", action="store_true",
                    help="take the target's declared size as exact (default: estimate a printer scale factor)")
+    p.add_argument("--estimate-kinematics", choices=("none", "joint-offsets"), default=None,
+                   help="joint-offsets: estimate the arm's joint zero offsets in the same graph (needs q_rad in every "
+                        "capture; eye-to-hand, method joint); result.json gains a 'robot' section")
+    p.add_argument("--kinematic-model", default=None,
+                   help="the arm's kinematic model for --estimate-kinematics: franka (Panda / FR3, default) or a URDF path")
+    p.add_argument("--kinematics-staging", choices=("joint", "staged"), default=None,
+                   help="joint: all variables at once (default, see scripts/results/bench_kinematics.md); staged: "
+                        "cameras with an inflated FK prior, then the offsets, then everything")
     p.add_argument("--rrd", type=Path, default=None, help="also write a rerun recording")
     p.add_argument("--quiet", action="store_true")
     return p
@@ -60,6 +68,12 @@ def solver_options(args, dataset):
         d["intrinsics_source"] = args.intrinsics_source
     if getattr(args, "fixed_board_scale", False):
         d["board_scale"] = False
+    if getattr(args, "estimate_kinematics", None):
+        d["kinematics"] = args.estimate_kinematics
+    if getattr(args, "kinematic_model", None):
+        d["kinematics_model"] = args.kinematic_model
+    if getattr(args, "kinematics_staging", None):
+        d["kinematics_staging"] = args.kinematics_staging
     try:
         return SolverOptions(**d)
     except TypeError as e:
@@ -108,8 +122,30 @@ def format_summary(result, truth=None) -> str:
         lines.append(f"rejected corners: {len(result.rejected_corners)} (listed in the result file)")
     if result.board_scale_sigma is not None:
         lines.append(f"board scale (printed / declared size): {result.board_scale:.5f} ± {result.board_scale_sigma:.5f}")
+    lines += robot_lines(result.robot)
     lines += [f"note: {n}" for n in result.notes]
     return "\n".join(lines)
+
+
+def robot_lines(robot: dict | None) -> list:
+    """The estimated joint offsets (mrad, 1-sigma), the joints held fixed and the strongest correlations."""
+    if not robot:
+        return []
+    o, s = robot["joint_offsets_rad"], robot["joint_offsets_sigma_rad"]
+    names = robot.get("joint_names") or [f"joint{i + 1}" for i in range(len(o))]
+    lines = [f"robot joint zero offsets ({robot.get('model', '?')}; physical angle = reported + offset), mrad:"]
+    for i, (n, v, sg) in enumerate(zip(names, o, s)):
+        if sg is None:
+            lines.append(f"  {n:10s} held at 0")
+        else:
+            lines.append(f"  {n:10s} {1e3 * v:+8.3f} ± {1e3 * sg:.3f}  ({v / sg:+.1f} σ from zero)")
+    for f in robot.get("fixed", []):
+        lines.append(f"  joint {f['joint']} fixed: {f['reason']}")
+    strong = [c for c in robot.get("strongest_correlations", []) if abs(c["correlation"]) >= 0.5]
+    if strong:
+        lines.append("  strongest correlations: " + ", ".join(f"joint {c['joint']} ~ {c['with']} {c['correlation']:+.2f}"
+                                                           for c in strong))
+    return lines
 
 
 def print_problems(problems, per_kind: int = 3) -> None:
@@ -136,6 +172,14 @@ def run(args) -> int:
     for f, msg in ds.problems:
         print(f"warning: {f}: {msg}", file=sys.stderr)
     opts = solver_options(args, ds)
+    if opts.kinematics != "none":
+        missing = [c.index for c in ds.captures if c.q_rad is None]
+        if missing:
+            from calibgraph.core.errors import InputError
+
+            raise InputError(f"--estimate-kinematics {opts.kinematics} needs the joint angles (q_rad) of every capture; "
+                             f"{len(missing)} of {len(ds.captures)} captures in {args.dataset} have none (first: capture "
+                             f"{missing[0]}). Record them (calibgraph capture does) or solve without the option.")
     problem, detector = build_problem(ds, args.method, opts, progress=not args.quiet)
     print_problems(getattr(detector, "problems", []) or [])
     if not args.quiet:

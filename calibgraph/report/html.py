@@ -299,6 +299,7 @@ def write_report(result_dict: dict, out_html, config=None, dataset=None, result_
         "<h2>Cameras</h2>",
         *(_camera_section(n, R, poses[n], cov.get(n), intr[n], verdicts[n], residuals.get(n, {}), ref, ws) for n in names),
         _pairs_html(R),
+        _robot_html(R),
         _residuals_html(R, names, residuals, residual_source),
         "<h2>Uncertainty in the workspace</h2>",
         ws["html"],
@@ -383,6 +384,51 @@ def _pairs_html(R: dict) -> str:
                  f"<td>{_vec(p.get('sigma_rotation_deg', [np.nan] * 3), '.4f')}</td></tr>")
     h.append("</table>")
     h.append('<p class="note">T_a_b maps points from camera b\'s optical frame to camera a\'s; 1σ along a\'s axes.</p>')
+    return "\n".join(h)
+
+
+def _robot_html(R: dict) -> str:
+    """The arm's estimated joint zero offsets with their 1σ, the joints held fixed and why, and the
+    correlations that matter (none when the result was solved without --estimate-kinematics)."""
+    rb = R.get("robot")
+    if not rb:
+        return ""
+    o, s = rb.get("joint_offsets_rad") or [], rb.get("joint_offsets_sigma_rad") or []
+    names = rb.get("joint_names") or [f"joint{i + 1}" for i in range(len(o))]
+    reasons = {int(f["joint"]): f.get("reason", "") for f in rb.get("fixed", [])}
+    h = ["<h2>Robot kinematics: joint zero offsets</h2>",
+         f'<p class="note">Model {_esc(rb.get("model", "?"))} ({_esc(rb.get("model_source", ""))}), estimated in the same '
+         f"graph as the cameras ({_esc(rb.get('staging', ''))}); physical joint angle = reported angle + offset. "
+         f"Prior 1σ {num(1e3 * float(rb.get('prior_sigma_rad', np.nan)), '.1f')} mrad.</p>",
+         '<table id="robot-offsets"><tr><th class="l">joint</th><th>offset (mrad)</th><th>1σ (mrad)</th>'
+         "<th>offset / 1σ</th><th class=\"l\">status</th></tr>"]
+    for i, (n, v) in enumerate(zip(names, o)):
+        sg = s[i] if i < len(s) else None
+        if sg is None:
+            h.append(f'<tr data-joint="{i + 1}"><td class="l">{_esc(n)}</td><td>0</td><td>—</td><td>—</td>'
+                     f'<td class="l">held fixed: {_esc(reasons.get(i + 1, ""))}</td></tr>')
+        else:
+            z = float(v) / float(sg)
+            status = "differs from zero" if abs(z) > 3 else "consistent with zero"
+            h.append(f'<tr data-joint="{i + 1}"><td class="l">{_esc(n)}</td><td>{num(1e3 * float(v), "+.3f")}</td>'
+                     f'<td>{num(1e3 * float(sg), ".3f")}</td><td>{num(z, "+.1f")}</td><td class="l">{status}</td></tr>')
+    h.append("</table>")
+    strong = rb.get("strongest_correlations") or []
+    if strong:
+        h.append('<table id="robot-correlations"><tr><th class="l">offset</th><th class="l">most correlated with</th>'
+                 "<th>correlation</th></tr>")
+        for c in strong:
+            h.append(f'<tr><td class="l">joint {int(c["joint"])}</td><td class="l">{_esc(c["with"])}</td>'
+                     f'<td>{num(c["correlation"], "+.3f")}</td></tr>')
+        h.append("</table>")
+    corr = rb.get("offset_correlations")
+    est = rb.get("estimated") or []
+    if corr and len(corr) == len(est) and len(est) > 1:
+        off = [(abs(corr[a][b]), est[a], est[b], corr[a][b]) for a in range(len(est)) for b in range(a + 1, len(est))]
+        off.sort(reverse=True)
+        h.append('<p class="note">Largest correlations between offsets: ' +
+                 ", ".join(f"joints {a} and {b} {c:+.2f}" for _, a, b, c in off[:3]) +
+                 ". <code>calibgraph export RESULT --format urdf</code> writes a corrected arm URDF and the offsets as YAML.</p>")
     return "\n".join(h)
 
 

@@ -762,6 +762,7 @@ def _robot_result(problem: Problem, ks, names: list, group: _Group, notes: list)
                           captures)
     out = kin.robot_result(ks, est.joint_offsets, cov, labels, problem.options.joint_offset_prior_rad,
                            problem.options.kinematics_staging)
+    out["model_source"] = problem.options.kinematics_model
     o, s = np.asarray(out["joint_offsets_rad"]), out["joint_offsets_sigma_rad"]
     big = [f"joint {i + 1} {1e3 * o[i]:+.2f} ± {1e3 * s[i]:.2f} mrad" for i in ks.free if abs(o[i]) > 3 * s[i]]
     if big:

@@ -118,10 +118,10 @@ def check_motion(ks: KinematicSetup, captures) -> None:
         side = "before" if not before else "after"
         which = range(0, i) if not before else range(i + 1, len(span))
         spans = ", ".join(f"joint {j + 1} {np.degrees(span[j]):.1f} deg" for j in which)
-        absorber = "the cameras' poses" if not before else "the board mount"
+        absorber = "the cameras' poses absorb" if not before else "the board mount absorbs"
         raise ObservabilityError(
             f"joint {i + 1}'s offset cannot be observed: no joint {side} it moves across the captures ({spans}), so its "
-            f"error is a fixed rotation that {absorber} absorb. Add captures that turn those joints by at least "
+            f"error is a fixed rotation that {absorber}. Add captures that turn those joints by at least "
             f"{np.degrees(MIN_JOINT_MOTION_RAD):.0f} deg, or solve without --estimate-kinematics.")
 
 
