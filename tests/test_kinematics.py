@@ -94,3 +94,25 @@ def test_urdf_fixed_joints_fold_and_prismatic_is_refused(tmp_path):
     p.write_text(urdf.replace('name="j2" type="revolute"', 'name="j2" type="prismatic"'))
     with pytest.raises(InputError, match="prismatic"):
         chain_from_urdf(p)
+
+
+def test_chain_agrees_with_pinocchio_when_installed(tmp_path):
+    # an independent implementation of FK and the frame Jacobian (pinocchio's LOCAL Jacobian is
+    # linear-first); the URDF carries 10 significant digits, so agreement to 1e-8
+    try:
+        import pinocchio as pin
+    except ImportError:
+        pytest.skip("pinocchio (pip 'pin') not installed: the chain is checked against finite differences only")
+    ch = franka_chain()
+    p = tmp_path / "fr3.urdf"
+    p.write_text(ch.to_urdf())
+    model = pin.buildModelFromUrdf(str(p))
+    data = model.createData()
+    fid = model.getFrameId(ch.flange_link)
+    T, J = ch.fk_jacobian(Q)
+    for q, Tk, Jk in zip(Q, T, J):
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        Jp = pin.getFrameJacobian(model, data, fid, pin.ReferenceFrame.LOCAL)
+        assert np.allclose(data.oMf[fid].homogeneous, Tk, atol=1e-8)
+        assert np.allclose(np.vstack([Jp[3:], Jp[:3]]), Jk, atol=1e-8)

@@ -17,7 +17,7 @@ import numpy as np
 
 from calibgraph.acquire.safety import FRANKA_LIMITS
 from calibgraph.core.kinematics import franka_chain
-from calibgraph.core.problem import Capture, Detection, SolverOptions
+from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
 from calibgraph.core.transforms import exp_so3, inv, make_T
 from calibgraph.sim.synth import Scene, Truth, make_scene
 
@@ -97,3 +97,51 @@ def make_kinematic_scene(joint_offsets_rad=None, n_poses: int = 60, pixel_sigma_
     problem = replace(prob, captures=tuple(captures), detections=tuple(dets), options=opts)
     return (Scene(problem, Truth(truth.T_ref_cam, T_fb, flange_true)),
             KinematicTruth(o, q_true))
+
+
+def kinematic_scene_from_trajectory(cell, trajectory, joint_offsets_rad=None, pixel_sigma_px: float = 0.3,
+                                    options: SolverOptions | None = None, seed: int = 0) -> tuple[Scene, KinematicTruth]:
+    """Synthetic corners (not rendered) of a simulated workcell along a planned trajectory.
+
+    ``cell``: a :class:`calibgraph.sim.workcell.Workcell` (cameras, board, mount, FK sigmas);
+    ``trajectory``: a :class:`calibgraph.plan.trajectory.Trajectory` planned for it (its capture
+    poses' ``q_rad`` are taken as the robot's commanded = reported angles, and ``cameras`` as the
+    cameras that see the board). As :class:`calibgraph.sim.devices.SimRobot` does, the arm turns to
+    ``q_rad + offsets``, reports ``q_rad`` and the nominal FK of it; the true flange pose carries the
+    cell's per-pose repeatability error; every board point is projected through the true chain
+    with Gaussian pixel noise (views leaving the image are dropped). ``options`` default to the
+    cell's FK sigmas.
+    """
+    rng = np.random.default_rng(seed + 104729)
+    o = np.zeros(7) if joint_offsets_rad is None else np.asarray(joint_offsets_rad, float).reshape(7)
+    chain = franka_chain()
+    fk_t, fk_r = cell.fk_sigma_translation_m, float(np.radians(cell.fk_sigma_rotation_deg))
+    pts = cell.target.points_board_m
+    cams = {c.name: c for c in cell.cameras}
+    captures, dets, flange_true, q_true = [], [], {}, {}
+    for p in trajectory.poses:
+        if not p.capture or not p.cameras:
+            continue
+        q_rep = np.asarray(p.q_rad, float)
+        q = q_rep + o
+        T_true = chain.fk(q) @ make_T(exp_so3(rng.normal(scale=fk_r, size=3)), rng.normal(scale=fk_t, size=3))
+        views = []
+        for name in p.cameras:
+            spec = cams[name]
+            T_cb = inv(spec.T_base_cam) @ T_true @ cell.T_flange_board
+            pc = pts @ T_cb[:3, :3].T + T_cb[:3, 3]
+            uv = spec.intrinsics.project(pc) + rng.normal(scale=pixel_sigma_px, size=(len(pts), 2))
+            w, h = spec.intrinsics.width_px, spec.intrinsics.height_px
+            if np.all(pc[:, 2] > 0.2) and np.all((uv >= 0) & (uv < [w, h])):
+                views.append(Detection(camera=name, capture=len(captures), ids=np.arange(len(pts)), uv_px=uv))
+        if not views:
+            continue
+        k = len(captures)
+        captures.append(Capture(index=k, T_base_flange=chain.fk(q_rep), q_rad=q_rep))
+        dets += views
+        flange_true[k], q_true[k] = T_true, q
+    opts = options or SolverOptions(fk_sigma_translation_m=fk_t, fk_sigma_rotation_rad=fk_r)
+    problem = Problem(points_board_m=pts, cameras={n: c.intrinsics for n, c in cams.items()}, captures=tuple(captures),
+                      detections=tuple(dets), options=opts)
+    truth = Truth({n: c.T_base_cam for n, c in cams.items()}, np.asarray(cell.T_flange_board), flange_true)
+    return Scene(problem, truth), KinematicTruth(o, q_true)
