@@ -179,3 +179,38 @@ def test_cli_estimate_kinematics_without_joint_angles_is_one_clear_error(kin_dat
     assert "robot" not in json.loads(out.read_text())
     assert _cli("export", out, "--format", "robot", "--out", tmp_path / "e") == 2
     assert "--estimate-kinematics" in capsys.readouterr().err
+
+
+def test_synthetic_corners_along_a_planned_trajectory_carry_the_offsets():
+    # the benchmark's cell: poses planned for the simulator's default workcell, corners projected
+    # through the true chain (reported + offsets), the reported pose the nominal FK of the reported angles
+    from helpers import require_sim
+
+    require_sim()
+    from pathlib import Path
+
+    from calibgraph.plan.planner import plan_trajectory
+    from calibgraph.sim.render import SimWorld
+    from calibgraph.sim.synth_kinematics import kinematic_scene_from_trajectory
+    from calibgraph.sim.workcell import load_workcell
+
+    cell = load_workcell(Path(__file__).resolve().parents[1] / "datasets" / "workcells" / "default.yaml")
+    world = SimWorld(cell)
+    try:
+        traj = plan_trajectory(world, 6, seed=0)
+    finally:
+        world.close()
+    sc, truth = kinematic_scene_from_trajectory(cell, traj, OFFSETS, pixel_sigma_px=0.1, seed=0)
+    caps = [p for p in traj.poses if p.capture and p.cameras]
+    assert len(sc.problem.captures) == len(caps) > 0
+    ch = franka_chain()
+    fk_t = cell.fk_sigma_translation_m
+    for c, p in zip(sc.problem.captures, caps):
+        assert np.allclose(c.q_rad, p.q_rad) and np.allclose(c.T_base_flange, ch.fk(p.q_rad))
+        e_m, _ = pose_error(sc.truth.T_base_flange_true[c.index], ch.fk(p.q_rad + OFFSETS))
+        assert e_m < 5 * np.sqrt(3) * fk_t  # only the repeatability separates them
+    pts = sc.problem.points_board_m
+    for d in sc.problem.detections:
+        T_cb = np.linalg.inv(sc.truth.T_ref_cam[d.camera]) @ sc.truth.T_base_flange_true[d.capture] @ sc.truth.T_mount_board
+        uv = sc.problem.cameras[d.camera].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+        assert np.abs(uv - d.uv_px).max() < 5 * 0.1
