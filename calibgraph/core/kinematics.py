@@ -20,10 +20,11 @@ in ``scripts/results/bench_kinematics.md``): both give the same pose and flange 
 the 10 digits of the URDF the chain writes for pinocchio). Pinocchio is faster: about 3 us per
 configuration even from a Python loop, against 6-11 us per configuration for this chain batched
 over 60-1000 captures and about 0.2 ms for one configuration at a time, which is how the solver's
-kinematic factors call it. But in a solve that is not where the time goes: at 110 captures the
-joint-offset solve takes 2.3 s against 2.1 s without kinematics, so pinocchio would save a few
-percent of a solve at the price of a compiled dependency (and a URDF round trip for the built-in
-arm). This chain is one tested numpy file; the solver keeps it.
+kinematic factors call it. In a solve the offsets add 0.2-0.3 s to 0.75-3.2 s (30-110 captures,
+``time_s`` in ``scripts/results/bench_kinematics.json``), and the FK calls are at most that: not
+worth a compiled dependency (and a URDF round trip for the built-in arm) today. This chain is one
+tested numpy file and the solver keeps it; pinocchio, or a one-configuration fast path, is the
+lever if solves with kinematics grow long.
 """
 
 from __future__ import annotations
