@@ -34,6 +34,8 @@ def writable_target(path) -> Path:
     """The file that writing ``path`` should replace: ``path`` itself, or the file a symlink points
     to (the link is kept). Refuses, with the fix, a directory, a device or any other non-regular
     file, and a parent that is not a directory."""
+    if str(path) == "":
+        raise InputError("an empty output path was given; name a file.")
     p = Path(path)
     if p.is_symlink():
         p = p.resolve()
@@ -46,10 +48,40 @@ def writable_target(path) -> Path:
     except OSError as e:
         raise InputError(f"{path}: cannot write here ({e.strerror}); choose another output path.") from None
     if st is not None and stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{path}: is a folder; name a file inside it (e.g. {Path(path) / 'result.json'}).")
+        raise InputError(f"{path}: is a folder; name a file inside it (e.g. {Path(path) / _example_name(path)}).")
     if st is not None and not stat.S_ISREG(st.st_mode):
         raise InputError(f"{path}: is not a regular file (device, pipe or socket); "
                          "calibgraph writes only regular files, choose another output path.")
+    return p
+
+
+def _example_name(path) -> str:
+    """A file name to suggest inside the folder ``path`` was (by mistake) given as."""
+    return "report.html" if "report" in str(path).lower() else "result.json"
+
+
+def output_folder(path, what: str = "output folder", empty: bool = False) -> Path:
+    """Make sure ``path`` is a folder calibgraph may write files into, creating it when missing.
+
+    Refuses, with the fix, an existing file (or device) at ``path``, a parent that is a file, a
+    folder that cannot be created or written (read-only), and, with ``empty``, a folder that already
+    holds files. Returns ``path``.
+    """
+    p = Path(path)
+    if str(path) == "":
+        raise InputError(f"an empty {what} was given; name a folder.")
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{path}: is a file, not a folder; give a folder for the {what} (e.g. {p.with_suffix('')}_out).")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise InputError(f"{path}: a parent of this path is a file, not a folder; choose another {what}.") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot create the {what} ({e.strerror}); choose another one.") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: the {what} is not writable (read-only); fix its permissions or choose another one.")
+    if empty and any(p.iterdir()):
+        raise InputError(f"{path}: exists and is not empty; give a new {what}.")
     return p
 
 
