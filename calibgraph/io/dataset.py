@@ -159,6 +159,12 @@ def read_calibgraph_dataset(root) -> Dataset:
     supported layout.)"""
     root = Path(root)
     head = read_yaml(root / "dataset.yaml", "dataset header")
+    fmt = str(head.get("format", FORMAT))
+    if fmt != FORMAT:
+        newer = fmt.startswith("calibgraph-dataset/")
+        raise InputError(f"{root / 'dataset.yaml'}: format {fmt!r} " + (
+            f"is newer than this calibgraph reads ({FORMAT}); upgrade calibgraph." if newer else
+            f"is not a calibgraph dataset ({FORMAT})."))
     if "target" not in head or "cameras" not in head:
         raise InputError(f"{root / 'dataset.yaml'}: needs 'target' and 'cameras' sections (see README, Dataset format).")
     target = Target.from_dict(head["target"])
@@ -169,6 +175,7 @@ def read_calibgraph_dataset(root) -> Dataset:
         except InputError as e:
             raise InputError(f"{root / 'dataset.yaml'}: camera {name!r}: {e}") from None
     captures, views, problems = [], [], []
+    file_of = {}
     for f in sorted((root / "captures").glob("*.json")):
         try:
             d = json.loads(f.read_text())
@@ -180,6 +187,10 @@ def read_calibgraph_dataset(root) -> Dataset:
         except InputError as e:
             problems.append((str(f), f"{e}; skipped"))
             continue
+        if cap.index in file_of:
+            raise InputError(f"{f}: capture index {cap.index} is also used by {file_of[cap.index]}; capture indices "
+                             "must be unique: renumber one of the two files, or remove it if it is a copy.")
+        file_of[cap.index] = f
         captures.append(cap)
         for cam, v in (d.get("views") or {}).items():
             if cam not in cameras:
