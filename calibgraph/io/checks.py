@@ -127,12 +127,13 @@ def _image_size(path: Path):
 
 
 def _check_image_sizes(ds) -> None:
-    """The first, middle and last image of every camera must have the intrinsics' size."""
+    """The first, middle and last image to be detected of every camera must have the intrinsics' size
+    (views with stored detections are checked by their corners, :func:`_check_corners_inside`)."""
     root = Path(ds.root)
     for cam, intr in ds.cameras.items():
         if not intr.width_px or not intr.height_px:
             continue
-        imgs = [v.image for v in ds.views if v.camera == cam and v.image]
+        imgs = [v.image for v in ds.views if v.camera == cam and v.image and v.ids is None]
         for rel in dict.fromkeys(imgs[i] for i in {0, len(imgs) // 2, len(imgs) - 1} if imgs):
             wh = _image_size(root / rel)
             if wh is None or wh == (intr.width_px, intr.height_px):

@@ -55,6 +55,23 @@ def writable_target(path) -> Path:
     return p
 
 
+def output_file(path, what: str = "output file") -> Path:
+    """Check, before any work is done, that ``path`` can be written by :func:`atomic_write_via`:
+    a regular file or a new path (a symlink is written through: the file it points to is replaced,
+    the link kept), in a folder that exists or can be created and is writable. Raises
+    :class:`InputError` with the fix; returns ``path``."""
+    target = writable_target(path)
+    parent = target.parent
+    while not parent.exists() and not parent.is_symlink() and parent != parent.parent:
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        raise InputError(f"{path}: {parent} is a file, not a folder; choose another {what}.")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: the folder {parent} is not writable (read-only); fix its permissions or choose "
+                         f"another {what}.")
+    return Path(path)
+
+
 def _example_name(path) -> str:
     """A file name to suggest inside the folder ``path`` was (by mistake) given as."""
     return "report.html" if "report" in str(path).lower() else "result.json"
@@ -71,7 +88,8 @@ def output_folder(path, what: str = "output folder", empty: bool = False) -> Pat
     if str(path) == "":
         raise InputError(f"an empty {what} was given; name a folder.")
     if p.exists() and not p.is_dir():
-        raise InputError(f"{path}: is a file, not a folder; give a folder for the {what} (e.g. {p.with_suffix('')}_out).")
+        raise InputError(f"{path}: is a file, not a folder; the {what} must be a folder "
+                         f"(e.g. {p.with_suffix('')}_out); nothing was written.")
     try:
         p.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
@@ -97,7 +115,7 @@ def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") 
     target = writable_target(path)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
+    except (FileExistsError, NotADirectoryError):
         raise InputError(f"{path}: a parent of this path is a file, not a folder; choose another output path.") from None
     except OSError as e:
         raise InputError(f"{path}: cannot create its folder ({e.strerror}); choose another output path.") from None
