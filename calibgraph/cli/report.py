@@ -27,7 +27,7 @@ def run(args) -> int:
     from calibgraph.io.files import output_file
 
     d = load_result_dict(args.result)
-    out = output_file(args.out or args.result.with_name("report.html"), "report file")
+    out = output_file(args.out or args.result.with_name("report.html"), "report file", "report.html")
     dataset = args.dataset
     if dataset is None and d.get("dataset") and Path(d["dataset"]).is_dir():
         dataset = Path(d["dataset"])  # the dataset the result names, when it is still there

@@ -137,7 +137,7 @@ def run(args) -> int:
     ds = load_dataset(args.dataset)
     output_file(out, "result file")  # said now, not after solving; the previous result stays until the new one is whole
     if args.rrd:
-        output_file(args.rrd, "rerun recording")
+        output_file(args.rrd, "rerun recording", "calibgraph.rrd")
     for f, msg in ds.problems:
         print(f"warning: {f}: {msg}", file=sys.stderr)
     opts = solver_options(args, ds)

@@ -27,7 +27,7 @@ def run(args) -> int:
 
         from calibgraph.io.files import output_file
 
-        out = output_file(args.out or args.spec.with_suffix(".pdf"), "PDF file")
+        out = output_file(args.out or args.spec.with_suffix(".pdf"), "PDF file", "board.pdf")
         write_target_pdf(t, out, args.paper.upper())
         print(f"wrote {out} ({args.paper.upper()}); print at 100% scale and check the 100 mm ruler")
         return 0

@@ -30,7 +30,7 @@ def run(args) -> int:
         dataset = Path(d["dataset"])
     from calibgraph.io.files import output_file
 
-    path = output_file(args.rrd or args.result.with_suffix(".rrd"), "recording file")
+    path = output_file(args.rrd or args.result.with_suffix(".rrd"), "recording file", "calibgraph.rrd")
     write_rrd(d, dataset, path)
     print(f"wrote {path}")
     if args.rrd is None:

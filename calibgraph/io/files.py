@@ -30,7 +30,7 @@ def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
     return d
 
 
-def writable_target(path) -> Path:
+def writable_target(path, example: str = "result.json") -> Path:
     """The file that writing ``path`` should replace: ``path`` itself, or the file a symlink points
     to (the link is kept). Refuses, with the fix, a directory, a device or any other non-regular
     file, and a parent that is not a directory."""
@@ -48,19 +48,19 @@ def writable_target(path) -> Path:
     except OSError as e:
         raise InputError(f"{path}: cannot write here ({e.strerror}); choose another output path.") from None
     if st is not None and stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{path}: is a folder; name a file inside it (e.g. {Path(path) / _example_name(path)}).")
+        raise InputError(f"{path}: is a folder; name a file inside it (e.g. {Path(path) / example}).")
     if st is not None and not stat.S_ISREG(st.st_mode):
         raise InputError(f"{path}: is not a regular file (device, pipe or socket); "
                          "calibgraph writes only regular files, choose another output path.")
     return p
 
 
-def output_file(path, what: str = "output file") -> Path:
+def output_file(path, what: str = "output file", example: str = "result.json") -> Path:
     """Check, before any work is done, that ``path`` can be written by :func:`atomic_write_via`:
     a regular file or a new path (a symlink is written through: the file it points to is replaced,
     the link kept), in a folder that exists or can be created and is writable. Raises
     :class:`InputError` with the fix; returns ``path``."""
-    target = writable_target(path)
+    target = writable_target(path, example)
     parent = target.parent
     while not parent.exists() and not parent.is_symlink() and parent != parent.parent:
         parent = parent.parent
@@ -70,11 +70,6 @@ def output_file(path, what: str = "output file") -> Path:
         raise InputError(f"{path}: the folder {parent} is not writable (read-only); fix its permissions or choose "
                          f"another {what}.")
     return Path(path)
-
-
-def _example_name(path) -> str:
-    """A file name to suggest inside the folder ``path`` was (by mistake) given as."""
-    return "report.html" if "report" in str(path).lower() else "result.json"
 
 
 def output_folder(path, what: str = "output folder", empty: bool = False) -> Path:

@@ -76,6 +76,7 @@ from calibgraph.solver.initialise import (
     refine_translations,
 )
 from calibgraph.solver.keys import B, C, F, K, S
+from calibgraph.solver.moved import solve_minding_moves
 from calibgraph.solver.observability import check_after_solve, check_before_solve
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView, Result
 
@@ -664,8 +665,6 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
         ObservabilityError: a camera has too few views or the motion leaves a parameter undetermined.
         InputError: formulation 'corner' was asked for a camera with k3..k6 distortion.
     """
-    from calibgraph.solver.moved import solve_minding_moves
-
     t0 = time.perf_counter()
     result = _solve_once(problem, initial, seed, timings)
     result = solve_minding_moves(problem, result, lambda p: _solve_once(p, initial, seed, timings))

@@ -26,6 +26,7 @@ import numpy as np
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.transforms import inv, pose_error
+from calibgraph.solver.result import RejectedView
 
 MIN_GROUP_VIEWS = 2     # a side of a split needs this many views (one view is a single outlier, not a pose)
 F_LIMIT = 50.0          # two poses must explain the corners this much better than one (F, 6 and N-12 dof)
@@ -146,8 +147,6 @@ def solve_minding_moves(problem, result, resolve) -> object:
     without that camera's views from before the move (``resolve(problem)`` solves), with a note
     and the set-aside views listed as rejected. Cameras are handled one at a time, strongest
     split first, and the others tested again on the new solution."""
-    from calibgraph.solver.result import RejectedView
-
     moves, handled, original = [], set(), problem
     while len(moves) < MAX_MOVED:
         found = find_moves(problem, result, skip=handled)
