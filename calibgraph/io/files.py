@@ -98,6 +98,31 @@ def output_folder(path, what: str = "output folder", empty: bool = False) -> Pat
     return p
 
 
+def _remove_stale_temporaries(target: Path) -> None:
+    """Temporary files of ``target`` left by a writer that was killed (its process is gone) are removed."""
+    import re
+
+    try:
+        leftovers = list(target.parent.glob(f".{target.name}.tmp*"))
+    except OSError:
+        return
+    for p in leftovers:
+        m = re.match(rf"\.{re.escape(target.name)}\.tmp(\d+)", p.name)
+        if not m or int(m.group(1)) == os.getpid():
+            continue
+        try:
+            os.kill(int(m.group(1)), 0)
+            continue  # its writer is still running
+        except ProcessLookupError:
+            pass
+        except OSError:
+            continue
+        try:
+            p.unlink()
+        except OSError:
+            pass
+
+
 def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") -> Path:
     """Write ``path`` so that a crash or a failed write leaves either the old or the new content.
 
@@ -114,6 +139,7 @@ def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") 
         raise InputError(f"{path}: a parent of this path is a file, not a folder; choose another output path.") from None
     except OSError as e:
         raise InputError(f"{path}: cannot create its folder ({e.strerror}); choose another output path.") from None
+    _remove_stale_temporaries(target)
     tmp = target.with_name(f".{target.name}.tmp{os.getpid()}{tmp_suffix}")
     try:
         write(tmp)
