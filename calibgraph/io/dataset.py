@@ -199,13 +199,32 @@ def read_calibgraph_dataset(root) -> Dataset:
             f"is not a calibgraph dataset ({FORMAT})."))
     if "target" not in head or "cameras" not in head:
         raise InputError(f"{root / 'dataset.yaml'}: needs 'target' and 'cameras' sections (see README, Dataset format).")
-    target = Target.from_dict(head["target"])
+    where = root / "dataset.yaml"
+    if not isinstance(head["target"], dict):
+        raise InputError(f"{where}: 'target' must be a mapping (kind, rows, cols, pitch_m).")
+    if not isinstance(head["cameras"], dict) or not head["cameras"]:
+        raise InputError(f"{where}: 'cameras' must map each camera name to its intrinsics (K, dist, width_px, height_px).")
+    if head.get("mode", "eye_to_hand") not in ("eye_to_hand", "eye_in_hand"):
+        raise InputError(f"{where}: mode {head.get('mode')!r}; give eye_to_hand or eye_in_hand.")
+    if head.get("solver") is not None and not isinstance(head.get("solver"), dict):
+        raise InputError(f"{where}: 'solver' must be a mapping of solver settings.")
+    try:
+        target = Target.from_dict(head["target"])
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+    except (TypeError, ValueError, KeyError) as e:
+        raise InputError(f"{where}: target section malformed ({e}).") from None
     cameras = {}
-    for name, d in (head.get("cameras") or {}).items():
+    for name, d in head["cameras"].items():
+        if not isinstance(d, dict):
+            raise InputError(f"{where}: camera {name!r}: needs a mapping with K, dist, width_px, height_px.")
         try:
             cameras[str(name)] = Intrinsics.from_dict(d.get("intrinsics", d))
         except InputError as e:
             raise InputError(f"{root / 'dataset.yaml'}: camera {name!r}: {e}") from None
+        except (TypeError, ValueError, KeyError, IndexError) as e:
+            raise InputError(f"{root / 'dataset.yaml'}: camera {name!r}: intrinsics malformed ({e}); give K (3x3), "
+                             "dist (list), width_px and height_px.") from None
     captures, views, problems = [], [], []
     file_of = {}
     for f in sorted((root / "captures").glob("*.json")):

@@ -21,13 +21,24 @@ def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
     p = Path(path)
     try:
         d = yaml.safe_load(p.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+    except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{p}: cannot read {what}: {e}") from None
+    except yaml.YAMLError as e:
+        raise InputError(f"{p}: cannot read {what}: {yaml_error_line(e)}") from None
     if d is None and empty_ok:
         d = {}
     if mapping and not isinstance(d, dict):
         raise InputError(f"{p}: {what} must be a YAML mapping.")
     return d
+
+
+def yaml_error_line(e) -> str:
+    """A YAML parser error in one line: what and where (line, column)."""
+    mark = getattr(e, "problem_mark", None)
+    what = getattr(e, "problem", None) or str(e).splitlines()[0]
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    ctx = getattr(e, "context", None)
+    return f"not valid YAML{where}: {what}" + (f" ({ctx})" if ctx else "")
 
 
 def writable_target(path, example: str = "result.json") -> Path:
