@@ -66,7 +66,8 @@ def _mini_mchec(root):
         (root / c / "pose").mkdir()
         (root / c / "intrinsic_pars_file.yaml").write_text(INTR)
         for k in (1, 2, 3):
-            cv2.imwrite(str(root / c / "image" / f"{k:04d}.png"), np.zeros((10, 12), np.uint8))
+            # images of the intrinsics' size (1920x1080), each capture its own
+            cv2.imwrite(str(root / c / "image" / f"{k:04d}.png"), np.full((1080, 1920), 10 * k, np.uint8))
             text = POSE_SPACE if k != 2 else POSE_SPACE.replace(" ", ",")  # MC-HEC reads both delimiters
             (root / c / "pose" / f"{k:04d}.csv").write_text(text)
     return root

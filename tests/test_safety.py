@@ -101,3 +101,86 @@ def test_without_kinematics_the_box_cannot_be_assumed_clear():
     lim_r = SafetyLimits(workspace_min_m=[0, 0, 0], workspace_max_m=[1, 1, 1], tool_radius_m=0.1)
     assert not check_motion(None, np.ones(6), lim_r, T_goal_stated=T).ok
     assert joint_problems([0.0, float("nan")], lim_r) == ["joint target contains NaN/inf"]
+
+
+# -- static cell geometry and the stated pose (issue 16) ---------------------------------------------
+def _pose_trajectory(n=20, seed=3):
+    """``n`` reachable Franka poses around a presentation posture, each stating its FK flange pose."""
+    from calibgraph.acquire.safety import default_cell_limits, geometry_problems
+    from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
+
+    lim = default_cell_limits()
+    rng = np.random.default_rng(seed)
+    base = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785])
+    poses = []
+    while len(poses) < n:
+        q = base + rng.uniform(-0.3, 0.3, 7)
+        if not joint_problems(q, lim) and not geometry_problems(franka_fk(q), lim):
+            poses.append(TrajectoryPose(q_rad=q, T_base_flange=franka_fk(q)))
+    return Trajectory(tuple(poses), speed_scale=0.2)
+
+
+def _flange_into_pedestal(traj, k):
+    """The issue's edit: joint 2 of pose ``k`` changed (1.3 rad), its stated T_base_flange kept."""
+    from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
+
+    poses = list(traj.poses)
+    q = poses[k].q_rad.copy()
+    q[1] = 1.3
+    poses[k] = TrajectoryPose(q_rad=q, T_base_flange=poses[k].T_base_flange)
+    return Trajectory(tuple(poses), speed_scale=traj.speed_scale), q
+
+
+def test_stated_pose_against_fk_and_the_pedestal():
+    from calibgraph.acquire.safety import default_cell_limits, geometry_problems
+
+    lim = default_cell_limits()
+    traj = _pose_trajectory(3)
+    bad, q = _flange_into_pedestal(traj, 1)
+    p = franka_fk(q)[:3, 3]
+    assert lim.pedestal.contains(p[None])[0] and p[2] < 0  # the edit really puts the flange in the pedestal
+    # stated pose kept: refused because FK of the joints disagrees with it (by the distance between the two)
+    v = check_motion(traj.poses[0].q_rad, q, lim, fk=franka_fk, T_goal_stated=bad.poses[1].T_base_flange)
+    dist_mm = 1e3 * np.linalg.norm(p - bad.poses[1].T_base_flange[:3, 3])
+    assert not v.ok and "stated T_base_flange" in v.message and f"{dist_mm:.0f} mm" in v.message
+    # stated pose updated to the FK: refused because the flange is inside the pedestal
+    v = check_motion(traj.poses[0].q_rad, q, lim, fk=franka_fk, T_goal_stated=franka_fk(q))
+    assert not v.ok and "inside the pedestal" in v.message
+    # no FK at all: the stated pose is checked against the geometry
+    v = check_motion(None, q, SafetyLimits(q_min_rad=lim.q_min_rad, q_max_rad=lim.q_max_rad,
+                                           pedestal=lim.pedestal, floor_z_m=lim.floor_z_m), T_goal_stated=franka_fk(q))
+    assert not v.ok and "pedestal" in v.message
+    # floor and declared boxes
+    T = np.eye(4)
+    T[:3, 3] = [0.6, 0.0, -0.78]
+    assert any("floor" in r for r in geometry_problems(T, lim))
+    lim2 = SafetyLimits.from_dict({"robot_model": "fr3", "boxes": [{"name": "table", "centre_m": [0.6, 0, 0.1],
+                                                                    "size_m": [0.4, 0.4, 0.2]}]})
+    T[:3, 3] = [0.6, 0.1, 0.22]  # 2 cm above the table top: inside the 5 cm clearance
+    assert geometry_problems(T, lim2) and "table" in geometry_problems(T, lim2)[0]
+    T[:3, 3] = [0.6, 0.1, 0.30]
+    assert geometry_problems(T, lim2) == []
+    with pytest.raises(InputError, match="pedestal"):
+        SafetyLimits.from_dict({"pedestal": "big"})
+
+
+def test_dry_run_refuses_the_pose_inside_the_pedestal(tmp_path, capsys):
+    """The issue's case end to end: a workcell without a safety section, a 20-pose trajectory with one
+    joint of pose 7 edited; the dry run warns about the default cell model and refuses pose 7 only."""
+    import yaml
+
+    from calibgraph.cli.main import main
+    from calibgraph.plan.trajectory import save_trajectory
+
+    bad, _ = _flange_into_pedestal(_pose_trajectory(20), 7)
+    save_trajectory(bad, tmp_path / "traj.yaml")
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump({"board": "a4_54", "robot": {"driver": "franka",
+                                                                                    "ip": "127.0.0.1"}}))
+    rc = main(["capture", "--workcell", str(tmp_path / "cell.yaml"), "--trajectory", str(tmp_path / "traj.yaml"),
+               "--out", str(tmp_path / "ds"), "--dry-run"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert "declares no safety: section" in cap.err and "pedestal" in cap.err
+    assert "19/20 poses pass" in cap.err
+    assert "pose 7: would be skipped" in cap.err and "stated T_base_flange" in cap.err
+    assert not (tmp_path / "ds").exists()  # a dry run writes nothing

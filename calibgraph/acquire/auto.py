@@ -52,7 +52,7 @@ from calibgraph.core.problem import Capture, Detection
 from calibgraph.core.transforms import pose_error
 from calibgraph.detect.corners import detect_image
 from calibgraph.io.dataset import image_relpath, write_capture, write_header
-from calibgraph.io.files import atomic_write_bytes, atomic_write_text
+from calibgraph.io.files import atomic_write_bytes, atomic_write_text, output_folder
 from calibgraph.io.layouts import load_dataset
 from calibgraph.plan.active import (
     ActivePlanner,
@@ -491,7 +491,7 @@ def run_auto(robot, cameras, cell, world, out_dir, detector=None, safety: Safety
     intr = _intrinsics(cams, cell, log, lost)
     if not intr:
         raise DeviceError("auto: no camera could be opened.")
-    out.mkdir(parents=True, exist_ok=True)
+    output_folder(out, "dataset folder")
     _check_header(out, cell.target, intr, resume)
     L = _Loop(robot, {c: v for c, v in cams.items() if c in intr}, cell, world, out, detector or detect_image, safety,
               opts, log, intr=intr, lost=lost)

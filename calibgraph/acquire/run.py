@@ -102,7 +102,7 @@ from calibgraph.io.dataset import (
     write_capture,
     write_header,
 )
-from calibgraph.io.files import atomic_write_bytes
+from calibgraph.io.files import atomic_write_bytes, output_folder
 from calibgraph.plan.trajectory import Trajectory, load_trajectory, save_trajectory
 
 JOURNAL_FORMAT = "calibgraph-acquisition/1"
@@ -478,8 +478,7 @@ class _Acquisition:
     def prepare_dataset(self) -> list:
         """Create or reopen the dataset folder (header, trajectory copy, counts, leftovers removed);
         the poses still to visit, in trajectory order."""
-        out = self.out
-        out.mkdir(parents=True, exist_ok=True)
+        out = output_folder(self.out, "dataset folder")
         _write_or_check_header(out, self.target, self.intr, self.mode)
         if not (out / "trajectory.yaml").exists():
             save_trajectory(self.trajectory, out / "trajectory.yaml")

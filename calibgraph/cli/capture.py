@@ -95,7 +95,8 @@ def _read_yaml(path: Path, what: str):
 
 def workcell_hardware(d: dict, where: str):
     """Split a workcell mapping into (robot section, camera sections, safety limits, target, mode)."""
-    from calibgraph.acquire.safety import SafetyLimits
+    from calibgraph.acquire.safety import SafetyLimits, default_cell_limits
+    from calibgraph.plan.cell import boxes_from_list
     from calibgraph.core.errors import InputError
 
     robot = dict(d.get("robot") or {})
@@ -110,7 +111,15 @@ def workcell_hardware(d: dict, where: str):
         if drv not in CAMERA_DRIVERS:
             raise InputError(f"{where}: camera {name!r}: unknown driver {drv!r}; choose one of {CAMERA_DRIVERS}.")
     try:
-        safety = SafetyLimits.from_dict(d.get("safety"))
+        floor = d.get("floor_z_m")
+        floor = None if floor is None else float(floor)
+        obstacles = (boxes_from_list(d.get("obstacles"), where, False) + boxes_from_list(d.get("keep_out"), where, True))
+        if d.get("safety") is None:  # no safety section: the default cell model, and callers warn
+            safety = default_cell_limits(str(robot.get("model", "fr3")), floor_z_m=floor, obstacles=obstacles)
+        else:
+            safety = SafetyLimits.from_dict(d.get("safety"), floor_z_m=floor, obstacles=obstacles)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"{where}: floor_z_m / obstacles / safety: {e}") from None
     except InputError as e:
         raise InputError(f"{where}: {e}") from None
     mode = d.get("mode", "eye_to_hand")
@@ -169,6 +178,10 @@ def run(args) -> int:
         raise InputError("capture: give --workcell (the cell: robot, cameras, safety).")
     d = _read_yaml(args.workcell, "workcell")
     robot_cfg, cam_cfg, safety, target, mode = workcell_hardware(d, str(args.workcell))
+    if safety.default_model:
+        print(f"warning: {args.workcell} declares no safety: section; every pose is checked against a default cell "
+              f"model: Franka {robot_cfg.get('model', 'fr3')} joint limits and kinematics, {safety.describe()}. "
+              "Declare the cell's safety: section (workspace box, boxes) for a real cell.", file=sys.stderr)
     driver = args.robot or robot_cfg.get("driver", "sim")
     if driver not in ROBOT_DRIVERS:
         raise InputError(f"{args.workcell}: robot driver {driver!r} unknown; choose one of {ROBOT_DRIVERS}.")

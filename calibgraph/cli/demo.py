@@ -46,6 +46,7 @@ def run(args) -> int:
     import numpy as np
 
     from calibgraph.core.errors import InputError
+    from calibgraph.io.files import output_folder
     from calibgraph.io.ground_truth import load_ground_truth
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
@@ -59,6 +60,7 @@ def run(args) -> int:
         raise InputError(f"--poses {args.poses}: the demo needs at least 6 poses (3 views per camera at the very least).")
     if (ds_dir / "dataset.yaml").exists():
         raise InputError(f"{out}: holds a previous demo; choose another --out or delete it.")
+    output_folder(out, "output folder")  # a file, a read-only folder: said now, not after simulating
     if args.workcell:
         cell = load_workcell(args.workcell)
     else:
@@ -78,7 +80,7 @@ def run(args) -> int:
     bar = _bar(args.poses, "plan")
     traj = plan_trajectory(world, args.poses, seed=args.seed, progress=lambda k, n: bar.update(k - bar.n))
     bar.close()
-    out.mkdir(parents=True, exist_ok=True)
+    output_folder(out, "output folder")
     traj.save(out / "trajectory.yaml")
 
     bar = _bar(len(traj), "capture")

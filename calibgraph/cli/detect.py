@@ -47,6 +47,12 @@ def run(args) -> int:
     from calibgraph.detect.corners import dataset_detector
     from calibgraph.io.layouts import load_dataset
 
+    from calibgraph.core.errors import InputError
+
+    if args.upscale not in ("auto", "1", "2", "3"):
+        raise InputError(f"--upscale {args.upscale}: give auto, 1 (off), 2 or 3.")
+    if args.workers < 1:
+        raise InputError(f"--workers {args.workers}: give 1 or more threads.")
     ds = load_dataset(args.dataset)
     up = args.upscale if args.upscale == "auto" else int(args.upscale)
     det = dataset_detector(ds, workers=args.workers, progress=not args.quiet, cache=not args.no_cache, upscale=up,

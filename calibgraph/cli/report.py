@@ -24,8 +24,10 @@ def run(args) -> int:
     from calibgraph.report.html import write_report
     from calibgraph.solver.result import load_result_dict
 
+    from calibgraph.io.files import output_file
+
     d = load_result_dict(args.result)
-    out = args.out or args.result.with_name("report.html")
+    out = output_file(args.out or args.result.with_name("report.html"), "report file", "report.html")
     dataset = args.dataset
     if dataset is None and d.get("dataset") and Path(d["dataset"]).is_dir():
         dataset = Path(d["dataset"])  # the dataset the result names, when it is still there

@@ -32,6 +32,7 @@ def add_parser(sub):
 
 def run(args) -> int:
     from calibgraph.core.errors import InputError
+    from calibgraph.io.files import output_folder
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.plan.trajectory import load_trajectory
     from calibgraph.sim.render import SimWorld
@@ -41,6 +42,7 @@ def run(args) -> int:
     cell = load_workcell(args.workcell) if args.workcell else ring_workcell(spread_deg=200.0, name="default")
     if args.out.exists() and (args.out / "dataset.yaml").exists() and not args.resume:
         raise InputError(f"{args.out}: a dataset already exists here; choose a new --out or pass --resume.")
+    output_folder(args.out, "dataset folder")  # a file, a read-only folder: said now, not after simulating
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     say(f"building the simulated workcell {cell.name!r}: {len(cell.cameras)} cameras, board "
         f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm")
@@ -52,7 +54,7 @@ def run(args) -> int:
         if args.poses < 1:
             raise InputError("--poses must be >= 1.")
         traj = plan_trajectory(world, args.poses, seed=args.seed)
-        args.out.mkdir(parents=True, exist_ok=True)
+        output_folder(args.out, "dataset folder")
         traj.save(args.out / "planned_trajectory.yaml")
         via = f" + {traj.n_via} via poses for collision-free motion" if traj.n_via else ""
         say(f"planned {traj.n_capture} poses{via} (expected views per camera: {traj.views_per_camera()}); "

@@ -165,10 +165,15 @@ def print_problems(problems, per_kind: int = 3) -> None:
 
 
 def run(args) -> int:
+    from calibgraph.io.files import output_file
     from calibgraph.io.layouts import load_dataset
     from calibgraph.solver.batch import solve
 
+    out = args.out or (args.dataset / "result.json")
     ds = load_dataset(args.dataset)
+    output_file(out, "result file")  # said now, not after solving; the previous result stays until the new one is whole
+    if args.rrd:
+        output_file(args.rrd, "rerun recording", "calibgraph.rrd")
     for f, msg in ds.problems:
         print(f"warning: {f}: {msg}", file=sys.stderr)
     opts = solver_options(args, ds)
@@ -189,7 +194,6 @@ def run(args) -> int:
     from dataclasses import replace
 
     result = replace(result, dataset=str(args.dataset))
-    out = args.out or (args.dataset / "result.json")
     result.save(out)
     if not args.quiet:
         print(format_summary(result))

@@ -25,7 +25,9 @@ def run(args) -> int:
     if args.target_command == "print":
         from calibgraph.report.pdf import write_target_pdf
 
-        out = args.out or args.spec.with_suffix(".pdf")
+        from calibgraph.io.files import output_file
+
+        out = output_file(args.out or args.spec.with_suffix(".pdf"), "PDF file", "board.pdf")
         write_target_pdf(t, out, args.paper.upper())
         print(f"wrote {out} ({args.paper.upper()}); print at 100% scale and check the 100 mm ruler")
         return 0

@@ -28,7 +28,9 @@ def run(args) -> int:
     dataset = args.dataset
     if dataset is None and d.get("dataset") and Path(d["dataset"]).is_dir():
         dataset = Path(d["dataset"])
-    path = args.rrd or args.result.with_suffix(".rrd")
+    from calibgraph.io.files import output_file
+
+    path = output_file(args.rrd or args.result.with_suffix(".rrd"), "recording file", "calibgraph.rrd")
     write_rrd(d, dataset, path)
     print(f"wrote {path}")
     if args.rrd is None:

@@ -294,7 +294,9 @@ class Problem:
         object.__setattr__(self, "detections", dets)
         idx = [c.index for c in caps]
         if len(set(idx)) != len(idx):
-            raise InputError("capture indices must be unique.")
+            twice = sorted({k for k in idx if idx.count(k) > 1})
+            raise InputError(f"capture indices must be unique: {', '.join(map(str, twice))} "
+                             f"{'appears' if len(twice) == 1 else 'appear'} more than once.")
         known = set(idx)
         seen = set()
         for d in dets:

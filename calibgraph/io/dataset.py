@@ -153,22 +153,80 @@ def is_calibgraph_dataset(root) -> bool:
     return (Path(root) / "dataset.yaml").is_file()
 
 
+def _parse_view(v, cam: str, capture: int, n_points: int) -> View:
+    """One view of a capture file; :class:`InputError` saying what is wrong with it."""
+    if not isinstance(v, dict):
+        raise InputError("a view must be a mapping with 'image' and/or 'detection'")
+    det = v.get("detection")
+    ids = uv = None
+    if det is not None:
+        if not isinstance(det, dict) or "ids" not in det or "uv_px" not in det:
+            raise InputError("'detection' needs 'ids' and 'uv_px'")
+        try:
+            ids_f = np.asarray(det["ids"], float).reshape(-1)
+            uv = np.asarray(det["uv_px"], float).reshape(-1, 2)
+        except (TypeError, ValueError):
+            raise InputError("detection ids must be integers and uv_px pairs of numbers") from None
+        if not np.all(np.isfinite(ids_f)) or np.any(ids_f != np.round(ids_f)):
+            raise InputError("detection ids must be integers")
+        ids = ids_f.astype(int)
+        if len(ids) != len(uv):
+            raise InputError(f"{len(ids)} ids but {len(uv)} uv_px points")
+        if len(ids) and (ids.min() < 0 or ids.max() >= n_points):
+            raise InputError(f"corner ids {ids.min()}..{ids.max()} outside the target's 0..{n_points - 1} "
+                             "(another board, or rows/cols of the target section wrong)")
+        if len(np.unique(ids)) != len(ids):
+            raise InputError("a corner id appears twice")
+        if not np.all(np.isfinite(uv)):
+            raise InputError("uv_px contains NaN/inf")
+    image = v.get("image")
+    if image is not None and not isinstance(image, str):
+        raise InputError("'image' must be a path relative to the dataset folder")
+    return View(camera=cam, capture=capture, image=image, stamp_s=v.get("stamp_s"), ids=ids, uv_px=uv)
+
+
 def read_calibgraph_dataset(root) -> Dataset:
     """Read a ``calibgraph-dataset/1`` folder. Unreadable capture files are listed in ``problems``
     and skipped; nothing else is dropped silently. (:func:`calibgraph.io.load_dataset` reads any
     supported layout.)"""
     root = Path(root)
     head = read_yaml(root / "dataset.yaml", "dataset header")
+    fmt = str(head.get("format", FORMAT))
+    if fmt != FORMAT:
+        newer = fmt.startswith("calibgraph-dataset/")
+        raise InputError(f"{root / 'dataset.yaml'}: format {fmt!r} " + (
+            f"is newer than this calibgraph reads ({FORMAT}); upgrade calibgraph." if newer else
+            f"is not a calibgraph dataset ({FORMAT})."))
     if "target" not in head or "cameras" not in head:
         raise InputError(f"{root / 'dataset.yaml'}: needs 'target' and 'cameras' sections (see README, Dataset format).")
-    target = Target.from_dict(head["target"])
+    where = root / "dataset.yaml"
+    if not isinstance(head["target"], dict):
+        raise InputError(f"{where}: 'target' must be a mapping (kind, rows, cols, pitch_m).")
+    if not isinstance(head["cameras"], dict) or not head["cameras"]:
+        raise InputError(f"{where}: 'cameras' must map each camera name to its intrinsics (K, dist, width_px, height_px).")
+    if head.get("mode", "eye_to_hand") not in ("eye_to_hand", "eye_in_hand"):
+        raise InputError(f"{where}: mode {head.get('mode')!r}; give eye_to_hand or eye_in_hand.")
+    if head.get("solver") is not None and not isinstance(head.get("solver"), dict):
+        raise InputError(f"{where}: 'solver' must be a mapping of solver settings.")
+    try:
+        target = Target.from_dict(head["target"])
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+    except (TypeError, ValueError, KeyError) as e:
+        raise InputError(f"{where}: target section malformed ({e}).") from None
     cameras = {}
-    for name, d in (head.get("cameras") or {}).items():
+    for name, d in head["cameras"].items():
+        if not isinstance(d, dict):
+            raise InputError(f"{where}: camera {name!r}: needs a mapping with K, dist, width_px, height_px.")
         try:
             cameras[str(name)] = Intrinsics.from_dict(d.get("intrinsics", d))
         except InputError as e:
             raise InputError(f"{root / 'dataset.yaml'}: camera {name!r}: {e}") from None
+        except (TypeError, ValueError, KeyError, IndexError) as e:
+            raise InputError(f"{root / 'dataset.yaml'}: camera {name!r}: intrinsics malformed ({e}); give K (3x3), "
+                             "dist (list), width_px and height_px.") from None
     captures, views, problems = [], [], []
+    file_of = {}
     for f in sorted((root / "captures").glob("*.json")):
         try:
             d = json.loads(f.read_text())
@@ -180,17 +238,22 @@ def read_calibgraph_dataset(root) -> Dataset:
         except InputError as e:
             problems.append((str(f), f"{e}; skipped"))
             continue
+        if cap.index in file_of:
+            raise InputError(f"{f}: capture index {cap.index} is also used by {file_of[cap.index]}; capture indices "
+                             "must be unique: renumber one of the two files, or remove it if it is a copy.")
+        file_of[cap.index] = f
         captures.append(cap)
-        for cam, v in (d.get("views") or {}).items():
+        vs = d.get("views") or {}
+        if not isinstance(vs, dict):
+            problems.append((str(f), "'views' must be a mapping camera -> view; its views skipped"))
+            continue
+        for cam, v in vs.items():
             if cam not in cameras:
-                problems.append((str(f), f"view of unknown camera {cam!r}; skipped"))
+                problems.append((str(f), f"view of unknown camera {cam!r} (not in dataset.yaml); skipped"))
                 continue
-            det = v.get("detection")
-            ids = uv = None
-            if det is not None:
-                ids = np.asarray(det["ids"], int)
-                uv = np.asarray(det["uv_px"], float).reshape(-1, 2)
-            views.append(View(camera=cam, capture=cap.index, image=v.get("image"), stamp_s=v.get("stamp_s"),
-                              ids=ids, uv_px=uv))
+            try:
+                views.append(_parse_view(v, cam, cap.index, target.points_board_m.shape[0]))
+            except InputError as e:
+                problems.append((str(f), f"camera {cam!r}: {e}; view skipped"))
     return Dataset(root=root, target=target, cameras=cameras, captures=tuple(captures), views=tuple(views),
                    mode=head.get("mode", "eye_to_hand"), solver=head.get("solver") or {}, problems=tuple(problems))

@@ -21,8 +21,10 @@ def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
     p = Path(path)
     try:
         d = yaml.safe_load(p.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+    except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{p}: cannot read {what}: {e}") from None
+    except yaml.YAMLError as e:
+        raise InputError(f"{p}: cannot read {what}: {yaml_error_line(e)}") from None
     if d is None and empty_ok:
         d = {}
     if mapping and not isinstance(d, dict):
@@ -30,10 +32,21 @@ def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
     return d
 
 
-def writable_target(path) -> Path:
+def yaml_error_line(e) -> str:
+    """A YAML parser error in one line: what and where (line, column)."""
+    mark = getattr(e, "problem_mark", None)
+    what = getattr(e, "problem", None) or str(e).splitlines()[0]
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    ctx = getattr(e, "context", None)
+    return f"not valid YAML{where}: {what}" + (f" ({ctx})" if ctx else "")
+
+
+def writable_target(path, example: str = "result.json") -> Path:
     """The file that writing ``path`` should replace: ``path`` itself, or the file a symlink points
     to (the link is kept). Refuses, with the fix, a directory, a device or any other non-regular
     file, and a parent that is not a directory."""
+    if str(path) == "":
+        raise InputError("an empty output path was given; name a file.")
     p = Path(path)
     if p.is_symlink():
         p = p.resolve()
@@ -46,11 +59,79 @@ def writable_target(path) -> Path:
     except OSError as e:
         raise InputError(f"{path}: cannot write here ({e.strerror}); choose another output path.") from None
     if st is not None and stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{path}: is a folder; name a file inside it (e.g. {Path(path) / 'result.json'}).")
+        raise InputError(f"{path}: is a folder; name a file inside it (e.g. {Path(path) / example}).")
     if st is not None and not stat.S_ISREG(st.st_mode):
         raise InputError(f"{path}: is not a regular file (device, pipe or socket); "
                          "calibgraph writes only regular files, choose another output path.")
     return p
+
+
+def output_file(path, what: str = "output file", example: str = "result.json") -> Path:
+    """Check, before any work is done, that ``path`` can be written by :func:`atomic_write_via`:
+    a regular file or a new path (a symlink is written through: the file it points to is replaced,
+    the link kept), in a folder that exists or can be created and is writable. Raises
+    :class:`InputError` with the fix; returns ``path``."""
+    target = writable_target(path, example)
+    parent = target.parent
+    while not parent.exists() and not parent.is_symlink() and parent != parent.parent:
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        raise InputError(f"{path}: {parent} is a file, not a folder; choose another {what}.")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: the folder {parent} is not writable (read-only); fix its permissions or choose "
+                         f"another {what}.")
+    return Path(path)
+
+
+def output_folder(path, what: str = "output folder", empty: bool = False) -> Path:
+    """Make sure ``path`` is a folder calibgraph may write files into, creating it when missing.
+
+    Refuses, with the fix, an existing file (or device) at ``path``, a parent that is a file, a
+    folder that cannot be created or written (read-only), and, with ``empty``, a folder that already
+    holds files. Returns ``path``.
+    """
+    p = Path(path)
+    if str(path) == "":
+        raise InputError(f"an empty {what} was given; name a folder.")
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{path}: is a file, not a folder; the {what} must be a folder "
+                         f"(e.g. {p.with_suffix('')}_out); nothing was written.")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise InputError(f"{path}: a parent of this path is a file, not a folder; choose another {what}.") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot create the {what} ({e.strerror}); choose another one.") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: the {what} is not writable (read-only); fix its permissions or choose another one.")
+    if empty and any(p.iterdir()):
+        raise InputError(f"{path}: exists and is not empty; give a new {what}.")
+    return p
+
+
+def _remove_stale_temporaries(target: Path) -> None:
+    """Temporary files of ``target`` left by a writer that was killed (its process is gone) are removed."""
+    import re
+
+    try:
+        leftovers = list(target.parent.glob(f".{target.name}.tmp*"))
+    except OSError:
+        return
+    for p in leftovers:
+        m = re.match(rf"\.{re.escape(target.name)}\.tmp(\d+)", p.name)
+        if not m or int(m.group(1)) == os.getpid():
+            continue
+        try:
+            os.kill(int(m.group(1)), 0)
+            continue  # its writer is still running
+        except ProcessLookupError:
+            pass
+        except OSError:
+            continue
+        try:
+            p.unlink()
+        except OSError:
+            pass
 
 
 def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") -> Path:
@@ -65,10 +146,11 @@ def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") 
     target = writable_target(path)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
+    except (FileExistsError, NotADirectoryError):
         raise InputError(f"{path}: a parent of this path is a file, not a folder; choose another output path.") from None
     except OSError as e:
         raise InputError(f"{path}: cannot create its folder ({e.strerror}); choose another output path.") from None
+    _remove_stale_temporaries(target)
     tmp = target.with_name(f".{target.name}.tmp{os.getpid()}{tmp_suffix}")
     try:
         write(tmp)

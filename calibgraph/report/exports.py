@@ -41,7 +41,7 @@ from calibgraph.core.kinematics import corrected_urdf
 from calibgraph.core.problem import mode_frames
 from calibgraph.core.transforms import R_to_quat_xyzw
 from calibgraph.core.version import __version__
-from calibgraph.io.files import atomic_write_text, atomic_write_via
+from calibgraph.io.files import atomic_write_text, atomic_write_via, output_folder
 from calibgraph.io.layouts import as_dataset
 from calibgraph.solver.kinematics import load_chain
 
@@ -138,7 +138,6 @@ def _version() -> str:
 def write_result(result: dict, out_path) -> Path:
     """result.json or result.yaml (by extension), atomically."""
     p = Path(out_path)
-    p.parent.mkdir(parents=True, exist_ok=True)
     if p.suffix.lower() in (".yaml", ".yml"):
         import yaml
 
@@ -273,8 +272,7 @@ def write_opencv_yaml(result: dict, out_dir, dataset=None) -> list:
     A camera without known intrinsics gets the pose fields only and a comment saying so.
     """
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(out_dir, "export folder")
     ref = ref_frame(result)
     paths = []
     for name in result["cameras"]:
@@ -345,8 +343,7 @@ def read_opencv_yaml(path) -> dict:
 
 def export(result: dict, fmt: str, out_dir, dataset=None, parent: str | None = None) -> list:
     """Write ``result`` in format ``fmt`` (one of FORMATS) into ``out_dir``; returns written paths."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(out_dir, "export folder")
     if fmt == "urdf":
         paths = [write_urdf(result, out / "calibgraph_cameras.urdf.xacro", parent=parent)]
         return paths + (write_robot_exports(result, out) if result.get("robot") else [])

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import InputError
+from calibgraph.io.files import output_folder
 from calibgraph.io.ground_truth import load_ground_truth
 from calibgraph.io.layouts import as_dataset
 from calibgraph.io.peer_mchec import (
@@ -33,8 +34,8 @@ def export_mchec(dataset_or_root, out_dir) -> Path:
 
     ds = as_dataset(dataset_or_root)
     out = Path(out_dir)
-    if out.exists() and any(out.iterdir()):
-        raise InputError(f"{out}: exists and is not empty; export into a new folder.")
+    if out.exists() or out.is_symlink():
+        output_folder(out, "export folder", empty=True)
     if ds.target.kind != "checkerboard":
         raise InputError(f"MC-HEC export: target {ds.target.kind!r}; MC-HEC calibrates with checkerboards only.")
     cams = sorted(ds.cameras)
@@ -43,7 +44,7 @@ def export_mchec(dataset_or_root, out_dir) -> Path:
     if not caps:
         raise InputError(f"{ds.root}: no captures to export.")
     view_of = {(v.camera, v.capture): v for v in ds.views}
-    out.mkdir(parents=True, exist_ok=True)
+    output_folder(out, "export folder")
     info = {"number_of_cameras": len(cams), "camera_folder_prefix": "camera", "pattern_type": "checkerboard",
             "number_of_rows": ds.target.cols, "number_of_columns": ds.target.rows, "size": float(ds.target.pitch_m),
             "resize_factor": 1, "visual_error": 0, "calibration_setup": 1 if ds.mode == "eye_to_hand" else 0}

@@ -20,6 +20,7 @@ import numpy as np
 
 from calibgraph.core.errors import InputError
 from calibgraph.core.targets import Target
+from calibgraph.io.files import atomic_write_bytes
 
 PAPERS_MM = {"A4": (210.0, 297.0), "A3": (297.0, 420.0)}
 _K = 0.5522847498  # cubic Bézier circle constant
@@ -216,6 +217,5 @@ def write_target_pdf(target: Target, path, paper: str = "A4") -> Path:
     """Write :func:`target_pdf` to ``path``."""
     path = Path(path)
     data = target_pdf(target, paper)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(data)
+    atomic_write_bytes(path, data)
     return path

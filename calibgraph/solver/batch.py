@@ -80,6 +80,7 @@ from calibgraph.solver.initialise import (
     refine_translations,
 )
 from calibgraph.solver.keys import B, C, F, K, O, S
+from calibgraph.solver.moved import solve_minding_moves
 from calibgraph.solver.observability import check_after_solve, check_before_solve
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView, Result
 
@@ -672,6 +673,10 @@ def best_initial_guess(cameras: dict, views: list, cands: dict, joint: bool, see
 def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings: dict | None = None) -> Result:
     """Calibrate all cameras of ``problem``.
 
+    A camera moved during capture (its views split into two self-consistent groups) is calibrated
+    from the views after the move, with a note naming it, the captures and the displacement
+    (:mod:`calibgraph.solver.moved`).
+
     Args:
         problem: a validated :class:`Problem`.
         initial: optional initial guess ``{"T_ref_cam": {name: 4x4}, "T_mount_board": 4x4}``; the
@@ -684,6 +689,14 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
         ObservabilityError: a camera has too few views or the motion leaves a parameter undetermined.
         InputError: formulation 'corner' was asked for a camera with k3..k6 distortion.
     """
+    t0 = time.perf_counter()
+    result = _solve_once(problem, initial, seed, timings)
+    result = solve_minding_moves(problem, result, lambda p: _solve_once(p, initial, seed, timings))
+    return replace(result, solve_time_s=time.perf_counter() - t0)
+
+
+def _solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, timings: dict | None = None) -> Result:
+    """One solve of ``problem`` (see :func:`solve`)."""
     t0 = time.perf_counter()
     views, cands, rejected = _usable_views(problem, timings)
     check_before_solve(problem, _captures_by_camera(views))

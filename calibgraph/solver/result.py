@@ -188,7 +188,7 @@ class Result:
                 "covariance": p.covariance.tolist(),
             }
         d = {
-            "format": "calibgraph-result/1",
+            "format": RESULT_FORMAT,
             "calibgraph_version": __version__,
             "frame_convention": FRAME_CONVENTION,
             "mode": self.mode,
@@ -250,6 +250,9 @@ class Result:
         return p
 
 
+RESULT_FORMAT = "calibgraph-result/1"
+
+
 def load_result_dict(path) -> dict:
     """Read a result.json / result.yaml written by :meth:`Result.save`."""
 
@@ -269,4 +272,10 @@ def load_result_dict(path) -> dict:
         raise InputError(f"{p}: not a calibgraph result file ({e}).") from None
     if not isinstance(d, dict) or "cameras" not in d or "mode" not in d:
         raise InputError(f"{p}: not a calibgraph result file (no 'cameras'/'mode').")
+    fmt = str(d.get("format", RESULT_FORMAT))
+    if fmt != RESULT_FORMAT:
+        if fmt.startswith("calibgraph-result/"):
+            raise InputError(f"{p}: result format {fmt!r} is newer than this calibgraph "
+                             f"({d.get('calibgraph_version', '?')} wrote it) reads ({RESULT_FORMAT}); upgrade calibgraph.")
+        raise InputError(f"{p}: format {fmt!r} is not a calibgraph result ({RESULT_FORMAT}).")
     return d

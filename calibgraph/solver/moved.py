@@ -1,0 +1,193 @@
+"""A camera bumped during capture: found, named, and calibrated from where it ended up.
+
+A fixed camera that is knocked between two captures has two poses in one dataset. A solver that
+assumes one pose averages them (the estimate lands between the two, with a 1σ that believes it)
+or rejects the views of the minority pose as outliers and reports the old pose. Neither is a
+calibration of the camera as it now stands.
+
+The test, per camera of an eye-to-hand result: with the board mount, the board scale and the
+recorded flange poses of the solve, every corner the camera saw is a known point in the base
+frame, so the camera's pose is a PnP fit over all its views. For every split of its views in
+capture order (each side at least ``MIN_GROUP_VIEWS`` views) the two sides are fitted apart; the
+split is kept when two poses explain the corners far better than one (an F test on the residual
+sums, 6 against 12 pose parameters, and a drop of the residual RMS by ``RMS_RATIO``) and each side
+is consistent on its own. The camera is then calibrated from the side that matches the end of the
+capture (the views before the move are set aside, listed as rejected with the reason), the
+problem is solved again, and a note says which camera moved, between which captures and by how
+much (mm, deg). The two poses are never averaged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from calibgraph.core.camera import Intrinsics
+from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.transforms import inv, pose_error
+from calibgraph.solver.result import RejectedView
+
+MIN_GROUP_VIEWS = 2     # a side of a split needs this many views (one view is a single outlier, not a pose)
+F_LIMIT = 50.0          # two poses must explain the corners this much better than one (F, 6 and N-12 dof)
+RMS_RATIO = 1.5         # ... and cut the residual RMS by this factor
+SELF_CONSISTENT = 2.0   # each side's RMS within this factor of the pooled RMS of the split
+MAX_MOVED = 3           # cameras handled in one solve
+
+
+@dataclass(frozen=True)
+class Move:
+    """A camera whose views split into two self-consistent groups."""
+
+    camera: str
+    last_before: int        # last capture index before the move
+    first_after: int        # first capture index after it
+    captures_before: tuple  # capture indices of the views before the move (set aside)
+    captures_after: tuple   # those after (used)
+    displacement_mm: float
+    rotation_deg: float
+    f_stat: float
+    rms_one_px: float
+    rms_two_px: float
+
+    def note(self) -> str:
+        return (f"camera {self.camera} moved during capture, between captures {self.last_before} and {self.first_after}, "
+                f"by {self.displacement_mm:.1f} mm and {self.rotation_deg:.2f} deg: its views split into two "
+                f"self-consistent groups ({len(self.captures_before)} views before, {len(self.captures_after)} after; "
+                f"one pose leaves {self.rms_one_px:.2f} px RMS, two leave {self.rms_two_px:.2f} px). Calibrated from "
+                f"the {len(self.captures_after)} views after the move (the camera as it stood at the end of the "
+                f"capture); the {len(self.captures_before)} earlier views were set aside, not averaged in. Fix the "
+                "camera's mount and re-capture for more views in its final pose.")
+
+
+def _intrinsics(problem, result, name) -> Intrinsics:
+    d = result.cameras[name].intrinsics
+    return Intrinsics.from_dict(d) if d else problem.cameras[name]
+
+
+def _base_points(problem, result, views) -> tuple:
+    """(points in the base frame (N, 3), pixels (N, 2), view number of each point)."""
+    caps = {c.index: c.T_base_flange for c in problem.captures}
+    caps.update(result.T_base_flange_est or {})  # the solve's flange poses (FK noise taken out) where it has them
+    T_fb = result.T_mount_board
+    p_board = problem.points_board_m * float(result.board_scale or 1.0)
+    P, uv, which = [], [], []
+    for k, d in enumerate(views):
+        pb = p_board[d.ids]
+        T = caps[d.capture] @ T_fb
+        P.append(pb @ T[:3, :3].T + T[:3, 3])
+        uv.append(np.asarray(d.uv_px, float))
+        which.append(np.full(len(d.ids), k))
+    return np.concatenate(P), np.concatenate(uv), np.concatenate(which)
+
+
+def _fit(P, uv, intr: Intrinsics, T_cam_base0):
+    """PnP over many views: (T_cam_base, residual sum of squares, N points)."""
+    import cv2
+
+    rvec0, _ = cv2.Rodrigues(T_cam_base0[:3, :3])
+    tvec0 = T_cam_base0[:3, 3].reshape(3, 1).copy()
+    ok, rvec, tvec = cv2.solvePnP(P, uv, intr.K, intr.dist8, rvec0.copy(), tvec0, useExtrinsicGuess=True,
+                                  flags=cv2.SOLVEPNP_ITERATIVE)
+    if not ok:
+        rvec, tvec = rvec0, tvec0
+    rvec, tvec = cv2.solvePnPRefineLM(P, uv, intr.K, intr.dist8, rvec, tvec)
+    proj, _ = cv2.projectPoints(P, rvec, tvec, intr.K, intr.dist8)
+    r = proj.reshape(-1, 2) - uv
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T[:3, 3] = tvec.ravel()
+    return T, float(np.sum(r ** 2)), len(P)
+
+
+def find_move(problem, result, name: str) -> Move | None:
+    """The best split of camera ``name``'s views into two poses, when it passes the tests; else None."""
+    views = sorted((d for d in problem.detections if d.camera == name and len(d.ids) >= 4), key=lambda d: d.capture)
+    if len(views) < 2 * MIN_GROUP_VIEWS or result.T_mount_board is None:
+        return None
+    intr = _intrinsics(problem, result, name)
+    P, uv, which = _base_points(problem, result, views)
+    T0 = inv(result.cameras[name].T_ref_cam)
+    T_one, rss_one, n = _fit(P, uv, intr, T0)
+    best = None
+    for k in range(MIN_GROUP_VIEWS, len(views) - MIN_GROUP_VIEWS + 1):
+        a, b = which < k, which >= k
+        Ta, rss_a, na = _fit(P[a], uv[a], intr, T_one)
+        Tb, rss_b, nb = _fit(P[b], uv[b], intr, T_one)
+        rss_two = rss_a + rss_b
+        if rss_two <= 0 or n <= 12:
+            continue
+        f = ((rss_one - rss_two) / 6.0) / (rss_two / (n - 12))
+        if best is None or f > best[0]:
+            best = (f, k, Ta, Tb, rss_a / max(na - 6, 1), rss_b / max(nb - 6, 1), rss_two)
+    if best is None:
+        return None
+    f, k, Ta, Tb, var_a, var_b, rss_two = best
+    rms_one, rms_two = np.sqrt(rss_one / n), np.sqrt(rss_two / n)
+    pooled = rss_two / (n - 12)
+    if f < F_LIMIT or rms_one < RMS_RATIO * rms_two:
+        return None
+    if max(var_a, var_b) > SELF_CONSISTENT ** 2 * pooled:  # one side is itself a mixture: not one clean move
+        return None
+    d_m, d_deg = pose_error(inv(Ta), inv(Tb))
+    return Move(name, views[k - 1].capture, views[k].capture, tuple(d.capture for d in views[:k]),
+                tuple(d.capture for d in views[k:]), 1e3 * d_m, d_deg, float(f), float(rms_one), float(rms_two))
+
+
+def find_moves(problem, result, skip=()) -> list:
+    """Every eye-to-hand camera of ``result`` whose views split into two poses, strongest first."""
+    if problem.mode != "eye_to_hand" or result.T_mount_board is None:
+        return []
+    moves = [m for n in result.cameras if n not in skip for m in [find_move(problem, result, n)] if m is not None]
+    return sorted(moves, key=lambda m: -m.f_stat)
+
+
+def solve_minding_moves(problem, result, resolve) -> object:
+    """``result`` of ``problem``, or, when a camera moved during capture, the result of ``problem``
+    without that camera's views from before the move (``resolve(problem)`` solves), with a note
+    and the set-aside views listed as rejected. Cameras are handled one at a time, strongest
+    split first, and the others tested again on the new solution."""
+    moves, handled, original = [], set(), problem
+    while len(moves) < MAX_MOVED:
+        found = find_moves(problem, result, skip=handled)
+        if not found:
+            break
+        m = found[0]
+        drop = {(m.camera, c) for c in m.captures_before}
+        problem = problem.with_(detections=tuple(d for d in problem.detections if (d.camera, d.capture) not in drop))
+        try:
+            result = resolve(problem)
+        except ObservabilityError as e:
+            raise ObservabilityError(
+                f"camera {m.camera} moved during capture, between captures {m.last_before} and {m.first_after}, by about "
+                f"{m.displacement_mm:.0f} mm and {m.rotation_deg:.1f} deg (its views split into two self-consistent "
+                f"groups); the {len(m.captures_after)} views after the move are too few to calibrate it as it now "
+                f"stands ({e}) and the earlier ones describe a pose it no longer has: fix its mount and capture more "
+                "views of it.") from None
+        handled.add(m.camera)
+        moves.append(m)
+    if not moves:
+        return result
+    moves = [_measured_again(original, result, m) for m in moves]  # the mount is no longer dragged
+    cams = dict(result.cameras)
+    for m in moves:
+        reason = (f"camera moved between captures {m.last_before} and {m.first_after}: this view is from before the move "
+                  "and was set aside")
+        rv = tuple(RejectedView(m.camera, c, reason) for c in m.captures_before)
+        cams[m.camera] = replace(cams[m.camera], views_rejected=tuple(cams[m.camera].views_rejected) + rv)
+    return replace(result, cameras=cams, rejected_views=tuple(rv for c in cams.values() for rv in c.views_rejected),
+                   notes=tuple(result.notes) + tuple(m.note() for m in moves))
+
+
+def _measured_again(problem, result, m: Move) -> Move:
+    """``m`` with the displacement between the camera's pose before the move (a PnP fit of the
+    set-aside views on ``result``'s mount) and its calibrated pose after it."""
+    before = set(m.captures_before)
+    views = [d for d in problem.detections if d.camera == m.camera and d.capture in before and len(d.ids) >= 4]
+    if not views:
+        return m
+    P, uv, _ = _base_points(problem, result, views)
+    T_after = result.cameras[m.camera].T_ref_cam
+    T_cb, _, _ = _fit(P, uv, _intrinsics(problem, result, m.camera), inv(T_after))
+    d_m, d_deg = pose_error(inv(T_cb), T_after)
+    return replace(m, displacement_mm=1e3 * d_m, rotation_deg=d_deg)
