@@ -138,29 +138,3 @@ def write_sim_dataset(root: Path, prob) -> Path:
     for c in prob.captures:
         write_capture(root, c, by_cap.get(c.index, {}))
     return root
-
-
-def bump_camera(scene, camera: str, at_capture: int, shift_m: float, rot_deg: float = 0.0, seed: int = 0,
-                pixel_sigma_px: float = 0.3):
-    """A synthetic scene whose camera ``camera`` was knocked before capture ``at_capture``: its views
-    from then on are projected from a pose whose centre moved by ``shift_m`` (random direction) and
-    which turned by ``rot_deg`` about its centre (random axis), with fresh pixel noise. Returns
-    (problem, T_base_cam after the move)."""
-    from calibgraph.core.transforms import exp_so3, inv
-
-    rng = np.random.default_rng(seed)
-    prob, truth = scene.problem, scene.truth
-    u, w = rng.normal(size=3), rng.normal(size=3)
-    T_after = truth.T_ref_cam[camera].copy()
-    T_after[:3, :3] = exp_so3(w / np.linalg.norm(w) * np.radians(rot_deg)) @ T_after[:3, :3]
-    T_after[:3, 3] += u / np.linalg.norm(u) * shift_m
-    intr = prob.cameras[camera]
-    dets = []
-    for d in prob.detections:
-        if d.camera == camera and d.capture >= at_capture:
-            T_cb = inv(T_after) @ truth.T_base_flange_true[d.capture] @ truth.T_mount_board
-            p = prob.points_board_m[d.ids]
-            uv = intr.project(p @ T_cb[:3, :3].T + T_cb[:3, 3])
-            d = Detection(d.camera, d.capture, d.ids, uv + rng.normal(scale=pixel_sigma_px, size=uv.shape))
-        dets.append(d)
-    return prob.with_(detections=tuple(dets)), T_after

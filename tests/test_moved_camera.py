@@ -3,7 +3,7 @@ by how much, and calibrated from the views after the move; the other cameras are
 
 import numpy as np
 import pytest
-from helpers import bump_camera
+from calibgraph.sim.synth import bump_camera
 
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.transforms import pose_error

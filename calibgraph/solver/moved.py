@@ -33,6 +33,8 @@ F_LIMIT = 50.0          # two poses must explain the corners this much better th
 RMS_RATIO = 1.5         # ... and cut the residual RMS by this factor
 SELF_CONSISTENT = 2.0   # each side's RMS within this factor of the pooled RMS of the split
 MAX_MOVED = 3           # cameras handled in one solve
+LINEAR_F_SKIP = 0.25     # skip the exact fits when the best linearised F is below this share of F_LIMIT
+EXACT_SPLITS = 3        # the best linearised splits whose neighbourhoods are refitted exactly
 
 
 @dataclass(frozen=True)
@@ -100,8 +102,42 @@ def _fit(P, uv, intr: Intrinsics, T_cam_base0):
     return T, float(np.sum(r ** 2)), len(P)
 
 
+def _linear_split_scores(P, uv, which, n_views: int, intr: Intrinsics, T_cam_base) -> np.ndarray:
+    """Residual sum of squares of the best two-pose fit for every split ``k`` (views ``< k`` | ``>= k``),
+    linearised at the one-pose fit ``T_cam_base``: a group's best pose lowers its residual sum by
+    ``g^T H^-1 g`` (Gauss-Newton, ``H``, ``g`` summed over the group's views). Prefix sums make every
+    split O(1), so scanning all of them costs one projection instead of two PnP fits per split.
+    Returns (n_views + 1,) with inf where a side has fewer than ``MIN_GROUP_VIEWS`` views."""
+    import cv2
+
+    rvec, _ = cv2.Rodrigues(T_cam_base[:3, :3])
+    proj, jac = cv2.projectPoints(P, rvec, T_cam_base[:3, 3].reshape(3, 1), intr.K, intr.dist8)
+    r = (proj.reshape(-1, 2) - uv).reshape(-1)
+    J = jac[:, :6]
+    rows = np.repeat(which, 2)
+    H = np.zeros((n_views, 6, 6))
+    g = np.zeros((n_views, 6))
+    s = np.zeros(n_views)
+    np.add.at(H, rows, J[:, :, None] * J[:, None, :])
+    np.add.at(g, rows, J * r[:, None])
+    np.add.at(s, rows, r * r)
+    zero = (np.zeros((1, 6, 6)), np.zeros((1, 6)), np.zeros(1))
+    cH, cg, cs = (np.concatenate([z, np.cumsum(a, axis=0)]) for z, a in zip(zero, (H, g, s)))
+
+    def reduced(Hk, gk, sk):
+        return sk - gk @ np.linalg.lstsq(Hk, gk, rcond=None)[0]
+
+    out = np.full(n_views + 1, np.inf)
+    for k in range(MIN_GROUP_VIEWS, n_views - MIN_GROUP_VIEWS + 1):
+        out[k] = reduced(cH[k], cg[k], cs[k]) + reduced(cH[-1] - cH[k], cg[-1] - cg[k], cs[-1] - cs[k])
+    return out
+
+
 def find_move(problem, result, name: str) -> Move | None:
-    """The best split of camera ``name``'s views into two poses, when it passes the tests; else None."""
+    """The best split of camera ``name``'s views into two poses, when it passes the tests; else None.
+
+    Every split is scored by its linearised two-pose residual (:func:`_linear_split_scores`); the
+    few best are fitted exactly (two PnP fits each) and the tests run on the exact fits."""
     views = sorted((d for d in problem.detections if d.camera == name and len(d.ids) >= 4), key=lambda d: d.capture)
     if len(views) < 2 * MIN_GROUP_VIEWS or result.T_mount_board is None:
         return None
@@ -109,13 +145,25 @@ def find_move(problem, result, name: str) -> Move | None:
     P, uv, which = _base_points(problem, result, views)
     T0 = inv(result.cameras[name].T_ref_cam)
     T_one, rss_one, n = _fit(P, uv, intr, T0)
+    if n <= 12:
+        return None
+    approx = _linear_split_scores(P, uv, which, len(views), intr, T_one)
+    order = [int(k) for k in np.argsort(approx) if np.isfinite(approx[k])]
+    if not order:
+        return None
+    f_lin = ((rss_one - approx[order[0]]) / 6.0) / (max(approx[order[0]], 1e-12) / (n - 12))
+    if f_lin < LINEAR_F_SKIP * F_LIMIT:  # no split comes near the test even linearised: one pose it is
+        return None
+    # the linearisation ranks splits well near the best one; refit its neighbourhood exactly
+    candidates = sorted({j for k in order[:EXACT_SPLITS] for j in (k - 1, k, k + 1)
+                         if MIN_GROUP_VIEWS <= j <= len(views) - MIN_GROUP_VIEWS})
     best = None
-    for k in range(MIN_GROUP_VIEWS, len(views) - MIN_GROUP_VIEWS + 1):
+    for k in candidates:
         a, b = which < k, which >= k
         Ta, rss_a, na = _fit(P[a], uv[a], intr, T_one)
         Tb, rss_b, nb = _fit(P[b], uv[b], intr, T_one)
         rss_two = rss_a + rss_b
-        if rss_two <= 0 or n <= 12:
+        if rss_two <= 0:
             continue
         f = ((rss_one - rss_two) / 6.0) / (rss_two / (n - 12))
         if best is None or f > best[0]:
