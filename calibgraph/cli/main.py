@@ -15,7 +15,7 @@ import sys
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.version import __version__
 
-COMMANDS = ("demo", "sim", "capture", "detect", "solve", "target", "report", "view", "export")
+COMMANDS = ("demo", "sim", "capture", "detect", "solve", "target", "report", "view", "export", "verify")
 
 
 def build_parser() -> argparse.ArgumentParser:
