@@ -39,8 +39,8 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Problem
 from calibgraph.core.transforms import log_so3
 from calibgraph.solver.batch import MIN_CORNERS_PER_VIEW, fk_noise, to_ref_axes
-from calibgraph.solver.factors import view_residual
-from calibgraph.solver.keys import B, C, F
+from calibgraph.solver.factors import make_calibration_factor, view_residual
+from calibgraph.solver.keys import B, C, F, S
 
 __all__ = ["CameraCheck", "VerifyResult", "verify", "chi2_sf_6", "chi2_isf_6", "stored_model", "StoredModel"]
 
@@ -76,6 +76,8 @@ class StoredModel:
     T_flange_board: np.ndarray
     board_scale: float
     pixel_sigma_px: float
+    mount_covariance: np.ndarray  # (6, 6), rotation first, flange axes
+    board_scale_sigma: float
 
 
 def stored_model(result: dict, where: str = "result") -> StoredModel:
@@ -91,11 +93,14 @@ def stored_model(result: dict, where: str = "result") -> StoredModel:
             intr[name] = Intrinsics.from_dict(c["intrinsics"])
         except (KeyError, ValueError, TypeError) as e:
             raise InputError(f"{where}: camera {name!r} lacks a pose, covariance or intrinsics ({e}).") from None
-    scale = float((result.get("board_scale") or {}).get("scale") or 1.0)
+    bs = result.get("board_scale") or {}
+    scale, scale_sigma = float(bs.get("scale") or 1.0), float(bs.get("sigma") or 0.0)
+    mount_cov = np.asarray((result.get("board_mount") or {}).get("covariance", np.diag([1e-16] * 6)), float).reshape(6, 6)
     sigma = float((result.get("solver") or {}).get("pixel_sigma_px") or 0.0)
     if not sigma > 0:
         raise InputError(f"{where}: no pixel sigma in 'solver'; re-solve the calibration with this calibgraph.")
-    return StoredModel(T, cov, intr, np.asarray(result["T_flange_board"], float).reshape(4, 4), scale, sigma)
+    return StoredModel(T, cov, intr, np.asarray(result["T_flange_board"], float).reshape(4, 4), scale, sigma, mount_cov,
+                       scale_sigma)
 
 
 @dataclass(frozen=True)
@@ -171,31 +176,29 @@ class VerifyResult:
 class _View:
     camera: str
     capture: int
-    p_board_m: np.ndarray  # (N, 3), already scaled by the stored board scale
+    p_board_m: np.ndarray  # (N, 3), as declared (the board scale is a variable)
     uv_px: np.ndarray  # (N, 2)
     keep: np.ndarray  # (N,) bool
 
 
-def _factor(key_a, key_f, which: str, fixed: np.ndarray, v: _View, intr: Intrinsics, sigma_px: float):
-    """A view's corners as a factor on (camera, robot pose) with the mount ``fixed`` (which='camera'),
-    or on (mount, robot pose) with the camera ``fixed`` (which='mount')."""
-    p, uv = np.ascontiguousarray(v.p_board_m[v.keep]), np.ascontiguousarray(v.uv_px[v.keep])
-    sw = np.full(len(p), 1.0 / sigma_px)
-    model = gtsam.noiseModel.Unit.Create(2 * len(p))
-
-    def error_func(this, values, H):
-        a, T_f = values.atPose3(key_a).matrix(), values.atPose3(key_f).matrix()
-        T_cam, T_fb = (a, fixed) if which == "camera" else (fixed, a)
-        e, J = view_residual(T_cam, T_f, T_fb, p, uv, intr, sw, want_jacobians=H is not None)
-        if H is not None:
-            H[0], H[1] = (J[0] if which == "camera" else J[2]), J[1]
-        return e
-
-    return gtsam.CustomFactor(model, [key_a, key_f], error_func)
+def _body_cov(T: np.ndarray, cov_ref: np.ndarray) -> np.ndarray:
+    """Reference-axes pose covariance -> GTSAM's body frame (inverse of batch.to_ref_axes)."""
+    G = np.zeros((6, 6))
+    G[:3, :3] = G[3:, 3:] = T[:3, :3]
+    return G.T @ cov_ref @ G
 
 
-def _fit(views: list, problem: Problem, model: StoredModel, which: str, T_cam: dict, T_fb: np.ndarray):
-    """LM on the small graph; returns (values, marginals or None, slots, graph)."""
+def _pose_prior(key, T, cov_ref):
+    cov = 0.5 * (cov_ref + cov_ref.T) + np.eye(6) * 1e-18
+    return gtsam.PriorFactorPose3(key, gtsam.Pose3(T), gtsam.noiseModel.Gaussian.Covariance(_body_cov(T, cov)))
+
+
+def _fit(views: list, problem: Problem, model: StoredModel, which: str, T_fb: np.ndarray):
+    """LM on the small graph; returns (values, marginals or None, slots).
+
+    which='camera': the cameras seen are free, the mount and the board scale have priors at their
+    stored estimates and covariances (so the new camera covariance carries their uncertainty);
+    which='mount': the mount is free, every camera has its stored pose and covariance as a prior."""
     names = sorted({v.camera for v in views})
     slots = {n: i for i, n in enumerate(names)}
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -203,34 +206,37 @@ def _fit(views: list, problem: Problem, model: StoredModel, which: str, T_cam: d
     for k in sorted({v.capture for v in views}):
         graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(poses[k]), fk_noise(problem.options)))
         values.insert(F(k), gtsam.Pose3(poses[k]))
+    for n, i in slots.items():
+        values.insert(C(i), gtsam.Pose3(model.T_base_cam[n]))
+        if which == "mount":
+            graph.add(_pose_prior(C(i), model.T_base_cam[n], model.covariance[n]))
+    values.insert(B(0), gtsam.Pose3(T_fb))
     if which == "camera":
-        for n, i in slots.items():
-            values.insert(C(i), gtsam.Pose3(T_cam[n]))
-    else:
-        values.insert(B(0), gtsam.Pose3(T_fb))
+        graph.add(_pose_prior(B(0), T_fb, model.mount_covariance))
+    values.insert(S(0), np.array([model.board_scale]))
+    graph.add(gtsam.PriorFactorVector(S(0), np.array([model.board_scale]),
+                                      gtsam.noiseModel.Isotropic.Sigma(1, max(model.board_scale_sigma, 1e-9))))
     for v in views:
         if v.keep.sum() < MIN_CORNERS_PER_VIEW:
             continue
-        if which == "camera":
-            graph.add(_factor(C(slots[v.camera]), F(v.capture), "camera", T_fb, v, model.intrinsics[v.camera],
-                              model.pixel_sigma_px))
-        else:
-            graph.add(_factor(B(0), F(v.capture), "mount", T_cam[v.camera], v, model.intrinsics[v.camera],
-                              model.pixel_sigma_px))
+        graph.add(make_calibration_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board_m[v.keep], v.uv_px[v.keep],
+                                          model.intrinsics[v.camera], np.full(int(v.keep.sum()), 1.0 / model.pixel_sigma_px),
+                                          key_scale=S(0)))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(100)
     params.setRelativeErrorTol(1e-10)
     params.setAbsoluteErrorTol(1e-12)
+    out = values
     try:
         out = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         marg = gtsam.Marginals(graph, out)
     except RuntimeError:
-        return out if "out" in locals() else values, None, slots, graph
-    return out, marg, slots, graph
+        return out, None, slots
+    return out, marg, slots
 
 
-def _residual_sigmas(v: _View, T_cam, T_f, T_fb, intr, sigma_px) -> np.ndarray:
-    e, _ = view_residual(T_cam, T_f, T_fb, v.p_board_m, v.uv_px, intr, np.full(len(v.uv_px), 1.0 / sigma_px),
+def _residual_sigmas(v: _View, T_cam, T_f, T_fb, intr, sigma_px, scale) -> np.ndarray:
+    e, _ = view_residual(T_cam, T_f, T_fb, v.p_board_m * scale, v.uv_px, intr, np.full(len(v.uv_px), 1.0 / sigma_px),
                          want_jacobians=False)
     return np.linalg.norm(e.reshape(-1, 2), axis=1)
 
@@ -238,11 +244,12 @@ def _residual_sigmas(v: _View, T_cam, T_f, T_fb, intr, sigma_px) -> np.ndarray:
 def _camera_fit(views, problem, model, T_fb):
     """Re-estimate the cameras seen (mount held); one round of corner outlier rejection."""
     for _ in range(2):
-        vals, marg, slots, _ = _fit(views, problem, model, "camera", model.T_base_cam, T_fb)
+        vals, marg, slots = _fit(views, problem, model, "camera", T_fb)
         changed = False
         for v in views:
             r = _residual_sigmas(v, vals.atPose3(C(slots[v.camera])).matrix(), vals.atPose3(F(v.capture)).matrix(),
-                                 T_fb, model.intrinsics[v.camera], model.pixel_sigma_px)
+                                 vals.atPose3(B(0)).matrix(), model.intrinsics[v.camera], model.pixel_sigma_px,
+                                 float(vals.atVector(S(0))[0]))
             keep = r < OUTLIER_SIGMAS
             if keep.sum() >= MIN_CORNERS_PER_VIEW and np.any(keep != v.keep):
                 v.keep, changed = keep, True
@@ -257,8 +264,8 @@ def _check(name, views, vals, marg, slots, model, T_fb, alpha) -> CameraCheck:
     T_old = model.T_base_cam[name]
     d = np.concatenate([log_so3(T_new[:3, :3] @ T_old[:3, :3].T), T_new[:3, 3] - T_old[:3, 3]])
     cov_new = to_ref_axes(T_new, marg.marginalCovariance(C(slots[name])))
-    S = model.covariance[name] + cov_new
-    m2 = float(d @ np.linalg.solve(S, d))
+    cov_d = model.covariance[name] + cov_new
+    m2 = float(d @ np.linalg.solve(cov_d, d))
     p = chi2_sf_6(m2)
 
     def along(block, x):
@@ -266,13 +273,14 @@ def _check(name, views, vals, marg, slots, model, T_fb, alpha) -> CameraCheck:
         u = x / n if n > 0 else np.ones(3) / np.sqrt(3)
         return float(np.sqrt(max(u @ block @ u, 0.0)))
 
-    r = np.concatenate([_residual_sigmas(v, T_new, vals.atPose3(F(v.capture)).matrix(), T_fb,
-                                         model.intrinsics[name], 1.0)[v.keep] for v in mine])
+    r = np.concatenate([_residual_sigmas(v, T_new, vals.atPose3(F(v.capture)).matrix(), vals.atPose3(B(0)).matrix(),
+                                         model.intrinsics[name], 1.0, float(vals.atVector(S(0))[0]))[v.keep]
+                        for v in mine])
     return CameraCheck(
         name=name, status="moved" if p < alpha else "unchanged", views=len(mine), corners=int(r.size), d=d,
-        covariance=S, mahalanobis2=m2, p_value=p,
-        displacement_mm=float(np.linalg.norm(d[3:]) * 1e3), sigma_displacement_mm=along(S[3:, 3:], d[3:]) * 1e3,
-        rotation_deg=float(np.degrees(np.linalg.norm(d[:3]))), sigma_rotation_deg=float(np.degrees(along(S[:3, :3], d[:3]))),
+        covariance=cov_d, mahalanobis2=m2, p_value=p,
+        displacement_mm=float(np.linalg.norm(d[3:]) * 1e3), sigma_displacement_mm=along(cov_d[3:, 3:], d[3:]) * 1e3,
+        rotation_deg=float(np.degrees(np.linalg.norm(d[:3]))), sigma_rotation_deg=float(np.degrees(along(cov_d[:3, :3], d[:3]))),
         rms_px=float(np.sqrt(np.mean(r ** 2))) if r.size else float("nan"), T_base_cam_new=T_new)
 
 
@@ -289,7 +297,7 @@ def verify(problem: Problem, result: dict, alpha: float = DEFAULT_ALPHA, where: 
     views = []
     for det in problem.detections:
         if det.camera in model.T_base_cam and len(det.ids) >= MIN_CORNERS_PER_VIEW:
-            views.append(_View(det.camera, det.capture, problem.points_board_m[det.ids] * model.board_scale,
+            views.append(_View(det.camera, det.capture, problem.points_board_m[det.ids],
                                np.asarray(det.uv_px, float), np.ones(len(det.ids), bool)))
     seen = sorted({v.camera for v in views})
     checks = {n: CameraCheck(n, "not_seen") for n in model.T_base_cam}
@@ -305,7 +313,7 @@ def verify(problem: Problem, result: dict, alpha: float = DEFAULT_ALPHA, where: 
     moved = [n for n in seen if checks[n].status == "moved"]
     verdict, mount_change = ("cameras_moved" if moved else "unchanged"), None
     if len(seen) >= 2 and len(moved) == len(seen):
-        mvals, mmarg, _, _ = _fit(views, problem, model, "mount", model.T_base_cam, model.T_flange_board)
+        mvals, mmarg, _ = _fit(views, problem, model, "mount", model.T_flange_board)
         if mmarg is not None:
             T_fb_new = mvals.atPose3(B(0)).matrix()
             vals2, marg2, slots2 = _camera_fit(views, problem, model, T_fb_new)
