@@ -106,6 +106,9 @@ def format_summary(result, truth=None) -> str:
             lines.append(f"  ... and {len(rej) - 20} more (see the result file)")
     if result.rejected_corners:
         lines.append(f"rejected corners: {len(result.rejected_corners)} (listed in the result file)")
+    if result.board_scale_sigma is not None:
+        lines.append(f"board scale (printed / declared size): {result.board_scale:.5f} ± {result.board_scale_sigma:.5f}")
+    lines += [f"note: {n}" for n in result.notes]
     return "\n".join(lines)
 
 
@@ -146,8 +149,6 @@ def run(args) -> int:
     result.save(out)
     if not args.quiet:
         print(format_summary(result))
-        for note in result.notes:
-            print(f"note: {note}")
         if result.pixel_sigma_px > 1.0 and opts.intrinsics == "fixed":
             print(f"hint: residuals of {result.pixel_sigma_px:.2f} px per axis are large for a sub-pixel detector; "
                   "if the intrinsics come without (or with wrong) distortion, drop --fixed-intrinsics")

@@ -87,7 +87,8 @@ def _board_pose_facing(eye_m, centre_m, tilt_rad, roll_rad, rng, centre_b):
 
 def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: float = 0.3, tilt_deg: float = 50.0,
                     roll_deg: float = 30.0, radius_m=(0.30, 0.75), height_m=(0.15, 0.80), max_attempts: int | None = None,
-                    progress=None, q_start=None, max_step_rad: float = 0.03) -> Trajectory:
+                    progress=None, q_start=None, max_step_rad: float = 0.03,
+                    min_square_px: float = 7.0) -> Trajectory:
     """Generate ``n_poses`` reachable, collision-free poses that show the board to the cameras,
     joined by collision-free motions (via poses inserted where needed).
 
@@ -113,6 +114,8 @@ def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: fl
             arm configuration, else the simulator's home, where :class:`~calibgraph.sim.devices.SimRobot`
             starts).
         max_step_rad: joint step between collision samples along each motion.
+        min_square_px: smallest square (pixels) a camera must see for a pose to count for it; far
+            cameras with small boards need less (the detector up-scales down to ~4 px squares).
     Returns:
         a :class:`Trajectory` whose first motion (from ``q_start``) and every motion between
         consecutive poses is collision-free; ``notes`` says how many via poses were inserted and
@@ -125,13 +128,13 @@ def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: fl
     try:
         q0 = world.start_configuration() if q_start is None else np.asarray(q_start, float).reshape(-1)
         return _plan(world, n_poses, seed, shared_fraction, tilt_deg, roll_deg, radius_m, height_m, max_attempts,
-                     progress, q0, max_step_rad)
+                     progress, q0, max_step_rad, min_square_px)
     finally:
         world.set_q(q_saved)
 
 
 def _plan(world, n_poses, seed, shared_fraction, tilt_deg, roll_deg, radius_m, height_m, max_attempts, progress,
-          q_start, max_step_rad) -> Trajectory:
+          q_start, max_step_rad, min_square_px=7.0) -> Trajectory:
     rng = np.random.default_rng(seed)
     cell = world.cell
     names = cell.camera_names
@@ -186,7 +189,7 @@ def _plan(world, n_poses, seed, shared_fraction, tilt_deg, roll_deg, radius_m, h
             if q is None:
                 continue
             world.set_q(q)
-            seen = visible_cameras(world, world.T_base_board())
+            seen = visible_cameras(world, world.T_base_board(), min_square_px=min_square_px)
             if not want <= set(seen):
                 continue
             poses.append(TrajectoryPose(q_rad=q, T_base_flange=world.T_base_flange(), cameras=seen))
