@@ -13,7 +13,6 @@ result up to float rounding (the issue's target is 0.05 mm).
 
 from __future__ import annotations
 
-import json
 from functools import lru_cache
 
 import numpy as np

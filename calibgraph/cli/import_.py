@@ -15,9 +15,10 @@ from pathlib import Path
 
 def add_parser(sub):
     p = sub.add_parser("import", help="import a recording (rosbag2: sqlite3 or MCAP) as a dataset",
-                       description="Write a calibgraph dataset from a rosbag2 recording: camera images + CameraInfo, "
-                                   "robot pose from /joint_states (Franka model) or /tf + /tf_static, at the moments "
-                                   "the robot is still and every camera has a frame.")
+                       description="Write a calibgraph dataset from a rosbag2 recording (sqlite3 or MCAP): camera "
+                                   "images + CameraInfo, the robot pose from /tf + /tf_static (base -> flange) or "
+                                   "/joint_states (Franka model), at the moments the robot is still and every camera "
+                                   "has a frame.")
     p.add_argument("format", choices=("rosbag2",), help="recording format")
     p.add_argument("bag", type=Path, help="the bag folder (with metadata.yaml) or its .db3 / .mcap file")
     p.add_argument("--out", type=Path, required=True, help="new dataset folder")
