@@ -12,6 +12,18 @@ Autonomous (``--auto``, camera placements unknown; see :mod:`calibgraph.acquire.
     calibgraph capture --auto --workcell CELL.yaml --out DIR --dry-run      # shows the survey, moves nothing
     calibgraph capture --auto ... --out DIR --resume                          # after a kill
 
+Verify (``--verify``, has a camera moved since RESULT.json? see :mod:`calibgraph.acquire.verify`)::
+
+    calibgraph capture --verify --result RESULT.json --workcell CELL.yaml --out DIR [--verify-poses 5]
+    calibgraph capture --verify --result RESULT.json --workcell CELL.yaml --out DIR --robot franka --i-have-cleared-the-cell
+    calibgraph capture --verify --result RESULT.json --robot sim --sim-world WORLD.yaml --out DIR
+
+plans ``--verify-poses`` poses most sensitive to every camera's motion from the stored result (no
+camera placements needed in CELL.yaml), captures them with the same safety checks and runs
+``calibgraph verify`` on the capture (``DIR/verify.json``; exit 0 nothing moved, 3 something moved,
+2 bad input or no verdict). With ``--robot sim`` the simulator renders ``--sim-world`` (or the
+workcell itself when it is a simulator world with placements).
+
 The simulator renders WORLD.yaml (true placements); the planner reads only CELL.yaml
 (:mod:`calibgraph.plan.cell`: cameras without placements, optional hints, obstacles, keep-out
 boxes), or WORLD.yaml with every placement stripped when ``--workcell`` is omitted. It writes the
@@ -84,6 +96,12 @@ def add_parser(sub):
     a.add_argument("--tolerance-deg", type=float, default=0.03, help="1-sigma rotation norm to reach (default 0.03 deg)")
     a.add_argument("--max-poses", type=int, default=60, help="capture poses allowed, survey included (default 60)")
     a.add_argument("--seed", type=int, default=0, help="seed of the pose sampling")
+    v = p.add_argument_group("verify capture (--verify)")
+    v.add_argument("--verify", action="store_true",
+                   help="plan a few poses from --result, capture them and test whether any camera moved")
+    v.add_argument("--result", type=Path, default=None, help="with --verify: the stored calibration (result.json)")
+    v.add_argument("--verify-poses", type=int, default=5, help="poses of a verify capture (default 5)")
+    v.add_argument("--alpha", type=float, default=None, help="with --verify: false-alarm probability per camera (default 0.001)")
     return p
 
 
@@ -170,6 +188,12 @@ def run(args) -> int:
     from calibgraph.plan.trajectory import Trajectory, load_trajectory
 
     log = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    if args.auto and args.verify:
+        raise InputError("capture: --auto and --verify are different runs; choose one.")
+    if args.verify:
+        return run_verify_capture_cli(args, log)
+    if args.result is not None:
+        raise InputError("capture: --result is for --verify runs.")
     if args.auto:
         return run_auto_capture(args, log)
     if args.sim_world is not None:
@@ -385,6 +409,146 @@ def run_auto_capture(args, log) -> int:
         if rep.result is not None:
             print(f"wrote {args.out / 'result.json'} and {args.out / 'plan_log.json'}")
         return 0 if rep.converged else 3
+    finally:
+        for c in closers:
+            try:
+                c.close()
+            except Exception:  # closing is best effort; the data is already on disk
+                pass
+
+
+def _has_placements(d: dict) -> bool:
+    from calibgraph.plan.cell import _PLACEMENT_KEYS
+
+    return bool(d.get("ring")) or any(_PLACEMENT_KEYS & set(c or {}) for c in (d.get("cameras") or {}).values())
+
+
+def run_verify_capture_cli(args, log) -> int:
+    """``capture --verify``: plan from the stored result, capture (sim or real), verify."""
+    import numpy as np
+
+    from calibgraph.acquire.safety import SafetyLimits
+    from calibgraph.acquire.verify import run_verify_capture
+    from calibgraph.cli.verify import EXIT_MOVED, format_verdict
+    from calibgraph.core.errors import InputError
+    from calibgraph.plan.cell import cell_from_dict, cell_from_world_dict
+    from calibgraph.solver.result import load_result_dict
+    from calibgraph.solver.verify import DEFAULT_ALPHA, stored_model
+
+    if args.result is None:
+        raise InputError("capture --verify needs --result RESULT.json (the stored calibration to test against).")
+    if args.trajectory is not None:
+        raise InputError("capture --verify plans its own poses from --result; drop --trajectory.")
+    if args.verify_poses < 1:
+        raise InputError(f"capture --verify: --verify-poses must be >= 1, got {args.verify_poses}.")
+    stored = load_result_dict(args.result)
+    model = stored_model(stored, str(args.result))
+    cell_d = _read_yaml(args.workcell, "workcell") if args.workcell else None
+    world_d = _read_yaml(args.sim_world, "simulated world") if args.sim_world else None
+    driver = args.robot or ((cell_d or {}).get("robot") or {}).get("driver", "sim")
+    if driver not in ROBOT_DRIVERS:
+        raise InputError(f"{args.workcell}: robot driver {driver!r} unknown; choose one of {ROBOT_DRIVERS}.")
+    if cell_d is None and world_d is None:
+        raise InputError("capture --verify needs --workcell CELL.yaml (or, with --robot sim, --sim-world WORLD.yaml).")
+    if driver == "sim" and world_d is None:
+        if not _has_placements(cell_d):
+            raise InputError(f"capture --verify --robot sim: {args.workcell} has no camera placements to simulate; "
+                             "give the simulated cell as --sim-world WORLD.yaml.")
+        world_d, args.sim_world = cell_d, args.workcell
+    src_d, src = (cell_d, args.workcell) if cell_d is not None else (world_d, args.sim_world)
+    cell = cell_from_world_dict(src_d, str(src)) if _has_placements(src_d) else cell_from_dict(src_d, str(src))
+    missing = [n for n in cell.camera_names if n not in model.T_base_cam]
+    if len(missing) == len(cell.camera_names):
+        raise InputError(f"{args.result}: none of the cell's cameras ({', '.join(cell.camera_names)}) is in the stored "
+                         f"result ({', '.join(model.T_base_cam)}).")
+    if missing:
+        log(f"cameras not in the stored result, not verified: {', '.join(missing)}")
+    safety = SafetyLimits()
+    if cell_d is not None:
+        _, _, safety, _, _ = workcell_hardware({k: v for k, v in cell_d.items() if k != "cameras"}, str(args.workcell))
+    from calibgraph.sim.planning import planning_world
+
+    pworld = planning_world(cell)
+    robot, cameras, closers, detector, sim = None, {}, [], None, None
+    try:
+        if driver == "sim":
+            from calibgraph.sim.devices import make_devices
+            from calibgraph.sim.render import SimWorld
+            from calibgraph.sim.simulate import VisibilityGatedDetector
+            from calibgraph.sim.workcell import workcell_from_dict
+
+            wcell = workcell_from_dict(sim_workcell_dict(world_d), str(args.sim_world))
+            lost = [c for c in cell.camera_names if c not in wcell.camera_names]
+            if lost:
+                raise InputError(f"{args.workcell}: cameras {lost} are not in the simulated world {args.sim_world} "
+                                 f"(it has {wcell.camera_names}).")
+            sim = SimWorld(wcell)
+            if not args.dry_run:
+                sim.check_rendering()
+            robot, sim_cams = make_devices(sim, wcell.fk_sigma_translation_m, np.radians(wcell.fk_sigma_rotation_deg),
+                                           wcell.seed)
+            cameras = {c: sim_cams[c] for c in cell.camera_names}
+            detector = VisibilityGatedDetector(sim, None)
+        else:
+            if not args.dry_run and not args.cleared:
+                raise InputError("capture: a real robot is configured; it will not move without "
+                                 "--i-have-cleared-the-cell. Run with --dry-run first to check the verify poses.")
+            from drivers.franka import FrankaRobot
+
+            robot_cfg = (cell_d or {}).get("robot") or {}
+            ip = args.robot_ip or robot_cfg.get("ip")
+            if not ip:
+                raise InputError(f"{args.workcell}: robot.ip (or --robot-ip) is needed for the franka driver.")
+            try:
+                robot = FrankaRobot(ip, model=robot_cfg.get("model", "fr3"), realtime=bool(robot_cfg.get("realtime", True)),
+                                    settle_velocity_rad_s=float(robot_cfg.get("settle_velocity_rad_s", 0.005)))
+            except Exception as e:
+                if not args.dry_run:
+                    raise
+                log(f"robot at {ip}: not connected ({e}); planning from the home posture")
+            if not args.dry_run:
+                for name in cell.camera_names:
+                    spec = (cell_d.get("cameras") or {}).get(name) or {}
+                    hw = {k: v for k, v in spec.items() if k not in ("hint", "preset", "intrinsics")}
+                    try:
+                        cam = open_camera(name, hw, str(args.workcell))
+                    except InputError:
+                        raise
+                    except Exception as e:  # a camera that cannot open is reported (not seen); the others go on
+                        log(f"camera {name}: cannot open ({type(e).__name__}: {e}); continuing without it")
+                        continue
+                    cameras[name] = cam
+                    closers.append(cam)
+                if not cameras:
+                    raise InputError(f"{args.workcell}: no camera could be opened.")
+        if robot is not None:
+            closers.append(robot)
+        real = driver != "sim"
+        dwell = args.settle_dwell_s if args.settle_dwell_s is not None else (0.3 if real else 0.0)
+        try:
+            rep = run_verify_capture(robot, cameras, stored, cell, pworld, args.out, detector=detector, safety=safety,
+                                     n_poses=args.verify_poses, alpha=DEFAULT_ALPHA if args.alpha is None else args.alpha,
+                                     resume=args.resume, dry_run=args.dry_run, seed=args.seed, settle_dwell_s=dwell,
+                                     progress=log, where=str(args.result))
+        except KeyboardInterrupt:
+            print(f"calibgraph capture: interrupted; everything captured so far is in {args.out}. Continue with: "
+                  f"calibgraph capture --verify --result {args.result} ... --out {args.out} --resume", file=sys.stderr)
+            return 130
+        finally:
+            if sim is not None and (args.out / "captures").is_dir():
+                from calibgraph.sim.simulate import write_ground_truth
+
+                write_ground_truth(args.out, sim.cell, sim)
+        print(rep.acquisition.summary())
+        if args.dry_run:
+            return 0
+        if rep.verify is None:
+            raise InputError(f"the verify capture stopped ({rep.acquisition.stopped_reason}); no verdict. "
+                             f"Continue with --resume, or run: calibgraph verify --result {args.result} {args.out}")
+        table = format_verdict(rep.verify)
+        print(table if not args.quiet else table.splitlines()[-1])
+        print(f"wrote {rep.verdict_path}")
+        return EXIT_MOVED if rep.verify.anything_moved else 0
     finally:
         for c in closers:
             try:

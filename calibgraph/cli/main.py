@@ -15,7 +15,9 @@ import sys
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.version import __version__
 
-COMMANDS = ("demo", "sim", "capture", "detect", "solve", "target", "report", "view", "export")
+COMMANDS = ("demo", "sim", "capture", "detect", "solve", "target", "report", "view", "export", "verify", "import")
+# a command whose name is a Python keyword lives in <name>_.py
+MODULES = {"import": "import_"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -23,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"calibgraph {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        mod = importlib.import_module(f"calibgraph.cli.{name}")
+        mod = importlib.import_module(f"calibgraph.cli.{MODULES.get(name, name)}")
         sp = mod.add_parser(sub)
         sp.set_defaults(_run=mod.run)
     return p
