@@ -174,6 +174,21 @@ def _arg_cases(base):
         ("sim: --poses word", ["sim", "--out", base / "s", "--poses", "many"], 2, "invalid int value"),
         ("demo: --poses 2", ["demo", "--out", base / "demo", "--poses", "2"], 2, "at least 6 poses"),
         ("demo: --cameras word", ["demo", "--cameras", "three"], 2, "invalid int value"),
+        ("solve: --estimate-kinematics bogus", ["solve", ds, "--estimate-kinematics", "dh"], 2, "invalid choice"),
+        ("solve: --estimate-kinematics without joint angles",
+         ["solve", ds, "--estimate-kinematics", "joint-offsets", "--out", base / "k.json"], 2, "q_rad"),
+        ("verify: no arguments", ["verify"], 2, "required: dataset, --result"),
+        ("verify: result does not exist", ["verify", "--result", base / "nope.json", ds], 2, "nope.json"),
+        ("verify: result is not a result", ["verify", "--result", spec, ds], 2, "not a calibgraph result"),
+        ("verify: dataset does not exist", ["verify", "--result", res, base / "nope"], 2, "nope"),
+        ("import: no format", ["import"], 2, "required: format, bag, --out"),
+        ("import: --format bogus", ["import", "rosbag1", base / "bag", "--out", base / "x"], 2, "invalid choice"),
+        ("import rosbag2: bag does not exist", ["import", "rosbag2", base / "nobag", "--out", base / "x"], 2,
+         "no such bag"),
+        ("import rosbag2: a folder that is not a bag", ["import", "rosbag2", ds, "--out", base / "x"], 2,
+         "not a rosbag2 folder"),
+        ("capture --verify: no --result", ["capture", "--verify", "--workcell", spec, "--out", base / "c"], 2,
+         "needs --result"),
     ]
 
 
