@@ -10,8 +10,9 @@ recorded flange poses of the solve, every corner the camera saw is a known point
 frame, so the camera's pose is a PnP fit over all its views. For every split of its views in
 capture order (each side at least ``MIN_GROUP_VIEWS`` views) the two sides are fitted apart; the
 split is kept when two poses explain the corners far better than one (an F test on the residual
-sums, 6 against 12 pose parameters, and a drop of the residual RMS by ``RMS_RATIO``) and each side
-is consistent on its own. The camera is then calibrated from the side that matches the end of the
+sums, 6 against 12 pose parameters), when the split explains most of what one pose leaves above the
+cell's noise level (the solve's pixel sigma) and the two poses leave about that level, and when each
+side is consistent on its own. The camera is then calibrated from the side that matches the end of the
 capture (the views before the move are set aside, listed as rejected with the reason), the
 problem is solved again, and a note says which camera moved, between which captures and by how
 much (mm, deg). The two poses are never averaged.
@@ -29,8 +30,10 @@ from calibgraph.core.transforms import inv, pose_error
 from calibgraph.solver.result import RejectedView
 
 MIN_GROUP_VIEWS = 2     # a side of a split needs this many views (one view is a single outlier, not a pose)
-F_LIMIT = 50.0          # two poses must explain the corners this much better than one (F, 6 and N-12 dof)
-RMS_RATIO = 1.5         # ... and cut the residual RMS by this factor
+F_LIMIT = 20.0          # two poses must explain the corners this much better than one (F, 6 and N-12 dof;
+                        # p < 1e-20 for pure noise at the corner counts of a calibration)
+EXPLAINED = 0.7         # ... the split explains this share of the residual above the cell's noise level
+AT_NOISE = 1.5          # ... and the two poses leave an RMS within this factor of the cell's pixel sigma
 SELF_CONSISTENT = 2.0   # each side's RMS within this factor of the pooled RMS of the split
 MAX_MOVED = 3           # cameras handled in one solve
 LINEAR_F_SKIP = 0.25     # skip the exact fits when the best linearised F is below this share of F_LIMIT
@@ -173,7 +176,15 @@ def find_move(problem, result, name: str) -> Move | None:
     f, k, Ta, Tb, var_a, var_b, rss_two = best
     rms_one, rms_two = np.sqrt(rss_one / n), np.sqrt(rss_two / n)
     pooled = rss_two / (n - 12)
-    if f < F_LIMIT or rms_one < RMS_RATIO * rms_two:
+    if f < F_LIMIT:
+        return None
+    # Effect size: the split must explain most of what one pose leaves above the cell's noise level
+    # (the solve's pixel sigma over all cameras), and the two poses must leave about that level. A
+    # model error that is not a move (lens, kinematics) is not explained by one cut in time.
+    sigma2 = float(result.pixel_sigma_px or 0.0) ** 2
+    noise_one, noise_two = (2 * n - 6) * sigma2, (2 * n - 12) * sigma2
+    excess = rss_one - noise_one
+    if excess <= 0 or (rss_one - rss_two) < EXPLAINED * excess or rss_two > AT_NOISE ** 2 * noise_two:
         return None
     if max(var_a, var_b) > SELF_CONSISTENT ** 2 * pooled:  # one side is itself a mixture: not one clean move
         return None
