@@ -15,7 +15,13 @@ class InputError(CalibgraphError, ValueError):
 
 
 class ObservabilityError(CalibgraphError):
-    """The data cannot determine a parameter (too few views, degenerate motion)."""
+    """The data cannot determine a parameter (too few views, degenerate motion).
+
+    ``camera``: the camera concerned, when the cause is one camera's views (else None)."""
+
+    def __init__(self, message: str = "", camera: str | None = None):
+        super().__init__(message)
+        self.camera = camera
 
 
 class DetectionError(CalibgraphError):

@@ -229,7 +229,8 @@ def _check_cameras_keep_views(views, slots):
             reasons = sorted({v.reason for v in mine if v.reason})[:3]
             raise ObservabilityError(
                 f"camera {name!r}: all {len(mine)} of its views were rejected as inconsistent with the rest "
-                f"({'; '.join(reasons)}); check its intrinsics, that it saw the same target, and add views of it."
+                f"({'; '.join(reasons)}); check its intrinsics, that it saw the same target, and add views of it.",
+                camera=name,
             )
 
 
@@ -690,8 +691,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
         InputError: formulation 'corner' was asked for a camera with k3..k6 distortion.
     """
     t0 = time.perf_counter()
-    result = _solve_once(problem, initial, seed, timings)
-    result = solve_minding_moves(problem, result, lambda p: _solve_once(p, initial, seed, timings))
+    result = solve_minding_moves(problem, lambda p: _solve_once(p, initial, seed, timings))
     return replace(result, solve_time_s=time.perf_counter() - t0)
 
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from calibgraph.core.camera import Intrinsics
-from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.errors import CalibgraphError, ObservabilityError
 from calibgraph.core.transforms import inv, pose_error
 from calibgraph.solver.result import RejectedView
 
@@ -66,6 +66,8 @@ class Move:
 
 
 def _intrinsics(problem, result, name) -> Intrinsics:
+    if name not in result.cameras:
+        return problem.cameras[name]
     d = result.cameras[name].intrinsics
     return Intrinsics.from_dict(d) if d else problem.cameras[name]
 
@@ -136,6 +138,19 @@ def _linear_split_scores(P, uv, which, n_views: int, intr: Intrinsics, T_cam_bas
     return out
 
 
+def _global_pnp(P, uv, intr: Intrinsics) -> np.ndarray:
+    """T_cam_base from all points without a starting guess (SQPnP: the points span the workspace, so
+    there is no planar ambiguity)."""
+    import cv2
+
+    ok, rvec, tvec = cv2.solvePnP(P, uv, intr.K, intr.dist8, flags=cv2.SOLVEPNP_SQPNP)
+    T = np.eye(4)
+    if ok:
+        T[:3, :3] = cv2.Rodrigues(rvec)[0]
+        T[:3, 3] = tvec.ravel()
+    return T
+
+
 def find_move(problem, result, name: str) -> Move | None:
     """The best split of camera ``name``'s views into two poses, when it passes the tests; else None.
 
@@ -146,7 +161,7 @@ def find_move(problem, result, name: str) -> Move | None:
         return None
     intr = _intrinsics(problem, result, name)
     P, uv, which = _base_points(problem, result, views)
-    T0 = inv(result.cameras[name].T_ref_cam)
+    T0 = inv(result.cameras[name].T_ref_cam) if name in result.cameras else _global_pnp(P, uv, intr)
     T_one, rss_one, n = _fit(P, uv, intr, T0)
     if n <= 12:
         return None
@@ -201,28 +216,66 @@ def find_moves(problem, result, skip=()) -> list:
     return sorted(moves, key=lambda m: -m.f_stat)
 
 
-def solve_minding_moves(problem, result, resolve) -> object:
-    """``result`` of ``problem``, or, when a camera moved during capture, the result of ``problem``
-    without that camera's views from before the move (``resolve(problem)`` solves), with a note
-    and the set-aside views listed as rejected. Cameras are handled one at a time, strongest
-    split first, and the others tested again on the new solution."""
+def _drop_before(problem, m: Move):
+    drop = {(m.camera, c) for c in m.captures_before}
+    return problem.with_(detections=tuple(d for d in problem.detections if (d.camera, d.capture) not in drop))
+
+
+def _too_few_after(m: Move, e: Exception) -> ObservabilityError:
+    return ObservabilityError(
+        f"camera {m.camera} moved during capture, between captures {m.last_before} and {m.first_after}, by about "
+        f"{m.displacement_mm:.0f} mm and {m.rotation_deg:.1f} deg (its views split into two self-consistent "
+        f"groups); the {len(m.captures_after)} views after the move are too few to calibrate it as it now "
+        f"stands ({e}) and the earlier ones describe a pose it no longer has: fix its mount and capture more "
+        "views of it.", camera=m.camera)
+
+
+def _move_behind_rejection(problem, error: ObservabilityError, resolve) -> Move | None:
+    """When the solve rejected every view of one camera, was it because the camera moved? The other
+    cameras are solved without it (mount, scale and flange poses from them), then its views are
+    tested for a split as in :func:`find_move`."""
+    name = getattr(error, "camera", None)
+    if name is None or problem.mode != "eye_to_hand" or len(problem.cameras) < 2:
+        return None
+    others = problem.with_(cameras={n: c for n, c in problem.cameras.items() if n != name},
+                           detections=tuple(d for d in problem.detections if d.camera != name))
+    try:
+        rest = resolve(others)
+    except CalibgraphError:
+        return None
+    return find_move(problem, rest, name)
+
+
+def solve_minding_moves(problem, resolve) -> object:
+    """``resolve(problem)``, or, when a camera moved during capture, the result of ``problem``
+    without that camera's views from before the move, with a note and the set-aside views listed
+    as rejected. Cameras are handled one at a time, strongest split first, and the others tested
+    again on the new solution. A camera whose views were all rejected is tested too: a move explains
+    that better than "inconsistent views"."""
     moves, handled, original = [], set(), problem
+    try:
+        result = resolve(problem)
+    except ObservabilityError as e:
+        m = _move_behind_rejection(problem, e, resolve)
+        if m is None:
+            raise
+        problem = _drop_before(problem, m)
+        try:
+            result = resolve(problem)
+        except ObservabilityError as e2:
+            raise _too_few_after(m, e2) from None
+        handled.add(m.camera)
+        moves.append(m)
     while len(moves) < MAX_MOVED:
         found = find_moves(problem, result, skip=handled)
         if not found:
             break
         m = found[0]
-        drop = {(m.camera, c) for c in m.captures_before}
-        problem = problem.with_(detections=tuple(d for d in problem.detections if (d.camera, d.capture) not in drop))
+        problem = _drop_before(problem, m)
         try:
             result = resolve(problem)
         except ObservabilityError as e:
-            raise ObservabilityError(
-                f"camera {m.camera} moved during capture, between captures {m.last_before} and {m.first_after}, by about "
-                f"{m.displacement_mm:.0f} mm and {m.rotation_deg:.1f} deg (its views split into two self-consistent "
-                f"groups); the {len(m.captures_after)} views after the move are too few to calibrate it as it now "
-                f"stands ({e}) and the earlier ones describe a pose it no longer has: fix its mount and capture more "
-                "views of it.") from None
+            raise _too_few_after(m, e) from None
         handled.add(m.camera)
         moves.append(m)
     if not moves:
