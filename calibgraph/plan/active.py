@@ -176,6 +176,12 @@ class Choice:
         sees: cameras expected to see the whole board.
         predicted: camera -> (1-sigma mm, 1-sigma deg) expected after the capture.
         why: one line for the plan log.
+        candidates: the best candidates of this choice (at most ``ActivePlanner.n_logged``), best
+            first: dicts ``board_centre_m`` [x, y, z] (base frame, estimated mount), ``score`` (gain
+            per second, geometric visibility) and ``gain``; for the plan log and the rerun recording.
+        board_centre_m: board centre of the chosen candidate (base frame, estimated mount).
+        chosen_index: its place in ``candidates`` (the occlusion check re-ranks the best dozen, so
+            it need not be 0).
     """
 
     candidate: Candidate
@@ -185,6 +191,9 @@ class Choice:
     sees: tuple
     predicted: dict
     why: str
+    candidates: tuple = ()
+    board_centre_m: tuple = ()
+    chosen_index: int = -1
 
 
 class ActivePlanner:
@@ -212,6 +221,7 @@ class ActivePlanner:
         self.tilt, self.roll = np.radians(tilt_deg), np.radians(roll_deg)
         self.radius_m, self.height_m = radius_m, height_m
         self.pool: list = []
+        self.n_logged = 20  # candidates per choice kept for the plan log (Choice.candidates)
         tgt = cell.target
         corners = [0, tgt.cols - 1, (tgt.rows - 1) * tgt.cols, tgt.n_points - 1]
         self._outline_b = tgt.points_board_m[corners]
@@ -301,6 +311,7 @@ class ActivePlanner:
         # drop candidates that an updated keep-out now forbids
         self.pool = [c for c in self.pool if not keepout_violation(c.probe_m, beliefs, self.cell.floor_z_m)]
         info_inv = {n: np.linalg.inv(b.covariance) for n, b in scored.items()}
+        centre_b = self.cell.target.points_board_m.mean(axis=0)
 
         def score(cand, occlusion):
             info = self.predict(cand, scored, T_flange_board, pixel_sigma_px, occlusion=occlusion)
@@ -340,13 +351,27 @@ class ActivePlanner:
                     T += motion_time_s(q, qq, self.dq_max, self.speed_scale)
                     q = qq
                 worst = max(short, key=short.get)
+                top = tuple({"board_centre_m": _centre(c, T_flange_board, centre_b), "score": _sig3(r),
+                             "gain": _sig3(c.last_gain)} for r, c in ranked[: self.n_logged])
                 why = (f"best of {len(ranked)} candidates that help ({len(self.pool) + 1} in the pool): seen by "
                        f"{', '.join(sees)}; worst camera {worst} at {short[worst]:.2f}x tolerance; gain {gain:.3g} "
                        f"in {T:.1f} s" + (f" ({len(motion) - 1} via poses)" if len(motion) > 1 else ""))
-                return Choice(cand, motion, T, gain, sees, pred, why)
+                idx = next((i for i, (_, c) in enumerate(ranked[: self.n_logged]) if c is cand), -1)
+                return Choice(cand, motion, T, gain, sees, pred, why, top, tuple(_centre(cand, T_flange_board, centre_b)),
+                              idx)
         finally:
             self.world.set_q(q_saved)
         return None
+
+
+def _centre(cand: Candidate, T_flange_board, centre_b) -> list:
+    """Board centre (base frame, m, rounded to 0.1 mm) of a candidate."""
+    T = cand.T_base_flange @ T_flange_board
+    return [round(float(v), 4) for v in T[:3, :3] @ centre_b + T[:3, 3]]
+
+
+def _sig3(x: float) -> float:
+    return float(f"{float(x):.4g}")
 
 
 def explain_shortfall(name: str, belief: CameraBelief, views: list, target, tol_mm: float, tol_deg: float) -> str:
