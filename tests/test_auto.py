@@ -76,6 +76,60 @@ def test_view_information_is_the_numeric_fisher_information():
     assert np.trace(I_fk) < np.trace(I)  # an uncertain flange always costs information
 
 
+def test_batched_visibility_and_information_equal_the_single_pose_versions():
+    from calibgraph.plan.visibility import board_visible, boards_visible
+
+    intr, tg, T_bc, _ = _scene()
+    rng = np.random.default_rng(4)
+    T_bbs, margins = [], []
+    for _ in range(300):  # board poses round the arm's reach, facing the camera give or take 70 deg
+        c = np.array([rng.uniform(-0.2, 1.0), rng.uniform(-0.8, 0.8), rng.uniform(0.1, 0.9)])
+        T_bbs.append(board_pose_facing([3.0, 0.5, 0.8], c, tg, rng.uniform(-1.2, 1.2, 3) * [1, 1, 0], rng.uniform(-1, 1)))
+        margins.append(rng.uniform(0, 200))
+    T_bbs = np.array(T_bbs)
+    want = [board_visible(intr, T_bc, tg, T, margin_px=m) for T, m in zip(T_bbs, margins)]
+    assert 30 < sum(want) < 270  # both answers are exercised
+    assert boards_visible(intr, T_bc, tg, T_bbs, margin_px=np.array(margins)).tolist() == want
+    assert boards_visible(intr, T_bc, tg, T_bbs[:0]).shape == (0,)
+    T_fb = default_T_flange_board(tg)
+    I_many = view_information(intr, T_bc, T_bbs[:20], tg.points_board_m, 0.1, T_fb, 1e-4, np.radians(0.01))
+    for T, I in zip(T_bbs[:20], I_many):
+        I1 = view_information(intr, T_bc, T, tg.points_board_m, 0.1, T_fb, 1e-4, np.radians(0.01))
+        assert np.abs(I - I1).max() <= 1e-9 * np.abs(I1).max()
+
+
+def test_pool_scoring_equals_the_per_candidate_prediction():
+    """The vectorised pool scoring gives each candidate the visibility and 1-sigma that the
+    per-candidate prediction (:meth:`ActivePlanner.predict`) gives; the IK pre-filter never drops
+    a sample that a camera short of tolerance would see."""
+    require_sim()
+    from calibgraph.acquire.auto import AutoOptions
+    from calibgraph.plan.active import ActivePlanner, CameraBelief, sigma_norms
+    from calibgraph.sim.planning import planning_world
+    from calibgraph.sim.workcell import workcell_from_dict
+
+    d = read_yaml(DEFAULT, "world")
+    cell, wc = cell_from_world_dict(d, "world"), workcell_from_dict(d, "world")
+    world = planning_world(cell)
+    cov = np.diag([np.radians(0.05)] * 3 + [2e-3] * 3) ** 2  # 2 mm / 0.05 deg: all short of 0.5 mm / 0.03 deg
+    beliefs = {c.name: CameraBelief(c.name, c.intrinsics, c.T_base_cam, cov, 5) for c in wc.cameras}
+    planner = ActivePlanner(world, cell, AutoOptions().dq_max_rad_s, seed=3)
+    q0 = world.start_configuration()
+    T_fb = cell.T_flange_board
+    planner.top_up(beliefs, {n: 1.0 for n in beliefs}, 40, q0, T_fb, useful=set(beliefs))
+    assert len(planner.pool) >= 10 and planner.pruned > 0
+    rho = {n: 4.0 for n in beliefs}
+    per_cam = planner._score_pool(beliefs, rho, rho, T_fb, 0.05, 0.5, 0.03)
+    for i, cand in enumerate(planner.pool):
+        info = planner.predict(cand, beliefs, T_fb, 0.05, occlusion=False)
+        assert {n for n, (vis, _, _) in per_cam.items() if vis[i]} == set(info)
+        assert info, "a sample seen by no camera reached the IK"
+        for n, I in info.items():
+            want = sigma_norms(np.linalg.inv(np.linalg.inv(cov) + I))
+            assert np.allclose(per_cam[n][2][i], want, rtol=1e-9)
+            assert per_cam[n][1][i] > 0
+
+
 # -- the cell without placements ------------------------------------------------------------------------
 def test_world_becomes_a_cell_without_placements():
     d = read_yaml(DEFAULT, "world")
