@@ -291,6 +291,12 @@ def test_two_cameras_facing_each_other_across_the_robot(tmp_path):
     steps = json.loads((tmp_path / "auto" / "plan_log.json").read_text())["steps"]
     assert not any({"east", "west"} <= set(s.get("seen_by", [])) for s in steps)
     assert all(len(v) >= 3 for v in _views(tmp_path / "auto").values())
+    # the same cell with a tolerance out of reach of 14 poses: each camera is named with why and what would help
+    tight = (0.1, 0.01)
+    rep, wc = _run(d, tmp_path / "tight", max_poses=14, tol=tight)
+    _check_never_silent(rep, wc, tight)
+    assert not rep.converged and "budget of 14 capture poses used up" in rep.summary()
+    assert all(rep.cameras[c].startswith("SHORT of tolerance") for c in wc.camera_names), rep.summary()
 
 
 def test_a_camera_a_metre_from_the_robot_that_sees_only_part_of_the_board(tmp_path):
