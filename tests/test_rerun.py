@@ -141,3 +141,44 @@ def test_report_and_rrd_from_the_real_rct_dataset(shared_dir, tmp_path):
     ch = _chunks(path)
     imgs = [c for c in ch["/world/cameras/camera/image"] if not c.is_static]
     assert sum(c.num_rows for c in imgs) == len(d["residuals"]["camera"])
+
+
+def test_rrd_shows_the_plan_of_an_autonomous_run(tmp_path):
+    """Per step of plan_log.json: candidates coloured by score, the chosen pose, the 1-sigma series."""
+    from calibgraph.report.rerun_view import plan_points, write_rrd
+
+    d, scene, prob, res = make_sim_result()
+    rng = np.random.default_rng(3)
+    steps = [{"step": 0, "phase": "survey round 0", "label": "sweep", "why": "survey", "status": "captured",
+              "board_centre_m": [0.5, 0.0, 0.4], "seen_by": ["cam0"], "achieved": {}}]
+    for k in (1, 2):
+        cands = [{"board_centre_m": rng.uniform(-0.7, 0.7, 3).round(4).tolist(), "score": float(s), "gain": 1.0}
+                 for s in sorted(rng.uniform(0.1, 2.0, 5), reverse=True)]
+        steps.append({"step": k, "phase": "active", "label": f"active {k}", "why": "best", "status": "captured",
+                      "candidates": cands, "chosen_candidate": 1, "chosen_board_centre_m": cands[1]["board_centre_m"],
+                      "board_centre_m": cands[1]["board_centre_m"], "seen_by": ["cam0"],
+                      "achieved": {"cam0": [1.0 / k, 0.01]}})
+    log = {"cameras": ["cam0"], "steps": steps}
+    (tmp_path / "plan_log.json").write_text(json.dumps(log))
+    path = write_rrd(res, prob, tmp_path / "plan.rrd", plan_log=tmp_path / "plan_log.json")
+    _verify(path)
+    ch = _chunks(path)
+    got = {}
+    for e in ("/world/plan/candidates", "/world/plan/chosen"):
+        for c in ch[e]:
+            rb = c.to_record_batch()
+            cols = {n: rb.column(n).to_pylist() for n in rb.schema.names if n.startswith("Points3D:") or n == "capture"}
+            for i, k in enumerate(cols.get("capture", [])):
+                if cols.get("Points3D:positions", [None])[i] is not None:
+                    got[e, k] = (np.asarray(cols["Points3D:positions"][i]), cols.get("Points3D:colors", [None] * (i + 1))[i])
+    for s in steps[1:]:
+        P, _, colours, chosen = plan_points(s)
+        assert np.allclose(P, [c["board_centre_m"] for c in s["candidates"]]) and np.allclose(chosen, s["board_centre_m"])
+        P_rrd, col_rrd = got["/world/plan/candidates", s["step"]]
+        assert np.allclose(P_rrd, P) and np.allclose(got["/world/plan/chosen", s["step"]][0], [chosen])
+        assert col_rrd is not None and len(col_rrd) == len(P)  # one colour per candidate
+        # best score is yellow (viridis top), worst purple; colours follow the scores' order
+        assert tuple(colours[0]) != tuple(colours[-1]) and colours[0][1] > colours[-1][1]
+    assert ("/world/plan/candidates", 0) not in got  # a survey step has no candidates (cleared)
+    assert np.allclose(got["/world/plan/chosen", 0][0], [[0.5, 0.0, 0.4]])
+    assert _series(ch, "/plan/sigma_mm/cam0") == {1: 1.0, 2: 0.5} and "/plan/log" in ch

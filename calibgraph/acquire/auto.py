@@ -27,7 +27,11 @@ Files in ``out_dir`` (a ``calibgraph-dataset/1``, solvable by ``calibgraph solve
 - ``captures/NNNNNN.json`` and ``images/<camera>/NNNNNN.png`` as always: step k is capture k;
 - ``plan_log.json`` (``calibgraph-plan-log/1``), the journal: per step the pose, the phase, why it
   was chosen, the cameras expected and those that saw the board, predicted and achieved 1-sigma
-  per camera (mm, deg), the motion time; rewritten atomically after each step's capture file;
+  per camera (mm, deg), the motion time, the board centre of the capture (``board_centre_m``);
+  active steps add the best candidates of the choice (``candidates``: board centre, score = gain
+  per second, gain; best first, at most 20), ``chosen_candidate`` (its index there) and
+  ``chosen_board_centre_m``, which the rerun recording shows; rewritten atomically after each
+  step's capture file;
 - ``result.json``: the batch solve at the stop.
 
 Resume (``resume=True``) after a kill at any instant: captures on disk are replayed into the
@@ -375,6 +379,9 @@ class _Loop:
             views[c] = dict(image=rel, stamp_s=float(fr.stamp_s), ids=ids, uv_px=uv)
             dets.append(Detection(camera=c, capture=k, ids=ids, uv_px=uv, image=str(self.out / rel)))
         entry["T_base_flange"] = T0.tolist()
+        T_bb = T0 @ self.mount()
+        entry["board_centre_m"] = [round(float(v), 4) for v in T_bb[:3, :3] @ self.cell.target.points_board_m.mean(axis=0)
+                                   + T_bb[:3, 3]]
         entry["seen_by"] = sorted(views)
         entry["rejected"] = rej
         if views:
@@ -657,6 +664,9 @@ def _active(L):
         e = L.step("active", f"active {L.n_captures}", ch.candidate.q_rad, ch.why, expected=ch.sees,
                    predicted={n: [round(v[0], 4), round(v[1], 4)] for n, v in ch.predicted.items()}, motion=ch.motion)
         e["choose_time_s"] = round(t_choose, 3)
+        e["candidates"] = list(ch.candidates)  # the best ones, best first (the rerun recording shows them)
+        e["chosen_candidate"] = ch.chosen_index
+        e["chosen_board_centre_m"] = list(ch.board_centre_m)
         L.save_log()
         _ = live
 

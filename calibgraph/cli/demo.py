@@ -180,5 +180,13 @@ def _run_auto(args, cell, out, ds_dir, t_start) -> int:
                   f"{e_m * 1e3:7.3f} {e_deg:8.4f} {e_m * 1e3 / s_mm:7.2f}")
         print(f"captures {rep.captures} (survey included), robot motion {rep.robot_time_s:.0f} s; "
               f"result in {ds_dir / 'result.json'}, plan log in {ds_dir / 'plan_log.json'}")
+        if args.rrd:  # the cell, the residuals and the plan: candidates and the chosen pose per step
+            try:
+                from calibgraph.report.rerun_view import write_rrd
+
+                p = write_rrd(rep.result, ds_dir, out / "calibration.rrd")
+                print(f"wrote {p} (open with: rerun {p})")
+            except Exception as e:  # the recording is optional (rerun-sdk); the calibration is on disk
+                print(f"rerun recording skipped: {type(e).__name__}: {e}", file=sys.stderr)
     print(f"demo finished in {time.monotonic() - t_start:.0f} s; dataset with ground truth in {ds_dir}")
     return 0 if rep.converged else 3

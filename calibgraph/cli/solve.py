@@ -203,11 +203,11 @@ def run(args) -> int:
         print(f"wrote {out}")
     if args.rrd:
         try:
-            from calibgraph.report.rerun_view import write_rrd
+            from calibgraph.report.rerun_view import plan_log_path, write_rrd
         except ImportError:
             print("rerun recording skipped: calibgraph.report.rerun_view is not available", file=sys.stderr)
         else:
-            write_rrd(result, problem, args.rrd)
+            write_rrd(result, problem, args.rrd, plan_log=plan_log_path(args.dataset))
             if not args.quiet:
                 print(f"wrote {args.rrd}")
     return 0

@@ -25,8 +25,11 @@ after every capture (``plan_log.json`` holds both).
 Candidates come from a pool of reachable, collision-free configurations (IK within the joint
 limits on the planning world, keep-out volumes round the estimated cameras checked), topped up
 every step with new board poses aimed at the cameras still short of tolerance; a candidate is
-used once. Choosing costs well under a second on two cores: IK only for the top-up, the scoring
-is vectorised numpy, path checks only for the best few.
+used once. Choosing costs well under a second on two cores (``scripts/bench_choose.py``: median
+0.16 s, max 0.29 s CPU on the default and top-down cells): IK only for the top-up samples that a
+camera short of tolerance could see (others are dropped unsolved), the whole pool scored in one
+vectorised pass (:func:`~calibgraph.plan.visibility.boards_visible`, :func:`view_information` on
+a stack of poses), ray casts and path checks only for the best dozen.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ import numpy as np
 from calibgraph.core.transforms import inv
 from calibgraph.plan.planner import free_motion
 from calibgraph.plan.survey import board_pose_facing, reach_pose, seeds_at
-from calibgraph.plan.visibility import board_visible, square_px
+from calibgraph.plan.visibility import board_visible, boards_visible, occlusion_probes, square_px
 
 __all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_information", "sigma_norms", "shortfall",
            "motion_time_s", "keepout_violation", "explain_shortfall"]
@@ -77,7 +80,7 @@ def view_information(intrinsics, T_base_cam: np.ndarray, T_base_board: np.ndarra
                      pixel_sigma_px: float, T_flange_board: np.ndarray | None = None,
                      fk_sigma_translation_m: float = 0.0, fk_sigma_rotation_rad: float = 0.0) -> np.ndarray:
     """Fisher information (6x6, rotation first, base axes) on ``T_base_cam`` of one view of the
-    board points.
+    board points; for ``T_base_board`` (M, 4, 4) the M views' informations (M, 6, 6) at once.
 
     Perturbing the camera by ``R <- exp(dr) R, c <- c + dt`` moves a point seen at
     ``p_cam = R^T (p - c)`` by ``R^T [p - c]x dr - R^T dt``. With an FK prior (the flange pose of
@@ -86,31 +89,39 @@ def view_information(intrinsics, T_base_cam: np.ndarray, T_base_board: np.ndarra
     (camera, flange) with the prior on the flange block. Without it a far camera's gain is
     overstated several times: at 0.05 px corner noise the robot's 0.1 mm / 0.01 deg dominates.
     """
+    T_bb = np.asarray(T_base_board, float)
+    single = T_bb.ndim == 2
+    T_bb = T_bb.reshape(-1, 4, 4)
+    M, N = len(T_bb), len(points_board_m)
     R, c = T_base_cam[:3, :3], T_base_cam[:3, 3]
-    p = points_board_m @ T_base_board[:3, :3].T + T_base_board[:3, 3]
+    p = np.einsum("nj,mij->mni", points_board_m, T_bb[:, :3, :3]) + T_bb[:, None, :3, 3]  # (M, N, 3) base
     p_cam = (p - c) @ R
-    _, Jp = intrinsics.project(p_cam, with_jacobian=True)  # (N, 2, 3)
-    ok = np.all(np.isfinite(Jp), axis=(1, 2))
-    Jp, p = Jp[ok], p[ok]
-    D = np.empty((len(p), 3, 6))
-    D[:, :, :3] = np.einsum("ji,njk->nik", R, _skew_rows(p - c))
-    D[:, :, 3:] = -R.T
-    Jc = np.einsum("nij,njk->nik", Jp, D).reshape(-1, 6)  # (2N, 6)
+    _, Jp = intrinsics.project(p_cam.reshape(-1, 3), with_jacobian=True)  # (M N, 2, 3)
+    Jp = np.where(np.all(np.isfinite(Jp), axis=(1, 2))[:, None, None], Jp, 0.0)  # behind the camera: no information
+    JpR = Jp @ R.T  # d uv / d p (base axes)
+    # d p_cam / d(dr, dt) = R^T [[p - c]x, -I]  =>  d uv / d(dr) = JpR [p - c]x, d uv / d(dt) = -JpR
+    Jc = np.empty((M * N, 2, 6))
+    Jc[:, :, :3] = np.einsum("nij,njk->nik", JpR, _skew_rows((p - c).reshape(-1, 3)))
+    Jc[:, :, 3:] = -JpR
+    Jc = Jc.reshape(M, 2 * N, 6)
     w = 1.0 / pixel_sigma_px ** 2
-    I_cc = w * Jc.T @ Jc
+    I_cc = w * np.einsum("mki,mkj->mij", Jc, Jc)
     if T_flange_board is None or not (fk_sigma_translation_m > 0 and fk_sigma_rotation_rad > 0):
-        return I_cc
+        return I_cc[0] if single else I_cc
     # flange right-perturbation xi = [w, v]: p = T_bf exp(xi) p_f moves by R_bf ([-p_f]x w + v)
-    T_bf = T_base_board @ np.linalg.inv(T_flange_board)
-    p_f = (p - T_bf[:3, 3]) @ T_bf[:3, :3]
-    E = np.empty((len(p), 3, 6))
-    E[:, :, :3] = -np.einsum("ij,njk->nik", R.T @ T_bf[:3, :3], _skew_rows(p_f))
-    E[:, :, 3:] = R.T @ T_bf[:3, :3]
-    Jf = np.einsum("nij,njk->nik", Jp, E).reshape(-1, 6)
+    T_bf = T_bb @ np.linalg.inv(T_flange_board)
+    R_bf = T_bf[:, :3, :3]
+    p_f = np.einsum("mni,mij->mnj", p - T_bf[:, None, :3, 3], R_bf)  # flange axes
+    JpRf = np.einsum("mnij,mjk->mnik", JpR.reshape(M, N, 2, 3), R_bf)  # d uv / d p (flange axes)
+    Jf = np.empty((M, N, 2, 6))
+    Jf[..., :3] = -np.einsum("mnij,mnjk->mnik", JpRf, _skew_rows(p_f.reshape(-1, 3)).reshape(M, N, 3, 3))
+    Jf[..., 3:] = JpRf
+    Jf = Jf.reshape(M, 2 * N, 6)
     prior = np.diag(1.0 / np.array([fk_sigma_rotation_rad] * 3 + [fk_sigma_translation_m] * 3) ** 2)
-    I_cf = w * Jc.T @ Jf
-    I_ff = w * Jf.T @ Jf + prior
-    return I_cc - I_cf @ np.linalg.solve(I_ff, I_cf.T)
+    I_cf = w * np.einsum("mki,mkj->mij", Jc, Jf)
+    I_ff = w * np.einsum("mki,mkj->mij", Jf, Jf) + prior
+    out = I_cc - I_cf @ np.linalg.solve(I_ff, np.swapaxes(I_cf, 1, 2))
+    return out[0] if single else out
 
 
 def _skew_rows(v: np.ndarray) -> np.ndarray:
@@ -128,14 +139,17 @@ def motion_time_s(q0, q1, dq_max_rad_s, speed_scale: float) -> float:
     return float(np.max(dq / (np.asarray(dq_max_rad_s, float) * speed_scale))) + SETTLE_S
 
 
-def _pixel_margin(b: CameraBelief, distance_m: float) -> float:
-    """Image margin (px) covering the 3-sigma pixel shift of the board under the pose's uncertainty."""
+def _pixel_margin(b: CameraBelief, distance_m):
+    """Image margin (px) covering the 3-sigma pixel shift of the board under the pose's uncertainty
+    (``distance_m`` a scalar or an array: the margins of many board poses)."""
+    d = np.asarray(distance_m, float)
     if b.covariance is None:
-        return 150.0
+        return np.full(d.shape, 150.0) if d.ndim else 150.0
     f = float(b.intrinsics.K[0, 0])
     s_rot = np.sqrt(max(np.max(np.linalg.eigvalsh(b.covariance[:3, :3])), 0.0))
     s_t = np.sqrt(max(np.max(np.linalg.eigvalsh(b.covariance[3:, 3:])), 0.0))
-    return float(min(12.0 + 3.0 * f * (s_rot + s_t / max(distance_m, 0.3)), 200.0))
+    m = np.minimum(12.0 + 3.0 * f * (s_rot + s_t / np.maximum(d, 0.3)), 200.0)
+    return m if d.ndim else float(m)
 
 
 def keepout_violation(points_m: np.ndarray, beliefs: dict, floor_z_m: float) -> str | None:
@@ -176,6 +190,12 @@ class Choice:
         sees: cameras expected to see the whole board.
         predicted: camera -> (1-sigma mm, 1-sigma deg) expected after the capture.
         why: one line for the plan log.
+        candidates: the best candidates of this choice (at most ``ActivePlanner.n_logged``), best
+            first: dicts ``board_centre_m`` [x, y, z] (base frame, estimated mount), ``score`` (gain
+            per second, geometric visibility) and ``gain``; for the plan log and the rerun recording.
+        board_centre_m: board centre of the chosen candidate (base frame, estimated mount).
+        chosen_index: its place in ``candidates`` (the occlusion check re-ranks the best dozen, so
+            it need not be 0).
     """
 
     candidate: Candidate
@@ -185,6 +205,9 @@ class Choice:
     sees: tuple
     predicted: dict
     why: str
+    candidates: tuple = ()
+    board_centre_m: tuple = ()
+    chosen_index: int = -1
 
 
 class ActivePlanner:
@@ -212,6 +235,10 @@ class ActivePlanner:
         self.tilt, self.roll = np.radians(tilt_deg), np.radians(roll_deg)
         self.radius_m, self.height_m = radius_m, height_m
         self.pool: list = []
+        self.n_logged = 20  # candidates per choice kept for the plan log (Choice.candidates)
+        self.pruned = 0  # samples dropped before the IK (keep-out, or seen by no camera that can gain)
+        self.ik_tries = 0  # samples given to the IK
+        self._points_b = cell.target.points_board_m
         tgt = cell.target
         corners = [0, tgt.cols - 1, (tgt.rows - 1) * tgt.cols, tgt.n_points - 1]
         self._outline_b = tgt.points_board_m[corners]
@@ -221,10 +248,14 @@ class ActivePlanner:
         T_bb = T_bf @ T_fb
         return np.vstack([T_bf[:3, 3], self._outline_b @ T_bb[:3, :3].T + T_bb[:3, 3]])
 
-    def top_up(self, beliefs: dict, weights: dict, n_new: int, q_now, T_flange_board) -> int:
+    def top_up(self, beliefs: dict, weights: dict, n_new: int, q_now, T_flange_board, useful=None) -> int:
         """Sample ``n_new`` board poses aimed at the cameras (chosen with probability ~ ``weights``,
         a third of them between two cameras) and add the reachable, collision-free ones to the
-        pool. Returns how many were added."""
+        pool. Returns how many were added.
+
+        Cheap tests run before the IK (the costly part): a pose inside a keep-out, or (with
+        ``useful``, the cameras that can gain) one that none of them sees from its estimated pose
+        even with no image margin, could never be chosen and is dropped unsolved."""
         names = [n for n in beliefs if weights.get(n, 0) > 0] or list(beliefs)
         if not names:
             return 0
@@ -232,27 +263,47 @@ class ActivePlanner:
         w /= w.sum()
         eyes = {n: beliefs[n].T_base_cam[:3, 3] for n in beliefs}
         az = {n: float(np.arctan2(e[1], e[0])) for n, e in eyes.items()}
+        samples = []  # (T_base_board, IK seeds, aimed): all drawn first, in the sampler's fixed order
+        for _ in range(n_new):
+            cam = names[self.rng.choice(len(names), p=w)]
+            others = [o for o in beliefs if o != cam and abs(np.angle(np.exp(1j * (az[o] - az[cam])))) < np.radians(120)]
+            if others and self.rng.uniform() < 0.33:
+                o = others[self.rng.integers(len(others))]
+                a = float(np.angle(np.exp(1j * az[cam]) + np.exp(1j * az[o])))
+                eye, aimed, tilt = 0.5 * (eyes[cam] + eyes[o]), (cam, o), self.tilt * self.rng.uniform(0, 0.4)
+            else:
+                a, eye, aimed, tilt = az[cam], eyes[cam], (cam,), self.tilt * self.rng.uniform(0.2, 1.0)
+            a += self.rng.uniform(-1, 1) * np.radians(40)
+            r = self.rng.uniform(*self.radius_m)
+            centre = np.array([r * np.cos(a), r * np.sin(a), self.rng.uniform(*self.height_m)])
+            t_axis = self.rng.uniform(0, 2 * np.pi)
+            T_bb = board_pose_facing(eye, centre, self.cell.target, tilt * np.array([np.cos(t_axis), np.sin(t_axis), 0]),
+                                     self.roll * self.rng.uniform(-1, 1))
+            lo, hi = self.world.q_lo[0] + 0.1, self.world.q_hi[0] - 0.1
+            near = q_now is not None and abs(np.angle(np.exp(1j * (q_now[0] - a)))) < 0.6
+            samples.append((T_bb, seeds_at(float(np.clip(a, lo, hi)), q_now if near else None, 2, self.rng), aimed))
+        if not samples:
+            return 0
+        keep = np.ones(len(samples), bool)
+        if useful:
+            T_all = np.array([t for t, _, _ in samples])
+            seen = np.zeros(len(samples), bool)
+            for n in useful:
+                b = beliefs[n]
+                seen |= boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_all, margin_px=0.0)
+            keep &= seen
+        T_fb_inv = inv(T_flange_board)
+        for i, (T_bb, _, _) in enumerate(samples):
+            if keep[i] and keepout_violation(self._probe(T_bb @ T_fb_inv, T_flange_board), beliefs, self.cell.floor_z_m):
+                keep[i] = False
+        self.pruned += int(np.sum(~keep))
         q_saved = self.world.q()
         added = 0
         try:
-            for _ in range(n_new):
-                cam = names[self.rng.choice(len(names), p=w)]
-                others = [o for o in beliefs if o != cam and abs(np.angle(np.exp(1j * (az[o] - az[cam])))) < np.radians(120)]
-                if others and self.rng.uniform() < 0.33:
-                    o = others[self.rng.integers(len(others))]
-                    a = float(np.angle(np.exp(1j * az[cam]) + np.exp(1j * az[o])))
-                    eye, aimed, tilt = 0.5 * (eyes[cam] + eyes[o]), (cam, o), self.tilt * self.rng.uniform(0, 0.4)
-                else:
-                    a, eye, aimed, tilt = az[cam], eyes[cam], (cam,), self.tilt * self.rng.uniform(0.2, 1.0)
-                a += self.rng.uniform(-1, 1) * np.radians(40)
-                r = self.rng.uniform(*self.radius_m)
-                centre = np.array([r * np.cos(a), r * np.sin(a), self.rng.uniform(*self.height_m)])
-                t_axis = self.rng.uniform(0, 2 * np.pi)
-                T_bb = board_pose_facing(eye, centre, self.cell.target, tilt * np.array([np.cos(t_axis), np.sin(t_axis), 0]),
-                                         self.roll * self.rng.uniform(-1, 1))
-                lo, hi = self.world.q_lo[0] + 0.1, self.world.q_hi[0] - 0.1
-                near = q_now is not None and abs(np.angle(np.exp(1j * (q_now[0] - a)))) < 0.6
-                seeds = seeds_at(float(np.clip(a, lo, hi)), q_now if near else None, 2, self.rng)
+            for (T_bb, seeds, aimed), k in zip(samples, keep):
+                if not k:
+                    continue
+                self.ik_tries += 1
                 got = reach_pose(self.world, T_bb, T_flange_board, seeds)
                 if got is None:
                     continue
@@ -279,8 +330,32 @@ class ActivePlanner:
             if not board_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb, margin_px=_pixel_margin(b, d),
                                  occluded=self.world.occluded if occlusion else None):
                 continue
-            out[n] = view_information(b.intrinsics, b.T_base_cam, T_bb, self.cell.target.points_board_m, pixel_sigma_px,
+            out[n] = view_information(b.intrinsics, b.T_base_cam, T_bb, self._points_b, pixel_sigma_px,
                                       T_flange_board, *self.fk_sigmas)
+        return out
+
+    def _score_pool(self, scored: dict, rho: dict, short: dict, T_flange_board, pixel_sigma_px, tol_mm, tol_deg):
+        """Every pool candidate at once, geometry only: per camera (visible (M,), gain (M,),
+        predicted 1-sigma (M, 2)). The same numbers as :meth:`predict` without occlusion, per
+        candidate, but vectorised over the pool."""
+        T_bb = np.array([c.T_base_flange for c in self.pool]) @ T_flange_board
+        out = {}
+        for n, b in scored.items():
+            d = np.linalg.norm(T_bb[:, :3, 3] - b.T_base_cam[:3, 3], axis=1)
+            vis = boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb, margin_px=_pixel_margin(b, d))
+            gain = np.zeros(len(T_bb))
+            sig = np.full((len(T_bb), 2), np.nan)
+            if vis.any():
+                I = view_information(b.intrinsics, b.T_base_cam, T_bb[vis], self._points_b, pixel_sigma_px,
+                                     T_flange_board, *self.fk_sigmas)
+                cov = np.linalg.inv(np.linalg.inv(b.covariance) + I)
+                dg = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
+                sig[vis] = np.column_stack([np.linalg.norm(dg[:, 3:], axis=1) * 1e3,
+                                            np.degrees(np.linalg.norm(dg[:, :3], axis=1))])
+                if n in short:
+                    rho_new = np.maximum(sig[vis, 0] / tol_mm, sig[vis, 1] / tol_deg)
+                    gain[vis] = max(rho[n], 1.0) ** 2 - np.maximum(rho_new, 1.0) ** 2
+            out[n] = (vis, gain, sig)
         return out
 
     def choose(self, beliefs: dict, T_flange_board, pixel_sigma_px: float, tol_mm: float, tol_deg: float, q_now,
@@ -289,48 +364,48 @@ class ActivePlanner:
         or None when no candidate shows the board to a camera short of tolerance. Only cameras
         with a covariance are scored; ``beliefs`` without one still shape the keep-outs.
 
-        Scoring runs without the occlusion test (pure geometry, vectorised); the best dozen are
-        then checked for occlusion by the arm (ray casts at the candidate's configuration) and
-        re-scored with the cameras it hides removed, and for a free motion from ``q_now``."""
+        Scoring runs without the occlusion test (pure geometry, vectorised over the pool); the
+        best dozen are then checked for occlusion by the arm (ray casts at the candidate's
+        configuration) and re-scored with the cameras it hides removed, and for a free motion
+        from ``q_now``."""
         scored = {n: b for n, b in beliefs.items() if b.covariance is not None}
         rho = {n: shortfall(b.covariance, tol_mm, tol_deg) for n, b in scored.items()}
         short = {n: r for n, r in rho.items() if r > 1.0}
         if not short:
             return None
-        self.top_up(beliefs, {n: r ** 2 for n, r in short.items()}, n_top_up, q_now, T_flange_board)
+        self.top_up(beliefs, {n: r ** 2 for n, r in short.items()}, n_top_up, q_now, T_flange_board, useful=set(short))
         # drop candidates that an updated keep-out now forbids
         self.pool = [c for c in self.pool if not keepout_violation(c.probe_m, beliefs, self.cell.floor_z_m)]
-        info_inv = {n: np.linalg.inv(b.covariance) for n, b in scored.items()}
-
-        def score(cand, occlusion):
-            info = self.predict(cand, scored, T_flange_board, pixel_sigma_px, occlusion=occlusion)
-            gain, pred = 0.0, {}
-            for n, I in info.items():
-                cov_new = np.linalg.inv(info_inv[n] + I)
-                pred[n] = sigma_norms(cov_new)
-                if n in short:
-                    gain += max(rho[n], 1.0) ** 2 - max(shortfall(cov_new, tol_mm, tol_deg), 1.0) ** 2
-            t = motion_time_s(q_now, cand.q_rad, self.dq_max, self.speed_scale)
-            return gain / t, gain, tuple(sorted(info)), pred
-
+        if not self.pool:
+            return None
+        centre_b = self._points_b.mean(axis=0)
+        per_cam = self._score_pool(scored, rho, short, T_flange_board, pixel_sigma_px, tol_mm, tol_deg)
+        gain = sum(g for _, g, _ in per_cam.values())
+        Q = np.array([c.q_rad for c in self.pool])
+        t = np.max(np.abs(Q - np.asarray(q_now, float)) / (self.dq_max * self.speed_scale), axis=1) + SETTLE_S
+        for c, g in zip(self.pool, gain):
+            c.last_gain = float(g)
+        index = {id(c): i for i, c in enumerate(self.pool)}
+        ranked = [(float(g / tt), c) for c, g, tt in zip(self.pool, gain, t) if g > 1e-9]
+        if len(self.pool) > max_pool:  # forget what helps no camera that is short now
+            self.pool = [c for c in self.pool if c.last_gain > 1e-9] or self.pool[-max_pool:]
+        ranked.sort(key=lambda r: -r[0])
         q_saved = self.world.q()
         try:
-            ranked = []
-            for cand in self.pool:
-                rate, gain, sees, pred = score(cand, False)
-                cand.last_gain = gain
-                if gain > 1e-9:
-                    ranked.append((rate, cand))
-            if len(self.pool) > max_pool:  # forget what helps no camera that is short now
-                self.pool = [c for c in self.pool if c.last_gain > 1e-9] or self.pool[-max_pool:]
-            ranked.sort(key=lambda r: -r[0])
             rescored = []
-            for _, cand in ranked[:12]:
-                rate, gain, sees, pred = score(cand, True)
-                if gain > 1e-9:
-                    rescored.append((rate, gain, cand, sees, pred))
+            for _, cand in ranked[:12]:  # occlusion by the arm: drop the cameras whose rays it blocks
+                i = index[id(cand)]
+                self.world.set_q(cand.q_rad)
+                T_bb = cand.T_base_flange @ T_flange_board
+                probes = occlusion_probes(self.cell.target, T_bb)
+                sees = tuple(sorted(n for n, (vis, _, _) in per_cam.items()
+                                    if vis[i] and not self.world.occluded(scored[n].T_base_cam[:3, 3], probes)))
+                g = float(sum(per_cam[n][1][i] for n in sees))
+                if g > 1e-9:
+                    pred = {n: (float(per_cam[n][2][i, 0]), float(per_cam[n][2][i, 1])) for n in sees}
+                    rescored.append((g / t[i], g, cand, sees, pred))
             rescored.sort(key=lambda r: -r[0])
-            for rate, gain, cand, sees, pred in rescored:
+            for rate, g, cand, sees, pred in rescored:
                 motion = free_motion(self.world, q_now, cand.q_rad, max_step_rad)
                 self.pool.remove(cand)
                 if motion is None:
@@ -340,13 +415,27 @@ class ActivePlanner:
                     T += motion_time_s(q, qq, self.dq_max, self.speed_scale)
                     q = qq
                 worst = max(short, key=short.get)
+                top = tuple({"board_centre_m": _centre(c, T_flange_board, centre_b), "score": _sig3(r),
+                             "gain": _sig3(c.last_gain)} for r, c in ranked[: self.n_logged])
                 why = (f"best of {len(ranked)} candidates that help ({len(self.pool) + 1} in the pool): seen by "
-                       f"{', '.join(sees)}; worst camera {worst} at {short[worst]:.2f}x tolerance; gain {gain:.3g} "
+                       f"{', '.join(sees)}; worst camera {worst} at {short[worst]:.2f}x tolerance; gain {g:.3g} "
                        f"in {T:.1f} s" + (f" ({len(motion) - 1} via poses)" if len(motion) > 1 else ""))
-                return Choice(cand, motion, T, gain, sees, pred, why)
+                idx = next((i for i, (_, c) in enumerate(ranked[: self.n_logged]) if c is cand), -1)
+                return Choice(cand, motion, T, g, sees, pred, why, top, tuple(_centre(cand, T_flange_board, centre_b)),
+                              idx)
         finally:
             self.world.set_q(q_saved)
         return None
+
+
+def _centre(cand: Candidate, T_flange_board, centre_b) -> list:
+    """Board centre (base frame, m, rounded to 0.1 mm) of a candidate."""
+    T = cand.T_base_flange @ T_flange_board
+    return [round(float(v), 4) for v in T[:3, :3] @ centre_b + T[:3, 3]]
+
+
+def _sig3(x: float) -> float:
+    return float(f"{float(x):.4g}")
 
 
 def explain_shortfall(name: str, belief: CameraBelief, views: list, target, tol_mm: float, tol_deg: float) -> str:

@@ -20,9 +20,8 @@ def board_visible(intrinsics, T_base_cam: np.ndarray, target, T_base_board: np.n
     board facing it within ``max_angle_deg``, squares at least ``min_square_px`` wide, and, when
     ``occluded(origin_m, points_m) -> bool`` is given, no geometry on the rays to the outer
     points and the centre."""
-    pts_b = target.points_board_m
     T_cb = inv(T_base_cam) @ T_base_board
-    p_c = pts_b @ T_cb[:3, :3].T + T_cb[:3, 3]
+    p_c = target.points_board_m @ T_cb[:3, :3].T + T_cb[:3, 3]
     if np.any(p_c[:, 2] < 0.2):
         return False
     # the printed face looks along -z_board: the camera must be on that side
@@ -39,12 +38,53 @@ def board_visible(intrinsics, T_base_cam: np.ndarray, target, T_base_board: np.n
         return False
     if square_px(uv, target) < min_square_px:
         return False
-    if occluded is not None:
-        # outer points and the centre: a link crossing the board hides at least one of them
-        p_base = pts_b @ T_base_board[:3, :3].T + T_base_board[:3, 3]
-        if occluded(T_base_cam[:3, 3], p_base[_probe_ids(target.rows, target.cols)]):
-            return False
+    if occluded is not None and occluded(T_base_cam[:3, 3], occlusion_probes(target, T_base_board)):
+        return False
     return True
+
+
+def occlusion_probes(target, T_base_board: np.ndarray) -> np.ndarray:
+    """Board points (base frame) whose rays the occlusion test casts: the outer points and the
+    centre (a link crossing the board hides at least one of them)."""
+    p = target.points_board_m[_probe_ids(target.rows, target.cols)]
+    return p @ T_base_board[:3, :3].T + T_base_board[:3, 3]
+
+
+def boards_visible(intrinsics, T_base_cam: np.ndarray, target, T_base_boards: np.ndarray, margin_px=12.0,
+                   max_angle_deg: float = 60.0, min_square_px: float = 7.0) -> np.ndarray:
+    """:func:`board_visible` without the occlusion test for many board poses at once:
+    ``T_base_boards`` (M, 4, 4), ``margin_px`` a scalar or (M,). Returns (M,) booleans, the same
+    answers as M calls of :func:`board_visible` (the planner's scoring runs it on its whole pool)."""
+    T = np.asarray(T_base_boards, float).reshape(-1, 4, 4)
+    M = len(T)
+    if M == 0:
+        return np.zeros(0, bool)
+    margin = np.broadcast_to(np.asarray(margin_px, float), (M,))
+    T_cb = np.einsum("ij,mjk->mik", inv(T_base_cam), T)
+    pts_b = target.points_board_m
+    p_c = np.einsum("nj,mij->mni", pts_b, T_cb[:, :3, :3]) + T_cb[:, None, :3, 3]  # (M, N, 3)
+    ok = np.all(p_c[:, :, 2] >= 0.2, axis=1)
+    # camera on the printed side (-z_board): z of the camera centre in board axes < 0
+    cam_z_board = -np.einsum("mi,mi->m", T_cb[:, :3, 2], T_cb[:, :3, 3])
+    ok &= cam_z_board < 0
+    centre_c = p_c.mean(axis=1)
+    cosang = np.einsum("mi,mi->m", T_cb[:, :3, 2], centre_c) / np.linalg.norm(centre_c, axis=1)
+    ok &= cosang >= np.cos(np.radians(max_angle_deg))
+    idx = np.flatnonzero(ok)
+    if len(idx):
+        N = p_c.shape[1]
+        uv = intrinsics.project(p_c[idx].reshape(-1, 3)).reshape(len(idx), N, 2)
+        m = margin[idx, None]
+        inside = (np.isfinite(uv).all(axis=2) & (uv[:, :, 0] >= -0.5 + m) & (uv[:, :, 1] >= -0.5 + m)
+                  & (uv[:, :, 0] <= intrinsics.width_px - 0.5 - m) & (uv[:, :, 1] <= intrinsics.height_px - 0.5 - m))
+        good = inside.all(axis=1)
+        grid = uv.reshape(len(idx), target.rows, target.cols, 2)
+        with np.errstate(invalid="ignore"):
+            sq = np.minimum(np.linalg.norm(np.diff(grid, axis=1), axis=3).min(axis=(1, 2)),
+                            np.linalg.norm(np.diff(grid, axis=2), axis=3).min(axis=(1, 2)))
+        good &= sq >= min_square_px
+        ok[idx] = good
+    return ok
 
 
 def square_px(uv_px: np.ndarray, target) -> float:

@@ -19,6 +19,16 @@
     residuals/<cam>/rejected                 captures whose view was rejected (red points)
     summary                                  a text table of the result
 
+and, for an autonomous run (the dataset's ``plan_log.json``, :mod:`calibgraph.acquire.auto`), per
+step on the same "capture" timeline (step k is capture k)::
+
+    world/plan/candidates                    the best candidates of the choice: board centres,
+                                             coloured by score (viridis, yellow = best), labelled
+    world/plan/chosen                        the board centre of the pose moved to (large, red)
+    world/plan/chosen_path                   board centres of the steps so far (line)
+    plan/log                                 one text line per step: phase, label, why
+    plan/sigma_mm/<cam>                      1-sigma translation norm per camera after the step
+
 rerun is imported lazily (it is an optional dependency: ``pip install calibgraph[viz]``).
 """
 
@@ -32,6 +42,7 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.problem import mode_frames
 from calibgraph.io.files import atomic_write_via
 from calibgraph.report.exports import camera_intrinsics, camera_pose, ref_frame
+from calibgraph.report.svgplot import colormap
 from calibgraph.report.html import (
     compute_residuals,
     corner_rejected_mask,
@@ -44,6 +55,7 @@ MAGENTA = (230, 40, 230)
 RED = (230, 30, 30)
 ORANGE = (255, 150, 0)
 PALETTE = [(31, 119, 180), (44, 160, 44), (148, 103, 189), (140, 86, 75), (23, 190, 207), (188, 189, 34)]
+PLAN_LOG_NAME = "plan_log.json"  # as written by calibgraph.acquire.auto
 RESIDUAL_GAIN = 20.0  # residual vectors are sub-pixel: magnify to see their pattern
 
 
@@ -199,9 +211,88 @@ def log_result(rec, result, source=None) -> None:
     rec.log("summary", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True)
 
 
-def default_blueprint(result: dict):
+def plan_log_path(source):
+    """``plan_log.json`` beside a dataset (folder path or Dataset with a ``root``), or None."""
+    root = source if isinstance(source, (str, Path)) else getattr(source, "root", None)
+    if root is None:
+        return None
+    p = Path(root) / PLAN_LOG_NAME
+    return p if p.is_file() else None
+
+
+def _load_plan_log(plan_log) -> dict | None:
+    if plan_log is None or isinstance(plan_log, dict):
+        return plan_log
+    import json
+
+    try:
+        return json.loads(Path(plan_log).read_text())
+    except (OSError, ValueError) as e:
+        raise InputError(f"{plan_log}: cannot read the plan log ({type(e).__name__}: {e}).") from None
+
+
+def _viridis(x) -> np.ndarray:
+    """(N, 3) uint8 viridis colours of scores scaled to [0, 1]."""
+    return np.array([[int(c[i:i + 2], 16) for i in (1, 3, 5)] for c in map(colormap, x)], np.uint8).reshape(-1, 3)
+
+
+def plan_points(step: dict):
+    """What :func:`log_plan` shows for one plan-log step: (candidate board centres (N, 3), their
+    scores (N,), colours (N, 3) uint8, chosen board centre (3,) or None)."""
+    cands = step.get("candidates") or []
+    P = np.array([c["board_centre_m"] for c in cands], float).reshape(-1, 3)
+    score = np.array([c.get("score", 0.0) for c in cands], float)
+    if len(score):
+        lo, hi = float(score.min()), float(score.max())
+        colours = _viridis((score - lo) / (hi - lo) if hi > lo else np.ones_like(score))
+    else:
+        colours = np.zeros((0, 3), np.uint8)
+    chosen = step.get("chosen_board_centre_m") or step.get("board_centre_m")
+    if not chosen and step.get("T_base_flange") is not None:  # logs without board centres: the flange
+        chosen = np.asarray(step["T_base_flange"], float)[:3, 3]
+    return P, score, colours, (None if chosen is None or len(chosen) != 3 else np.asarray(chosen, float))
+
+
+def log_plan(rec, plan_log) -> int:
+    """Log an autonomous run's plan (``plan_log.json`` dict or path) into the rerun RecordingStream
+    ``rec``: per step the candidates coloured by score and the chosen pose (see the module
+    docstring). Returns the number of steps logged."""
+    rr = _import_rerun()
+    log = _load_plan_log(plan_log) or {}
+    names = list(log.get("cameras") or [])
+    for i, n in enumerate(names):
+        rec.log(f"plan/sigma_mm/{n}", rr.SeriesLines(colors=[PALETTE[i % len(PALETTE)]], names=[f"{n} 1σ mm"]),
+                static=True)
+    path = []
+    steps = sorted(log.get("steps") or [], key=lambda s: s.get("step", 0))
+    for s in steps:
+        rec.set_time("capture", sequence=int(s["step"]))
+        P, score, colours, chosen = plan_points(s)
+        if len(P):
+            rec.log("world/plan/candidates", rr.Points3D(P, colors=colours, radii=0.008,
+                                                         labels=[f"{v:.3g}/s" for v in score]))
+        else:
+            rec.log("world/plan/candidates", rr.Clear(recursive=False))
+        if chosen is not None:
+            seen = ", ".join(s.get("seen_by") or []) or "no camera"
+            rec.log("world/plan/chosen", rr.Points3D([chosen], colors=RED, radii=0.02,
+                                                     labels=[f"{s.get('label', '')} ({seen})"]))
+            if s.get("status") in ("captured", "no_views", "recovered"):
+                path.append(chosen)
+        if len(path) > 1:
+            rec.log("world/plan/chosen_path", rr.LineStrips3D([np.array(path)], colors=(120, 120, 120), radii=0.002))
+        rec.log("plan/log", rr.TextLog(f"step {s['step']} [{s.get('phase', '')}] {s.get('label', '')}: "
+                                       f"{s.get('status', '')}; {s.get('why', '')}"))
+        for n, v in (s.get("achieved") or {}).items():
+            if v:
+                rec.log(f"plan/sigma_mm/{n}", rr.Scalars(float(v[0])))
+    return len(steps)
+
+
+def default_blueprint(result: dict, plan: bool = False):
     """Viewer layout: the 3D cell on the left; each camera's image with detected/reprojected corners
-    and the residual time series on the right."""
+    and the residual time series on the right; with ``plan`` the autonomous run's 1-sigma series
+    and step log too."""
     import rerun.blueprint as rrb
 
     cam_root = "world/flange" if result.get("mode") == "eye_in_hand" else "world/cameras"
@@ -216,26 +307,40 @@ def default_blueprint(result: dict):
                                         name=f"{n}: detected (green) vs reprojected (magenta)"))
     right = rrb.Vertical(rrb.Grid(*images), rrb.TimeSeriesView(origin="residuals", name="residuals per capture (px)"),
                          row_shares=[2, 1])
+    if plan:
+        right = rrb.Vertical(rrb.Grid(*images), rrb.TimeSeriesView(origin="residuals", name="residuals per capture (px)"),
+                             rrb.TimeSeriesView(origin="plan/sigma_mm", name="1σ per camera (mm) after each step"),
+                             row_shares=[2, 1, 1])
     left = rrb.Vertical(rrb.Spatial3DView(origin="world", name="workcell (robot base frame)"),
                         rrb.TextDocumentView(origin="summary", name="summary"), row_shares=[3, 1])
+    if plan:
+        left = rrb.Vertical(rrb.Spatial3DView(origin="world", name="workcell (robot base frame); plan: candidates by "
+                                                                    "score, chosen in red"),
+                            rrb.TextLogView(origin="plan/log", name="plan steps"),
+                            rrb.TextDocumentView(origin="summary", name="summary"), row_shares=[3, 1, 1])
     return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[1, 1]), collapse_panels=False)
 
 
-def write_rrd(result, problem_or_dataset=None, path="calibgraph.rrd") -> Path:
+def write_rrd(result, problem_or_dataset=None, path="calibgraph.rrd", plan_log=None) -> Path:
     """Save a rerun recording of ``result`` (a :class:`Result` or result dict) to ``path``.
 
     ``problem_or_dataset`` (a Problem, a Dataset or a dataset folder) adds the images, the
     detections (when the result has no ``residuals`` section) and the recorded flange poses.
+    ``plan_log`` (dict or path; default: the dataset folder's ``plan_log.json`` when there is one)
+    adds the autonomous run's candidates and choices (:func:`log_plan`).
     The file is written without a viewer; open it with ``rerun path``.
     """
     rr = _import_rerun()
     R = _result_dict(result)
+    plan = _load_plan_log(plan_log if plan_log is not None else plan_log_path(problem_or_dataset))
 
     def write(tmp: Path) -> None:
         rec = rr.RecordingStream("calibgraph")
-        rec.save(str(tmp), default_blueprint=default_blueprint(R))
+        rec.save(str(tmp), default_blueprint=default_blueprint(R, plan=bool(plan)))
         try:
             log_result(rec, R, problem_or_dataset)
+            if plan:
+                log_plan(rec, plan)
             rec.flush()
         finally:
             rec.disconnect()

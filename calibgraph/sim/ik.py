@@ -13,6 +13,8 @@ through an obstacle between two samples.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from calibgraph.core.transforms import log_so3
@@ -44,29 +46,49 @@ def solve_ik(world, T_base_flange_target: np.ndarray, q_seed, max_iter: int = 15
     q = np.clip(np.asarray(q_seed, float), lo, hi)
     jacp = np.zeros((3, m.nv))
     jacr = np.zeros((3, m.nv))
-    cols = np.array([m.jnt_dofadr[m.joint(f"fr3_joint{i}").id] for i in range(1, 8)])
-    R_t = T_base_flange_target[:3, :3]
-    p_t = T_base_flange_target[:3, 3]
+    cols = getattr(world, "_ik_cols", None)
+    if cols is None:
+        cols = world._ik_cols = np.array([m.jnt_dofadr[m.joint(f"fr3_joint{i}").id] for i in range(1, 8)])
+    damp = damping**2 * np.eye(6)
+    J = np.empty((6, 7))
+    e = np.empty(6)
+    site, qadr = world.flange_site, world.qadr
+    R_t = np.asarray(T_base_flange_target[:3, :3], float)
+    p_t = np.asarray(T_base_flange_target[:3, 3], float)
+    # the loop runs thousands of times per planning step: scalar maths where numpy's overhead dominates
     for _ in range(max_iter):
-        T = _fk(world, q)
-        e_p = p_t - T[:3, 3]
-        e_r = log_so3(R_t @ T[:3, :3].T)  # world-frame rotation error, matches jacr
-        if np.linalg.norm(e_p) < tol_m and np.linalg.norm(e_r) < tol_rad:
+        d.qpos[qadr] = q
+        mj.mj_kinematics(m, d)
+        e[:3] = p_t - d.site_xpos[site]
+        e[3:] = _log_so3_fast(R_t @ d.site_xmat[site].reshape(3, 3).T)  # world-frame rotation error, matches jacr
+        ep, er = e[:3] @ e[:3], e[3:] @ e[3:]
+        if math.sqrt(ep) < tol_m and math.sqrt(er) < tol_rad:
             return q
         mj.mj_comPos(m, d)
-        mj.mj_jacSite(m, d, jacp, jacr, world.flange_site)
-        J = np.vstack([jacp[:, cols], jacr[:, cols]])
-        e = np.concatenate([e_p, e_r])
+        mj.mj_jacSite(m, d, jacp, jacr, site)
+        J[:3] = jacp[:, cols]
+        J[3:] = jacr[:, cols]
         # cap the step so linearisation holds far from the solution
-        n = np.linalg.norm(e)
+        n = math.sqrt(ep + er)
         if n > 0.2:
             e *= 0.2 / n
-        dq = J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(6), e)
-        q = np.clip(q + dq, lo, hi)
+        dq = J.T @ np.linalg.solve(J @ J.T + damp, e)
+        q = np.minimum(np.maximum(q + dq, lo), hi)  # np.clip, without its overhead
     T = _fk(world, q)
     if np.linalg.norm(p_t - T[:3, 3]) < 10 * tol_m and np.linalg.norm(log_so3(R_t @ T[:3, :3].T)) < 10 * tol_rad:
         return q
     return None
+
+
+def _log_so3_fast(R: np.ndarray) -> np.ndarray:
+    """:func:`calibgraph.core.transforms.log_so3` in scalar maths (the IK's inner loop)."""
+    r = R.tolist()
+    c = min(max((r[0][0] + r[1][1] + r[2][2] - 1.0) / 2.0, -1.0), 1.0)
+    theta = math.acos(c)
+    if theta < 1e-7 or math.pi - theta < 1e-4:
+        return log_so3(R)
+    k = theta / (2.0 * math.sin(theta))
+    return np.array([(r[2][1] - r[1][2]) * k, (r[0][2] - r[2][0]) * k, (r[1][0] - r[0][1]) * k])
 
 
 def start_configuration(world) -> np.ndarray:

@@ -232,7 +232,7 @@ class IncrementalSolver:
         mount = None
         if self._initialised:
             mount = self._estimate.atPose3(B(0)).matrix()
-            for name in self._cam_ready:
+            for name in (n for n in self.cameras if n in self._cam_ready):  # declared order: runs repeat exactly
                 T = self._estimate.atPose3(C(self._slots[name])).matrix()
                 cov = None
                 if self.with_covariance:
