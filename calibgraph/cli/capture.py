@@ -114,8 +114,8 @@ def _read_yaml(path: Path, what: str):
 def workcell_hardware(d: dict, where: str):
     """Split a workcell mapping into (robot section, camera sections, safety limits, target, mode)."""
     from calibgraph.acquire.safety import SafetyLimits, default_cell_limits
-    from calibgraph.plan.cell import boxes_from_list
     from calibgraph.core.errors import InputError
+    from calibgraph.plan.cell import boxes_from_list
 
     robot = dict(d.get("robot") or {})
     unknown = set(robot) - _ROBOT_KEYS - _SIM_ROBOT_KEYS
@@ -302,7 +302,6 @@ def run(args) -> int:
 
 def run_auto_capture(args, log) -> int:
     """``capture --auto``: the autonomous loop on the simulated or the real cell."""
-    import numpy as np
 
     from calibgraph.acquire.auto import AutoOptions, dry_run_survey, run_auto
     from calibgraph.acquire.safety import SafetyLimits
@@ -333,42 +332,10 @@ def run_auto_capture(args, log) -> int:
     robot, cameras, closers, detector, sim = None, {}, [], None, None
     try:
         if driver == "sim":
-            from calibgraph.sim.devices import make_devices
-            from calibgraph.sim.render import SimWorld
-            from calibgraph.sim.simulate import VisibilityGatedDetector
-            from calibgraph.sim.workcell import workcell_from_dict
-
-            wcell = workcell_from_dict(sim_workcell_dict(world_d), str(args.sim_world))
-            missing = [c for c in cell.camera_names if c not in wcell.camera_names]
-            if missing:
-                raise InputError(f"{args.workcell}: cameras {missing} are not in the simulated world {args.sim_world} "
-                                 f"(it has {wcell.camera_names}).")
-            if wcell.target != cell.target:
-                raise InputError(f"{args.workcell}: board {cell.target.to_dict()} differs from the simulated world's "
-                                 f"{wcell.target.to_dict()}.")
-            sim = SimWorld(wcell)
-            robot, sim_cams = make_devices(sim, wcell.fk_sigma_translation_m, np.radians(wcell.fk_sigma_rotation_deg),
-                                           wcell.seed)
-            cameras = {c: sim_cams[c] for c in cell.camera_names}
-            detector = VisibilityGatedDetector(sim, None)
+            sim, robot, cameras, detector = _sim_devices(args, cell, world_d, check_target=True)
             sim.skip_hidden_renders = True
         else:
-            if not args.dry_run and not args.cleared:
-                raise InputError("capture: a real robot is configured; it will not move without "
-                                 "--i-have-cleared-the-cell. Run with --dry-run first to see the survey.")
-            from drivers.franka import FrankaRobot
-
-            robot_cfg = (cell_d or {}).get("robot") or {}
-            ip = args.robot_ip or robot_cfg.get("ip")
-            if not ip:
-                raise InputError(f"{args.workcell}: robot.ip (or --robot-ip) is needed for the franka driver.")
-            try:
-                robot = FrankaRobot(ip, model=robot_cfg.get("model", "fr3"), realtime=bool(robot_cfg.get("realtime", True)),
-                                    settle_velocity_rad_s=float(robot_cfg.get("settle_velocity_rad_s", 0.005)))
-            except Exception as e:
-                if not args.dry_run:
-                    raise
-                log(f"robot at {ip}: not connected ({e}); planning the survey from the home posture")
+            robot = _franka(args, cell_d, log, "see the survey", "planning the survey")
         if robot is not None:
             closers.append(robot)
         if args.dry_run:
@@ -377,20 +344,7 @@ def run_auto_capture(args, log) -> int:
             print(rep.summary())
             return 0
         if driver != "sim":
-            for name in cell.camera_names:
-                spec = (cell_d.get("cameras") or {}).get(name) or {}
-                hw = {k: v for k, v in spec.items() if k not in ("hint", "preset", "intrinsics")}
-                try:
-                    cam = open_camera(name, hw, str(args.workcell))
-                except InputError:
-                    raise
-                except Exception as e:  # a camera that cannot open is reported; the others go on
-                    log(f"camera {name}: cannot open ({type(e).__name__}: {e}); continuing without it")
-                    continue
-                cameras[name] = cam
-                closers.append(cam)
-            if not cameras:
-                raise InputError(f"{args.workcell}: no camera could be opened.")
+            cameras = _open_cell_cameras(args, cell, cell_d, closers, log)
         try:
             rep = run_auto(robot, cameras, cell, pworld, args.out, detector=detector, safety=safety, options=opts,
                            resume=args.resume, progress=log)
@@ -417,6 +371,80 @@ def run_auto_capture(args, log) -> int:
                 pass
 
 
+def _sim_devices(args, cell, world_d: dict, check_target: bool = False, check_rendering: bool = False):
+    """The simulated world ``world_d`` (``--sim-world``) with its robot, the cell's cameras and a
+    visibility-gated detector: (sim, robot, cameras, detector)."""
+    import numpy as np
+
+    from calibgraph.core.errors import InputError
+    from calibgraph.sim.devices import make_devices
+    from calibgraph.sim.render import SimWorld
+    from calibgraph.sim.simulate import VisibilityGatedDetector
+    from calibgraph.sim.workcell import workcell_from_dict
+
+    wcell = workcell_from_dict(sim_workcell_dict(world_d), str(args.sim_world))
+    missing = [c for c in cell.camera_names if c not in wcell.camera_names]
+    if missing:
+        raise InputError(f"{args.workcell}: cameras {missing} are not in the simulated world {args.sim_world} "
+                         f"(it has {wcell.camera_names}).")
+    if check_target and wcell.target != cell.target:
+        raise InputError(f"{args.workcell}: board {cell.target.to_dict()} differs from the simulated world's "
+                         f"{wcell.target.to_dict()}.")
+    sim = SimWorld(wcell)
+    if check_rendering:
+        sim.check_rendering()
+    robot, sim_cams = make_devices(sim, wcell.fk_sigma_translation_m, np.radians(wcell.fk_sigma_rotation_deg),
+                                   wcell.seed)
+    return sim, robot, {c: sim_cams[c] for c in cell.camera_names}, VisibilityGatedDetector(sim, None)
+
+
+def _franka(args, cell_d: dict | None, log, dry_run_shows: str, plans: str):
+    """The Franka arm of the cell (``robot.ip`` or ``--robot-ip``); refused without the cleared-cell
+    flag unless dry-running; a dry run goes on without a connection (None)."""
+    from calibgraph.core.errors import InputError
+
+    if not args.dry_run and not args.cleared:
+        raise InputError("capture: a real robot is configured; it will not move without "
+                         f"--i-have-cleared-the-cell. Run with --dry-run first to {dry_run_shows}.")
+    from drivers.franka import FrankaRobot
+
+    robot_cfg = (cell_d or {}).get("robot") or {}
+    ip = args.robot_ip or robot_cfg.get("ip")
+    if not ip:
+        raise InputError(f"{args.workcell}: robot.ip (or --robot-ip) is needed for the franka driver.")
+    try:
+        return FrankaRobot(ip, model=robot_cfg.get("model", "fr3"), realtime=bool(robot_cfg.get("realtime", True)),
+                           settle_velocity_rad_s=float(robot_cfg.get("settle_velocity_rad_s", 0.005)))
+    except Exception as e:
+        if not args.dry_run:
+            raise
+        log(f"robot at {ip}: not connected ({e}); {plans} from the home posture")
+        return None
+
+
+def _open_cell_cameras(args, cell, cell_d: dict, closers: list, log) -> dict:
+    """The cell's hardware cameras, opened; one that cannot open is reported and left out (it is
+    then 'not seen'); none at all is an error."""
+    from calibgraph.core.errors import InputError
+
+    cameras = {}
+    for name in cell.camera_names:
+        spec = (cell_d.get("cameras") or {}).get(name) or {}
+        hw = {k: v for k, v in spec.items() if k not in ("hint", "preset", "intrinsics")}
+        try:
+            cam = open_camera(name, hw, str(args.workcell))
+        except InputError:
+            raise
+        except Exception as e:  # a camera that cannot open is reported; the others go on
+            log(f"camera {name}: cannot open ({type(e).__name__}: {e}); continuing without it")
+            continue
+        cameras[name] = cam
+        closers.append(cam)
+    if not cameras:
+        raise InputError(f"{args.workcell}: no camera could be opened.")
+    return cameras
+
+
 def _has_placements(d: dict) -> bool:
     from calibgraph.plan.cell import _PLACEMENT_KEYS
 
@@ -425,7 +453,6 @@ def _has_placements(d: dict) -> bool:
 
 def run_verify_capture_cli(args, log) -> int:
     """``capture --verify``: plan from the stored result, capture (sim or real), verify."""
-    import numpy as np
 
     from calibgraph.acquire.safety import SafetyLimits
     from calibgraph.acquire.verify import run_verify_capture
@@ -472,55 +499,11 @@ def run_verify_capture_cli(args, log) -> int:
     robot, cameras, closers, detector, sim = None, {}, [], None, None
     try:
         if driver == "sim":
-            from calibgraph.sim.devices import make_devices
-            from calibgraph.sim.render import SimWorld
-            from calibgraph.sim.simulate import VisibilityGatedDetector
-            from calibgraph.sim.workcell import workcell_from_dict
-
-            wcell = workcell_from_dict(sim_workcell_dict(world_d), str(args.sim_world))
-            lost = [c for c in cell.camera_names if c not in wcell.camera_names]
-            if lost:
-                raise InputError(f"{args.workcell}: cameras {lost} are not in the simulated world {args.sim_world} "
-                                 f"(it has {wcell.camera_names}).")
-            sim = SimWorld(wcell)
-            if not args.dry_run:
-                sim.check_rendering()
-            robot, sim_cams = make_devices(sim, wcell.fk_sigma_translation_m, np.radians(wcell.fk_sigma_rotation_deg),
-                                           wcell.seed)
-            cameras = {c: sim_cams[c] for c in cell.camera_names}
-            detector = VisibilityGatedDetector(sim, None)
+            sim, robot, cameras, detector = _sim_devices(args, cell, world_d, check_rendering=not args.dry_run)
         else:
-            if not args.dry_run and not args.cleared:
-                raise InputError("capture: a real robot is configured; it will not move without "
-                                 "--i-have-cleared-the-cell. Run with --dry-run first to check the verify poses.")
-            from drivers.franka import FrankaRobot
-
-            robot_cfg = (cell_d or {}).get("robot") or {}
-            ip = args.robot_ip or robot_cfg.get("ip")
-            if not ip:
-                raise InputError(f"{args.workcell}: robot.ip (or --robot-ip) is needed for the franka driver.")
-            try:
-                robot = FrankaRobot(ip, model=robot_cfg.get("model", "fr3"), realtime=bool(robot_cfg.get("realtime", True)),
-                                    settle_velocity_rad_s=float(robot_cfg.get("settle_velocity_rad_s", 0.005)))
-            except Exception as e:
-                if not args.dry_run:
-                    raise
-                log(f"robot at {ip}: not connected ({e}); planning from the home posture")
+            robot = _franka(args, cell_d, log, "check the verify poses", "planning")
             if not args.dry_run:
-                for name in cell.camera_names:
-                    spec = (cell_d.get("cameras") or {}).get(name) or {}
-                    hw = {k: v for k, v in spec.items() if k not in ("hint", "preset", "intrinsics")}
-                    try:
-                        cam = open_camera(name, hw, str(args.workcell))
-                    except InputError:
-                        raise
-                    except Exception as e:  # a camera that cannot open is reported (not seen); the others go on
-                        log(f"camera {name}: cannot open ({type(e).__name__}: {e}); continuing without it")
-                        continue
-                    cameras[name] = cam
-                    closers.append(cam)
-                if not cameras:
-                    raise InputError(f"{args.workcell}: no camera could be opened.")
+                cameras = _open_cell_cameras(args, cell, cell_d, closers, log)
         if robot is not None:
             closers.append(robot)
         real = driver != "sim"
