@@ -221,6 +221,16 @@ def _drop_before(problem, m: Move):
     return problem.with_(detections=tuple(d for d in problem.detections if (d.camera, d.capture) not in drop))
 
 
+def _without_before(problem, m: Move, resolve):
+    """(problem without ``m``'s views from before the move, its solution); too few views left is an
+    error that names the move."""
+    problem = _drop_before(problem, m)
+    try:
+        return problem, resolve(problem)
+    except ObservabilityError as e:
+        raise _too_few_after(m, e) from None
+
+
 def _too_few_after(m: Move, e: Exception) -> ObservabilityError:
     return ObservabilityError(
         f"camera {m.camera} moved during capture, between captures {m.last_before} and {m.first_after}, by about "
@@ -259,11 +269,7 @@ def solve_minding_moves(problem, resolve) -> object:
         m = _move_behind_rejection(problem, e, resolve)
         if m is None:
             raise
-        problem = _drop_before(problem, m)
-        try:
-            result = resolve(problem)
-        except ObservabilityError as e2:
-            raise _too_few_after(m, e2) from None
+        problem, result = _without_before(problem, m, resolve)
         handled.add(m.camera)
         moves.append(m)
     while len(moves) < MAX_MOVED:
@@ -271,11 +277,7 @@ def solve_minding_moves(problem, resolve) -> object:
         if not found:
             break
         m = found[0]
-        problem = _drop_before(problem, m)
-        try:
-            result = resolve(problem)
-        except ObservabilityError as e:
-            raise _too_few_after(m, e) from None
+        problem, result = _without_before(problem, m, resolve)
         handled.add(m.camera)
         moves.append(m)
     if not moves:
