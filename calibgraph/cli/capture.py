@@ -242,35 +242,12 @@ def run(args) -> int:
             cameras.update(sim_cams)
             detector = VisibilityGatedDetector(world, None)
         else:
-            from drivers.franka import FrankaRobot
-
-            ip = args.robot_ip or robot_cfg.get("ip")
-            if not ip:
-                raise InputError(f"{args.workcell}: robot.ip (or --robot-ip) is needed for the franka driver.")
-            try:
-                robot = FrankaRobot(ip, model=robot_cfg.get("model", "fr3"), realtime=bool(robot_cfg.get("realtime", True)),
-                                    settle_velocity_rad_s=float(robot_cfg.get("settle_velocity_rad_s", 0.005)))
-            except Exception as e:
-                if not args.dry_run:
-                    raise
-                log(f"robot at {ip}: not connected ({e}); planning from the first pose instead of the robot's joints")
+            robot = _connect_franka(args, robot_cfg, log, "planning from the first pose instead of the robot's joints")
         if robot is not None:
             closers.append(robot)
         if not args.dry_run:
-            for name, spec in cam_cfg.items():
-                if (spec or {}).get("driver", "sim") == "sim":
-                    continue
-                try:
-                    cam = open_camera(name, spec, str(args.workcell))
-                except InputError:
-                    raise
-                except Exception as e:  # a camera that cannot open is reported; the others go on
-                    log(f"camera {name}: cannot open ({type(e).__name__}: {e}); continuing without it")
-                    continue
-                cameras[name] = cam
-                closers.append(cam)
-            if not cameras:
-                raise InputError(f"{args.workcell}: no camera could be opened.")
+            hw = {n: spec for n, spec in cam_cfg.items() if (spec or {}).get("driver", "sim") != "sim"}
+            _open_cameras(hw, str(args.workcell), cameras, closers, log)
         on_capture = None
         if args.incremental and not args.dry_run:
             from calibgraph.solver.incremental import IncrementalSolver
@@ -399,16 +376,22 @@ def _sim_devices(args, cell, world_d: dict, check_target: bool = False, check_re
 
 
 def _franka(args, cell_d: dict | None, log, dry_run_shows: str, plans: str):
-    """The Franka arm of the cell (``robot.ip`` or ``--robot-ip``); refused without the cleared-cell
-    flag unless dry-running; a dry run goes on without a connection (None)."""
+    """The Franka arm of the cell; refused without the cleared-cell flag unless dry-running (see
+    :func:`_connect_franka`)."""
     from calibgraph.core.errors import InputError
 
     if not args.dry_run and not args.cleared:
         raise InputError("capture: a real robot is configured; it will not move without "
                          f"--i-have-cleared-the-cell. Run with --dry-run first to {dry_run_shows}.")
+    return _connect_franka(args, (cell_d or {}).get("robot") or {}, log, f"{plans} from the home posture")
+
+
+def _connect_franka(args, robot_cfg: dict, log, dry_run_instead: str):
+    """The Franka arm at ``robot.ip`` (or ``--robot-ip``); a dry run goes on without a connection
+    (None), saying what it does ``dry_run_instead``."""
+    from calibgraph.core.errors import InputError
     from drivers.franka import FrankaRobot
 
-    robot_cfg = (cell_d or {}).get("robot") or {}
     ip = args.robot_ip or robot_cfg.get("ip")
     if not ip:
         raise InputError(f"{args.workcell}: robot.ip (or --robot-ip) is needed for the franka driver.")
@@ -418,21 +401,29 @@ def _franka(args, cell_d: dict | None, log, dry_run_shows: str, plans: str):
     except Exception as e:
         if not args.dry_run:
             raise
-        log(f"robot at {ip}: not connected ({e}); {plans} from the home posture")
+        log(f"robot at {ip}: not connected ({e}); {dry_run_instead}")
         return None
 
 
 def _open_cell_cameras(args, cell, cell_d: dict, closers: list, log) -> dict:
-    """The cell's hardware cameras, opened; one that cannot open is reported and left out (it is
-    then 'not seen'); none at all is an error."""
-    from calibgraph.core.errors import InputError
-
-    cameras = {}
+    """The cell's hardware cameras, opened (see :func:`_open_cameras`)."""
+    specs = {}
     for name in cell.camera_names:
         spec = (cell_d.get("cameras") or {}).get(name) or {}
-        hw = {k: v for k, v in spec.items() if k not in ("hint", "preset", "intrinsics")}
+        specs[name] = {k: v for k, v in spec.items() if k not in ("hint", "preset", "intrinsics")}
+    cameras = {}
+    _open_cameras(specs, str(args.workcell), cameras, closers, log)
+    return cameras
+
+
+def _open_cameras(specs: dict, where: str, cameras: dict, closers: list, log) -> None:
+    """Open every camera of ``specs`` (name -> driver spec) into ``cameras``; one that cannot open
+    is reported and left out (it is then 'not seen'); no camera at all is an error."""
+    from calibgraph.core.errors import InputError
+
+    for name, spec in specs.items():
         try:
-            cam = open_camera(name, hw, str(args.workcell))
+            cam = open_camera(name, spec, where)
         except InputError:
             raise
         except Exception as e:  # a camera that cannot open is reported; the others go on
@@ -441,8 +432,7 @@ def _open_cell_cameras(args, cell, cell_d: dict, closers: list, log) -> dict:
         cameras[name] = cam
         closers.append(cam)
     if not cameras:
-        raise InputError(f"{args.workcell}: no camera could be opened.")
-    return cameras
+        raise InputError(f"{where}: no camera could be opened.")
 
 
 def _has_placements(d: dict) -> bool:
