@@ -49,14 +49,21 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.acquire.interfaces import DeviceError, UnreachableError
-from calibgraph.acquire.safety import FRANKA_LIMITS, SafetyLimits, check_motion, check_speed, fk_function
+from calibgraph.acquire.run import normalise_detection
+from calibgraph.acquire.safety import (
+    FRANKA_LIMITS,
+    SafetyLimits,
+    check_motion,
+    check_speed,
+    fk_function,
+)
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import CalibgraphError, InputError
 from calibgraph.core.problem import Capture, Detection
 from calibgraph.core.transforms import pose_error
 from calibgraph.detect.corners import detect_image
 from calibgraph.io.dataset import image_relpath, write_capture, write_header
-from calibgraph.io.files import atomic_write_bytes, atomic_write_text, output_folder
+from calibgraph.io.files import atomic_write_png, atomic_write_text, output_folder
 from calibgraph.io.layouts import load_dataset
 from calibgraph.plan.active import (
     ActivePlanner,
@@ -68,7 +75,12 @@ from calibgraph.plan.active import (
     sigma_norms,
 )
 from calibgraph.plan.planner import free_motion
-from calibgraph.plan.survey import SURVEY_ROUNDS, coarse_camera_position, refinement_stops, survey_round
+from calibgraph.plan.survey import (
+    SURVEY_ROUNDS,
+    coarse_camera_position,
+    refinement_stops,
+    survey_round,
+)
 from calibgraph.solver.batch import solve
 from calibgraph.solver.build import build_problem
 from calibgraph.solver.incremental import IncrementalSolver
@@ -153,25 +165,6 @@ class AutoReport:
         lines += [f"  {c}: {s}" for c, s in self.cameras.items()]
         lines += [f"  note: {m}" for m in self.messages]
         return "\n".join(lines)
-
-
-def _normalise_detection(res):
-    if res is None:
-        return None, "target not found"
-    if isinstance(res, tuple) and len(res) == 2 and not hasattr(res, "ok"):
-        return (np.asarray(res[0]), np.asarray(res[1], float)), None
-    if not getattr(res, "ok", True):
-        return None, str(getattr(res, "reason", "") or "target not found")
-    return (np.asarray(res.ids), np.asarray(res.uv_px, float)), None
-
-
-def _write_png(path: Path, image: np.ndarray) -> None:
-    import cv2
-
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image))
-    if not ok:
-        raise CalibgraphError(f"{path}: could not encode the image as PNG.")
-    atomic_write_bytes(path, buf.tobytes())
 
 
 def _sig(cov):
@@ -360,7 +353,7 @@ class _Loop:
         views, dets, rej = {}, [], {}
         for c, fr in frames.items():
             try:
-                got, reason = _normalise_detection(self.detector(fr.image, self.cell.target, self.intr[c]))
+                got, reason = normalise_detection(self.detector(fr.image, self.cell.target, self.intr[c]))
             except Exception as e:  # a detector crash costs the view
                 got, reason = None, f"detection failed ({type(e).__name__}: {e})"
             if got is not None:
@@ -375,7 +368,7 @@ class _Loop:
                 self.rejections[c][reason] += 1
                 continue
             rel = image_relpath(c, k)
-            _write_png(self.out / rel, fr.image)
+            atomic_write_png(self.out / rel, fr.image)
             views[c] = dict(image=rel, stamp_s=float(fr.stamp_s), ids=ids, uv_px=uv)
             dets.append(Detection(camera=c, capture=k, ids=ids, uv_px=uv, image=str(self.out / rel)))
         entry["T_base_flange"] = T0.tolist()

@@ -102,7 +102,7 @@ from calibgraph.io.dataset import (
     write_capture,
     write_header,
 )
-from calibgraph.io.files import atomic_write_bytes, output_folder
+from calibgraph.io.files import atomic_write_bytes, atomic_write_png, output_folder
 from calibgraph.plan.trajectory import Trajectory, load_trajectory, save_trajectory
 
 JOURNAL_FORMAT = "calibgraph-acquisition/1"
@@ -212,17 +212,7 @@ class AcquisitionReport:
 
 
 # -- helpers -----------------------------------------------------------------------------------------
-def write_image_atomic(path, image: np.ndarray) -> None:
-    """Encode ``image`` as PNG and write it atomically (tmp + rename)."""
-    import cv2
-
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image))
-    if not ok:
-        raise CalibgraphError(f"{path}: could not encode the image as PNG.")
-    atomic_write_bytes(Path(path), buf.tobytes())
-
-
-def _normalise_detection(res):
+def normalise_detection(res):
     """(ids, uv_px) or (None, reason) from what a detector returned."""
     if res is None:
         return None, "target not found"
@@ -659,7 +649,7 @@ class _Acquisition:
                 continue
             ids, uv = ok
             rel = image_relpath(c, i)
-            write_image_atomic(self.out / rel, fr.image)
+            atomic_write_png(self.out / rel, fr.image)
             views[c] = dict(image=rel, stamp_s=float(fr.stamp_s), ids=ids, uv_px=uv)
             dets.append(Detection(camera=c, capture=i, ids=ids, uv_px=uv, image=str(self.out / rel)))
         return views, dets, rej
@@ -766,7 +756,7 @@ def _grab(cam, name, retries, errors, fails_in_row, log, i, last_stamp):
 def _detect_and_filter(detector, image, target, intr, min_corners, cam, i):
     """((ids, uv_px), None) for a usable detection of the target in ``image``, else (None, why not)."""
     try:
-        got, why = _normalise_detection(detector(image, target, intr))
+        got, why = normalise_detection(detector(image, target, intr))
     except Exception as e:  # a detector crash on one frame costs that view, not the run
         return None, f"detection failed ({type(e).__name__}: {e})"
     if got is None:

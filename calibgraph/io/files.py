@@ -8,7 +8,7 @@ import stat
 from pathlib import Path
 from typing import Callable
 
-from calibgraph.core.errors import InputError
+from calibgraph.core.errors import CalibgraphError, InputError
 
 
 def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
@@ -168,6 +168,17 @@ def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") 
 def atomic_write_bytes(path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (see :func:`atomic_write_via`)."""
     return atomic_write_via(path, lambda tmp: tmp.write_bytes(data))
+
+
+def atomic_write_png(path, image) -> Path:
+    """Encode ``image`` (a numpy array) as PNG and write it to ``path`` atomically."""
+    import cv2
+    import numpy as np
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image))
+    if not ok:
+        raise CalibgraphError(f"{path}: could not encode the image as PNG.")
+    return atomic_write_bytes(Path(path), buf.tobytes())
 
 
 def atomic_write_text(path, text: str) -> Path:

@@ -38,7 +38,7 @@ from calibgraph.core.problem import Capture
 from calibgraph.core.targets import a4_board_54
 from calibgraph.core.transforms import inv, log_so3, make_T, quat_xyzw_to_R
 from calibgraph.io.dataset import image_relpath, write_capture, write_header
-from calibgraph.io.files import atomic_write_bytes
+from calibgraph.io.files import atomic_write_png
 
 __all__ = ["import_rosbag2", "ImportReport", "BASE_FRAMES", "FLANGE_FRAMES", "camera_name_of"]
 
@@ -321,7 +321,7 @@ def import_rosbag2(bag, out, base_frame: str | None = None, flange_frame: str | 
                 t_ns, conn, raw = frames[n][i]
                 img = _decode(reader.deserialize(raw, conn.msgtype), conn.msgtype, conn.topic)
                 rel = image_relpath(n, written)
-                _write_png(out / rel, img)
+                atomic_write_png(out / rel, img)
                 views[n] = {"image": rel, "stamp_s": float(stamps[n][i])}
             q = None
             if jt is not None and jt.size:
@@ -336,15 +336,6 @@ def import_rosbag2(bag, out, base_frame: str | None = None, flange_frame: str | 
     finally:
         reader.close()
     return ImportReport(out, {n: t for n, (t, _) in cams.items()}, source, len(segs), written, tuple(skipped))
-
-
-def _write_png(path: Path, img: np.ndarray) -> None:
-    import cv2
-
-    ok, buf = cv2.imencode(".png", img)
-    if not ok:
-        raise InputError(f"{path}: could not encode the image as PNG.")
-    atomic_write_bytes(path, buf.tobytes())
 
 
 def _joint_track(joint_samples: list, joint_names):
