@@ -270,18 +270,13 @@ def run(args) -> int:
             print(f"next: calibgraph solve {args.out}")
         return 0
     finally:
-        for c in closers:
-            try:
-                c.close()
-            except Exception:  # closing is best effort; the data is already on disk
-                pass
+        _close_all(closers)
 
 
 def run_auto_capture(args, log) -> int:
     """``capture --auto``: the autonomous loop on the simulated or the real cell."""
 
     from calibgraph.acquire.auto import AutoOptions, dry_run_survey, run_auto
-    from calibgraph.acquire.safety import SafetyLimits
     from calibgraph.core.errors import InputError
     from calibgraph.plan.cell import cell_from_dict, cell_from_world_dict
 
@@ -300,9 +295,7 @@ def run_auto_capture(args, log) -> int:
     if driver != "sim" and cell_d is None:
         raise InputError("capture --auto on a real robot needs --workcell CELL.yaml (cameras, obstacles, safety).")
     cell = cell_from_dict(cell_d, str(args.workcell)) if cell_d is not None else cell_from_world_dict(world_d, str(args.sim_world))
-    safety = SafetyLimits()
-    if cell_d is not None:
-        _, _, safety, _, _ = workcell_hardware({k: v for k, v in cell_d.items() if k != "cameras"}, str(args.workcell))
+    safety = _cell_safety(args, cell_d)
     from calibgraph.sim.planning import planning_world
 
     pworld = planning_world(cell)
@@ -331,21 +324,38 @@ def run_auto_capture(args, log) -> int:
                   f"calibgraph capture --auto {where} --out {args.out} --resume", file=sys.stderr)
             return 130
         finally:
-            if sim is not None:
-                from calibgraph.sim.simulate import write_ground_truth
-
-                if (args.out / "captures").is_dir():
-                    write_ground_truth(args.out, sim.cell, sim)
+            _write_sim_truth(sim, args.out)
         print(rep.summary())
         if rep.result is not None:
             print(f"wrote {args.out / 'result.json'} and {args.out / 'plan_log.json'}")
         return 0 if rep.converged else 3
     finally:
-        for c in closers:
-            try:
-                c.close()
-            except Exception:  # closing is best effort; the data is already on disk
-                pass
+        _close_all(closers)
+
+
+def _cell_safety(args, cell_d: dict | None):
+    """The safety limits of the capture cell ``cell_d`` (``--workcell``); defaults without one."""
+    from calibgraph.acquire.safety import SafetyLimits
+
+    if cell_d is None:
+        return SafetyLimits()
+    return workcell_hardware({k: v for k, v in cell_d.items() if k != "cameras"}, str(args.workcell))[2]
+
+
+def _write_sim_truth(sim, out: Path) -> None:
+    """ground_truth.json beside a simulated capture that wrote anything."""
+    if sim is not None and (out / "captures").is_dir():
+        from calibgraph.sim.simulate import write_ground_truth
+
+        write_ground_truth(out, sim.cell, sim)
+
+
+def _close_all(closers: list) -> None:
+    for c in closers:
+        try:
+            c.close()
+        except Exception:  # closing is best effort; the data is already on disk
+            pass
 
 
 def _sim_devices(args, cell, world_d: dict, check_target: bool = False, check_rendering: bool = False):
@@ -443,8 +453,6 @@ def _has_placements(d: dict) -> bool:
 
 def run_verify_capture_cli(args, log) -> int:
     """``capture --verify``: plan from the stored result, capture (sim or real), verify."""
-
-    from calibgraph.acquire.safety import SafetyLimits
     from calibgraph.acquire.verify import run_verify_capture
     from calibgraph.cli.verify import EXIT_MOVED, format_verdict
     from calibgraph.core.errors import InputError
@@ -480,9 +488,7 @@ def run_verify_capture_cli(args, log) -> int:
                          f"result ({', '.join(model.T_base_cam)}).")
     if missing:
         log(f"cameras not in the stored result, not verified: {', '.join(missing)}")
-    safety = SafetyLimits()
-    if cell_d is not None:
-        _, _, safety, _, _ = workcell_hardware({k: v for k, v in cell_d.items() if k != "cameras"}, str(args.workcell))
+    safety = _cell_safety(args, cell_d)
     from calibgraph.sim.planning import planning_world
 
     pworld = planning_world(cell)
@@ -508,10 +514,7 @@ def run_verify_capture_cli(args, log) -> int:
                   f"calibgraph capture --verify --result {args.result} ... --out {args.out} --resume", file=sys.stderr)
             return 130
         finally:
-            if sim is not None and (args.out / "captures").is_dir():
-                from calibgraph.sim.simulate import write_ground_truth
-
-                write_ground_truth(args.out, sim.cell, sim)
+            _write_sim_truth(sim, args.out)
         print(rep.acquisition.summary())
         if args.dry_run:
             return 0
@@ -523,8 +526,4 @@ def run_verify_capture_cli(args, log) -> int:
         print(f"wrote {rep.verdict_path}")
         return EXIT_MOVED if rep.verify.anything_moved else 0
     finally:
-        for c in closers:
-            try:
-                c.close()
-            except Exception:  # closing is best effort; the data is already on disk
-                pass
+        _close_all(closers)
