@@ -190,6 +190,8 @@ class _Loop:
     pixel_sigma_px: float | None = None
     cov_scale: dict = field(default_factory=dict)  # camera -> variance factor bringing iSAM2 to the batch 1-sigma
     est: object = None
+    ref: object = None  # the batch Result of the captures so far (None: stale or failed), see refresh()
+    ref_at: int = -1  # n_captures when ``ref`` was solved
     lost: list = field(default_factory=list)
     messages: list = field(default_factory=list)
 
@@ -242,15 +244,44 @@ class _Loop:
             return None
         return ce.covariance * self.cov_scale.get(name, 1.0)
 
+    def _ref_camera(self, name):
+        """The batch solve's camera result when that solve covers every capture so far, else None."""
+        if self.ref is None or self.ref_at != self.n_captures:
+            return None
+        return self.ref.cameras.get(name)
+
     def beliefs(self) -> dict:
+        """What the planner knows per placed camera: the batch solve of every capture so far when there
+        is one (pose and covariance marginal over the mount, board scale and intrinsics: the numbers the
+        stop rule and ``result.json`` use), else iSAM2's, scaled to the last batch solve."""
         out = {}
         for n, ce in (self.est.cameras if self.est else {}).items():
-            out[n] = CameraBelief(n, self.intr[n], ce.T_ref_cam, self.cov(n), ce.views)
+            rc = self._ref_camera(n)
+            if rc is not None:
+                out[n] = CameraBelief(n, self.intr[n], rc.T_ref_cam, rc.covariance, ce.views)
+            else:
+                out[n] = CameraBelief(n, self.intr[n], ce.T_ref_cam, self.cov(n), ce.views)
         return out
 
     def sigmas(self) -> dict:
-        """camera -> [1-sigma mm, deg] the loop works with (iSAM2, scaled to the last batch solve)."""
-        return {n: _sig(self.cov(n)) for n in (self.est.cameras if self.est else {})}
+        """camera -> [1-sigma mm, deg] the loop works with (see :meth:`beliefs`)."""
+        return {n: _sig(b.covariance) for n, b in self.beliefs().items()}
+
+    def refresh(self):
+        """Batch-solve every capture so far (a fraction of a second: the views of a calibration are few)
+        and make it the loop's reference: the stop rule and the next choice use its 1-sigma, iSAM2 is
+        re-scaled to it. Without this the stop rule trusted iSAM2 scaled once by the batch solve of the
+        survey, whose ratio shrinks as the board scale and mount get determined: on the top-down cell
+        the loop went on ~10 captures past the batch solve's convergence. Returns the result or None."""
+        if self.ref_at == self.n_captures:
+            return self.ref
+        res, _ = _batch(self)
+        self.ref, self.ref_at = res, self.n_captures
+        if res is not None:
+            self.calibrate_to(res)
+            if self.steps and self.steps[-1].get("status") == "captured":
+                self.steps[-1]["achieved"] = self.sigmas()
+        return res
 
     def calibrate_to(self, res):
         """Scale each camera's iSAM2 covariance so its shortfall matches the batch result ``res``:
@@ -611,7 +642,6 @@ def _within(L, cov) -> bool:
 
 
 def _active(L):
-    live = [c for c in L.intr if c not in L.lost]
     if not _placed(L):
         return "no camera could be placed during the survey"
     if L.pixel_sigma_px is None:
@@ -621,27 +651,19 @@ def _active(L):
             L.messages.append(f"pixel sigma {L.pixel_sigma_px:.3f} px estimated from the survey's {L.n_captures} captures")
             L.replay()
             L.calibrate_to(res)
+            L.ref, L.ref_at = res, L.n_captures
         else:
             L.messages.append(f"batch solve of the survey failed ({err}); planning with iSAM2's default pixel noise")
         L.save_log()
     o = IncrementalSolver(L.cell.target.points_board_m, {}).options
     planner = ActivePlanner(L.world, L.cell, L.opts.dq_max_rad_s, L.opts.speed_scale, seed=L.opts.seed + 1,
                             fk_sigma_translation_m=o.fk_sigma_translation_m, fk_sigma_rotation_rad=o.fk_sigma_rotation_rad)
-    last_batch_at = -1
     while True:
+        res = L.refresh()
+        if res is not None and res.cameras and all(_within(L, c.covariance) for c in res.cameras.values()):
+            L.batch = res
+            return "converged"
         b = L.beliefs()
-        if b and all(_within(L, x.covariance) for x in b.values()) and L.n_captures != last_batch_at:
-            last_batch_at = L.n_captures
-            res, err = _batch(L)
-            if res is not None and all(_within(L, c.covariance) for c in res.cameras.values()):
-                L.batch = res
-                return "converged"
-            if res is not None:  # the batch solver is the reference: re-scale iSAM2 to it and go on
-                L.pixel_sigma_px = float(res.pixel_sigma_px)
-                L.replay()
-                L.calibrate_to(res)
-                L.save_log()
-                continue
         if not _budget_left(L):
             return "budget"
         q = np.asarray(L.robot.joint_positions(), float)
@@ -661,7 +683,6 @@ def _active(L):
         e["chosen_candidate"] = ch.chosen_index
         e["chosen_board_centre_m"] = list(ch.board_centre_m)
         L.save_log()
-        _ = live
 
 
 def _finish(L, stop) -> AutoReport:
@@ -669,7 +690,7 @@ def _finish(L, stop) -> AutoReport:
     res = getattr(L, "batch", None)
     err = None
     if res is None and L.n_captures:
-        res, err = _batch(L)
+        res, err = (L.ref, None) if (L.ref is not None and L.ref_at == L.n_captures) else _batch(L)
     if res is not None:
         res.save(L.out / "result.json")
     status, msgs = {}, list(L.messages)
