@@ -186,6 +186,7 @@ class _Loop:
     steps: list = field(default_factory=list)
     views_bb: dict = field(default_factory=dict)  # camera -> [T_base_board (nominal mount) of its views]
     first_view: dict = field(default_factory=dict)  # camera -> (T_base_board, R (m,3,3), t (m,3))
+    history: list = field(default_factory=list)  # per capture fed: (T_base_flange, cameras that saw the board)
     rejections: dict = field(default_factory=dict)  # camera -> {reason: count}
     pixel_sigma_px: float | None = None
     cov_scale: dict = field(default_factory=dict)  # camera -> variance factor bringing iSAM2 to the batch 1-sigma
@@ -203,6 +204,7 @@ class _Loop:
 
     def feed(self, cap, dets):
         self.est = self.inc.add_capture(cap, dets)
+        self.history.append((np.asarray(cap.T_base_flange, float), tuple(sorted({d.camera for d in dets}))))
         for d in dets:
             T_bb = cap.T_base_flange @ self.cell.T_flange_board
             self.views_bb.setdefault(d.camera, []).append(T_bb)
@@ -214,7 +216,7 @@ class _Loop:
     def replay(self):
         """Rebuild the solver from the capture files on disk (resume, or a new pixel sigma)."""
         self.new_solver()
-        self.views_bb, self.first_view = {}, {}
+        self.views_bb, self.first_view, self.history = {}, {}, []
         for cap, dets in self.captures_on_disk():
             self.feed(cap, dets)
 
@@ -669,7 +671,7 @@ def _active(L):
         q = np.asarray(L.robot.joint_positions(), float)
         t0 = time.perf_counter()
         ch = planner.choose(b, L.mount(), L.pixel_sigma_px or 0.5, L.opts.tolerance_mm, L.opts.tolerance_deg, q,
-                            n_top_up=L.opts.candidates_per_step)
+                            n_top_up=L.opts.candidates_per_step, history=L.history)
         t_choose = time.perf_counter() - t0
         L.world.set_q(q)
         if ch is None:

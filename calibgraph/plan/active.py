@@ -47,7 +47,9 @@ __all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_informa
            "motion_time_s", "keepout_violation", "explain_shortfall"]
 
 SETTLE_S = 0.5  # what every motion costs on top of the joint-space time (the simulated robot's model too)
-STAND_RADIUS_M = 0.25  # keep-out radius round an estimated camera stand, before its uncertainty
+STAND_RADIUS_M = 0.25
+BOARD_SCALE_SIGMA = 0.02  # the solver's default prior on the printed board's scale (SolverOptions.board_scale_sigma)
+CAPTURE_S = 0.0  # keep-out radius round an estimated camera stand, before its uncertainty
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,76 @@ def view_information(intrinsics, T_base_cam: np.ndarray, T_base_board: np.ndarra
     I_ff = w * np.einsum("mki,mkj->mij", Jf, Jf) + prior
     out = I_cc - I_cf @ np.linalg.solve(I_ff, np.swapaxes(I_cf, 1, 2))
     return out[0] if single else out
+
+
+def view_jacobians(intrinsics, T_base_cam: np.ndarray, T_base_flange: np.ndarray, T_flange_board: np.ndarray,
+                   points_board_m: np.ndarray) -> np.ndarray:
+    """d uv / d(camera, flange, mount, board scale) of the board points seen by one camera from
+    the flange poses ``T_base_flange`` (M, 4, 4): (M, 2N, 19), columns [camera 6 (base axes, as in
+    :func:`view_information`), flange 6 (right perturbation), mount 6 (right perturbation of
+    ``T_flange_board``), board scale 1 (the points scaled about the board origin, as the solver does)].
+    Points behind the camera give zero rows."""
+    T_bf = np.asarray(T_base_flange, float).reshape(-1, 4, 4)
+    M, N = len(T_bf), len(points_board_m)
+    T_bb = T_bf @ T_flange_board
+    R_bb = T_bb[:, :3, :3]
+    R, c = T_base_cam[:3, :3], T_base_cam[:3, 3]
+    p = np.einsum("nj,mij->mni", points_board_m, R_bb) + T_bb[:, None, :3, 3]  # (M, N, 3) base
+    _, Jp = intrinsics.project(((p - c) @ R).reshape(-1, 3), with_jacobian=True)
+    Jp = np.where(np.all(np.isfinite(Jp), axis=(1, 2))[:, None, None], Jp, 0.0)
+    JpR = (Jp @ R.T).reshape(M, N, 2, 3)  # d uv / d p (base axes)
+    J = np.empty((M, N, 2, 19))
+    J[..., :3] = np.einsum("mnij,mnjk->mnik", JpR, _skew_rows((p - c).reshape(-1, 3)).reshape(M, N, 3, 3))
+    J[..., 3:6] = -JpR
+    R_bf = T_bf[:, :3, :3]
+    p_f = np.einsum("mni,mij->mnj", p - T_bf[:, None, :3, 3], R_bf)  # flange axes
+    JpRf = np.einsum("mnij,mjk->mnik", JpR, R_bf)
+    J[..., 6:9] = -np.einsum("mnij,mnjk->mnik", JpRf, _skew_rows(p_f.reshape(-1, 3)).reshape(M, N, 3, 3))
+    J[..., 9:12] = JpRf
+    JpRb = np.einsum("mnij,mjk->mnik", JpR, R_bb)
+    J[..., 12:15] = -np.einsum("mnij,njk->mnik", JpRb, _skew_rows(np.asarray(points_board_m, float)))
+    J[..., 15:18] = JpRb
+    J[..., 18] = np.einsum("mnij,nj->mni", JpRb, np.asarray(points_board_m, float))
+    return J.reshape(M, 2 * N, 19)
+
+
+def joint_information(cams: list, seen: np.ndarray, T_base_flange: np.ndarray, T_flange_board: np.ndarray,
+                      points_board_m: np.ndarray, pixel_sigma_px: float, fk_sigma_translation_m: float,
+                      fk_sigma_rotation_rad: float) -> np.ndarray:
+    """Fisher information of M captures on the parameters shared across views, each capture's
+    flange marginalised under the FK prior: (M, P, P) with P = 6K + 7, the order [camera 1 ... camera
+    K (6 each, rotation first, base axes), mount 6, board scale 1]. ``cams``: K (intrinsics,
+    T_base_cam); ``seen``: (M, K) which cameras see each capture.
+
+    This is the linearised calibration graph one capture at a time: unlike :func:`view_information`
+    (one camera, mount and scale held known) the cameras of a capture share its flange, and every
+    view informs the mount and the board scale that all cameras depend on. A far camera's depth is
+    tied to the board scale (a 1e-4 scale error is 0.45 mm at 4.5 m), which only views at several
+    depths, or other cameras, pin down."""
+    T_bf = np.asarray(T_base_flange, float).reshape(-1, 4, 4)
+    seen = np.asarray(seen, bool).reshape(len(T_bf), len(cams))
+    M, K = len(T_bf), len(cams)
+    P = 6 * K + 7
+    w = 1.0 / pixel_sigma_px ** 2
+    L = np.zeros((M, P + 6, P + 6))
+    for k, (intr, T_bc) in enumerate(cams):
+        m = seen[:, k]
+        if not m.any():
+            continue
+        J = view_jacobians(intr, T_bc, T_bf[m], T_flange_board, points_board_m)
+        idx = np.r_[6 * k:6 * k + 6, P:P + 6, 6 * K:6 * K + 7]  # camera, flange, mount + scale
+        L[np.ix_(np.flatnonzero(m), idx, idx)] += w * np.einsum("mki,mkj->mij", J, J)
+    L[:, P:, P:] += np.diag(1.0 / np.array([fk_sigma_rotation_rad] * 3 + [fk_sigma_translation_m] * 3) ** 2)
+    I_pf = L[:, :P, P:]
+    return L[:, :P, :P] - I_pf @ np.linalg.solve(L[:, P:, P:], np.swapaxes(I_pf, 1, 2))
+
+
+def _block_sigmas(cov: np.ndarray, K: int) -> np.ndarray:
+    """(..., K, 2) translation-norm (mm) and rotation-norm (deg) 1-sigma of each camera block of a
+    joint covariance (..., P, P)."""
+    d = np.sqrt(np.clip(np.diagonal(cov, axis1=-2, axis2=-1)[..., :6 * K], 0, None))
+    d = d.reshape(*d.shape[:-1], K, 6)
+    return np.stack([np.linalg.norm(d[..., 3:], axis=-1) * 1e3, np.degrees(np.linalg.norm(d[..., :3], axis=-1))], -1)
 
 
 def _skew_rows(v: np.ndarray) -> np.ndarray:
@@ -334,32 +406,70 @@ class ActivePlanner:
                                       T_flange_board, *self.fk_sigmas)
         return out
 
-    def _score_pool(self, scored: dict, rho: dict, short: dict, T_flange_board, pixel_sigma_px, tol_mm, tol_deg):
-        """Every pool candidate at once, geometry only: per camera (visible (M,), gain (M,),
-        predicted 1-sigma (M, 2)). The same numbers as :meth:`predict` without occlusion, per
-        candidate, but vectorised over the pool."""
-        T_bb = np.array([c.T_base_flange for c in self.pool]) @ T_flange_board
-        out = {}
-        for n, b in scored.items():
+    def _model(self, scored: dict, history, T_flange_board, pixel_sigma_px):
+        """The linearised graph of the captures so far: (names, [(intrinsics, T_base_cam)], information
+        (P, P)) over the ``scored`` cameras, the mount and the board scale (see :func:`joint_information`),
+        with the solver's weak priors (1 rad / 10 m on cameras and mount) and the board-scale prior."""
+        names = list(scored)
+        cams = [(scored[n].intrinsics, scored[n].T_base_cam) for n in names]
+        K = len(names)
+        P = 6 * K + 7
+        J = np.diag(np.r_[np.tile([1.0] * 3 + [0.01] * 3, K + 1), 1.0 / BOARD_SCALE_SIGMA ** 2])
+        hist = [(np.asarray(T, float), tuple(c)) for T, c in (history or ()) if any(n in c for n in names)]
+        if hist:
+            seen = np.array([[n in c for n in names] for _, c in hist])
+            J = J + joint_information(cams, seen, np.array([T for T, _ in hist]), T_flange_board, self._points_b,
+                                      pixel_sigma_px, *self.fk_sigmas).sum(axis=0)
+        assert J.shape == (P, P)
+        return names, cams, J
+
+    def _score_pool(self, scored: dict, rho: dict, short: dict, T_flange_board, pixel_sigma_px, tol_mm, tol_deg,
+                    history=None):
+        """Every pool candidate at once, geometry only: (names, visible (M, K), gain (M,), predicted
+        1-sigma (M, K, 2), rescore) where ``rescore(i, visible_row)`` gives (gain, predicted (K, 2)) of
+        candidate i seen by fewer cameras (the occlusion re-check).
+
+        The prediction is the joint model's ratio (:meth:`_model`, candidate's information added)
+        applied to each camera's reference 1-sigma (the batch solve's): the model leaves out the
+        intrinsics and the robust weights, the ratio carries what it does capture (shared flange,
+        mount, board scale)."""
+        names, cams, J0 = self._model(scored, history, T_flange_board, pixel_sigma_px)
+        K = len(names)
+        T_bf = np.array([c.T_base_flange for c in self.pool])
+        T_bb = T_bf @ T_flange_board
+        vis = np.zeros((len(T_bb), K), bool)
+        for k, n in enumerate(names):
+            b = scored[n]
             d = np.linalg.norm(T_bb[:, :3, 3] - b.T_base_cam[:3, 3], axis=1)
-            vis = boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb, margin_px=_pixel_margin(b, d))
-            gain = np.zeros(len(T_bb))
-            sig = np.full((len(T_bb), 2), np.nan)
-            if vis.any():
-                I = view_information(b.intrinsics, b.T_base_cam, T_bb[vis], self._points_b, pixel_sigma_px,
-                                     T_flange_board, *self.fk_sigmas)
-                cov = np.linalg.inv(np.linalg.inv(b.covariance) + I)
-                dg = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
-                sig[vis] = np.column_stack([np.linalg.norm(dg[:, 3:], axis=1) * 1e3,
-                                            np.degrees(np.linalg.norm(dg[:, :3], axis=1))])
-                if n in short:
-                    rho_new = np.maximum(sig[vis, 0] / tol_mm, sig[vis, 1] / tol_deg)
-                    gain[vis] = max(rho[n], 1.0) ** 2 - np.maximum(rho_new, 1.0) ** 2
-            out[n] = (vis, gain, sig)
-        return out
+            vis[:, k] = boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb, margin_px=_pixel_margin(b, d))
+        sig0 = _block_sigmas(np.linalg.inv(J0), K)  # (K, 2) model 1-sigma now
+        ref = np.array([sigma_norms(scored[n].covariance) for n in names])  # (K, 2) reference 1-sigma now
+        rho_now = np.array([max(rho[n], 1.0) for n in names])
+        is_short = np.array([n in short for n in names])
+
+        def predict(rows, T):
+            if len(T) == 0:
+                return np.zeros(0), np.zeros((0, K, 2))
+            I = joint_information(cams, rows, T, T_flange_board, self._points_b, pixel_sigma_px, *self.fk_sigmas)
+            sig = ref * _block_sigmas(np.linalg.inv(J0 + I), K) / np.maximum(sig0, 1e-12)
+            rho_new = np.maximum(np.maximum(sig[..., 0] / tol_mm, sig[..., 1] / tol_deg), 1.0)
+            return np.sum(np.where(is_short, rho_now ** 2 - rho_new ** 2, 0.0), axis=-1), sig
+
+        gain = np.zeros(len(T_bb))
+        sig = np.full((len(T_bb), K, 2), np.nan)
+        any_vis = vis.any(axis=1)
+        gain[any_vis], sig[any_vis] = predict(vis[any_vis], T_bf[any_vis])
+
+        def rescore(i, row):
+            if not np.any(row):
+                return 0.0, None
+            g, s_ = predict(np.asarray(row, bool)[None], T_bf[i:i + 1])
+            return float(g[0]), s_[0]
+
+        return names, vis, gain, sig, rescore
 
     def choose(self, beliefs: dict, T_flange_board, pixel_sigma_px: float, tol_mm: float, tol_deg: float, q_now,
-               n_top_up: int = 20, max_step_rad: float = 0.03, max_pool: int = 160) -> Choice | None:
+               n_top_up: int = 20, max_step_rad: float = 0.03, max_pool: int = 160, history=None) -> Choice | None:
         """The best candidate (highest gain per second) with a collision-free motion from ``q_now``,
         or None when no candidate shows the board to a camera short of tolerance. Only cameras
         with a covariance are scored; ``beliefs`` without one still shape the keep-outs.
@@ -379,10 +489,11 @@ class ActivePlanner:
         if not self.pool:
             return None
         centre_b = self._points_b.mean(axis=0)
-        per_cam = self._score_pool(scored, rho, short, T_flange_board, pixel_sigma_px, tol_mm, tol_deg)
-        gain = sum(g for _, g, _ in per_cam.values())
+        names, vis, gain, sig, rescore = self._score_pool(scored, rho, short, T_flange_board, pixel_sigma_px, tol_mm,
+                                                          tol_deg, history)
         Q = np.array([c.q_rad for c in self.pool])
         t = np.max(np.abs(Q - np.asarray(q_now, float)) / (self.dq_max * self.speed_scale), axis=1) + SETTLE_S
+        t = t + CAPTURE_S
         for c, g in zip(self.pool, gain):
             c.last_gain = float(g)
         index = {id(c): i for i, c in enumerate(self.pool)}
@@ -398,11 +509,12 @@ class ActivePlanner:
                 self.world.set_q(cand.q_rad)
                 T_bb = cand.T_base_flange @ T_flange_board
                 probes = occlusion_probes(self.cell.target, T_bb)
-                sees = tuple(sorted(n for n, (vis, _, _) in per_cam.items()
-                                    if vis[i] and not self.world.occluded(scored[n].T_base_cam[:3, 3], probes)))
-                g = float(sum(per_cam[n][1][i] for n in sees))
+                row = np.array([bool(vis[i, k]) and not self.world.occluded(scored[n].T_base_cam[:3, 3], probes)
+                                for k, n in enumerate(names)])
+                sees = tuple(sorted(n for k, n in enumerate(names) if row[k]))
+                g, s_ = (float(gain[i]), sig[i]) if np.array_equal(row, vis[i]) else rescore(i, row)
                 if g > 1e-9:
-                    pred = {n: (float(per_cam[n][2][i, 0]), float(per_cam[n][2][i, 1])) for n in sees}
+                    pred = {n: (float(s_[k, 0]), float(s_[k, 1])) for k, n in enumerate(names)}
                     rescored.append((g / t[i], g, cand, sees, pred))
             rescored.sort(key=lambda r: -r[0])
             for rate, g, cand, sees, pred in rescored:
