@@ -77,6 +77,7 @@ from calibgraph.plan.active import (
 from calibgraph.plan.planner import free_motion
 from calibgraph.plan.survey import (
     SURVEY_ROUNDS,
+    camera_position_hypothesis,
     coarse_camera_position,
     refinement_stops,
     survey_round,
@@ -186,6 +187,8 @@ class _Loop:
     steps: list = field(default_factory=list)
     views_bb: dict = field(default_factory=dict)  # camera -> [T_base_board (nominal mount) of its views]
     first_view: dict = field(default_factory=dict)  # camera -> (T_base_board, R (m,3,3), t (m,3))
+    pnp_views: dict = field(default_factory=dict)  # camera not placed -> [(T_base_board, R, t, rms)] of its views
+    refuted: dict = field(default_factory=dict)  # camera -> camera positions a facing stop did not show the board to
     history: list = field(default_factory=list)  # per capture fed: (T_base_flange, cameras that saw the board)
     rejections: dict = field(default_factory=dict)  # camera -> {reason: count}
     pixel_sigma_px: float | None = None
@@ -208,15 +211,16 @@ class _Loop:
         for d in dets:
             T_bb = cap.T_base_flange @ self.cell.T_flange_board
             self.views_bb.setdefault(d.camera, []).append(T_bb)
-            if d.camera not in self.first_view:
-                R, t, _ = pnp_candidates(self.cell.target.points_board_m[d.ids], d.uv_px, self.intr[d.camera])
+            if d.camera not in self.first_view or d.camera not in _placed(self):
+                R, t, rms = pnp_candidates(self.cell.target.points_board_m[d.ids], d.uv_px, self.intr[d.camera])
                 if len(R):
-                    self.first_view[d.camera] = (T_bb, R, t)
+                    self.first_view.setdefault(d.camera, (T_bb, R, t))
+                    self.pnp_views.setdefault(d.camera, []).append((T_bb, R, t, rms))
 
     def replay(self):
         """Rebuild the solver from the capture files on disk (resume, or a new pixel sigma)."""
         self.new_solver()
-        self.views_bb, self.first_view, self.history = {}, {}, []
+        self.views_bb, self.first_view, self.history, self.pnp_views = {}, {}, [], {}
         for cap, dets in self.captures_on_disk():
             self.feed(cap, dets)
 
@@ -595,16 +599,24 @@ def _survey(L):
 
 
 def _refine(L, done, tries, final=False):
-    """Tilted stops for every camera seen but not placed yet (at most REFINE_BATCHES x 4 each)."""
+    """Tilted stops for every camera seen but not placed yet (at most REFINE_BATCHES x 4 each),
+    facing where its views put it (:func:`~calibgraph.plan.survey.camera_position_hypothesis`);
+    while the two mirror candidates of an oblique view are in a tie, one stop facing the likelier
+    one squarely, refuting it when the camera does not see the board."""
     while True:
         todo = [c for c in L.first_view if c not in _placed(L) and tries.get(c, 0) < 4 * REFINE_BATCHES]
         if not todo:
             return None
         c = todo[0]
-        T_bb, R, t = L.first_view[c]
-        p_cam = coarse_camera_position(T_bb, R, t)
+        hyp = camera_position_hypothesis(L.pnp_views.get(c, []), L.refuted.get(c, ()))
+        if hyp is None:  # every candidate refuted: start over from the first view's mean
+            T_bb, R, t = L.first_view[c]
+            p_cam, ambiguous = coarse_camera_position(T_bb, R, t), False
+        else:
+            p_cam, T_bb, ambiguous = hyp
         q = np.asarray(L.robot.joint_positions(), float)
-        stops = refinement_stops(L.world, L.cell, c, T_bb, p_cam, 4, q, L.opts.seed + tries.get(c, 0), free=L.free)
+        stops = refinement_stops(L.world, L.cell, c, T_bb, p_cam, 1 if ambiguous else 4, q,
+                                 L.opts.seed + tries.get(c, 0), free=L.free, tilt_deg=0.0 if ambiguous else 20.0)
         L.world.set_q(q)
         if not stops:
             tries[c] = 4 * REFINE_BATCHES
@@ -619,8 +631,10 @@ def _refine(L, done, tries, final=False):
             tries[c] = tries.get(c, 0) + 1
             if label in done:
                 continue
-            L.step("survey refine", label, st.q_rad, st.why, expected=(c,))
+            e = L.step("survey refine", label, st.q_rad, st.why, expected=(c,))
             done.add(label)
+            if ambiguous and e.get("status") in ("captured", "no_views") and c not in e.get("seen_by", []):
+                L.refuted.setdefault(c, []).append(np.asarray(p_cam, float))
 
 
 def _batch(L):

@@ -8,9 +8,13 @@ with a :class:`~calibgraph.plan.cell.CameraHint` gets stops aimed at its hint fi
 follows whatever the hint says, so a wrong hint costs a few stops, never the run.
 
 A camera that has seen the board gets *refinement* stops: the board facing the camera position
-that one view's PnP suggests (both planar-pose candidates land on the same side of the board, so
-the position is good to a few decimetres even when the rotation is mirrored), tilted in several
-directions. Those views give the rotation diversity the solver's consensus initialiser needs
+that its views' PnP suggest, tilted in several directions. A planar view has two PnP solutions
+whose camera centres are mirror images about the board normal: close together for a view seen
+head-on, metres apart for one seen obliquely (the default cell's second camera, first seen at
+70 deg, had its two candidates 4.6 m apart, and the refinement stops aimed at their mean went
+unseen three times). :func:`camera_position_hypothesis` keeps the candidate that most views
+agree on; while two remain in a tie, the next stop faces one of them squarely, and a stop the
+camera does not see refutes it. Those views give the rotation diversity the solver's consensus initialiser needs
 (:class:`calibgraph.solver.incremental.IncrementalSolver`): it resolves the mirror ambiguity
 across views and hands back a coarse pose with a covariance.
 
@@ -28,7 +32,7 @@ import numpy as np
 from calibgraph.core.transforms import board_facing, inv, make_T
 
 __all__ = ["SurveyStop", "SURVEY_ROUNDS", "survey_round", "refinement_stops", "board_pose_facing", "reach_pose",
-           "coarse_camera_position", "seeds_at"]
+           "coarse_camera_position", "camera_position_hypothesis", "seeds_at"]
 
 # (azimuth offset deg, elevation of the board normal deg, radius m, height m) of each round's
 # 6-azimuth sweep; later rounds widen the directions the board faces.
@@ -170,6 +174,47 @@ def refinement_stops(world, cell, camera: str, T_base_board_seen: np.ndarray, p_
                                 f"{camera} saw the board once: tilted views for its consensus pose"))
         q_prev = q
     return stops
+
+
+def camera_position_hypothesis(views: list, refuted=(), agree_m: float = 0.35, ambiguous_deg: float = 20.0):
+    """The most likely centre of a camera not placed yet, from its views' PnP candidates.
+
+    Args:
+        views: per view (T_base_board, R (m, 3, 3), t (m, 3), rms (m,)) (the nominal mount).
+        refuted: positions a squarely facing stop did not show the board to (the candidates within
+            ``agree_m`` of one are dropped).
+    Returns:
+        (position (3,), T_base_board of a view that supports it, ambiguous): ``ambiguous`` when
+        another candidate, more than ``ambiguous_deg`` away as seen from that board, has as many
+        supporting views (only one stop facing the answer squarely tells them apart). None when no
+        candidate is left.
+    """
+    cands = []  # (position, view index, rms)
+    for i, (T_bb, R, t, rms) in enumerate(views):
+        for Rk, tk, ek in zip(np.asarray(R).reshape(-1, 3, 3), np.asarray(t).reshape(-1, 3), np.asarray(rms).reshape(-1)):
+            p = T_bb[:3, :3] @ (-(Rk.T @ tk)) + T_bb[:3, 3]
+            if not any(np.linalg.norm(p - np.asarray(r)) < agree_m for r in refuted):
+                cands.append((p, i, float(ek)))
+    if not cands:
+        return None
+    P = np.array([c[0] for c in cands])
+    view_of = np.array([c[1] for c in cands])
+    near = np.linalg.norm(P[:, None] - P[None], axis=2) < agree_m
+    support = np.array([len(set(view_of[near[j]])) for j in range(len(cands))])
+    best = min(range(len(cands)), key=lambda j: (-support[j], cands[j][2]))
+    T_bb = views[cands[best][1]][0]
+    members = near[best]
+    pos = np.median(P[members], axis=0)
+    c0 = T_bb[:3, 3]
+    u = (pos - c0) / max(np.linalg.norm(pos - c0), 1e-9)
+    ambiguous = False
+    for j in range(len(cands)):
+        if members[j] or support[j] < support[best]:
+            continue
+        v = (P[j] - c0) / max(np.linalg.norm(P[j] - c0), 1e-9)
+        if np.degrees(np.arccos(np.clip(u @ v, -1, 1))) > ambiguous_deg:
+            ambiguous = True
+    return pos, T_bb, ambiguous
 
 
 def coarse_camera_position(T_base_board: np.ndarray, R_cam_board: np.ndarray, t_cam_board: np.ndarray) -> np.ndarray:
