@@ -49,7 +49,8 @@ __all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_informa
 SETTLE_S = 0.5  # what every motion costs on top of the joint-space time (the simulated robot's model too)
 STAND_RADIUS_M = 0.25
 BOARD_SCALE_SIGMA = 0.02  # the solver's default prior on the printed board's scale (SolverOptions.board_scale_sigma)
-CAPTURE_S = 0.0  # keep-out radius round an estimated camera stand, before its uncertainty
+import os
+CAPTURE_S = float(os.environ.get("CG_CAPTURE_S", "0"))  # keep-out radius round an estimated camera stand, before its uncertainty
 
 
 @dataclass(frozen=True)
@@ -308,6 +309,7 @@ class ActivePlanner:
         self.radius_m, self.height_m = radius_m, height_m
         self.pool: list = []
         self.n_logged = 20  # candidates per choice kept for the plan log (Choice.candidates)
+        self.oversample = int(__import__("os").environ.get("CG_OVERSAMPLE", "4"))  # board poses drawn per IK tried
         self.pruned = 0  # samples dropped before the IK (keep-out, or seen by no camera that can gain)
         self.ik_tries = 0  # samples given to the IK
         self._points_b = cell.target.points_board_m
@@ -320,7 +322,8 @@ class ActivePlanner:
         T_bb = T_bf @ T_fb
         return np.vstack([T_bf[:3, 3], self._outline_b @ T_bb[:3, :3].T + T_bb[:3, 3]])
 
-    def top_up(self, beliefs: dict, weights: dict, n_new: int, q_now, T_flange_board, useful=None) -> int:
+    def top_up(self, beliefs: dict, weights: dict, n_new: int, q_now, T_flange_board, useful=None, prescore=None,
+               oversample: int = 1) -> int:
         """Sample ``n_new`` board poses aimed at the cameras (chosen with probability ~ ``weights``,
         a third of them between two cameras) and add the reachable, collision-free ones to the
         pool. Returns how many were added.
@@ -336,7 +339,7 @@ class ActivePlanner:
         eyes = {n: beliefs[n].T_base_cam[:3, 3] for n in beliefs}
         az = {n: float(np.arctan2(e[1], e[0])) for n, e in eyes.items()}
         samples = []  # (T_base_board, IK seeds, aimed): all drawn first, in the sampler's fixed order
-        for _ in range(n_new):
+        for _ in range(n_new * (max(int(oversample), 1) if prescore is not None else 1)):
             cam = names[self.rng.choice(len(names), p=w)]
             others = [o for o in beliefs if o != cam and abs(np.angle(np.exp(1j * (az[o] - az[cam])))) < np.radians(120)]
             if others and self.rng.uniform() < 0.33:
@@ -368,6 +371,11 @@ class ActivePlanner:
         for i, (T_bb, _, _) in enumerate(samples):
             if keep[i] and keepout_violation(self._probe(T_bb @ T_fb_inv, T_flange_board), beliefs, self.cell.floor_z_m):
                 keep[i] = False
+        if prescore is not None and keep.sum() > n_new:
+            idx = np.flatnonzero(keep)
+            g = prescore(np.array([samples[i][0] for i in idx]))
+            keep[:] = False
+            keep[idx[np.argsort(-g, kind="stable")[:n_new]]] = True
         self.pruned += int(np.sum(~keep))
         q_saved = self.world.q()
         added = 0
@@ -423,50 +431,53 @@ class ActivePlanner:
         assert J.shape == (P, P)
         return names, cams, J
 
-    def _score_pool(self, scored: dict, rho: dict, short: dict, T_flange_board, pixel_sigma_px, tol_mm, tol_deg,
-                    history=None):
-        """Every pool candidate at once, geometry only: (names, visible (M, K), gain (M,), predicted
-        1-sigma (M, K, 2), rescore) where ``rescore(i, visible_row)`` gives (gain, predicted (K, 2)) of
-        candidate i seen by fewer cameras (the occlusion re-check).
+    def _predictor(self, scored: dict, rho: dict, short: dict, T_flange_board, pixel_sigma_px, tol_mm, tol_deg,
+                   history=None):
+        """(names, visible(T_base_board (M, 4, 4)) -> (M, K), predict(visible (M, K), T_base_flange (M, 4, 4)) ->
+        (gain (M,), predicted 1-sigma (M, K, 2))) for the ``scored`` cameras.
 
-        The prediction is the joint model's ratio (:meth:`_model`, candidate's information added)
+        The prediction is the joint model's ratio (:meth:`_model`, the candidate's information added)
         applied to each camera's reference 1-sigma (the batch solve's): the model leaves out the
         intrinsics and the robust weights, the ratio carries what it does capture (shared flange,
-        mount, board scale)."""
+        mount, board scale). gain = sum over the cameras short of tolerance of
+        max(rho, 1)^2 - max(rho', 1)^2."""
         names, cams, J0 = self._model(scored, history, T_flange_board, pixel_sigma_px)
         K = len(names)
-        T_bf = np.array([c.T_base_flange for c in self.pool])
-        T_bb = T_bf @ T_flange_board
-        vis = np.zeros((len(T_bb), K), bool)
-        for k, n in enumerate(names):
-            b = scored[n]
-            d = np.linalg.norm(T_bb[:, :3, 3] - b.T_base_cam[:3, 3], axis=1)
-            vis[:, k] = boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb, margin_px=_pixel_margin(b, d))
         sig0 = _block_sigmas(np.linalg.inv(J0), K)  # (K, 2) model 1-sigma now
         ref = np.array([sigma_norms(scored[n].covariance) for n in names])  # (K, 2) reference 1-sigma now
         rho_now = np.array([max(rho[n], 1.0) for n in names])
         is_short = np.array([n in short for n in names])
 
-        def predict(rows, T):
-            if len(T) == 0:
-                return np.zeros(0), np.zeros((0, K, 2))
-            I = joint_information(cams, rows, T, T_flange_board, self._points_b, pixel_sigma_px, *self.fk_sigmas)
-            sig = ref * _block_sigmas(np.linalg.inv(J0 + I), K) / np.maximum(sig0, 1e-12)
-            rho_new = np.maximum(np.maximum(sig[..., 0] / tol_mm, sig[..., 1] / tol_deg), 1.0)
-            return np.sum(np.where(is_short, rho_now ** 2 - rho_new ** 2, 0.0), axis=-1), sig
+        def visible(T_bb):
+            vis = np.zeros((len(T_bb), K), bool)
+            for k, n in enumerate(names):
+                b = scored[n]
+                d = np.linalg.norm(T_bb[:, :3, 3] - b.T_base_cam[:3, 3], axis=1)
+                vis[:, k] = boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb,
+                                           margin_px=_pixel_margin(b, d))
+            return vis
 
-        gain = np.zeros(len(T_bb))
-        sig = np.full((len(T_bb), K, 2), np.nan)
-        any_vis = vis.any(axis=1)
-        gain[any_vis], sig[any_vis] = predict(vis[any_vis], T_bf[any_vis])
+        def predict(rows, T_bf):
+            rows = np.asarray(rows, bool).reshape(-1, K)
+            gain, sig = np.zeros(len(rows)), np.full((len(rows), K, 2), np.nan)
+            m = rows.any(axis=1)
+            if m.any():
+                I = joint_information(cams, rows[m], T_bf[m], T_flange_board, self._points_b, pixel_sigma_px,
+                                      *self.fk_sigmas)
+                sig[m] = ref * _block_sigmas(np.linalg.inv(J0 + I), K) / np.maximum(sig0, 1e-12)
+                rho_new = np.maximum(np.maximum(sig[m][..., 0] / tol_mm, sig[m][..., 1] / tol_deg), 1.0)
+                gain[m] = np.sum(np.where(is_short, rho_now ** 2 - rho_new ** 2, 0.0), axis=-1)
+            return gain, sig
 
-        def rescore(i, row):
-            if not np.any(row):
-                return 0.0, None
-            g, s_ = predict(np.asarray(row, bool)[None], T_bf[i:i + 1])
-            return float(g[0]), s_[0]
+        return names, visible, predict
 
-        return names, vis, gain, sig, rescore
+    def _score_pool(self, predictor, T_flange_board):
+        """Every pool candidate at once, geometry only: (visible (M, K), gain (M,), predicted 1-sigma (M, K, 2))."""
+        _, visible, predict = predictor
+        T_bf = np.array([c.T_base_flange for c in self.pool])
+        vis = visible(T_bf @ T_flange_board)
+        gain, sig = predict(vis, T_bf)
+        return vis, gain, sig
 
     def choose(self, beliefs: dict, T_flange_board, pixel_sigma_px: float, tol_mm: float, tol_deg: float, q_now,
                n_top_up: int = 20, max_step_rad: float = 0.03, max_pool: int = 160, history=None) -> Choice | None:
@@ -483,14 +494,21 @@ class ActivePlanner:
         short = {n: r for n, r in rho.items() if r > 1.0}
         if not short:
             return None
-        self.top_up(beliefs, {n: r ** 2 for n, r in short.items()}, n_top_up, q_now, T_flange_board, useful=set(short))
+        predictor = self._predictor(scored, rho, short, T_flange_board, pixel_sigma_px, tol_mm, tol_deg, history)
+        names, visible, predict = predictor
+        T_fb_inv = inv(T_flange_board)
+
+        def prescore(T_bb):
+            return predict(visible(T_bb), T_bb @ T_fb_inv)[0]
+
+        self.top_up(beliefs, {n: r ** 2 for n, r in short.items()}, n_top_up, q_now, T_flange_board, useful=set(short),
+                    prescore=prescore, oversample=self.oversample)
         # drop candidates that an updated keep-out now forbids
         self.pool = [c for c in self.pool if not keepout_violation(c.probe_m, beliefs, self.cell.floor_z_m)]
         if not self.pool:
             return None
         centre_b = self._points_b.mean(axis=0)
-        names, vis, gain, sig, rescore = self._score_pool(scored, rho, short, T_flange_board, pixel_sigma_px, tol_mm,
-                                                          tol_deg, history)
+        vis, gain, sig = self._score_pool(predictor, T_flange_board)
         Q = np.array([c.q_rad for c in self.pool])
         t = np.max(np.abs(Q - np.asarray(q_now, float)) / (self.dq_max * self.speed_scale), axis=1) + SETTLE_S
         t = t + CAPTURE_S
@@ -512,7 +530,11 @@ class ActivePlanner:
                 row = np.array([bool(vis[i, k]) and not self.world.occluded(scored[n].T_base_cam[:3, 3], probes)
                                 for k, n in enumerate(names)])
                 sees = tuple(sorted(n for k, n in enumerate(names) if row[k]))
-                g, s_ = (float(gain[i]), sig[i]) if np.array_equal(row, vis[i]) else rescore(i, row)
+                if np.array_equal(row, vis[i]):
+                    g, s_ = float(gain[i]), sig[i]
+                else:
+                    g1, s1 = predict(row[None], cand.T_base_flange[None])
+                    g, s_ = float(g1[0]), s1[0]
                 if g > 1e-9:
                     pred = {n: (float(s_[k, 0]), float(s_[k, 1])) for k, n in enumerate(names)}
                     rescored.append((g / t[i], g, cand, sees, pred))
