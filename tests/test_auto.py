@@ -100,12 +100,13 @@ def test_batched_visibility_and_information_equal_the_single_pose_versions():
 
 
 def test_pool_scoring_equals_the_per_candidate_prediction():
-    """The vectorised pool scoring gives each candidate the visibility and 1-sigma that the
-    per-candidate prediction (:meth:`ActivePlanner.predict`) gives; the IK pre-filter never drops
-    a sample that a camera short of tolerance would see."""
+    """The vectorised pool scoring gives each candidate the cameras that the per-candidate
+    visibility (:meth:`ActivePlanner.predict`) gives and the 1-sigma its one-candidate prediction
+    gives; the IK pre-filter never drops a sample that a camera short of tolerance would see, and a
+    visible candidate always gains."""
     require_sim()
     from calibgraph.acquire.auto import AutoOptions
-    from calibgraph.plan.active import ActivePlanner, CameraBelief, sigma_norms
+    from calibgraph.plan.active import ActivePlanner, CameraBelief, shortfall
     from calibgraph.sim.planning import planning_world
     from calibgraph.sim.workcell import workcell_from_dict
 
@@ -119,16 +120,77 @@ def test_pool_scoring_equals_the_per_candidate_prediction():
     T_fb = cell.T_flange_board
     planner.top_up(beliefs, {n: 1.0 for n in beliefs}, 40, q0, T_fb, useful=set(beliefs))
     assert len(planner.pool) >= 10 and planner.pruned > 0
-    rho = {n: 4.0 for n in beliefs}
-    per_cam = planner._score_pool(beliefs, rho, rho, T_fb, 0.05, 0.5, 0.03)
+    rho = {n: shortfall(cov, 0.5, 0.03) for n in beliefs}
+    history = [(c.T_base_flange, tuple(planner.predict(c, beliefs, T_fb, 0.05, occlusion=False))) for c in planner.pool[:6]]
+    predictor = planner._predictor(beliefs, rho, rho, T_fb, 0.05, 0.5, 0.03, history)
+    names, _, predict = predictor
+    vis, gain, sig = planner._score_pool(predictor, T_fb)
     for i, cand in enumerate(planner.pool):
         info = planner.predict(cand, beliefs, T_fb, 0.05, occlusion=False)
-        assert {n for n, (vis, _, _) in per_cam.items() if vis[i]} == set(info)
+        assert {n for k, n in enumerate(names) if vis[i, k]} == set(info)
         assert info, "a sample seen by no camera reached the IK"
-        for n, I in info.items():
-            want = sigma_norms(np.linalg.inv(np.linalg.inv(cov) + I))
-            assert np.allclose(per_cam[n][2][i], want, rtol=1e-9)
-            assert per_cam[n][1][i] > 0
+        g1, s1 = predict(vis[i][None], cand.T_base_flange[None])
+        assert np.allclose(s1[0], sig[i], rtol=1e-9) and abs(g1[0] - gain[i]) <= 1e-9 * abs(g1[0])
+        assert gain[i] > 0
+        seen = [k for k, n in enumerate(names) if vis[i, k]]
+        assert np.all(sig[i, seen, 0] < 2.0 * np.sqrt(3))  # a camera that sees the board gains
+        assert np.all(sig[i, :, 0] <= 2.0 * np.sqrt(3) * (1 + 1e-9))  # and none loses
+
+
+def test_joint_model_is_the_solver_linearised_covariance():
+    """The planner's model of the graph (cameras sharing each capture's flange under the FK prior,
+    the mount, the board scale) gives each camera the covariance the batch solver's own graph gives
+    at the same values (:func:`calibgraph.solver.batch.crlb`), with a candidate capture or without:
+    its predictions are the solver's, not an approximation of it."""
+    from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
+    from calibgraph.plan.active import ActivePlanner, CameraBelief, _block_sigmas, joint_information
+    from calibgraph.plan.visibility import board_visible
+    from calibgraph.sim.workcell import workcell_from_dict
+    from calibgraph.solver.batch import crlb
+
+    d = read_yaml(DEFAULT, "world")
+    cell, wc = cell_from_world_dict(d, "world"), workcell_from_dict(d, "world")
+    tg, T_fb = cell.target, cell.T_flange_board
+    rng = np.random.default_rng(5)
+    caps, dets, hist = [], [], []
+    while len(caps) < 9:  # board poses round the arm's reach facing a camera or two, seen by whoever sees it
+        k = len(caps)
+        eyes = [wc.cameras[k % 3].T_base_cam[:3, 3], wc.cameras[(k + k // 3) % 3].T_base_cam[:3, 3]]
+        a = np.arctan2(*(eyes[0] + eyes[1])[1::-1]) + rng.uniform(-0.3, 0.3)
+        centre = np.array([0.55 * np.cos(a), 0.55 * np.sin(a), rng.uniform(0.2, 0.7)])
+        u = sum((e - centre) / np.linalg.norm(e - centre) for e in eyes)  # bisector of the directions to the two
+        T_bb = board_pose_facing(centre + u, centre, tg, rng.uniform(-0.3, 0.3, 3) * [1, 1, 0], rng.uniform(-1, 1))
+        seen = tuple(x.name for x in wc.cameras
+                     if board_visible(x.intrinsics, x.T_base_cam, tg, T_bb, margin_px=5.0, max_angle_deg=80.0))
+        if not seen:
+            continue
+        caps.append(Capture(index=k, T_base_flange=T_bb @ inv(T_fb)))
+        for n in seen:
+            T_cb = inv(wc.camera(n).T_base_cam) @ T_bb
+            p = tg.points_board_m @ T_cb[:3, :3].T + T_cb[:3, 3]
+            dets.append(Detection(camera=n, capture=k, ids=np.arange(tg.n_points), uv_px=wc.camera(n).intrinsics.project(p)))
+        hist.append((caps[-1].T_base_flange, seen))
+    assert any(len(s) > 1 for _, s in hist)  # shared captures are exercised
+    opts = SolverOptions(intrinsics="fixed", board_scale=True)
+    truth = {c.name: c.T_base_cam for c in wc.cameras}
+    intr = {c.name: c.intrinsics for c in wc.cameras}
+    cov = np.eye(6) * 1e-6
+    beliefs = {n: CameraBelief(n, intr[n], truth[n], cov, 3) for n in truth}
+    planner = ActivePlanner(None, cell, np.ones(7), fk_sigma_translation_m=opts.fk_sigma_translation_m,
+                            fk_sigma_rotation_rad=opts.fk_sigma_rotation_rad)
+    for n_hist in (8, 9):  # the last capture as history, or as the candidate added to 8
+        problem = Problem(points_board_m=tg.points_board_m, cameras=intr, captures=tuple(caps[:n_hist]),
+                          detections=tuple(x for x in dets if x.capture < n_hist), options=opts)
+        want = crlb(problem, truth, T_fb, 0.05)
+        names, cams, J = planner._model(beliefs, hist[:8], T_fb, 0.05)
+        if n_hist == 9:
+            rows = np.array([[n in hist[8][1] for n in names]])
+            J = J + joint_information(cams, rows, hist[8][0][None], T_fb, tg.points_board_m, 0.05,
+                                      *planner.fk_sigmas)[0]
+        got = _block_sigmas(np.linalg.inv(J), len(names))
+        for k, n in enumerate(names):
+            w = np.sqrt(np.diag(want[n]))
+            assert np.allclose(got[k], [np.linalg.norm(w[3:]) * 1e3, np.degrees(np.linalg.norm(w[:3]))], rtol=2e-3)
 
 
 # -- the cell without placements ------------------------------------------------------------------------

@@ -285,8 +285,6 @@ class _Loop:
         self.ref, self.ref_at = res, self.n_captures
         if res is not None:
             self.calibrate_to(res)
-            if self.steps and self.steps[-1].get("status") == "captured":
-                self.steps[-1]["achieved"] = self.sigmas()
         return res
 
     def calibrate_to(self, res):
@@ -424,8 +422,10 @@ class _Loop:
                 self.messages.append(f"step {k}: the live solver could not take the capture ({type(e).__name__}: {e})")
         else:
             entry["status"] = "no_views"
-        entry["achieved"] = self.sigmas()
         self.steps.append(entry)
+        if views and self.pixel_sigma_px is not None:  # past the survey: the batch solve is the reference
+            self.refresh()
+        entry["achieved"] = self.sigmas()
         self.save_log()
         self.log(self._line(entry))
         return entry
