@@ -129,7 +129,12 @@ def survey_round(world, cell, k: int, q_start=None, free=None) -> list:
             az = float(np.angle(np.exp(1j * az)))
             wanted.append((az, _direction(az, np.radians(80.0)), 0.45, 0.35, f"up r{k} az{np.degrees(az):+.0f}",
                            f"survey round {k}: board facing up (elevation 80 deg)"))
-    order = sorted(range(len(wanted)), key=lambda j: (not wanted[j][4].startswith("hint"), wanted[j][0]))
+    # hinted stops first, then outwards from the arm's current heading, nearest first (the first
+    # sightings cost the least motion; a camera's direction is unknown, so no order is better on average)
+    a0 = 0.0 if q_start is None else float(np.asarray(q_start, float)[0])
+    order = sorted(range(len(wanted)), key=lambda j: (not wanted[j][4].startswith("hint"),
+                                                      round(abs(float(np.angle(np.exp(1j * (wanted[j][0] - a0))))), 3),
+                                                      wanted[j][0] < a0, wanted[j][0]))
     stops, q_prev = [], q_start
     for j in order:
         az, d, rr, hh, label, why = wanted[j]
