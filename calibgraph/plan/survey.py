@@ -129,11 +129,20 @@ def survey_round(world, cell, k: int, q_start=None, free=None) -> list:
             az = float(np.angle(np.exp(1j * az)))
             wanted.append((az, _direction(az, np.radians(80.0)), 0.45, 0.35, f"up r{k} az{np.degrees(az):+.0f}",
                            f"survey round {k}: board facing up (elevation 80 deg)"))
-    # hinted stops first, then outwards from the arm's current heading, nearest first (the first
-    # sightings cost the least motion; a camera's direction is unknown, so no order is better on average)
+    # hinted stops first; then coarse to fine: every other azimuth of the sweep (the board is seen
+    # up to ~60 deg off its normal, so stops 120 deg apart already face every direction once), the
+    # azimuths between them after, for the cameras still unseen (the loop ends the round when every
+    # camera has been seen); each pass outwards from the arm's current heading, nearest first (the
+    # first sightings cost the least motion; where a camera is, is not known, so no start is better).
     a0 = 0.0 if q_start is None else float(np.asarray(q_start, float)[0])
-    order = sorted(range(len(wanted)), key=lambda j: (not wanted[j][4].startswith("hint"),
-                                                      round(abs(float(np.angle(np.exp(1j * (wanted[j][0] - a0))))), 3),
+
+    def off(j):
+        return abs(float(np.angle(np.exp(1j * (wanted[j][0] - a0)))))
+
+    sweep = [j for j in range(len(wanted)) if wanted[j][4].startswith("sweep")]
+    first = min(sweep, key=off) if sweep else None
+    fine = {j for j in sweep if (sweep.index(j) - sweep.index(first)) % 2}
+    order = sorted(range(len(wanted)), key=lambda j: (not wanted[j][4].startswith("hint"), j in fine, round(off(j), 3),
                                                       wanted[j][0] < a0, wanted[j][0]))
     stops, q_prev = [], q_start
     for j in order:
