@@ -11,11 +11,15 @@
 2. **Pixel noise**: a batch solve of the survey estimates the corner noise; the iSAM2 solver is
    rebuilt with it, so its 1-sigma is the batch solver's.
 3. **Active loop** (:mod:`calibgraph.plan.active`): the next pose is the candidate with the highest
-   expected reduction of the cameras' shortfall per second of motion; after each capture iSAM2
-   updates and the achieved 1-sigma goes into the plan log beside the predicted one.
-4. **Stop**: when iSAM2 says every camera is within tolerance, a batch solve decides (its 1-sigma
-   is what ``result.json`` reports); otherwise the loop goes on until ``max_poses`` captures. A camera
-   short of tolerance at the end gets a line saying why and what would help.
+   expected reduction of the cameras' shortfall per second, predicted on the linearised graph of
+   the captures so far; after each capture iSAM2 updates, the batch solver solves every capture
+   so far (a fraction of a second at these sizes) and its 1-sigma goes into the plan log beside
+   the predicted one.
+4. **Stop**: when the batch solve says every placed camera is within tolerance (its 1-sigma is
+   what ``result.json`` reports), otherwise the loop goes on until ``max_poses`` captures. (The
+   loop used to trust iSAM2, scaled once to the survey's batch solve; the ratio shrinks as the
+   board scale and mount get determined, and the top-down cell ran ~10 captures past convergence.)
+   A camera short of tolerance at the end gets a line saying why and what would help.
 
 Every motion goes through the same checks as :func:`calibgraph.acquire.run.run_acquisition`
 (joint limits, workspace box along the path, speed cap; :mod:`calibgraph.acquire.safety`), after a
@@ -616,7 +620,7 @@ def _refine(L, done, tries, final=False):
             p_cam, T_bb, ambiguous = hyp
         q = np.asarray(L.robot.joint_positions(), float)
         stops = refinement_stops(L.world, L.cell, c, T_bb, p_cam, 1 if ambiguous else 4, q,
-                                 L.opts.seed + tries.get(c, 0), free=L.free, tilt_deg=0.0 if ambiguous else 20.0)
+                                 L.opts.seed + tries.get(c, 0), free=L.free, tilt_deg=0.0 if ambiguous else 30.0)
         L.world.set_q(q)
         if not stops:
             tries[c] = 4 * REFINE_BATCHES

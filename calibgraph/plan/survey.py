@@ -164,7 +164,7 @@ def survey_round(world, cell, k: int, q_start=None, free=None) -> list:
 
 
 def refinement_stops(world, cell, camera: str, T_base_board_seen: np.ndarray, p_cam_m: np.ndarray, n: int = 4,
-                     q_start=None, seed: int = 0, free=None, tilt_deg: float = 20.0) -> list:
+                     q_start=None, seed: int = 0, free=None, tilt_deg: float = 30.0) -> list:
     """Up to ``n`` stops that show the board to ``camera`` again, from other angles: the board
     centre near where the camera saw it (``T_base_board_seen``), facing the rough camera
     position ``p_cam_m``, tilted by ``tilt_deg`` in ``n`` directions."""
@@ -178,7 +178,7 @@ def refinement_stops(world, cell, camera: str, T_base_board_seen: np.ndarray, p_
             break
         a = 2 * np.pi * (i + 0.5 * (i // n)) / n
         tilt = np.radians(tilt_deg) * np.array([np.cos(a), np.sin(a), 0.0])
-        centre = c0 + rng.uniform(-0.15, 0.15, 3) * np.array([1.0, 1.0, 0.8])
+        centre = c0 + rng.uniform(-0.25, 0.25, 3) * np.array([1.0, 1.0, 0.8])
         T_bb = board_pose_facing(p_cam_m, centre, cell.target, tilt, np.radians(rng.uniform(-20, 20)))
         got = reach_pose(world, T_bb, cell.T_flange_board, seeds_at(az, q_prev), free)
         if got is None:
