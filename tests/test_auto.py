@@ -193,6 +193,42 @@ def test_joint_model_is_the_solver_linearised_covariance():
             assert np.allclose(got[k], [np.linalg.norm(w[3:]) * 1e3, np.degrees(np.linalg.norm(w[:3]))], rtol=2e-3)
 
 
+def test_camera_position_hypothesis_resolves_the_mirror_of_an_oblique_view():
+    """An oblique view's two PnP candidates sit metres apart (mirror images about the board normal):
+    from that view alone the hypothesis is flagged ambiguous; a second view from another angle
+    agrees with the true one only, and a refuted candidate is never returned."""
+    from calibgraph.plan.survey import camera_position_hypothesis
+    from calibgraph.solver.initialise import pnp_candidates
+
+    intr, tg = preset("l515"), a4_board_54()
+    eye = np.array([3.0, 0.0, 0.8])
+    T_bc = look_at(eye, [0.3, -0.5, 0.45])
+    rng = np.random.default_rng(2)
+
+    def view(centre, normal_towards):
+        T_bb = board_pose_facing(normal_towards, centre, tg)
+        T_cb = inv(T_bc) @ T_bb
+        p = tg.points_board_m @ T_cb[:3, :3].T + T_cb[:3, 3]
+        uv = intr.project(p) + rng.normal(scale=0.05, size=(len(p), 2))
+        R, t, rms = pnp_candidates(tg.points_board_m, uv, intr)
+        return T_bb, R, t, rms
+
+    c1 = np.array([0.3, -0.5, 0.45])
+    oblique = view(c1, c1 + np.array([0.35, -1.0, 0.2]))  # the camera ~65 deg off the board normal
+    pos, _, ambiguous = camera_position_hypothesis([oblique])
+    T_bb, R, t, _ = oblique
+    cands = [T_bb[:3, :3] @ (-(Rk.T @ tk)) + T_bb[:3, 3] for Rk, tk in zip(R, t)]
+    assert len(cands) == 2 and np.linalg.norm(cands[0] - cands[1]) > 2.0  # the mirror is metres away
+    assert ambiguous
+    wrong = max(cands, key=lambda c: np.linalg.norm(c - eye))
+    pos, _, ambiguous = camera_position_hypothesis([oblique], refuted=[wrong])
+    assert np.linalg.norm(pos - eye) < 0.1 and not ambiguous
+    c2 = np.array([0.6, 0.0, 0.5])
+    pos, _, ambiguous = camera_position_hypothesis([oblique, view(c2, c2 + np.array([1.0, 0.4, 0.1]))])
+    assert np.linalg.norm(pos - eye) < 0.1 and not ambiguous
+    assert camera_position_hypothesis([oblique], refuted=cands) is None
+
+
 # -- the cell without placements ------------------------------------------------------------------------
 def test_world_becomes_a_cell_without_placements():
     d = read_yaml(DEFAULT, "world")
