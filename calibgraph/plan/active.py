@@ -542,8 +542,9 @@ class ActivePlanner:
             c.last_gain = float(g)
         index = {id(c): i for i, c in enumerate(self.pool)}
         ranked = [(float(g / tt), c) for c, g, tt in zip(self.pool, gain, t) if g > 1e-9]
-        if len(self.pool) > max_pool:  # forget what helps no camera that is short now
-            self.pool = [c for c in self.pool if c.last_gain > 1e-9] or self.pool[-max_pool:]
+        if len(self.pool) > max_pool:  # keep the pool (and the scoring time) bounded: forget the least useful
+            keep = set(np.argsort([-c.last_gain for c in self.pool], kind="stable")[:max_pool].tolist())
+            self.pool = [c for i, c in enumerate(self.pool) if i in keep]
         ranked.sort(key=lambda r: -r[0])
         q_saved = self.world.q()
         try:
@@ -567,7 +568,8 @@ class ActivePlanner:
             rescored.sort(key=lambda r: -r[0])
             for rate, g, cand, sees, pred in rescored:
                 motion = free_motion(self.world, q_now, cand.q_rad, max_step_rad)
-                self.pool.remove(cand)
+                if cand in self.pool:
+                    self.pool.remove(cand)
                 if motion is None:
                     continue
                 T, q = 0.0, np.asarray(q_now, float)
