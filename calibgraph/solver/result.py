@@ -78,6 +78,8 @@ class CameraResult:
     corners_rejected: int = 0
     T_mount_board: np.ndarray | None = None  # own board mount in 'single' mode
     intrinsics: dict | None = None  # Intrinsics.to_dict() of the camera the result was solved with
+    # within-view correlated corner noise (solver.batch.ModeRatio.to_dict()), when it was estimated
+    corner_noise: dict | None = None
     # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
     residuals_px: dict = field(default_factory=dict, repr=False)
 
@@ -176,6 +178,8 @@ class Result:
                 cams[name][mount_key] = c.T_mount_board.tolist()
             if c.intrinsics is not None:
                 cams[name]["intrinsics"] = c.intrinsics
+            if c.corner_noise is not None:
+                cams[name]["corner_noise"] = c.corner_noise
         pairs = {}
         for (a, b), p in self.pairs.items():
             st, sr = sigmas_from_cov(p.covariance)
