@@ -454,7 +454,8 @@ def opencv_charuco(image, target):
 
 
 CHARUCO_DETECTORS = {
-    "calibgraph": dict(),  # detect_image defaults
+    "calibgraph": dict(),  # detect_image defaults (with the photometric fit of board_fit.refine_charuco)
+    "calibgraph-nofit": dict(refine=False),  # the same without the fit (CharucoDetector's corners)
     "opencv": opencv_charuco,
 }
 

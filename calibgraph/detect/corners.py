@@ -55,7 +55,7 @@ import numpy as np
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import DetectionError, InputError
 from calibgraph.core.targets import Target
-from calibgraph.detect.board_fit import refine_checkerboard
+from calibgraph.detect.board_fit import refine_charuco, refine_checkerboard
 from calibgraph.detect.grid_filter import check_grid, grid_pitch_px
 from calibgraph.io.files import atomic_write_text
 
@@ -713,6 +713,10 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
     if s.refine and target.kind == "checkerboard" and ids.size:
         # On the original pixels whatever the search scale: interpolation adds its own shift.
         fit = refine_checkerboard(grey, target, ids, uv)
+        uv, n_refined = fit.uv_px, int(fit.refined.sum())
+    elif s.refine and target.kind == "charuco" and ids.size >= 4:
+        blur_px = _edge_sigma_px(grey, uv, max(_pitch(ids, uv, target), 4.0))
+        fit = refine_charuco(grey, target, ids, uv, blur_px=blur_px)
         uv, n_refined = fit.uv_px, int(fit.refined.sum())
     ok, reason = True, note
     if ids.size < s.min_points:
