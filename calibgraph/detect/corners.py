@@ -60,7 +60,7 @@ from calibgraph.detect.grid_filter import check_grid, grid_pitch_px
 from calibgraph.io.files import atomic_write_text
 
 # Part of the cache key: bump when a change can move detected points.
-DETECTOR_VERSION = "2"
+DETECTOR_VERSION = "3"
 
 
 @dataclass(frozen=True)
