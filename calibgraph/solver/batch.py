@@ -198,7 +198,10 @@ def _all_residuals(views, est: Estimate, cameras: dict) -> list:
 # Views with fewer kept corners leave too few residuals beside the 6 modes to compare them with.
 MODE_MIN_CORNERS = 6
 N_MODES = 6
-# One-sided test level for saying so (z of 0.001): the ratio is noted when it is this far above 1.
+# One-sided test levels on log(ratio) (its sd is sqrt(2 / dof_modes + 2 / dof_rest)): the factor is
+# applied above z = 1.645 (p < 0.05; below that, independent corners explain the residuals) and
+# called significant above z = 3.09 (p < 0.001).
+MODE_APPLY_Z = 1.645
 MODE_NOTE_Z = 3.09
 
 
@@ -206,8 +209,9 @@ MODE_NOTE_Z = 3.09
 class ModeRatio:
     """Low-order to remaining residual variance of one camera's views (see :func:`mode_variance_ratios`).
 
-    ``ratio``: the estimate; ``applied``: what the final graph uses (max(1, ratio)); ``dof_modes`` /
-    ``dof_rest``: the residual counts behind it; ``significant``: above 1 at the 0.001 level.
+    ``ratio``: the estimate; ``applied``: what the final graph uses (the ratio when it is above 1 at
+    the 0.05 level, else 1); ``dof_modes`` / ``dof_rest``: the residual counts behind it;
+    ``significant``: above 1 at the 0.001 level.
     """
 
     ratio: float
@@ -293,9 +297,9 @@ def mode_variance_ratios(problem: Problem, views, est: Estimate, sigma_px: float
         if n_views < 5 or rest <= 0 or r_low < 1.0 or r_rest < 1.0:
             continue  # fewer than 5 views: too little to estimate a variance factor from
         ratio = (low / r_low) / (rest / r_rest)
-        significant = bool(np.log(max(ratio, 1e-12)) > MODE_NOTE_Z * np.sqrt(2.0 / r_low + 2.0 / r_rest))
-        out[cam] = ModeRatio(float(ratio), float(max(ratio, 1.0)), int(round(r_low)), int(round(r_rest)), significant,
-                             float(low_px2))
+        z = np.log(max(ratio, 1e-12)) / np.sqrt(2.0 / r_low + 2.0 / r_rest)
+        out[cam] = ModeRatio(float(ratio), float(ratio) if z > MODE_APPLY_Z else 1.0, int(round(r_low)),
+                             int(round(r_rest)), bool(z > MODE_NOTE_Z), float(low_px2))
     return out
 
 
@@ -1017,13 +1021,12 @@ def _board_scale(problem: Problem, groups: list, notes: list) -> tuple[float, fl
 
 
 def _corner_noise_notes(groups: list) -> list:
-    """One line per camera whose views' low-order modes vary more than the rest (significantly, or
-    by 20 % or more, which widens its 1-sigma noticeably)."""
+    """One line per camera whose views' low-order modes were found to vary more than the rest."""
     out = []
     for g in groups:
         for name, m in g.est.mode_ratios.items():
-            if m.significant or m.applied >= 1.2:
-                test = "" if m.significant else ", not significant at p < 0.001"
+            if m.applied > 1.0:
+                test = "" if m.significant else ", p < 0.05 but not < 0.001"
                 out.append(f"camera {name}: its residuals move whole boards (each view's shift, rotation, scale and "
                            f"shear in the image vary {m.ratio:.2f}x what the other residuals imply{test}: corners of "
                            f"small squares share pixels, or an unmodelled camera or robot error); its views are "
