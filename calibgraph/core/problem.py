@@ -206,6 +206,9 @@ class SolverOptions:
             view's low-order image modes (shift, rotation, scale, shear of the board) is estimated
             against the rest of the residuals and, where larger, weighted and propagated as such
             (view formulation). False treats every corner as independent.
+        fk_variance: compare the fitted robot poses with the FK prior (see
+            :func:`calibgraph.solver.batch.fk_variance_ratio`) and, when they depart from it more
+            than the stated FK sigmas allow (p < 0.05), solve with the sigmas the fit implies and say so.
     """
 
     fk_sigma_translation_m: float = 1e-4
@@ -229,6 +232,7 @@ class SolverOptions:
     joint_offset_prior_rad: float = 0.01
     kinematics_staging: str = "joint"
     view_noise_modes: bool = True
+    fk_variance: bool = True
 
     def __post_init__(self):
         if self.loss not in LOSSES:

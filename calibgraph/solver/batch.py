@@ -128,6 +128,7 @@ class Estimate:
     joint_offsets: np.ndarray | None = None  # free joint offsets (rad) with kinematics='joint-offsets'
     # camera -> ModeRatio of the final graph (view_noise_modes); its ``applied`` weights the views
     mode_ratios: dict = field(default_factory=dict)
+    fk_ratio: FkRatio | None = None  # the FK prior against the fit (fk_variance); ``applied`` widens it
 
 
 @contextmanager
@@ -198,7 +199,10 @@ def _all_residuals(views, est: Estimate, cameras: dict) -> list:
 # Views with fewer kept corners leave too few residuals beside the 6 modes to compare them with.
 MODE_MIN_CORNERS = 6
 N_MODES = 6
-# One-sided test level for saying so (z of 0.001): the ratio is noted when it is this far above 1.
+# One-sided test levels on log(ratio) (its sd is sqrt(2 / dof_modes + 2 / dof_rest)): the factor is
+# applied above z = 1.645 (p < 0.05; below that, independent corners explain the residuals) and
+# called significant above z = 3.09 (p < 0.001).
+MODE_APPLY_Z = 1.645
 MODE_NOTE_Z = 3.09
 
 
@@ -206,8 +210,9 @@ MODE_NOTE_Z = 3.09
 class ModeRatio:
     """Low-order to remaining residual variance of one camera's views (see :func:`mode_variance_ratios`).
 
-    ``ratio``: the estimate; ``applied``: what the final graph uses (max(1, ratio)); ``dof_modes`` /
-    ``dof_rest``: the residual counts behind it; ``significant``: above 1 at the 0.001 level.
+    ``ratio``: the estimate; ``applied``: what the final graph uses (the ratio when it is above 1 at
+    the 0.05 level, else 1); ``dof_modes`` / ``dof_rest``: the residual counts behind it;
+    ``significant``: above 1 at the 0.001 level.
     """
 
     ratio: float
@@ -238,6 +243,82 @@ def view_mode_basis(uv_px: np.ndarray) -> np.ndarray:
     return np.linalg.qr(A)[0]
 
 
+def _view_jacobians(problem: Problem, views, est: Estimate, sigma_px: float):
+    """Whitened residuals and robot-pose Jacobians of the active views at ``est``:
+    ([(view, kept-corner mask, e (2n,), H_F (2n, 6))], capture -> (FK prior information (6, 6),
+    the views' information on F(k) (6, 6), the prior's square-root information R (6, 6)))."""
+    out, info = [], {}
+    for v in views:
+        if not v.active:
+            continue
+        keep = v.w > 0
+        if not keep.any():
+            continue
+        intr = est.intrinsics.get(v.camera, problem.cameras[v.camera])
+        e, J = view_residual(est.T_ref_cam[v.camera], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
+                             est.board_scale * v.p_board_m[keep], v.uv_px[keep], intr, np.sqrt(v.w[keep]) / sigma_px)
+        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J[1]))):
+            continue
+        H_f = J[1]
+        if v.capture not in info:
+            R = np.asarray(fk_noise(problem.options, problem.mode, v.T_ref_mount).R())
+            info[v.capture] = (R.T @ R, np.zeros((6, 6)), R)
+        prior, views_info, R = info[v.capture]
+        info[v.capture] = (prior, views_info + H_f.T @ H_f, R)
+        out.append((v, keep, e, H_f))
+    return out, info
+
+
+@dataclass(frozen=True)
+class FkRatio:
+    """How far the estimated robot poses sit from forward kinematics, against the stated FK sigmas
+    (see :func:`fk_variance_ratio`): ``ratio`` ~1 when the statement holds; ``applied``: the
+    factor on the FK prior's variance the final graph uses (the ratio when above 1 at the 0.05
+    level, else 1); ``dof``: the prior residuals' redundancy; ``significant``: p < 0.001."""
+
+    ratio: float
+    applied: float
+    dof: float
+    significant: bool
+
+    def to_dict(self, opts) -> dict:
+        s = float(np.sqrt(self.applied))
+        t, r = float(opts.fk_sigma_translation_m), float(opts.fk_sigma_rotation_rad)
+        return {"variance_ratio": self.ratio, "applied": self.applied, "dof": self.dof, "significant": self.significant,
+                "stated_sigma_translation_m": t, "stated_sigma_rotation_rad": r,
+                "used_sigma_translation_m": t * s, "used_sigma_rotation_rad": r * s}
+
+
+def fk_variance_ratio(problem: Problem, views, est: Estimate, sigma_px: float) -> FkRatio | None:
+    """The robot's forward kinematics against its stated accuracy, from the fit (None when there
+    is too little to tell, or with kinematics='joint-offsets', whose poses follow the joint angles).
+
+    Each capture's estimated robot pose F(k) departs from its FK prior by ``d_k`` (whitened by the
+    prior); under the stated FK sigmas ``sum |d_k|^2`` is about the prior's redundancy
+    ``sum 6 - tr(Lambda_p Sigma_k)``, with ``Sigma_k = (Lambda_p + J_k)^-1`` the covariance of F(k)
+    given the rest (J_k: the information of capture k's views). A robot less accurate than stated
+    pulls the cameras without showing in the corners' scatter; the ratio says by how much.
+    """
+    if problem.options.kinematics != "none":
+        return None
+    jac, info = _view_jacobians(problem, views, est, sigma_px)
+    prior_at = {v.capture: v.T_ref_mount for v in views}
+    energy = red = 0.0
+    for k, (prior, views_info, R) in info.items():
+        T_est = est.T_ref_mount.get(k)
+        if T_est is None:
+            continue
+        xi = np.asarray(gtsam.Pose3.Logmap(gtsam.Pose3(prior_at[k]).between(gtsam.Pose3(T_est))))
+        d = R @ xi
+        energy += float(d @ d)
+        red += 6.0 - float(np.trace(prior @ np.linalg.pinv(prior + views_info)))
+    if red < 5.0 or energy <= 0:
+        return None
+    ratio = energy / red
+    z = np.log(ratio) / np.sqrt(2.0 / red)
+    return FkRatio(float(ratio), float(ratio) if z > MODE_APPLY_Z else 1.0, float(red), bool(z > MODE_NOTE_Z))
+
+
 def mode_variance_ratios(problem: Problem, views, est: Estimate, sigma_px: float) -> dict:
     """Per camera: how much more the residuals vary in each view's low-order image modes than in
     the rest (camera -> :class:`ModeRatio`).
@@ -258,26 +339,10 @@ def mode_variance_ratios(problem: Problem, views, est: Estimate, sigma_px: float
     of F(k) given the rest of the graph); the camera pose, mount, scale and intrinsics are shared by
     many views and absorb a negligible share of each. ~1 with independent corners (F-distributed).
     """
-    opts = problem.options
-    active = [v for v in views if v.active]
-    per_view, info = [], {}
-    for v in active:
-        keep = v.w > 0
-        n = int(keep.sum())
-        if n < MODE_MIN_CORNERS:
-            continue
-        intr = est.intrinsics.get(v.camera, problem.cameras[v.camera])
-        e, J = view_residual(est.T_ref_cam[v.camera], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
-                             est.board_scale * v.p_board_m[keep], v.uv_px[keep], intr, np.sqrt(v.w[keep]) / sigma_px)
-        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J[1]))):
-            continue
-        H_f = J[1]
-        if v.capture not in info:
-            R = np.asarray(fk_noise(opts, problem.mode, v.T_ref_mount).R())
-            info[v.capture] = R.T @ R
-        info[v.capture] = info[v.capture] + H_f.T @ H_f
-        per_view.append((v, e, H_f, view_mode_basis(v.uv_px[keep])))
-    cov = {k: np.linalg.pinv(L) for k, L in info.items()}
+    jac, info = _view_jacobians(problem, views, est, sigma_px)
+    per_view = [(v, e, H_f, view_mode_basis(v.uv_px[keep])) for v, keep, e, H_f in jac
+                 if keep.sum() >= MODE_MIN_CORNERS]
+    cov = {k: np.linalg.pinv(prior + views_info) for k, (prior, views_info, _) in info.items()}
     acc = {}
     for v, e, H_f, Q in per_view:
         M = H_f @ cov[v.capture] @ H_f.T
@@ -293,9 +358,9 @@ def mode_variance_ratios(problem: Problem, views, est: Estimate, sigma_px: float
         if n_views < 5 or rest <= 0 or r_low < 1.0 or r_rest < 1.0:
             continue  # fewer than 5 views: too little to estimate a variance factor from
         ratio = (low / r_low) / (rest / r_rest)
-        significant = bool(np.log(max(ratio, 1e-12)) > MODE_NOTE_Z * np.sqrt(2.0 / r_low + 2.0 / r_rest))
-        out[cam] = ModeRatio(float(ratio), float(max(ratio, 1.0)), int(round(r_low)), int(round(r_rest)), significant,
-                             float(low_px2))
+        z = np.log(max(ratio, 1e-12)) / np.sqrt(2.0 / r_low + 2.0 / r_rest)
+        out[cam] = ModeRatio(float(ratio), float(ratio) if z > MODE_APPLY_Z else 1.0, int(round(r_low)),
+                             int(round(r_rest)), bool(z > MODE_NOTE_Z), float(low_px2))
     return out
 
 
@@ -636,18 +701,32 @@ def _final_solve_and_marginals(problem: Problem, names: list, views: list, slots
     """The final weighted graph at the a posteriori pixel sigma (re-solved when that sigma moved the
     pixel/FK balance by more than 5%), its cost and its marginals."""
     opts = problem.options
+    est.fk_ratio = fk_variance_ratio(problem, views, est, sigma) if opts.fk_variance else None
+    widen = est.fk_ratio is not None and est.fk_ratio.applied > 1.0
+    if widen:
+        # the robot is less accurate than stated: the final graph uses the FK sigmas the fit implies
+        s = float(np.sqrt(est.fk_ratio.applied))
+        problem = problem.with_(options=replace(opts, fk_sigma_translation_m=opts.fk_sigma_translation_m * s,
+                                                fk_sigma_rotation_rad=opts.fk_sigma_rotation_rad * s))
+        # ... and the residuals the corner-noise modes are judged on are those of that graph
+        with _timed(timings, "lm"):
+            graph, values = build_graph(views, slots, problem, est, sigma, form)
+            values, it, _ = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        iterations += it
+        est = replace(_extract(values, slots, views, est, problem.cameras, form), fk_ratio=est.fk_ratio)
     est.mode_ratios = (mode_variance_ratios(problem, views, est, sigma)
                        if form == "view" and opts.view_noise_modes and not opts.pixel_sigma_px else {})
     factors = {c: m.applied for c, m in est.mode_ratios.items() if m.applied > 1.0}
     sigma_post = _a_posteriori_sigma(problem, names, views, est)
     with _timed(timings, "build_graph"):
         graph, values = build_graph(views, slots, problem, est, sigma_post, form, factors)
-    if abs(sigma_post - sigma) > 0.05 * sigma or any(f > 1.05 for f in factors.values()):
+    if abs(sigma_post - sigma) > 0.05 * sigma or any(f > 1.05 for f in factors.values()) or widen:
         # the pixel/FK balance moved enough to shift the optimum: re-solve before the marginals
         with _timed(timings, "lm"):
             values, it, _ = levenberg_marquardt(graph, values, opts.max_iterations, form)
         iterations += it
-        est = replace(_extract(values, slots, views, est, problem.cameras, form), mode_ratios=est.mode_ratios)
+        est = replace(_extract(values, slots, views, est, problem.cameras, form), mode_ratios=est.mode_ratios,
+                      fk_ratio=est.fk_ratio)
     est.iterations, est.cost, est.sigma_px = iterations, graph.error(values), sigma_post
     est.marginals = _marginals(graph, values, form, timings)
     est.slots, est.formulation = slots, form
@@ -852,6 +931,7 @@ def _solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, ti
     scale, scale_sigma = _board_scale(problem, groups, notes)
     notes += _intrinsics_notes(cameras)
     notes += _corner_noise_notes(groups)
+    notes += _fk_notes(problem, groups)
     settings = {k: getattr(problem.options, k) for k in problem.options.__dataclass_fields__}
     settings["formulation_used"] = groups[0].est.formulation
     robot = _robot_result(problem, ks, names, groups[0], notes) if ks is not None else None
@@ -863,6 +943,8 @@ def _solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, ti
         rejected_views=tuple(rv for c in cameras.values() for rv in c.views_rejected),
         rejected_corners=tuple(rejected_corners), T_base_flange_est=T_base_flange_est, settings=settings,
         board_scale=scale, board_scale_sigma=scale_sigma, notes=tuple(notes), robot=robot,
+        fk_noise=(groups[0].est.fk_ratio.to_dict(problem.options)
+                  if len(groups) == 1 and groups[0].est.fk_ratio is not None else None),
     )
 
 
@@ -1017,17 +1099,34 @@ def _board_scale(problem: Problem, groups: list, notes: list) -> tuple[float, fl
 
 
 def _corner_noise_notes(groups: list) -> list:
-    """One line per camera whose views' low-order modes vary more than the rest (significantly, or
-    by 20 % or more, which widens its 1-sigma noticeably)."""
+    """One line per camera whose views' low-order modes were found to vary more than the rest."""
     out = []
     for g in groups:
         for name, m in g.est.mode_ratios.items():
-            if m.significant or m.applied >= 1.2:
-                test = "" if m.significant else ", not significant at p < 0.001"
+            if m.applied > 1.0:
+                test = "" if m.significant else ", p < 0.05 but not < 0.001"
                 out.append(f"camera {name}: its residuals move whole boards (each view's shift, rotation, scale and "
                            f"shear in the image vary {m.ratio:.2f}x what the other residuals imply{test}: corners of "
                            f"small squares share pixels, or an unmodelled camera or robot error); its views are "
                            f"weighted and its 1-sigma widened for it")
+    return out
+
+
+def _fk_notes(problem: Problem, groups: list) -> list:
+    """One line when the robot poses disagree with the stated FK accuracy and the prior was widened."""
+    out = []
+    for g in groups:
+        r = g.est.fk_ratio
+        if r is None or r.applied <= 1.0:
+            continue
+        o, s = problem.options, float(np.sqrt(r.applied))
+        test = "" if r.significant else ", p < 0.05 but not < 0.001"
+        out.append(f"robot: the fitted flange poses depart from forward kinematics {s:.1f}x as far as the stated FK "
+                   f"accuracy ({1e3 * o.fk_sigma_translation_m:.2f} mm, {np.degrees(o.fk_sigma_rotation_rad):.3f} deg) "
+                   f"allows{test}; solved with {1e3 * o.fk_sigma_translation_m * s:.2f} mm, "
+                   f"{np.degrees(o.fk_sigma_rotation_rad) * s:.3f} deg and the 1-sigma widened for it (state the arm's "
+                   f"accuracy with --fk-sigma-mm/--fk-sigma-deg; joint zero offsets: --estimate-kinematics joint-offsets)")
+        break
     return out
 
 

@@ -145,6 +145,7 @@ class Result:
     board_scale_sigma: float | None = None  # its 1-sigma (None when not estimated)
     notes: tuple = ()  # what the solver noticed and did, one line each (inadequate intrinsics, board scale)
     robot: dict | None = None  # estimated joint offsets (kinematics='joint-offsets'), see the module docstring
+    fk_noise: dict | None = None  # the FK prior against the fit (solver.batch.FkRatio.to_dict())
 
     @property
     def T_flange_board(self):
@@ -210,6 +211,7 @@ class Result:
             },
             "board_scale": {"scale": self.board_scale, "sigma": self.board_scale_sigma},
             "notes": list(self.notes),
+            **({"fk_noise": self.fk_noise} if self.fk_noise is not None else {}),
             **({"robot": self.robot} if self.robot is not None else {}),
             "rejected_corners": [
                 {"camera": c, "capture": k, "id": i, "residual_px": r} for (c, k, i, r) in self.rejected_corners
