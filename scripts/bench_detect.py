@@ -501,6 +501,13 @@ def charuco_markdown(rows, trials, seed, elapsed_s) -> str:
     for sq in dict.fromkeys(r["square_px"] for r in rows):
         got = {r["detector"]: r for r in rows if r["square_px"] == sq}
         L.append(f"| {sq} | " + " | ".join(fmt(got[d]) if d in got else "-" for d in dets) + " |")
+    rate = {r["square_px"]: r["detection_rate"] for r in rows if r["detector"] == dets[0]}
+    low = [sq for sq, v in rate.items() if v < 0.5]
+    if low:
+        L += ["", f"Decoding: the markers of views tilted up to 50 deg decode for under half of the corners at "
+              f"{', '.join(map(str, low))} px squares ({', '.join(f'{rate[sq]:.2f}' for sq in low)}), where a few "
+              "views with few corners decide the cells; from "
+              f"{min((sq for sq in rate if sq > max(low)), default='-')} px on, for most of them."]
     return "\n".join(L) + "\n"
 
 
