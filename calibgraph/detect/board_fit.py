@@ -1,4 +1,4 @@
-"""Unbiased sub-pixel checkerboard corners: a photometric fit of the board around each corner.
+"""Unbiased sub-pixel checkerboard and ChArUco corners: a photometric fit of the board around each corner.
 
 Why: OpenCV's corner refiners look at a window around one corner and assume what they see is a
 lone saddle. On small squares the window (or the blur) also sees the neighbouring corners and the
