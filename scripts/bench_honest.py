@@ -70,8 +70,17 @@ def variant(src: Path, dst: Path, case: str) -> Path:
     shared (symlinked); stored detections are dropped so the current detector runs."""
     import yaml
 
+    # The detection cache survives a re-run (images and detector options are the same): a solver
+    # change is then measured without detecting every image again.
+    cache = dst / ".calibgraph_cache"
+    keep = dst.parent / f".{dst.name}_cache"
+    if cache.is_dir():
+        shutil.rmtree(keep, ignore_errors=True)
+        cache.rename(keep)
     shutil.rmtree(dst, ignore_errors=True)
     dst.mkdir(parents=True)
+    if keep.is_dir():
+        keep.rename(cache)
     for sub in ("images",):
         (dst / sub).symlink_to((src / sub).resolve())
     (dst / "captures").mkdir()

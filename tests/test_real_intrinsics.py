@@ -2,7 +2,7 @@
 and the residuals show it. Estimating [fx, fy, cx, cy, k1, k2] must explain them — by default,
 with the cause named, as --refine-intrinsics does.
 
-Measured (this detector): --fixed-intrinsics 2.10 px RMS; default 0.57 px with k1 = -0.124 and a
+Measured (this detector): --fixed-intrinsics 1.77 px RMS; default 0.52 px with k1 = -0.127 and a
 note naming the disagreement (chi-square 254 on 6 dof), pose within 0.1 mm of --refine-intrinsics
 (1-sigma 0.12-0.29 mm); the camera moves 4.8 mm from the fixed-intrinsics pose.
 """
@@ -28,7 +28,9 @@ def test_default_solve_estimates_the_intrinsics_the_data_reject(rct_dir, tmp_pat
     assert "disagree with its given" in stdout  # the cause, in one line
     refined, _ = _solve(rct_dir, tmp_path / "refined.json", "--refine-intrinsics", "--quiet")
     cf, cd, cr = (r["cameras"]["camera"] for r in (fixed, default, refined))
-    assert cf["reprojection_rms_px"] > 2.0
+    # The residuals show the missing distortion: several times the detector's (1.77 px against
+    # 0.52 px since ChArUco corners are fitted photometrically; 2.10 px with CharucoDetector's).
+    assert cf["reprojection_rms_px"] > 1.5 and cf["reprojection_rms_px"] > 3.0 * cd["reprojection_rms_px"]
     assert cd["reprojection_rms_px"] < 1.0 and cr["reprojection_rms_px"] < 0.5 * cf["reprojection_rms_px"]
     assert any("disagree" in n for n in default["notes"])
     k1 = cd["intrinsics"]["dist"][0]

@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from calibgraph.core.problem import mode_frames
 from calibgraph.solver.build import build_problem
 
@@ -197,8 +199,9 @@ def run(args) -> int:
     result.save(out)
     if not args.quiet:
         print(format_summary(result))
-        if result.pixel_sigma_px > 1.0 and opts.intrinsics == "fixed":
-            print(f"hint: residuals of {result.pixel_sigma_px:.2f} px per axis are large for a sub-pixel detector; "
+        rms_px = max((c.reprojection_rms_px / np.sqrt(2.0) for c in result.cameras.values()), default=0.0)
+        if rms_px > 1.0 and opts.intrinsics == "fixed":
+            print(f"hint: residuals of {rms_px:.2f} px per axis are large for a sub-pixel detector; "
                   "if the intrinsics come without (or with wrong) distortion, drop --fixed-intrinsics")
         print(f"wrote {out}")
     if args.rrd:

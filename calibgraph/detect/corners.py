@@ -18,8 +18,14 @@ Detectors (chosen by the target's kind; ``method`` picks among checkerboard dete
   removes the detectors' outward bias on small squares and most of their noise
   (scripts/results/bench_detect.md has the figures before and after); ``refine=False`` skips it.
 * ChArUco: ``cv2.aruco.CharucoDetector``; partial views are kept (ids are fixed by the markers).
-* circle grids: ``cv2.findCirclesGrid`` (symmetric, asymmetric); the modified circle grid is found
-  as a symmetric grid and oriented by its enlarged origin dot.
+  Its corners (cornerSubPix) are then refined by the same photometric fit, with the markers in
+  the model (:func:`calibgraph.detect.board_fit.refine_charuco`): radial bias -0.034 -> +0.0004
+  px and sigma 0.13 -> 0.007 px at 20 px squares (scripts/results/bench_detect_charuco.md).
+* circle grids: ``cv2.findCirclesGrid`` (symmetric, asymmetric), also on the image turned by 90
+  and 180 degrees, then, when all fail, the grid assembled from the blob centres (hull
+  quadrilateral -> homography -> grown by local affine maps, for close, tilted, distorted views);
+  the modified circle grid is found as a symmetric grid and oriented by its enlarged origin dot
+  (by its ink, which blur keeps, against the local grid cell, which removes perspective).
 
 Ordering: OpenCV numbers grid points from whichever corner it meets first. Every grid detection is
 therefore re-ordered to the target's own ids (``targets`` module docstring): the handedness of the
@@ -55,12 +61,12 @@ import numpy as np
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import DetectionError, InputError
 from calibgraph.core.targets import Target
-from calibgraph.detect.board_fit import refine_checkerboard
+from calibgraph.detect.board_fit import refine_charuco, refine_checkerboard
 from calibgraph.detect.grid_filter import check_grid, grid_pitch_px
 from calibgraph.io.files import atomic_write_text
 
 # Part of the cache key: bump when a change can move detected points.
-DETECTOR_VERSION = "2"
+DETECTOR_VERSION = "3"
 
 
 @dataclass(frozen=True)
@@ -79,7 +85,7 @@ class ImageDetection:
         sharpness_px: edge blur at the points as a Gaussian sigma, pixels (lower is sharper).
         upscale: up-scaling factor of the region the points came from (1 = original image).
         method: detector that produced the points ('classic', 'sb', 'charuco', 'circles', ...).
-        n_refined: points moved by the photometric board fit (checkerboards; the others keep the
+        n_refined: points moved by the photometric board fit (checkerboards and ChArUco; circle grids keep the
             detector's position).
         homography_rms_px: residual of the board-to-image homography.
         time_s: detection time.
@@ -256,24 +262,27 @@ def _colour_score(grey: np.ndarray, G: np.ndarray) -> float:
     return float(val[black].mean() - val[~black].mean())
 
 
-def _blob_size(grey: np.ndarray, uv: np.ndarray, radius_px: float) -> float:
-    """Area (px^2) of the dark blob containing ``uv`` within a square of half-size ``radius_px``."""
-    import cv2
+def _dot_ink(grey: np.ndarray, uv: np.ndarray, pitch_px: float) -> float:
+    """Ink of the dot centred near ``uv``, in units of the local grid cell (pitch_px^2): the summed
+    darkness below the paper level within half a pitch of the centre, divided by the cell's area.
 
-    r = int(max(3, np.ceil(radius_px)))
-    x, y = int(round(uv[0])), int(round(uv[1]))
+    Blur spreads a dot's darkness but keeps its sum, and dividing by the local cell removes
+    perspective, so the modified grid's origin dot (twice the diameter) has ~4x the ink of a
+    corner dot at any blur, tilt or distortion; a thresholded blob area does not (blur and
+    Otsu's threshold shrink that ratio to ~2 on small dots).
+    """
+    r = 0.5 * pitch_px
+    x, y = float(uv[0]), float(uv[1])
     h, w = grey.shape
-    x0, x1, y0, y1 = max(0, x - r), min(w, x + r + 1), max(0, y - r), min(h, y + r + 1)
-    patch = grey[y0:y1, x0:x1]
+    x0, x1 = int(max(0, np.floor(x - r))), int(min(w, np.ceil(x + r) + 1))
+    y0, y1 = int(max(0, np.floor(y - r))), int(min(h, np.ceil(y + r) + 1))
+    patch = grey[y0:y1, x0:x1].astype(float)
     if patch.size < 9:
         return 0.0
-    _, bw = cv2.threshold(patch, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(bw, connectivity=8)
-    cy, cx = min(max(y - y0, 0), patch.shape[0] - 1), min(max(x - x0, 0), patch.shape[1] - 1)
-    k = lab[cy, cx]
-    if k == 0:
-        return 0.0
-    return float(stats[k, cv2.CC_STAT_AREA])
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    disc = (xx - x) ** 2 + (yy - y) ** 2 <= r * r
+    paper = float(np.percentile(patch[~disc] if (~disc).sum() >= 8 else patch, 75))
+    return float(np.clip(paper - patch[disc], 0.0, None).sum() / max(paper, 1.0) / (pitch_px * pitch_px))
 
 
 def _orient_grid(G: np.ndarray, target: Target, grey: np.ndarray, allow_symmetric: bool):
@@ -306,15 +315,19 @@ def _orient_grid(G: np.ndarray, target: Target, grey: np.ndarray, allow_symmetri
             raise DetectionError(f"cannot tell the board's orientation from its square colours (contrast {-scores[k]:.1f})")
         return cands[k].reshape(-1, 2), ""
     if target.kind == "modified_circles":
-        # Size of the dots at the four grid corners; the origin dot has twice the diameter.
-        pitch = np.median(np.linalg.norm(np.diff(G, axis=1), axis=-1))
+        # Ink of the dots at the grid corners the origin could be at; the origin dot has twice
+        # the diameter (4x the ink). Each is measured against its own local pitch (perspective).
         origin = (rows - 1) * cols
         sizes = []
         for C in cands:
-            sizes.append(_blob_size(grey, C.reshape(-1, 2)[origin], 0.75 * pitch))
+            P = C.reshape(rows, cols, 2)
+            r0, c0 = divmod(origin, cols)
+            steps = [np.linalg.norm(P[r0, c0] - P[r0 + dr, c0 + dc]) for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1))
+                     if 0 <= r0 + dr < rows and 0 <= c0 + dc < cols]
+            sizes.append(_dot_ink(grey, P[r0, c0], float(np.mean(steps))))
         k = int(np.argmax(sizes))
         others = sorted(sizes)[:-1]
-        if not others or sizes[k] < 2.0 * max(np.median(others), 1.0):
+        if not others or sizes[k] < 2.0 * max(float(np.median(others)), 1e-3):
             raise DetectionError("the modified circle grid's enlarged origin dot was not found at a grid corner")
         return cands[k].reshape(-1, 2), ""
     # Symmetric pattern: no cue in the image.
@@ -491,6 +504,113 @@ def _blob_detector(max_area: float):
     return cv2.SimpleBlobDetector_create(p)
 
 
+def _quads(xy: np.ndarray) -> list:
+    """Quadrilaterals (4 vertices each, in hull order) that simplify the convex hull of ``xy`` at
+    several tolerances: the hull of a circle grid seen in perspective, with lens distortion or with
+    the staggered rows of an asymmetric grid has more than 4 vertices, and which 4 survive depends
+    on the tolerance."""
+    import cv2
+
+    hull = cv2.convexHull(xy.astype(np.float32)).reshape(-1, 1, 2)
+    if len(hull) < 4:
+        return []
+    peri = cv2.arcLength(hull, True)
+    out = []
+    for frac in (0.005, 0.01, 0.02, 0.03, 0.05, 0.08, 0.12):
+        q = cv2.approxPolyDP(hull, frac * peri, True).reshape(-1, 2).astype(float)
+        if len(q) == 4 and not any(np.allclose(q, o) for o in out):
+            out.append(q)
+    return out
+
+
+def _grid_from_blobs(blobs_uv: np.ndarray, target: Target) -> np.ndarray | None:
+    """Circle-grid points (N, 2) in the target's id order, assembled from blob centres when
+    OpenCV's grid search fails (strong perspective close up, lens distortion): a quadrilateral of
+    the blobs' hull is matched to one of the page layout's (each turn and mirror), the homography
+    they define predicts every point, each takes the nearest blob within 0.4 of the local spacing,
+    the homography is refitted on the matches (RANSAC) and this repeats; the result must give every
+    point its own blob, predicted to a fifth of the spacing. None otherwise."""
+    import cv2
+
+    page = _page_xy(target).astype(np.float64)
+    n = len(page)
+    if len(blobs_uv) < n or len(blobs_uv) > 4 * n:
+        return None
+    d_bb = np.linalg.norm(blobs_uv[:, None] - blobs_uv[None], axis=-1)
+    np.fill_diagonal(d_bb, np.inf)
+    spacing = d_bb.min(axis=1)  # each blob's nearest-neighbour distance
+    page_h = page.reshape(-1, 1, 2)
+    # The page's hull is small and exact (4 vertices, 6 for an asymmetric grid): every 4 of its
+    # vertices, in hull order, is a candidate for the image quadrilateral's corners.
+    import itertools
+
+    hull_page = cv2.convexHull(page.astype(np.float32)).reshape(-1, 2).astype(float)
+    page_quads = [hull_page[list(c)] for c in itertools.combinations(range(len(hull_page)), 4)] if len(hull_page) <= 8 \
+        else _quads(page)
+    for q_page in page_quads:
+        for q_img in _quads(blobs_uv):
+            for order in (q_img, q_img[::-1]):
+                for k in range(4):
+                    H = cv2.getPerspectiveTransform(q_page.astype(np.float32), np.roll(order, k, axis=0).astype(np.float32))
+                    nearest, ok = None, None
+                    for _ in range(4):
+                        pred = cv2.perspectiveTransform(page_h, H).reshape(-1, 2)
+                        d = np.linalg.norm(pred[:, None] - blobs_uv[None], axis=-1)
+                        nearest = d.argmin(axis=1)
+                        ok = d[np.arange(n), nearest] < 0.4 * spacing[nearest]
+                        if ok.sum() < 6:
+                            break
+                        H, _ = cv2.findHomography(page[ok], blobs_uv[nearest[ok]], cv2.RANSAC,
+                                                  0.25 * float(np.median(spacing)))
+                        if H is None:
+                            break
+                    if H is None or ok is None or ok.sum() < max(6, n // 2):
+                        continue
+                    found = _grow_grid(page, blobs_uv, spacing, nearest, ok)
+                    if found is not None:
+                        return found
+    return None
+
+
+def _grow_grid(page: np.ndarray, blobs_uv: np.ndarray, spacing: np.ndarray, nearest: np.ndarray, ok: np.ndarray):
+    """Extend a partial match (page point i -> blob ``nearest[i]`` where ``ok[i]``) to every point,
+    predicting each unmatched point by an affine map fitted to its 6 nearest matched page
+    neighbours (a lens bends a grid too much for one homography, not locally); then check every
+    point the same way against its neighbours (leave-one-out, within 0.2 of the spacing). The blob
+    centres in page order, or None."""
+    n = len(page)
+    nearest, ok = nearest.copy(), ok.copy()
+    d_pp = np.linalg.norm(page[:, None] - page[None], axis=-1)
+
+    def predict(i, mask):
+        nb = [j for j in np.argsort(d_pp[i]) if j != i and mask[j]][:6]
+        if len(nb) < 3:
+            return None
+        A = np.column_stack([page[nb], np.ones(len(nb))])
+        M, *_ = np.linalg.lstsq(A, blobs_uv[nearest[nb]], rcond=None)
+        return np.array([page[i, 0], page[i, 1], 1.0]) @ M
+
+    for _ in range(n):
+        changed = False
+        for i in np.nonzero(~ok)[0]:
+            p = predict(i, ok)
+            if p is None:
+                continue
+            d = np.linalg.norm(blobs_uv - p, axis=1)
+            j = int(d.argmin())
+            if d[j] < 0.4 * spacing[j] and j not in set(nearest[ok].tolist()):
+                nearest[i], ok[i], changed = j, True, True
+        if ok.all() or not changed:
+            break
+    if not ok.all() or len(set(nearest.tolist())) != n:
+        return None
+    for i in range(n):
+        p = predict(i, np.arange(n) != i)
+        if p is None or np.linalg.norm(p - blobs_uv[nearest[i]]) > 0.2 * spacing[nearest[i]]:
+            return None
+    return blobs_uv[nearest]
+
+
 def _find_circles(grey, target, method, allow_symmetric):
     import cv2
 
@@ -501,14 +621,30 @@ def _find_circles(grey, target, method, allow_symmetric):
     else:
         flags = cv2.CALIB_CB_SYMMETRIC_GRID
         patterns = [(target.cols, target.rows)] + ([(target.rows, target.cols)] if target.rows != target.cols else [])
-    for pat in patterns:
-        ok, c = cv2.findCirclesGrid(grey, pat, flags=flags, blobDetector=det)
-        if not ok or c is None:
-            ok, c = cv2.findCirclesGrid(grey, pat, flags=flags | cv2.CALIB_CB_CLUSTERING, blobDetector=det)
-        if ok and c is not None:
-            G = np.asarray(c, float).reshape(pat[1], pat[0], 2)
-            uv, note = _orient_grid(G, target, grey, allow_symmetric)
-            return np.arange(target.n_points), uv, "circles", note
+    # OpenCV's grid search depends on the grid's direction in the image: a close, tilted (and
+    # distorted) board it misses is often found in the image turned by 90 or 180 degrees (exact
+    # turns, no resampling), so those are tried before giving up.
+    H, W = grey.shape[:2]
+    turns = ((None, lambda c: c),
+             (cv2.ROTATE_90_CLOCKWISE, lambda c: np.column_stack([c[:, 1], H - 1 - c[:, 0]])),
+             (cv2.ROTATE_180, lambda c: np.column_stack([W - 1 - c[:, 0], H - 1 - c[:, 1]])),
+             (cv2.ROTATE_90_COUNTERCLOCKWISE, lambda c: np.column_stack([W - 1 - c[:, 1], c[:, 0]])))
+    for turn, back in turns:
+        img = grey if turn is None else cv2.rotate(grey, turn)
+        for pat in patterns:
+            ok, c = cv2.findCirclesGrid(img, pat, flags=flags, blobDetector=det)
+            if not ok or c is None:
+                ok, c = cv2.findCirclesGrid(img, pat, flags=flags | cv2.CALIB_CB_CLUSTERING, blobDetector=det)
+            if ok and c is not None:
+                G = back(np.asarray(c, float).reshape(-1, 2)).reshape(pat[1], pat[0], 2)
+                uv, note = _orient_grid(G, target, grey, allow_symmetric)
+                return np.arange(target.n_points), uv, "circles", note
+    pts = np.array([k.pt for k in det.detect(grey)], float).reshape(-1, 2)
+    uv = _grid_from_blobs(pts, target)
+    if uv is not None:
+        G = uv.reshape(target.rows, target.cols, 2)
+        uv, note = _orient_grid(G, target, grey, allow_symmetric)
+        return np.arange(target.n_points), uv, "circles", note
     return None
 
 
@@ -599,9 +735,9 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
         min_pitch_px: below this grid pitch ``"auto"`` also tries the up-scaled region.
         min_points: fewer points than this is a failed detection (partial ChArUco views).
         source: file name for messages when ``image`` is an array.
-        refine: checkerboards only: refine every corner by the photometric board fit of
+        refine: checkerboards and ChArUco: refine every corner by the photometric board fit of
             :mod:`calibgraph.detect.board_fit` on the original image (removes the detectors'
-            outward bias; ``False`` keeps OpenCV's corners).
+            bias; ``False`` keeps OpenCV's corners).
         region_px: (x0, y0, x1, y1) where the board is expected (guided detection,
             :mod:`calibgraph.detect.guided`): only that region is searched, like a candidate region
             of the blind search (no quick whole-frame rejection), at full resolution and, with
@@ -713,6 +849,10 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
     if s.refine and target.kind == "checkerboard" and ids.size:
         # On the original pixels whatever the search scale: interpolation adds its own shift.
         fit = refine_checkerboard(grey, target, ids, uv)
+        uv, n_refined = fit.uv_px, int(fit.refined.sum())
+    elif s.refine and target.kind == "charuco" and ids.size >= 4:
+        blur_px = _edge_sigma_px(grey, uv, max(_pitch(ids, uv, target), 4.0))
+        fit = refine_charuco(grey, target, ids, uv, blur_px=blur_px)
         uv, n_refined = fit.uv_px, int(fit.refined.sum())
     ok, reason = True, note
     if ids.size < s.min_points:

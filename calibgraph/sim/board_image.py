@@ -62,7 +62,22 @@ def board_texture(target: Target, ppm: float, margin_m: float | None = None) -> 
         margin_m = target.pitch_m
     # Snap ppm so the pitch is an integer number of texels: edges of squares then fall exactly
     # on texel boundaries and the texture needs no anti-aliasing.
-    n_pitch = max(2, int(round(target.pitch_m * ppm)))
+    # (ChArUco: OpenCV draws a marker's bits only with several texels each, whatever the density.)
+    n_pitch = max(64 if target.kind == "charuco" else 2, int(round(target.pitch_m * ppm)))
+    pat = None
+    if target.kind == "charuco":
+        # OpenCV's generateImage fails its own ROI check at some sizes (e.g. 130, 200, 270 texels
+        # a square on a 7x5 board with 0.74 markers): the next size up serves as well.
+        board = target.cv_charuco_board()
+        for n in range(n_pitch, n_pitch + 8):
+            try:
+                pat = board.generateImage((target.squares_x * n, target.squares_y * n), marginSize=0, borderBits=1)
+            except cv2.error:
+                continue
+            n_pitch = n
+            break
+        if pat is None:
+            raise InputError(f"render: OpenCV cannot draw this ChArUco board at {n_pitch} texels a square.")
     ppm = n_pitch / target.pitch_m
     n_margin = int(np.ceil(margin_m * ppm))
     x0, y0, x1, y1 = target.extent_m
@@ -86,9 +101,7 @@ def board_texture(target: Target, ppm: float, margin_m: float | None = None) -> 
                     c0 = n_margin + b * n_pitch
                     img[r0 : r0 + n_pitch, c0 : c0 + n_pitch] = 0.0
     elif target.kind == "charuco":
-        board = target.cv_charuco_board()
         w, h = target.squares_x * n_pitch, target.squares_y * n_pitch
-        pat = board.generateImage((w, h), marginSize=0, borderBits=1)
         img[n_margin : n_margin + h, n_margin : n_margin + w] = pat.astype(np.float32) / 255.0
     else:
         # Circles: draw on an 8-bit canvas with anti-aliased, sub-texel (1/256) centres.

@@ -71,6 +71,7 @@ from calibgraph.solver.factors import (
     make_calibration_factor,
     make_view_factor,
     project_chain,
+    view_residual,
     with_pinhole,
 )
 from calibgraph.solver.initialise import (
@@ -125,6 +126,9 @@ class Estimate:
     marginals: _Marginals | None = None  # of the final graph
     mount_cov_body: np.ndarray | None = None  # (6, 6) covariance of T_mount_board, GTSAM body frame
     joint_offsets: np.ndarray | None = None  # free joint offsets (rad) with kinematics='joint-offsets'
+    # camera -> ModeRatio of the final graph (view_noise_modes); its ``applied`` weights the views
+    mode_ratios: dict = field(default_factory=dict)
+    fk_ratio: FkRatio | None = None  # the FK prior against the fit (fk_variance); ``applied`` widens it
 
 
 @contextmanager
@@ -192,6 +196,181 @@ def _all_residuals(views, est: Estimate, cameras: dict) -> list:
     return out
 
 
+# Views with fewer kept corners leave too few residuals beside the 6 modes to compare them with.
+MODE_MIN_CORNERS = 6
+N_MODES = 6
+# One-sided test levels on log(ratio) (its sd is sqrt(2 / dof_modes + 2 / dof_rest)): the factor is
+# applied above z = 1.645 (p < 0.05; below that, independent corners explain the residuals) and
+# called significant above z = 3.09 (p < 0.001).
+MODE_APPLY_Z = 1.645
+MODE_NOTE_Z = 3.09
+
+
+@dataclass(frozen=True)
+class ModeRatio:
+    """Low-order to remaining residual variance of one camera's views (see :func:`mode_variance_ratios`).
+
+    ``ratio``: the estimate; ``applied``: what the final graph uses (the ratio when it is above 1 at
+    the 0.05 level, else 1); ``dof_modes`` / ``dof_rest``: the residual counts behind it;
+    ``significant``: above 1 at the 0.001 level.
+    """
+
+    ratio: float
+    applied: float
+    dof_modes: int
+    dof_rest: int
+    significant: bool
+    energy_modes_px2: float = 0.0  # weighted squared residuals in the modes, summed over the views
+
+    def to_dict(self) -> dict:
+        return {"low_order_variance_ratio": self.ratio, "applied": self.applied, "dof_modes": self.dof_modes,
+                "dof_rest": self.dof_rest, "significant": self.significant}
+
+
+def view_mode_basis(uv_px: np.ndarray) -> np.ndarray:
+    """(2n, 6) orthonormal basis of one view's low-order image modes at its corners ``uv_px`` (n, 2):
+    a shift in u and v and the four linear maps about the corners' centroid (rotation, scale, the
+    two shears), i.e. an affine change of the board's image; rows interleave u, v per corner as the
+    view factor's residual does."""
+    c = uv_px - uv_px.mean(axis=0)
+    c = c / max(float(np.sqrt(np.mean(np.sum(c * c, axis=1)))), 1e-9)
+    n = len(uv_px)
+    A = np.zeros((2 * n, N_MODES))
+    A[0::2, 0] = 1.0
+    A[1::2, 1] = 1.0
+    A[0::2, 2], A[0::2, 3] = c[:, 0], c[:, 1]
+    A[1::2, 4], A[1::2, 5] = c[:, 0], c[:, 1]
+    return np.linalg.qr(A)[0]
+
+
+def _view_jacobians(problem: Problem, views, est: Estimate, sigma_px: float):
+    """Whitened residuals and robot-pose Jacobians of the active views at ``est``:
+    ([(view, kept-corner mask, e (2n,), H_F (2n, 6))], capture -> (FK prior information (6, 6),
+    the views' information on F(k) (6, 6), the prior's square-root information R (6, 6)))."""
+    out, info = [], {}
+    for v in views:
+        if not v.active:
+            continue
+        keep = v.w > 0
+        if not keep.any():
+            continue
+        intr = est.intrinsics.get(v.camera, problem.cameras[v.camera])
+        e, J = view_residual(est.T_ref_cam[v.camera], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
+                             est.board_scale * v.p_board_m[keep], v.uv_px[keep], intr, np.sqrt(v.w[keep]) / sigma_px)
+        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J[1]))):
+            continue
+        H_f = J[1]
+        if v.capture not in info:
+            R = np.asarray(fk_noise(problem.options, problem.mode, v.T_ref_mount).R())
+            info[v.capture] = (R.T @ R, np.zeros((6, 6)), R)
+        prior, views_info, R = info[v.capture]
+        info[v.capture] = (prior, views_info + H_f.T @ H_f, R)
+        out.append((v, keep, e, H_f))
+    return out, info
+
+
+@dataclass(frozen=True)
+class FkRatio:
+    """How far the estimated robot poses sit from forward kinematics, against the stated FK sigmas
+    (see :func:`fk_variance_ratio`): ``ratio`` ~1 when the statement holds; ``applied``: the
+    factor on the FK prior's variance the final graph uses (the ratio when above 1 at the 0.05
+    level, else 1); ``dof``: the prior residuals' redundancy; ``significant``: p < 0.001."""
+
+    ratio: float
+    applied: float
+    dof: float
+    significant: bool
+
+    def to_dict(self, opts) -> dict:
+        s = float(np.sqrt(self.applied))
+        t, r = float(opts.fk_sigma_translation_m), float(opts.fk_sigma_rotation_rad)
+        return {"variance_ratio": self.ratio, "applied": self.applied, "dof": self.dof, "significant": self.significant,
+                "stated_sigma_translation_m": t, "stated_sigma_rotation_rad": r,
+                "used_sigma_translation_m": t * s, "used_sigma_rotation_rad": r * s}
+
+
+def fk_variance_ratio(problem: Problem, views, est: Estimate, sigma_px: float) -> FkRatio | None:
+    """The robot's forward kinematics against its stated accuracy, from the fit (None when there
+    is too little to tell, or with kinematics='joint-offsets', whose poses follow the joint angles).
+
+    Each capture's estimated robot pose F(k) departs from its FK prior by ``d_k`` (whitened by the
+    prior); under the stated FK sigmas ``sum |d_k|^2`` is about the prior's redundancy
+    ``sum 6 - tr(Lambda_p Sigma_k)``, with ``Sigma_k = (Lambda_p + J_k)^-1`` the covariance of F(k)
+    given the rest (J_k: the information of capture k's views). A robot less accurate than stated
+    pulls the cameras without showing in the corners' scatter; the ratio says by how much.
+    """
+    if problem.options.kinematics != "none":
+        return None
+    jac, info = _view_jacobians(problem, views, est, sigma_px)
+    prior_at = {v.capture: v.T_ref_mount for v in views}
+    energy = red = 0.0
+    for k, (prior, views_info, R) in info.items():
+        T_est = est.T_ref_mount.get(k)
+        if T_est is None:
+            continue
+        xi = np.asarray(gtsam.Pose3.Logmap(gtsam.Pose3(prior_at[k]).between(gtsam.Pose3(T_est))))
+        d = R @ xi
+        energy += float(d @ d)
+        red += 6.0 - float(np.trace(prior @ np.linalg.pinv(prior + views_info)))
+    if red < 5.0 or energy <= 0:
+        return None
+    ratio = energy / red
+    z = np.log(ratio) / np.sqrt(2.0 / red)
+    return FkRatio(float(ratio), float(ratio) if z > MODE_APPLY_Z else 1.0, float(red), bool(z > MODE_NOTE_Z))
+
+
+def mode_variance_ratios(problem: Problem, views, est: Estimate, sigma_px: float) -> dict:
+    """Per camera: how much more the residuals vary in each view's low-order image modes than in
+    the rest (camera -> :class:`ModeRatio`).
+
+    Why: a corner's sub-pixel position is fitted to the pixels around it, and on small squares
+    neighbouring corners share most of those pixels (and the blur, lighting and print between
+    them), so their errors are positively correlated. The correlated part moves the whole board's
+    image (a shift, rotation, scale or shear), exactly the modes a camera's pose is estimated from,
+    while the point-to-point scatter, which sets the a posteriori pixel sigma, is smaller. Treating
+    the corners as independent then makes a far camera's 1-sigma too small (rendered D455 at 5 m,
+    thesis board, 6 px squares: the modes vary 1.5-2.5x, errors up to 3.9 sigma).
+
+    Estimator (two variance components, Helmert's in its simplest form): the mean squared residual
+    in the modes over their redundancy, divided by the same for the rest. The redundancy of a view
+    is what the fit leaves of it: the view's robot pose F(k) is fitted to the views of capture k
+    within its FK prior and absorbs much of the shift, so each view's share is ``tr(Q^T (I - M) Q)``
+    with ``M = J_F Sigma_k J_F^T`` (J_F the view's whitened Jacobian on F(k), Sigma_k the covariance
+    of F(k) given the rest of the graph); the camera pose, mount, scale and intrinsics are shared by
+    many views and absorb a negligible share of each. ~1 with independent corners (F-distributed).
+    """
+    jac, info = _view_jacobians(problem, views, est, sigma_px)
+    per_view = [(v, e, H_f, view_mode_basis(v.uv_px[keep])) for v, keep, e, H_f in jac
+                 if keep.sum() >= MODE_MIN_CORNERS]
+    cov = {k: np.linalg.pinv(prior + views_info) for k, (prior, views_info, _) in info.items()}
+    acc = {}
+    for v, e, H_f, Q in per_view:
+        M = H_f @ cov[v.capture] @ H_f.T
+        qe = Q.T @ e
+        low, total = float(qe @ qe), float(e @ e)
+        t_low = float(np.trace(Q.T @ M @ Q))
+        a = acc.setdefault(v.camera, np.zeros(5))
+        a += [low, max(total - low, 0.0), N_MODES - t_low, len(e) - N_MODES - (float(np.trace(M)) - t_low),
+              low * sigma_px ** 2]
+    out = {}
+    for cam, (low, rest, r_low, r_rest, low_px2) in acc.items():
+        n_views = sum(1 for v, *_ in per_view if v.camera == cam)
+        if n_views < 5 or rest <= 0 or r_low < 1.0 or r_rest < 1.0:
+            continue  # fewer than 5 views: too little to estimate a variance factor from
+        ratio = (low / r_low) / (rest / r_rest)
+        z = np.log(max(ratio, 1e-12)) / np.sqrt(2.0 / r_low + 2.0 / r_rest)
+        out[cam] = ModeRatio(float(ratio), float(ratio) if z > MODE_APPLY_Z else 1.0, int(round(r_low)),
+                             int(round(r_rest)), bool(z > MODE_NOTE_Z), float(low_px2))
+    return out
+
+
+def _view_noise(uv_px: np.ndarray, factor: float):
+    """Noise model of one view whose low-order modes have ``factor`` times the variance of the rest
+    (unit otherwise): covariance I + (factor - 1) Q Q^T on the weighted residuals."""
+    Q = view_mode_basis(uv_px)
+    return gtsam.noiseModel.Gaussian.Covariance(np.eye(len(Q)) + (factor - 1.0) * (Q @ Q.T))
+
+
 CORNER_FORMULATION_MIN_VIEWS = 1000
 
 
@@ -234,11 +413,13 @@ def _check_cameras_keep_views(views, slots):
             )
 
 
-def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str = "view"):
+def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str = "view",
+                mode_factors: dict | None = None):
     """(graph, initial values) of the active views' kept corners at the values of ``est``.
 
     ``slots``: camera -> index of its C (and K) key; ``sigma_px``: pixel sigma of a full-weight corner;
-    ``form``: 'view' or 'corner' (see the module docstring).
+    ``form``: 'view' or 'corner' (see the module docstring); ``mode_factors``: camera -> variance
+    factor of its views' low-order modes (:func:`mode_variance_ratios`; view form only).
     """
     _check_cameras_keep_views(views, slots)
     if form == "corner":
@@ -283,14 +464,16 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
             continue
         keep = v.w > 0
         sw = np.sqrt(v.w[keep]) / sigma_px
+        f = (mode_factors or {}).get(v.camera, 1.0)
+        noise = _view_noise(v.uv_px[keep], f) if f > 1.0 and keep.sum() >= MODE_MIN_CORNERS else None
         if refine or o.board_scale:
             graph.add(make_calibration_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board_m[keep],
                                               v.uv_px[keep], problem.cameras[v.camera], sw,
                                               key_intr=K(slots[v.camera]) if v.camera in refine else None,
-                                              key_scale=S(0) if o.board_scale else None))
+                                              key_scale=S(0) if o.board_scale else None, noise=noise))
         else:
             graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board_m[keep], v.uv_px[keep],
-                                       problem.cameras[v.camera], sw))
+                                       problem.cameras[v.camera], sw, noise=noise))
     return graph, values
 
 
@@ -497,7 +680,8 @@ def _readmit_or_reject_views(views: list, res: dict, sigma_px: float, opts) -> b
 
 
 def _a_posteriori_sigma(problem: Problem, names: list, views: list, est: Estimate) -> float:
-    """The given pixel sigma, else the a posteriori one: weighted residuals over the redundancy."""
+    """The given pixel sigma, else the a posteriori one: weighted residuals over the redundancy
+    (a view's low-order modes divided by their variance factor, :attr:`Estimate.mode_ratios`)."""
     opts = problem.options
     if opts.pixel_sigma_px:
         return opts.pixel_sigma_px
@@ -507,7 +691,9 @@ def _a_posteriori_sigma(problem: Problem, names: list, views: list, est: Estimat
     n_par = 6 * (len(names) + 1) + 6 * n_intr + int(opts.board_scale)
     n_par += 0 if est.joint_offsets is None else len(est.joint_offsets)
     wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(active, _all_residuals(active, est, problem.cameras)))
-    return max(float(np.sqrt(wr2 / max(n_obs - n_par, 1))), 1e-4)
+    # a view's modes count 1 / factor of their squared residuals (the whitened residual)
+    wr2 -= sum(m.energy_modes_px2 * (1.0 - 1.0 / m.applied) for m in est.mode_ratios.values())
+    return max(float(np.sqrt(max(wr2, 0.0) / max(n_obs - n_par, 1))), 1e-4)
 
 
 def _final_solve_and_marginals(problem: Problem, names: list, views: list, slots: dict, est: Estimate, sigma: float,
@@ -515,15 +701,32 @@ def _final_solve_and_marginals(problem: Problem, names: list, views: list, slots
     """The final weighted graph at the a posteriori pixel sigma (re-solved when that sigma moved the
     pixel/FK balance by more than 5%), its cost and its marginals."""
     opts = problem.options
+    est.fk_ratio = fk_variance_ratio(problem, views, est, sigma) if opts.fk_variance else None
+    widen = est.fk_ratio is not None and est.fk_ratio.applied > 1.0
+    if widen:
+        # the robot is less accurate than stated: the final graph uses the FK sigmas the fit implies
+        s = float(np.sqrt(est.fk_ratio.applied))
+        problem = problem.with_(options=replace(opts, fk_sigma_translation_m=opts.fk_sigma_translation_m * s,
+                                                fk_sigma_rotation_rad=opts.fk_sigma_rotation_rad * s))
+        # ... and the residuals the corner-noise modes are judged on are those of that graph
+        with _timed(timings, "lm"):
+            graph, values = build_graph(views, slots, problem, est, sigma, form)
+            values, it, _ = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        iterations += it
+        est = replace(_extract(values, slots, views, est, problem.cameras, form), fk_ratio=est.fk_ratio)
+    est.mode_ratios = (mode_variance_ratios(problem, views, est, sigma)
+                       if form == "view" and opts.view_noise_modes and not opts.pixel_sigma_px else {})
+    factors = {c: m.applied for c, m in est.mode_ratios.items() if m.applied > 1.0}
     sigma_post = _a_posteriori_sigma(problem, names, views, est)
     with _timed(timings, "build_graph"):
-        graph, values = build_graph(views, slots, problem, est, sigma_post, form)
-    if abs(sigma_post - sigma) > 0.05 * sigma:
+        graph, values = build_graph(views, slots, problem, est, sigma_post, form, factors)
+    if abs(sigma_post - sigma) > 0.05 * sigma or any(f > 1.05 for f in factors.values()) or widen:
         # the pixel/FK balance moved enough to shift the optimum: re-solve before the marginals
         with _timed(timings, "lm"):
             values, it, _ = levenberg_marquardt(graph, values, opts.max_iterations, form)
         iterations += it
-        est = _extract(values, slots, views, est, problem.cameras, form)
+        est = replace(_extract(values, slots, views, est, problem.cameras, form), mode_ratios=est.mode_ratios,
+                      fk_ratio=est.fk_ratio)
     est.iterations, est.cost, est.sigma_px = iterations, graph.error(values), sigma_post
     est.marginals = _marginals(graph, values, form, timings)
     est.slots, est.formulation = slots, form
@@ -727,6 +930,8 @@ def _solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, ti
     T_mount_board, mount_cov, T_base_flange_est = _mount_and_robot_poses(problem, groups, joint)
     scale, scale_sigma = _board_scale(problem, groups, notes)
     notes += _intrinsics_notes(cameras)
+    notes += _corner_noise_notes(groups)
+    notes += _fk_notes(problem, groups)
     settings = {k: getattr(problem.options, k) for k in problem.options.__dataclass_fields__}
     settings["formulation_used"] = groups[0].est.formulation
     robot = _robot_result(problem, ks, names, groups[0], notes) if ks is not None else None
@@ -738,6 +943,8 @@ def _solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, ti
         rejected_views=tuple(rv for c in cameras.values() for rv in c.views_rejected),
         rejected_corners=tuple(rejected_corners), T_base_flange_est=T_base_flange_est, settings=settings,
         board_scale=scale, board_scale_sigma=scale_sigma, notes=tuple(notes), robot=robot,
+        fk_noise=(groups[0].est.fk_ratio.to_dict(problem.options)
+                  if len(groups) == 1 and groups[0].est.fk_ratio is not None else None),
     )
 
 
@@ -891,6 +1098,38 @@ def _board_scale(problem: Problem, groups: list, notes: list) -> tuple[float, fl
     return s, sigma
 
 
+def _corner_noise_notes(groups: list) -> list:
+    """One line per camera whose views' low-order modes were found to vary more than the rest."""
+    out = []
+    for g in groups:
+        for name, m in g.est.mode_ratios.items():
+            if m.applied > 1.0:
+                test = "" if m.significant else ", p < 0.05 but not < 0.001"
+                out.append(f"camera {name}: its residuals move whole boards (each view's shift, rotation, scale and "
+                           f"shear in the image vary {m.ratio:.2f}x what the other residuals imply{test}: corners of "
+                           f"small squares share pixels, or an unmodelled camera or robot error); its views are "
+                           f"weighted and its 1-sigma widened for it")
+    return out
+
+
+def _fk_notes(problem: Problem, groups: list) -> list:
+    """One line when the robot poses disagree with the stated FK accuracy and the prior was widened."""
+    out = []
+    for g in groups:
+        r = g.est.fk_ratio
+        if r is None or r.applied <= 1.0:
+            continue
+        o, s = problem.options, float(np.sqrt(r.applied))
+        test = "" if r.significant else ", p < 0.05 but not < 0.001"
+        out.append(f"robot: the fitted flange poses depart from forward kinematics {s:.1f}x as far as the stated FK "
+                   f"accuracy ({1e3 * o.fk_sigma_translation_m:.2f} mm, {np.degrees(o.fk_sigma_rotation_rad):.3f} deg) "
+                   f"allows{test}; solved with {1e3 * o.fk_sigma_translation_m * s:.2f} mm, "
+                   f"{np.degrees(o.fk_sigma_rotation_rad) * s:.3f} deg and the 1-sigma widened for it (state the arm's "
+                   f"accuracy with --fk-sigma-mm/--fk-sigma-deg; joint zero offsets: --estimate-kinematics joint-offsets)")
+        break
+    return out
+
+
 def _intrinsics_notes(cameras: dict) -> list:
     """A note per camera whose estimated focal length or principal point is more than 3 sigma and
     0.2 % (focal) / 2 px (principal point) away from the given values."""
@@ -1016,6 +1255,7 @@ def _camera_result(problem: Problem, name: str, est: Estimate, views: list, cov_
         T_mount_board=None if joint else est.T_mount_board,
         residuals_px=residuals,
         intrinsics=intr_dict,
+        corner_noise=est.mode_ratios[name].to_dict() if name in est.mode_ratios else None,
     )
     return result, rejected_corners
 

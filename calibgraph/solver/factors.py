@@ -75,12 +75,13 @@ def view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr:
 
 
 def make_view_factor(key_cam, key_robot, key_mount, p_board_m: np.ndarray, uv_px: np.ndarray, intr: Intrinsics,
-                     sqrt_w: np.ndarray) -> gtsam.CustomFactor:
-    """A CustomFactor for one view (keys: camera pose, robot pose, board mount)."""
+                     sqrt_w: np.ndarray, noise=None) -> gtsam.CustomFactor:
+    """A CustomFactor for one view (keys: camera pose, robot pose, board mount). ``noise``: the
+    view's noise model on the weighted residuals (default unit: independent corners)."""
     p_board_m = np.ascontiguousarray(p_board_m, float)
     uv_px = np.ascontiguousarray(uv_px, float)
     sqrt_w = np.ascontiguousarray(sqrt_w, float)
-    model = gtsam.noiseModel.Unit.Create(2 * p_board_m.shape[0])
+    model = noise or gtsam.noiseModel.Unit.Create(2 * p_board_m.shape[0])
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
         T_ref_cam = values.atPose3(key_cam).matrix()
@@ -141,7 +142,7 @@ def _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px
 
 
 def make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, intr: Intrinsics, sqrt_w,
-                            key_intr=None, key_scale=None) -> gtsam.CustomFactor:
+                            key_intr=None, key_scale=None, noise=None) -> gtsam.CustomFactor:
     """View factor with, optionally, the camera's intrinsics ``key_intr`` ([fx, fy, cx, cy, k1, k2],
     a Vector6 variable) and the board's scale factor ``key_scale`` (a Vector1 variable ``s``: the
     printed board's points are ``s * p_board_m``) as variables too.
@@ -152,7 +153,7 @@ def make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, int
     uv_px = np.ascontiguousarray(uv_px, float)
     sqrt_w = np.ascontiguousarray(sqrt_w, float)
     n = p_board_m.shape[0]
-    model = gtsam.noiseModel.Unit.Create(2 * n)
+    model = noise or gtsam.noiseModel.Unit.Create(2 * n)
     keys = [key_cam, key_robot, key_mount] + [k for k in (key_intr, key_scale) if k is not None]
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):

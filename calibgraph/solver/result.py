@@ -78,6 +78,8 @@ class CameraResult:
     corners_rejected: int = 0
     T_mount_board: np.ndarray | None = None  # own board mount in 'single' mode
     intrinsics: dict | None = None  # Intrinsics.to_dict() of the camera the result was solved with
+    # within-view correlated corner noise (solver.batch.ModeRatio.to_dict()), when it was estimated
+    corner_noise: dict | None = None
     # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
     residuals_px: dict = field(default_factory=dict, repr=False)
 
@@ -143,6 +145,7 @@ class Result:
     board_scale_sigma: float | None = None  # its 1-sigma (None when not estimated)
     notes: tuple = ()  # what the solver noticed and did, one line each (inadequate intrinsics, board scale)
     robot: dict | None = None  # estimated joint offsets (kinematics='joint-offsets'), see the module docstring
+    fk_noise: dict | None = None  # the FK prior against the fit (solver.batch.FkRatio.to_dict())
 
     @property
     def T_flange_board(self):
@@ -176,6 +179,8 @@ class Result:
                 cams[name][mount_key] = c.T_mount_board.tolist()
             if c.intrinsics is not None:
                 cams[name]["intrinsics"] = c.intrinsics
+            if c.corner_noise is not None:
+                cams[name]["corner_noise"] = c.corner_noise
         pairs = {}
         for (a, b), p in self.pairs.items():
             st, sr = sigmas_from_cov(p.covariance)
@@ -206,6 +211,7 @@ class Result:
             },
             "board_scale": {"scale": self.board_scale, "sigma": self.board_scale_sigma},
             "notes": list(self.notes),
+            **({"fk_noise": self.fk_noise} if self.fk_noise is not None else {}),
             **({"robot": self.robot} if self.robot is not None else {}),
             "rejected_corners": [
                 {"camera": c, "capture": k, "id": i, "residual_px": r} for (c, k, i, r) in self.rejected_corners
