@@ -1,7 +1,8 @@
 """Discovery: where are the cameras? A safe survey that shows the board in many directions.
 
 Before anything is known about the camera placements the robot sweeps the board round its base
-(6 azimuths), facing outwards, and every camera grabs a frame at every stop. A round that leaves
+(6 azimuths, every other one first, outwards from the arm's heading; the ones between only while
+a camera is unseen), facing outwards, and every camera grabs a frame at every stop. A round that leaves
 a camera unseen is followed by a wider one (offset azimuths, the board tilted up for cameras
 mounted high, down for low ones, straight up for a camera looking down on the cell); a camera
 with a :class:`~calibgraph.plan.cell.CameraHint` gets stops aimed at its hint first, and the sweep
@@ -14,9 +15,9 @@ head-on, metres apart for one seen obliquely (the default cell's second camera, 
 70 deg, had its two candidates 4.6 m apart, and the refinement stops aimed at their mean went
 unseen three times). :func:`camera_position_hypothesis` keeps the candidate that most views
 agree on; while two remain in a tie, the next stop faces one of them squarely, and a stop the
-camera does not see refutes it. Those views give the rotation diversity the solver's consensus initialiser needs
-(:class:`calibgraph.solver.incremental.IncrementalSolver`): it resolves the mirror ambiguity
-across views and hands back a coarse pose with a covariance.
+camera does not see refutes it. Those views give the rotation diversity the solver's consensus
+initialiser needs (:class:`calibgraph.solver.incremental.IncrementalSolver`): it resolves the
+mirror ambiguity across views and hands back a coarse pose with a covariance.
 
 Every stop is reachable by IK within the joint limits and collision-free in the planning world
 (:class:`calibgraph.plan.planner.RobotWorld`): the robot and the cell's declared geometry only,
