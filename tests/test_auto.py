@@ -493,3 +493,18 @@ def test_convergence_section_plots_the_plan_log(tmp_path):
     html = convergence_section(tmp_path)
     assert "<svg" in html and "tolerance 0.5 mm" in html and "every camera within" in html
     assert convergence_section(tmp_path / "none") == ""
+
+
+def test_refuted_mirror_candidates_survive_a_resume():
+    """A refuted mirror candidate is journaled with its step (``refutes``) and rebuilt on --resume,
+    so the resumed run does not face it again; a damaged entry is skipped, not fatal."""
+    from calibgraph.acquire.auto import refuted_from_steps
+
+    steps = [{"step": 0, "label": "sweep r0 az+0"},
+             {"step": 1, "label": "refine cam1 0", "refutes": {"camera": "cam1", "position_m": [2.9, -0.4, 0.8]}},
+             {"step": 2, "label": "refine cam1 1", "refutes": {"camera": "cam1", "position_m": [1.0, 2.0]}},  # damaged
+             {"step": 3, "label": "refine cam2 0", "refutes": {"camera": "cam2", "position_m": [0.1, "x", 0.3]}},
+             {"step": 4, "label": "refine cam2 1", "refutes": {"camera": "cam2", "position_m": [-3.0, 0.5, 1.2]}}]
+    got = refuted_from_steps(json.loads(json.dumps(steps)))  # through the log's JSON
+    assert set(got) == {"cam1", "cam2"}
+    assert np.allclose(got["cam1"], [[2.9, -0.4, 0.8]]) and np.allclose(got["cam2"], [[-3.0, 0.5, 1.2]])

@@ -539,6 +539,7 @@ def run_auto(robot, cameras, cell, world, out_dir, detector=None, safety: Safety
     if resume and (out / PLAN_LOG_NAME).is_file():
         d = json.loads((out / PLAN_LOG_NAME).read_text())
         L.steps = list(d.get("steps", []))
+        L.refuted = refuted_from_steps(L.steps)
         L.pixel_sigma_px = d.get("pixel_sigma_px")
         L.cov_scale = dict(d.get("cov_scale") or {})
         L.messages = list(d.get("messages", []))
@@ -560,6 +561,21 @@ def run_auto(robot, cameras, cell, world, out_dir, detector=None, safety: Safety
     if stop is None:
         stop = _active(L)
     return _finish(L, stop)
+
+
+def refuted_from_steps(steps) -> dict:
+    """camera -> [camera positions (3,)] that a facing stop refuted, from the journaled steps."""
+    out = {}
+    for s in steps:
+        r = s.get("refutes")
+        if isinstance(r, dict) and isinstance(r.get("camera"), str):
+            try:
+                pos = np.asarray(r["position_m"], float).reshape(3)
+            except (KeyError, TypeError, ValueError):
+                continue  # a damaged entry costs one repeated stop, not the resume
+            if np.all(np.isfinite(pos)):
+                out.setdefault(r["camera"], []).append(pos)
+    return out
 
 
 def _budget_left(L) -> bool:
@@ -639,6 +655,9 @@ def _refine(L, done, tries, final=False):
             done.add(label)
             if ambiguous and e.get("status") in ("captured", "no_views") and c not in e.get("seen_by", []):
                 L.refuted.setdefault(c, []).append(np.asarray(p_cam, float))
+                # journaled with the step, so that --resume does not face the refuted candidate again
+                e["refutes"] = {"camera": c, "position_m": [float(x) for x in p_cam]}
+                L.save_log()
 
 
 def _batch(L):
