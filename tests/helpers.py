@@ -138,3 +138,29 @@ def write_sim_dataset(root: Path, prob) -> Path:
     for c in prob.captures:
         write_capture(root, c, by_cap.get(c.index, {}))
     return root
+
+
+# A capture run in its own process, to be killed and resumed by the tests (arguments: dataset
+# folder, poses, seed of the fake cell, robot move delay in seconds).
+CAPTURE_SCRIPT = r"""
+import sys
+from calibgraph.acquire.run import run_acquisition
+from calibgraph.sim.fakes import make_fake_cell
+cell = make_fake_cell(n_cameras=2, n_poses=int(sys.argv[2]), seed=int(sys.argv[3]),
+                      robot_kwargs=dict(move_delay_s=float(sys.argv[4])))
+run_acquisition(cell.robot, cell.cameras, cell.trajectory, sys.argv[1], cell.target, detector=cell.detector,
+                resume=True, progress=False)
+"""
+
+
+def dataset_content(root):
+    """Everything in a dataset except wall-clock stamps, for comparing two runs: (captures, images)."""
+    caps = {}
+    for f in sorted((Path(root) / "captures").glob("*.json")):
+        d = json.loads(f.read_text())
+        d.pop("stamp_s")
+        for v in d["views"].values():
+            v.pop("stamp_s")
+        caps[f.name] = d
+    imgs = {str(p.relative_to(root)): p.read_bytes() for p in sorted((Path(root) / "images").rglob("*.png"))}
+    return caps, imgs

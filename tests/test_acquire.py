@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import CAPTURE_SCRIPT, dataset_content
 
 from calibgraph.acquire.run import AcquisitionReport, run_acquisition
 from calibgraph.acquire.safety import SafetyLimits, UnsafeTargetError
@@ -84,29 +85,6 @@ def test_robot_that_never_settles_costs_the_pose_not_the_run(tmp_path):
     assert "still moving" in rep.summary()
 
 
-KILL_SCRIPT = r"""
-import sys
-from calibgraph.acquire.run import run_acquisition
-from calibgraph.sim.fakes import make_fake_cell
-cell = make_fake_cell(n_cameras=2, n_poses=int(sys.argv[2]), seed=5, robot_kwargs=dict(move_delay_s=float(sys.argv[3])))
-run_acquisition(cell.robot, cell.cameras, cell.trajectory, sys.argv[1], cell.target, detector=cell.detector,
-                resume=True, progress=False)
-"""
-
-
-def _dataset_content(root):
-    """Everything in a dataset except wall-clock stamps, for comparing two runs."""
-    out = {}
-    for f in sorted((Path(root) / "captures").glob("*.json")):
-        d = json.loads(f.read_text())
-        d.pop("stamp_s")
-        for v in d["views"].values():
-            v.pop("stamp_s")
-        out[f.name] = d
-    imgs = {str(p.relative_to(root)): p.read_bytes() for p in sorted((Path(root) / "images").rglob("*.png"))}
-    return out, imgs
-
-
 def test_sigkill_mid_run_then_resume_loses_and_duplicates_nothing(tmp_path):
     n = 24
     ref = make_fake_cell(n_cameras=2, n_poses=n, seed=5)
@@ -115,7 +93,7 @@ def test_sigkill_mid_run_then_resume_loses_and_duplicates_nothing(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO))
     kills = 0
     for target_done in (4, 11):  # kill twice, at different points
-        p = subprocess.Popen([sys.executable, "-c", KILL_SCRIPT, str(out), str(n), "0.03"], env=env)
+        p = subprocess.Popen([sys.executable, "-c", CAPTURE_SCRIPT, str(out), str(n), "5", "0.03"], env=env)
         t_end = time.monotonic() + 30
         while time.monotonic() < t_end and p.poll() is None:
             # finished captures only ("0*.json"), never a hidden temporary file being written
@@ -133,8 +111,8 @@ def test_sigkill_mid_run_then_resume_loses_and_duplicates_nothing(tmp_path):
     assert rep.resumed and rep.complete
     assert rep.count("done_before") + rep.captured == n
     assert len(cell.robot.moves) == rep.captured  # only the missing poses were visited again
-    caps_ref, imgs_ref = _dataset_content(tmp_path / "ref")
-    caps, imgs = _dataset_content(out)
+    caps_ref, imgs_ref = dataset_content(tmp_path / "ref")
+    caps, imgs = dataset_content(out)
     assert caps == caps_ref  # same captures, same poses, same detections
     assert imgs == imgs_ref  # same images, no stray half-written ones
     assert not list(out.rglob(".*.tmp*"))

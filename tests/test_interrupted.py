@@ -2,7 +2,6 @@
 and SIGKILL, several times in a row, then resumed, equals an uninterrupted run (nothing lost,
 nothing duplicated); a solve killed while writing its result leaves the previous result intact."""
 
-import json
 import os
 import signal
 import subprocess
@@ -11,7 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from helpers import write_sim_dataset
+from helpers import CAPTURE_SCRIPT, dataset_content, write_sim_dataset
 
 from calibgraph.acquire.run import run_acquisition
 from calibgraph.io.layouts import load_dataset
@@ -21,29 +20,6 @@ from calibgraph.solver.result import load_result_dict
 
 REPO = Path(__file__).resolve().parents[1]
 N_POSES = 30
-
-CAPTURE = r"""
-import sys
-from calibgraph.acquire.run import run_acquisition
-from calibgraph.sim.fakes import make_fake_cell
-cell = make_fake_cell(n_cameras=2, n_poses=int(sys.argv[2]), seed=7, robot_kwargs=dict(move_delay_s=0.02))
-run_acquisition(cell.robot, cell.cameras, cell.trajectory, sys.argv[1], cell.target, detector=cell.detector,
-                resume=True, progress=False)
-"""
-
-
-def _content(root):
-    """Captures (without wall-clock stamps) and images of a dataset."""
-    caps = {}
-    for f in sorted((Path(root) / "captures").glob("*.json")):
-        d = json.loads(f.read_text())
-        d.pop("stamp_s")
-        for v in d["views"].values():
-            v.pop("stamp_s")
-        caps[f.name] = d
-    imgs = {str(p.relative_to(root)): p.read_bytes() for p in sorted((Path(root) / "images").rglob("*.png"))}
-    return caps, imgs
-
 
 def _done(out):
     return len(list((Path(out) / "captures").glob("0*.json")))
@@ -60,7 +36,7 @@ def test_capture_killed_at_random_points_then_resumed_equals_an_uninterrupted_ru
     kills = []
     for sig in sigs:
         before = _done(out) if out.exists() else 0
-        p = subprocess.Popen([sys.executable, "-c", CAPTURE, str(out), str(N_POSES)], env=env,
+        p = subprocess.Popen([sys.executable, "-c", CAPTURE_SCRIPT, str(out), str(N_POSES), "7", "0.02"], env=env,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         t_end = time.monotonic() + 60
         while time.monotonic() < t_end and p.poll() is None and (not out.exists() or _done(out) <= before):
@@ -80,7 +56,7 @@ def test_capture_killed_at_random_points_then_resumed_equals_an_uninterrupted_ru
                           resume=True, progress=False)
     assert rep.resumed and rep.complete
     assert rep.count("done_before") + rep.captured == N_POSES
-    assert _content(out) == _content(tmp_path / "ref")  # nothing lost, nothing duplicated, same bytes
+    assert dataset_content(out) == dataset_content(tmp_path / "ref")  # nothing lost, nothing duplicated, same bytes
     ds = load_dataset(out)
     assert len(ds.captures) == N_POSES and ds.problems == ()
     assert not [p for p in out.rglob("*") if ".tmp" in p.name and p.name.endswith(".json")]
