@@ -51,6 +51,7 @@ a rejection says why.
 
 from __future__ import annotations
 
+import itertools
 import json
 import time
 from dataclasses import asdict, dataclass, field
@@ -542,8 +543,6 @@ def _grid_from_blobs(blobs_uv: np.ndarray, target: Target) -> np.ndarray | None:
     page_h = page.reshape(-1, 1, 2)
     # The page's hull is small and exact (4 vertices, 6 for an asymmetric grid): every 4 of its
     # vertices, in hull order, is a candidate for the image quadrilateral's corners.
-    import itertools
-
     hull_page = cv2.convexHull(page.astype(np.float32)).reshape(-1, 2).astype(float)
     page_quads = [hull_page[list(c)] for c in itertools.combinations(range(len(hull_page)), 4)] if len(hull_page) <= 8 \
         else _quads(page)

@@ -289,7 +289,7 @@ class FkRatio:
                 "used_sigma_translation_m": t * s, "used_sigma_rotation_rad": r * s}
 
 
-def fk_variance_ratio(problem: Problem, views, est: Estimate, sigma_px: float) -> FkRatio | None:
+def fk_variance_ratio(problem: Problem, views, est: Estimate, sigma_px: float, linearised=None) -> FkRatio | None:
     """The robot's forward kinematics against its stated accuracy, from the fit (None when there
     is too little to tell, or with kinematics='joint-offsets', whose poses follow the joint angles).
 
@@ -298,10 +298,11 @@ def fk_variance_ratio(problem: Problem, views, est: Estimate, sigma_px: float) -
     ``sum 6 - tr(Lambda_p Sigma_k)``, with ``Sigma_k = (Lambda_p + J_k)^-1`` the covariance of F(k)
     given the rest (J_k: the information of capture k's views). A robot less accurate than stated
     pulls the cameras without showing in the corners' scatter; the ratio says by how much.
+    ``linearised``: :func:`_view_jacobians` of the same arguments, when already computed.
     """
     if problem.options.kinematics != "none":
         return None
-    jac, info = _view_jacobians(problem, views, est, sigma_px)
+    _, info = linearised or _view_jacobians(problem, views, est, sigma_px)
     prior_at = {v.capture: v.T_ref_mount for v in views}
     energy = red = 0.0
     for k, (prior, views_info, R) in info.items():
@@ -319,7 +320,7 @@ def fk_variance_ratio(problem: Problem, views, est: Estimate, sigma_px: float) -
     return FkRatio(float(ratio), float(ratio) if z > MODE_APPLY_Z else 1.0, float(red), bool(z > MODE_NOTE_Z))
 
 
-def mode_variance_ratios(problem: Problem, views, est: Estimate, sigma_px: float) -> dict:
+def mode_variance_ratios(problem: Problem, views, est: Estimate, sigma_px: float, linearised=None) -> dict:
     """Per camera: how much more the residuals vary in each view's low-order image modes than in
     the rest (camera -> :class:`ModeRatio`).
 
@@ -338,8 +339,9 @@ def mode_variance_ratios(problem: Problem, views, est: Estimate, sigma_px: float
     with ``M = J_F Sigma_k J_F^T`` (J_F the view's whitened Jacobian on F(k), Sigma_k the covariance
     of F(k) given the rest of the graph); the camera pose, mount, scale and intrinsics are shared by
     many views and absorb a negligible share of each. ~1 with independent corners (F-distributed).
+    ``linearised``: :func:`_view_jacobians` of the same arguments, when already computed.
     """
-    jac, info = _view_jacobians(problem, views, est, sigma_px)
+    jac, info = linearised or _view_jacobians(problem, views, est, sigma_px)
     per_view = [(v, e, H_f, view_mode_basis(v.uv_px[keep])) for v, keep, e, H_f in jac
                  if keep.sum() >= MODE_MIN_CORNERS]
     cov = {k: np.linalg.pinv(prior + views_info) for k, (prior, views_info, _) in info.items()}
@@ -701,7 +703,10 @@ def _final_solve_and_marginals(problem: Problem, names: list, views: list, slots
     """The final weighted graph at the a posteriori pixel sigma (re-solved when that sigma moved the
     pixel/FK balance by more than 5%), its cost and its marginals."""
     opts = problem.options
-    est.fk_ratio = fk_variance_ratio(problem, views, est, sigma) if opts.fk_variance else None
+    check_modes = form == "view" and opts.view_noise_modes and not opts.pixel_sigma_px
+    # residuals and robot-pose Jacobians at the estimate, shared by the two checks below
+    linearised = _view_jacobians(problem, views, est, sigma) if opts.fk_variance or check_modes else None
+    est.fk_ratio = fk_variance_ratio(problem, views, est, sigma, linearised) if opts.fk_variance else None
     widen = est.fk_ratio is not None and est.fk_ratio.applied > 1.0
     if widen:
         # the robot is less accurate than stated: the final graph uses the FK sigmas the fit implies
@@ -714,8 +719,8 @@ def _final_solve_and_marginals(problem: Problem, names: list, views: list, slots
             values, it, _ = levenberg_marquardt(graph, values, opts.max_iterations, form)
         iterations += it
         est = replace(_extract(values, slots, views, est, problem.cameras, form), fk_ratio=est.fk_ratio)
-    est.mode_ratios = (mode_variance_ratios(problem, views, est, sigma)
-                       if form == "view" and opts.view_noise_modes and not opts.pixel_sigma_px else {})
+        linearised = None  # another estimate and another FK prior
+    est.mode_ratios = mode_variance_ratios(problem, views, est, sigma, linearised) if check_modes else {}
     factors = {c: m.applied for c, m in est.mode_ratios.items() if m.applied > 1.0}
     sigma_post = _a_posteriori_sigma(problem, names, views, est)
     with _timed(timings, "build_graph"):
