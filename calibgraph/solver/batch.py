@@ -725,7 +725,7 @@ def _final_solve_and_marginals(problem: Problem, names: list, views: list, slots
     sigma_post = _a_posteriori_sigma(problem, names, views, est)
     with _timed(timings, "build_graph"):
         graph, values = build_graph(views, slots, problem, est, sigma_post, form, factors)
-    if abs(sigma_post - sigma) > 0.05 * sigma or any(f > 1.05 for f in factors.values()) or widen:
+    if abs(sigma_post - sigma) > 0.05 * sigma or any(f > 1.05 for f in factors.values()):
         # the pixel/FK balance moved enough to shift the optimum: re-solve before the marginals
         with _timed(timings, "lm"):
             values, it, _ = levenberg_marquardt(graph, values, opts.max_iterations, form)
