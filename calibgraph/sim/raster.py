@@ -96,6 +96,8 @@ class Rasteriser:
         does not antialias silhouettes either). A feature thinner than a tile that falls between
         corner rays away from the board can be missed; the board and whatever hides it cannot.
         """
+        import cv2
+
         K, T = self.camera(name, w, h)
         R, o = T[:3, :3], T[:3, 3]
         Ws, Hs = w * s, h * s
@@ -116,8 +118,6 @@ class Rasteriser:
             u_lo, v_lo, u_hi, v_hi = box
             fine[v_lo * s:(v_hi + 1) * s, u_lo * s:(u_hi + 1) * s] = True
         # smooth tiles: the corner nodes' colour and light (one geom: bilinear in the light alone)
-        import cv2
-
         node = np.ascontiguousarray(self.colour[gid_n] * light_n[..., None])
         rgb = cv2.warpAffine(node, np.array([[1.0 / B, 0, 0], [0, 1.0 / B, 0]]), (Ws, Hs),
                              flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
