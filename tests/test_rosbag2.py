@@ -68,18 +68,21 @@ def _capture():
     return [c.T_base_flange for c in scene.problem.captures], images
 
 
-def _write_direct(root):
-    poses, images = _capture()
+def _write_direct(root, poses=None, images=None):
+    """The capture as a calibgraph dataset (``images[camera][k]`` None: no view there)."""
+    import cv2
+
+    if poses is None:
+        poses, images = _capture()
     write_header(root, a4_board_54(), {n: INTR for n in images})
     for k, T in enumerate(poses):
         views = {}
         for n, ims in images.items():
-            rel = image_relpath(n, k)
-            (root / rel).parent.mkdir(parents=True, exist_ok=True)
-            import cv2
-
-            cv2.imwrite(str(root / rel), ims[k])
-            views[n] = {"image": rel, "stamp_s": 10.0 + 2.0 * k}
+            if ims[k] is not None:
+                rel = image_relpath(n, k)
+                (root / rel).parent.mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(root / rel), ims[k])
+                views[n] = {"image": rel, "stamp_s": 10.0 + 2.0 * k}
         write_capture(root, Capture(index=k, T_base_flange=T, stamp_s=10.0 + 2.0 * k), views)
     return root
 
@@ -315,23 +318,6 @@ def _partial_capture():
     return [cap.T_base_flange for cap in scene.problem.captures], images, cams
 
 
-def _write_partial_direct(root):
-    import cv2
-
-    poses, images, cams = _partial_capture()
-    write_header(root, a4_board_54(), {n: INTR for n in cams})
-    for k, T in enumerate(poses):
-        views = {}
-        for n, ims in images.items():
-            if ims[k] is not None:
-                rel = image_relpath(n, k)
-                (root / rel).parent.mkdir(parents=True, exist_ok=True)
-                cv2.imwrite(str(root / rel), ims[k])
-                views[n] = {"image": rel, "stamp_s": 10.0 + 2.0 * k}
-        write_capture(root, Capture(index=k, T_base_flange=T, stamp_s=10.0 + 2.0 * k), views)
-    return root
-
-
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_stills_with_some_cameras_solve_to_the_direct_result(tmp_path, storage, capsys):
     """Stills carry only the cameras that saw the board; a camera publishing only while the robot
@@ -363,7 +349,7 @@ def test_stills_with_some_cameras_solve_to_the_direct_result(tmp_path, storage, 
     assert {(v.capture, v.camera) for v in ds.views} == {(k, n) for n, ims in images.items()
                                                          for k, im in enumerate(ims) if im is not None}
     res = solve(build_problem(ds, progress=False)[0])
-    ref = solve(build_problem(load_dataset(_write_partial_direct(tmp_path / "direct")), progress=False)[0])
+    ref = solve(build_problem(load_dataset(_write_direct(tmp_path / "direct", poses, images)), progress=False)[0])
     for n in cams:
         a, b = res.cameras[n].T_ref_cam, ref.cameras[n].T_ref_cam
         assert np.linalg.norm(a[:3, 3] - b[:3, 3]) * 1e3 < 0.05
