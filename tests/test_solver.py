@@ -5,6 +5,8 @@ Tolerances come from the noise: each estimate must lie within the solver's own c
 must match the Monte-Carlo spread.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -371,3 +373,12 @@ def test_timings_hook_times_every_stage_and_changes_nothing():
     for n in plain.cameras:
         assert np.array_equal(timed.cameras[n].T_ref_cam, plain.cameras[n].T_ref_cam)
         assert np.array_equal(timed.cameras[n].covariance, plain.cameras[n].covariance)
+
+
+def test_converged_comes_from_the_optimiser():
+    """``converged`` is the optimiser's termination, not a constant: LM capped at one iteration
+    from the initialiser's start cannot reach its error tolerance."""
+    sc = make_scene(n_poses=20, pixel_sigma_px=0.3, seed=2)
+    assert solver.solve(sc.problem).converged
+    capped = sc.problem.with_(options=replace(sc.problem.options, max_iterations=1))
+    assert not solver.solve(capped).converged
