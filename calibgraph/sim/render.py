@@ -39,6 +39,8 @@ class SimWorld:
     Attributes:
         cell: the :class:`Workcell`.
         model, data: MuJoCo model and state (qpos holds the 7 arm joints).
+        renderer: 'auto', 'mujoco' or 'raster' (argument, else ``CALIBGRAPH_RENDERER``, else
+            'auto'); 'auto' becomes 'mujoco' or 'raster' at the first render (module docstring).
     """
 
     RENDERERS = ("auto", "mujoco", "raster")
