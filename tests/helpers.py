@@ -17,8 +17,8 @@ from calibgraph import solve
 from calibgraph.core.problem import Detection
 from calibgraph.core.targets import a4_board_54
 from calibgraph.io.dataset import write_capture, write_header
-from calibgraph.report.html import residuals_section
 from calibgraph.sim.synth import make_scene
+from calibgraph.solver.result import Result
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -111,22 +111,18 @@ def _solved(seed: int, mode: str):
 
 
 def make_sim_result(seed: int = 0, mode: str = "eye_to_hand", intrinsics: bool = True, residuals: bool = True):
-    """(result dict as read back from result.json, scene, problem, Result) of a solved simulated cell
-    with injected outliers. Adds the 'residuals' (and 'intrinsics') sections the report reads when
-    Result.to_dict does not write them yet."""
+    """(the Result as read back from its result.json, scene, problem, the solver's Result) of a
+    solved simulated cell with injected outliers. ``intrinsics=False`` / ``residuals=False`` drop
+    those sections, as in a result.json of an earlier calibgraph."""
     scene, prob, res = _solved(seed, mode)
-    d = res.to_dict()
-    if residuals and "residuals" not in d:
-        d["residuals"] = residuals_section(res)
-    if not residuals:
-        d.pop("residuals", None)
-    for n, c in d["cameras"].items():
-        if intrinsics:
-            c.setdefault("intrinsics", prob.cameras[n].to_dict())
-        else:
-            c.pop("intrinsics", None)
+    d = json.loads(json.dumps(res.to_dict()))
     d["dataset"] = "simulated (calibgraph.sim.synth.make_scene seed %d)" % seed
-    return json.loads(json.dumps(d)), scene, prob, res
+    if not residuals:
+        d.pop("residuals")
+    for c in d["cameras"].values():
+        if not intrinsics:
+            c.pop("intrinsics")
+    return Result.from_dict(d), scene, prob, res
 
 
 def write_sim_dataset(root: Path, prob) -> Path:

@@ -19,7 +19,7 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Detection, SolverOptions
 from calibgraph.sim.synth import make_scene
 from calibgraph.sim.synth_kinematics import make_kinematic_scene
-from calibgraph.solver.result import Result, _same, load_result_dict
+from calibgraph.solver.result import Result, exactly_equal, load_result_dict
 
 
 @lru_cache(maxsize=1)
@@ -55,8 +55,8 @@ def assert_same(a: Result, b: Result):
             assert a.cameras.keys() == b.cameras.keys()
             for n in a.cameras:
                 for g in dataclasses.fields(a.cameras[n]):
-                    assert _same(getattr(a.cameras[n], g.name), getattr(b.cameras[n], g.name)), (n, g.name)
-        assert _same(getattr(a, f.name), getattr(b, f.name)), f.name
+                    assert exactly_equal(getattr(a.cameras[n], g.name), getattr(b.cameras[n], g.name)), (n, g.name)
+        assert exactly_equal(getattr(a, f.name), getattr(b, f.name)), f.name
     assert a == b
 
 

@@ -6,7 +6,7 @@ round-trip it exactly (every number, array and note), in JSON or YAML.
 - ``format``, ``calibgraph_version`` (the version that solved), ``frame_convention``: text;
   ``T_a_b`` maps points from frame b to frame a.
 - ``mode``: 'eye_to_hand' | 'eye_in_hand'; ``method``: 'joint' | 'single'; ``dataset``: where the
-  data came from.
+  data came from; ``target``: the target spec (kind, rows, cols, pitch_m, ...) when it was known.
 - ``T_flange_board`` (eye-to-hand, joint) or ``T_base_board`` (eye-in-hand, joint).
 - ``cameras.<name>``: ``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand),
   ``sigma_translation_mm`` (3, base/flange axes), ``sigma_rotation_deg`` (3, same axes),
@@ -51,10 +51,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calibgraph.core.errors import InputError
+from calibgraph.core.camera import Intrinsics
+from calibgraph.core.errors import CalibgraphError, InputError
 from calibgraph.core.problem import MODES, mode_frames
+from calibgraph.core.targets import Target
 from calibgraph.core.version import __version__
-from calibgraph.io.files import atomic_write_text
+from calibgraph.io.files import atomic_write_text, read_yaml
 
 RESULT_FORMAT = "calibgraph-result/1"
 
@@ -115,7 +117,7 @@ class CameraResult:
              residuals_px={int(k): _residual_record(v) for k, v in (self.residuals_px or {}).items()})
 
     def __eq__(self, other):  # exact, arrays included
-        return _same(self, other)
+        return exactly_equal(self, other)
 
     @property
     def sigma_translation_mm(self) -> np.ndarray:
@@ -124,6 +126,12 @@ class CameraResult:
     @property
     def sigma_rotation_deg(self) -> np.ndarray:
         return sigmas_from_cov(self.covariance)[1]
+
+    @property
+    def solved_intrinsics(self) -> Intrinsics | None:
+        """The intrinsics the camera was solved with (the estimate when they were estimated), or
+        None in a result written before they were recorded."""
+        return None if self.intrinsics is None else Intrinsics.from_dict(self.intrinsics)
 
     @property
     def T_base_cam(self) -> np.ndarray:
@@ -149,7 +157,7 @@ class PairResult:
         _set(self, T_a_b=_floats(self.T_a_b), covariance=_floats(self.covariance))
 
     def __eq__(self, other):
-        return _same(self, other)
+        return exactly_equal(self, other)
 
     @property
     def sigma_translation_mm(self):
@@ -190,6 +198,7 @@ class Result:
     robot: dict | None = None  # estimated joint offsets (kinematics='joint-offsets'), see the module docstring
     fk_noise: dict | None = None  # the FK prior against the fit (the solver's FkRatio.to_dict())
     calibgraph_version: str = __version__  # the version that solved
+    target: dict | None = None  # the target spec solved with (Target.to_dict()), when the caller knew it
 
     def __post_init__(self):
         _set(self, T_mount_board=None if self.T_mount_board is None else _floats(self.T_mount_board),
@@ -204,10 +213,10 @@ class Result:
              board_scale=float(self.board_scale),
              board_scale_sigma=None if self.board_scale_sigma is None else float(self.board_scale_sigma),
              notes=tuple(str(n) for n in self.notes), robot=_plain(self.robot), fk_noise=_plain(self.fk_noise),
-             calibgraph_version=str(self.calibgraph_version))
+             calibgraph_version=str(self.calibgraph_version), target=_plain(self.target))
 
     def __eq__(self, other):
-        return _same(self, other)
+        return exactly_equal(self, other)
 
     @property
     def T_flange_board(self):
@@ -266,6 +275,7 @@ class Result:
             "mode": self.mode,
             "method": self.method,
             "dataset": self.dataset,
+            **({"target": self.target} if self.target is not None else {}),
             "cameras": cams,
             "camera_pairs": pairs,
             "solver": {
@@ -320,7 +330,8 @@ class Result:
         if p.suffix.lower() in (".yaml", ".yml"):
             import yaml
 
-            text = "# calibgraph result. " + FRAME_CONVENTION + "\n" + yaml.safe_dump(d, sort_keys=False)
+            dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)  # libyaml when present: large results write fast
+            text = "# calibgraph result. " + FRAME_CONVENTION + "\n" + yaml.dump(d, Dumper=dumper, sort_keys=False)
         else:
             text = json.dumps(d, indent=2)
         atomic_write_text(p, text)
@@ -337,7 +348,7 @@ class Result:
             return _result_from_dict(d, where)
         except InputError:
             raise
-        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as e:
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError) as e:
             raise InputError(f"{where}: not a readable calibgraph result ({type(e).__name__}: {e}).") from None
 
 
@@ -367,7 +378,7 @@ def load_result_dict(path) -> dict:
         if p.suffix.lower() in (".yaml", ".yml"):
             import yaml
 
-            d = yaml.safe_load(text)
+            d = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
         else:
             d = json.loads(text)
     except Exception as e:  # noqa: BLE001 - any parse error becomes one clear line
@@ -386,6 +397,39 @@ def check_result_dict(d, where: str = "result") -> None:
             raise InputError(f"{where}: result format {fmt!r} is newer than this calibgraph "
                              f"({d.get('calibgraph_version', '?')} wrote it) reads ({RESULT_FORMAT}); upgrade calibgraph.")
         raise InputError(f"{where}: format {fmt!r} is not a calibgraph result ({RESULT_FORMAT}).")
+
+
+def solved_target(result: Result) -> Target | None:
+    """The target spec ``result`` was solved with: its ``target`` section, else the spec in the
+    ``dataset.yaml`` of the dataset folder it names (when that is still there), else None."""
+    try:
+        if result.target is not None:
+            return Target.from_dict(result.target)
+        head = Path(result.dataset) / "dataset.yaml" if result.dataset else None
+        if head is not None and head.is_file():
+            return Target.from_dict(read_yaml(head, "dataset header")["target"])
+    except (CalibgraphError, KeyError, TypeError, ValueError):
+        pass  # an unreadable spec is an unknown one
+    return None
+
+
+def target_differences(solved: Target, given: Target) -> list:
+    """What differs between the target a result was solved with and a dataset's (kind, rows and
+    cols, pitch beyond 0.05 %, marker size and dictionary), one phrase each."""
+    out = []
+    if solved.kind != given.kind:
+        out.append(f"kind {given.kind} instead of {solved.kind}")
+    if (solved.rows, solved.cols) != (given.rows, given.cols):
+        swapped = (solved.rows, solved.cols) == (given.cols, given.rows)
+        out.append(f"{given.rows}x{given.cols} points instead of {solved.rows}x{solved.cols}"
+                   + (" (rows and cols swapped)" if swapped else ""))
+    if abs(given.pitch_m / solved.pitch_m - 1.0) > 5e-4:
+        out.append(f"pitch {given.pitch_m * 1e3:.3f} mm instead of {solved.pitch_m * 1e3:.3f} mm "
+                   f"({100 * (given.pitch_m / solved.pitch_m - 1.0):+.2f} %)")
+    if solved.kind == given.kind == "charuco":
+        if abs(given.marker_m - solved.marker_m) > 5e-4 * solved.marker_m or given.dictionary != solved.dictionary:
+            out.append("other ArUco markers (size or dictionary)")
+    return out
 
 
 # -- reading ------------------------------------------------------------------------------------------
@@ -460,7 +504,7 @@ def _result_from_dict(d: dict, where: str) -> Result:
         board_scale_sigma=None if scale.get("sigma") is None else float(scale["sigma"]),
         notes=tuple(str(n) for n in d.get("notes") or []), robot=_section(d, "robot", where),
         fk_noise=_section(d, "fk_noise", where),
-        calibgraph_version=str(d.get("calibgraph_version") or "unknown"),
+        calibgraph_version=str(d.get("calibgraph_version") or "unknown"), target=_section(d, "target", where),
     )
 
 
@@ -570,19 +614,19 @@ def _plain(x):
     raise TypeError(f"result: {type(x).__name__} value {x!r} cannot be saved in a result file")
 
 
-def _same(a, b) -> bool:
-    """Exact equality of results and their parts: same types, arrays of equal shape and values,
-    NaN equal to NaN."""
+def exactly_equal(a, b) -> bool:
+    """Exact equality of results and their parts (what ``==`` of a Result, CameraResult or
+    PairResult means): same types, arrays of equal shape and values, NaN equal to NaN."""
     if type(a) is not type(b):
         return False
     if isinstance(a, np.ndarray):
         return a.shape == b.shape and bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
     if dataclasses.is_dataclass(a):
-        return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a))
+        return all(exactly_equal(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a))
     if isinstance(a, dict):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+        return a.keys() == b.keys() and all(exactly_equal(a[k], b[k]) for k in a)
     if isinstance(a, (list, tuple)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+        return len(a) == len(b) and all(exactly_equal(x, y) for x, y in zip(a, b))
     if isinstance(a, float) and math.isnan(a):
         return math.isnan(b)
     return a == b
