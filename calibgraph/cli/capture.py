@@ -457,7 +457,7 @@ def run_verify_capture_cli(args, log) -> int:
     from calibgraph.cli.verify import EXIT_MOVED, format_verdict
     from calibgraph.core.errors import InputError
     from calibgraph.plan.cell import cell_from_dict, cell_from_world_dict
-    from calibgraph.solver.result import load_result_dict
+    from calibgraph.solver.result import load_result
     from calibgraph.solver.verify import DEFAULT_ALPHA, stored_model
 
     if args.result is None:
@@ -466,7 +466,7 @@ def run_verify_capture_cli(args, log) -> int:
         raise InputError("capture --verify plans its own poses from --result; drop --trajectory.")
     if args.verify_poses < 1:
         raise InputError(f"capture --verify: --verify-poses must be >= 1, got {args.verify_poses}.")
-    stored = load_result_dict(args.result)
+    stored = load_result(args.result)
     model = stored_model(stored, str(args.result))
     cell_d = _read_yaml(args.workcell, "workcell") if args.workcell else None
     world_d = _read_yaml(args.sim_world, "simulated world") if args.sim_world else None

@@ -109,7 +109,7 @@ def run(args) -> int:
     ds = load_dataset(ds_dir)
     problem, _ = build_problem(ds, "joint", None, progress=True)
     t0 = time.monotonic()
-    result = replace(solve(problem), dataset=str(ds_dir))
+    result = replace(solve(problem), dataset=str(ds_dir), target=ds.target.to_dict())
     result_path = out / "result.json"
     result.save(result_path)
     gt = load_ground_truth(ds_dir)
@@ -128,11 +128,10 @@ def run(args) -> int:
     if args.report:
         try:
             from calibgraph.report.html import write_report
-            from calibgraph.solver.result import load_result_dict
         except ImportError as e:
             print(f"report skipped: {e}", file=sys.stderr)
         else:
-            p = write_report(load_result_dict(result_path), out / "report.html", dataset=ds_dir, result_path=result_path)
+            p = write_report(result, out / "report.html", dataset=ds, result_path=result_path)
             print(f"wrote {p}")
     if args.rrd:
         try:
