@@ -211,3 +211,15 @@ def test_recomputed_residuals_match_solver_eye_in_hand():
         assert rec[n].keys() == c.residuals_px.keys()
         for k, v in c.residuals_px.items():
             assert np.allclose(rec[n][k]["residual_px"], v["residual_px"], atol=1e-6)
+
+
+def test_ticks_of_a_constant_map_are_few():
+    """A workspace map that is constant within rounding (a degenerate covariance) once made the tick
+    loop step by less than the values' precision and never end."""
+    from calibgraph.report.svgplot import heatmap, nice_ticks
+
+    lo = 0.552268050859363
+    hi = np.nextafter(lo, 1.0)
+    assert 1 <= len(nice_ticks(lo, hi, 4)) <= 10
+    assert len(nice_ticks(0.0, 0.0)) <= 10 and nice_ticks(1.0, np.inf) == []
+    assert "<svg" in heatmap(np.full((3, 3), lo) + np.eye(3) * (hi - lo), np.arange(4.0), np.arange(4.0))
