@@ -223,3 +223,21 @@ def test_ticks_of_a_constant_map_are_few():
     assert 1 <= len(nice_ticks(lo, hi, 4)) <= 10
     assert len(nice_ticks(0.0, 0.0)) <= 10 and nice_ticks(1.0, np.inf) == []
     assert "<svg" in heatmap(np.full((3, 3), lo) + np.eye(3) * (hi - lo), np.arange(4.0), np.arange(4.0))
+
+
+def test_a_dataset_that_is_not_the_results_is_named(tmp_path):
+    from dataclasses import replace
+
+    from calibgraph.core.errors import InputError
+    from calibgraph.report.html import dataset_mismatch
+
+    d, scene, prob, res = make_sim_result()
+    ds = load_dataset(write_sim_dataset(tmp_path / "ds", prob))
+    assert dataset_mismatch(d, ds) == []  # its own dataset
+    fewer = replace(d, cameras={n: c for n, c in d.cameras.items() if n != "cam2"})
+    assert any("cam2 are not in the result" in s for s in dataset_mismatch(fewer, ds))
+    more = replace(d, T_base_flange_est={**d.T_base_flange_est, 999: np.eye(4)})
+    assert any("captures are not in it" in s and "999" in s for s in dataset_mismatch(more, ds))
+    with pytest.raises(InputError, match="not the dataset this result was solved from"):
+        write_report(more, tmp_path / "r.html", dataset=ds)
+    assert not (tmp_path / "r.html").exists()
