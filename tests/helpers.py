@@ -4,9 +4,11 @@ viewer and export tests."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
 import os
+import signal
 from functools import lru_cache
 from pathlib import Path
 
@@ -160,3 +162,19 @@ def dataset_content(root):
         caps[f.name] = d
     imgs = {str(p.relative_to(root)): p.read_bytes() for p in sorted((Path(root) / "images").rglob("*.png"))}
     return caps, imgs
+
+
+@contextlib.contextmanager
+def fails_instead_of_hanging(seconds: int, what: str):
+    """Run the block with an alarm: a call that blocks (a FIFO opened for reading, say) raises
+    TimeoutError naming ``what`` after ``seconds`` instead of hanging the test run."""
+    def hung(*_):
+        raise TimeoutError(f"{what} blocked for {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)

@@ -489,19 +489,13 @@ def test_fresh_data_and_report_inputs_against_the_stored_result(base, ds, tmp_pa
 
 
 def test_report_and_export_refuse_a_fifo_without_blocking(base, tmp_path):
-    import signal
+    from helpers import fails_instead_of_hanging
 
     fifo = tmp_path / "result.json"
     os.mkfifo(fifo)
     cfg = tmp_path / "tol.yaml"
     os.mkfifo(cfg)
-
-    def hung(*_):
-        raise TimeoutError("a command blocked on a FIFO")
-
-    old = signal.signal(signal.SIGALRM, hung)
-    signal.alarm(60)
-    try:
+    with fails_instead_of_hanging(60, "a command given a FIFO"):
         check("report: RESULT is a FIFO", ["report", fifo, "--out", tmp_path / "r.html"], 2, "not a regular file")
         check("report: --config is a FIFO", ["report", base / "ds" / "result.json", "--out", tmp_path / "r.html",
                                              "--config", cfg], 2, "not a regular file", watch=[base / "ds"])
@@ -509,9 +503,6 @@ def test_report_and_export_refuse_a_fifo_without_blocking(base, tmp_path):
               "not a regular file")
         check("verify: --result is a FIFO", ["verify", "--result", fifo, base / "ds", "--verdict", tmp_path / "v.json"],
               2, "not a regular file", watch=[base / "ds"])
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
     assert not (tmp_path / "r.html").exists() and not (tmp_path / "e").exists()
 
 

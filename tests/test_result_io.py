@@ -7,12 +7,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import signal
 from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
 import pytest
+from helpers import fails_instead_of_hanging
 
 import calibgraph as cg
 from calibgraph.core.errors import InputError
@@ -193,18 +193,8 @@ def test_unreadable_files_are_refused_without_blocking(tmp_path):
         cg.load_result(tmp_path / "bin.json")
     fifo = tmp_path / "pipe.json"
     os.mkfifo(fifo)
-
-    def hung(*_):
-        raise TimeoutError("load_result blocked on a FIFO")
-
-    old = signal.signal(signal.SIGALRM, hung)
-    signal.alarm(20)
-    try:
-        with pytest.raises(InputError, match="not a regular file"):
-            cg.load_result(fifo)
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
+    with fails_instead_of_hanging(20, "load_result of a FIFO"), pytest.raises(InputError, match="not a regular file"):
+        cg.load_result(fifo)
 
 
 def test_load_result_dict_stays_for_outside_scripts(tmp_path):
