@@ -37,7 +37,7 @@ from calibgraph.report.workspace import workspace_maps
 from calibgraph.solver.result import as_result
 
 __all__ = ["write_report", "report_verdicts", "load_tolerances", "compute_residuals", "observations",
-           "dataset_mismatch"]
+           "dataset_mismatch", "residuals_section"]
 
 
 def report_verdicts(result, config=None, dataset=None) -> dict:
@@ -89,6 +89,12 @@ def write_report(result, out_html, config=None, dataset=None, result_path=None) 
            f"<title>{esc(title)}</title><style>{CSS}</style></head><body>\n" + "\n".join(parts) + "\n</body></html>\n")
     atomic_write_text(out_html, doc)
     return Path(out_html)
+
+
+def residuals_section(result) -> dict:
+    """The ``residuals`` section of result.json (camera -> capture -> JSON-ready record) of a
+    :class:`~calibgraph.solver.result.Result`, for scripts that work on the file's form."""
+    return as_result(result, "report").to_dict()["residuals"]
 
 
 def _content(result, tol: dict, ds) -> dict:

@@ -16,7 +16,7 @@ import numpy as np
 
 from calibgraph.core.transforms import inv, pose_error
 from calibgraph.io.layouts import as_dataset
-from calibgraph.solver.result import solved_target, target_differences
+from calibgraph.solver.result import as_result, solved_target, target_differences
 
 # a refined robot pose this far from the recorded one belongs to another capture
 FLANGE_MISMATCH_M, FLANGE_MISMATCH_DEG = 0.02, 2.0
@@ -51,6 +51,7 @@ def compute_residuals(result, source) -> dict:
     board as the solver found it printed (its scale factor). Views the solver rejected are flagged
     ``rejected``; corners it rejected get weight 0.
     """
+    result = as_result(result, "residuals")
     obs = observations(source)
     pts = obs["points_board_m"] * result.board_scale
     refined = result.T_base_flange_est
@@ -97,6 +98,7 @@ def dataset_mismatch(result, dataset) -> list:
     """How ``dataset`` (folder or :class:`~calibgraph.io.dataset.Dataset`) differs from the data
     ``result`` was solved from — cameras, target spec, captures, robot poses, stored corners — one
     phrase each; empty when nothing shows that it is another dataset."""
+    result = as_result(result, "report")
     ds = as_dataset(dataset)
     out = []
     rc, dc = set(result.cameras), set(ds.cameras)
