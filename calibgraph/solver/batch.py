@@ -3,7 +3,8 @@
 It reads as GTSAM's own SFMExample does, one stage per module::
 
     views      the detections as views (too few corners, no PnP solution: refused)   views.py
-    start      initial camera poses and board mount from the views' PnP poses         start.py
+    start      unknown intrinsics from the board homographies; initial camera poses
+               and board mount from the views' PnP poses                               start.py
     optimise   robust rounds, FK check, corner-noise model, final graph, marginals     optimise.py
     camera     intrinsics the data reject re-solved with a wide prior, board scale    camera_model.py
     assemble   poses with covariances in reference axes, pairs, residuals, notes      assemble.py
@@ -31,7 +32,7 @@ from calibgraph.solver.noise_model import corner_noise_notes
 from calibgraph.solver.observability import check_before_solve
 from calibgraph.solver.optimise import kinematics_start, solve_joint, solve_single
 from calibgraph.solver.result import Result
-from calibgraph.solver.start import initial_values
+from calibgraph.solver.start import initial_intrinsics, initial_values
 from calibgraph.solver.timing import STAGES, timed  # noqa: F401 - STAGES: the keys of ``timings``
 from calibgraph.solver.views import captures_by_camera, usable_views
 
@@ -59,6 +60,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
 def solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, timings: dict | None = None) -> Result:
     """One solve of ``problem``, without the moved-camera test (see :func:`solve`)."""
     t0 = time.perf_counter()
+    problem = initial_intrinsics(problem)
     with timed(timings, "candidates"):
         views, cands, rejected = usable_views(problem)
     check_before_solve(problem, captures_by_camera(views))
@@ -71,7 +73,8 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
     """The solved graphs (one in 'joint', one per camera in 'single') and what was noticed on the way."""
     names = list(problem.cameras)
     if problem.method == "single":
-        return [solve_single(problem, n, views, s, timings) for n, s in zip(names, starts)], []
+        groups = [solve_single(problem, n, views, s, timings) for n, s in zip(names, starts)]
+        return groups, [n for g in groups for n in g.notes]
     ks = kin.setup(problem)
     if ks is not None:
         kin.check_motion(ks, sorted({v.capture for v in views}))
@@ -79,9 +82,10 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
             first = kinematics_start(problem, names, views, starts, ks, timings)
             starts = [first] + [replace(s, joint_offsets=first.joint_offsets) for s in starts[1:]]
     group = solve_joint(problem, names, views, starts, timings)
-    notes = []
+    notes = list(group.notes)
     if problem.options.intrinsics == "auto":
-        group, notes = widen_inadequate_intrinsics(problem, group, timings)
+        group, widened = widen_inadequate_intrinsics(problem, group, timings)
+        notes += widened
     return [group], notes
 
 

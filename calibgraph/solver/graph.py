@@ -28,7 +28,7 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError, ObservabilityError
-from calibgraph.core.problem import Problem, intrinsics_estimated, intrinsics_prior_sigmas
+from calibgraph.core.problem import Problem, intrinsics_estimated, intrinsics_prior_covariance
 from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.factors import (
@@ -88,9 +88,16 @@ def estimates_intrinsics(problem: Problem, name: str, est: Estimate) -> bool:
 
 
 def intrinsics_prior(problem: Problem, name: str, est: Estimate) -> np.ndarray:
-    """1-sigma of the prior on camera ``name``'s [fx, fy, cx, cy, k1, k2] in this graph."""
+    """(6, 6) covariance of the prior on camera ``name``'s [fx, fy, cx, cy, k1, k2] in this graph."""
     wide = name in est.wide_intrinsics or name in est.free_intrinsics
-    return intrinsics_prior_sigmas(problem.cameras[name], problem.options, wide=wide)
+    return intrinsics_prior_covariance(problem.cameras[name], problem.options, wide=wide)
+
+
+def _prior_noise(cov: np.ndarray):
+    """A diagonal covariance as sigmas (as before calibration files carried correlations), else full."""
+    if np.count_nonzero(cov - np.diag(np.diag(cov))) == 0:
+        return gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(np.diag(cov)))
+    return gtsam.noiseModel.Gaussian.Covariance(cov)
 
 
 def formulation(problem: Problem, names, n_views: int, est: Estimate | None = None) -> str:
@@ -168,8 +175,7 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
     refine = {name for name in slots if estimates_intrinsics(problem, name, est)}
     for name in refine:
         i, given = slots[name], problem.cameras[name]
-        graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(given),
-                                          gtsam.noiseModel.Diagonal.Sigmas(intrinsics_prior(problem, name, est))))
+        graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(given), _prior_noise(intrinsics_prior(problem, name, est))))
         values.insert(K(i), intrinsics_vector(est.camera_model(name, problem.cameras)))
     if o.board_scale:
         graph.add(gtsam.PriorFactorVector(S(0), np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, o.board_scale_sigma)))

@@ -17,6 +17,8 @@ from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.problem import Problem
 from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
+from calibgraph.solver.claims import contradicted
+from calibgraph.solver.factors import intrinsics_vector
 from calibgraph.solver.fk_check import fk_variance_ratio, widened
 from calibgraph.solver.graph import (
     Estimate,
@@ -36,12 +38,13 @@ from calibgraph.solver.timing import timed
 
 @dataclass(frozen=True)
 class Group:
-    """One solved graph: its cameras, its estimate and its views (one group in 'joint', one per
-    camera in 'single')."""
+    """One solved graph: its cameras, its estimate, its views (one group in 'joint', one per
+    camera in 'single') and what the solve noticed on the way."""
 
     names: list
     est: Estimate
     views: list
+    notes: tuple = ()
 
 
 def solve_from_start(problem: Problem, names: list, views: list, est0: Estimate,
@@ -65,8 +68,17 @@ def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str
                    intrinsics=dict(est0.intrinsics), wide_intrinsics=est0.wide_intrinsics,
                    free_intrinsics=est0.free_intrinsics, joint_offsets=est0.joint_offsets)
     rounds = robust_rounds(problem, views, slots, est, form, timings)
+    notes = []
+    # A claim the data contradict is named and dropped before anything shared is judged on the misfit;
+    # one camera at a time, the worst first, since one wrong camera drags the others' fit.
+    while wrong := contradicted(problem, rounds.views, slots, rounds.est, rounds.sigma_px):
+        worst = max(wrong, key=lambda c: c.chi2)
+        notes.append(worst.note(intrinsics_vector(problem.cameras[worst.camera])))
+        est = replace(est, free_intrinsics=est.free_intrinsics | {worst.camera})
+        form = formulation(problem, names, len(views), est)
+        rounds = robust_rounds(problem, views, slots, est, form, timings)
     est = final_graph(problem, names, rounds, slots, form, timings)
-    return Group(names, est, rounds.views)
+    return Group(names, est, rounds.views, tuple(notes))
 
 
 def _n_parameters(problem: Problem, names: list, est: Estimate) -> int:
