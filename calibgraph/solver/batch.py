@@ -24,6 +24,7 @@ import numpy as np
 from calibgraph.core.problem import Problem
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.assemble import camera_result, mount_and_robot_poses, pair_results, robot_result
+from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_inadequate_intrinsics
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note
@@ -92,8 +93,9 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
 def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve_time_s: float) -> Result:
     cameras, rejected_corners = {}, []
     for g in groups:
+        lin = linearise_graph(g.est.graph, g.est.values)
         for n in g.names:
-            cameras[n], corners = camera_result(problem, n, g, rejected)
+            cameras[n], corners = camera_result(problem, n, g, rejected, lin)
             rejected_corners += corners
     T_mount_board, mount_cov, T_base_flange_est = mount_and_robot_poses(problem, groups)
     scale, scale_sigma, scale_notes = board_scale(problem, groups)

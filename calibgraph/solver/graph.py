@@ -71,6 +71,8 @@ class Estimate:
     mount_cov_body: np.ndarray | None = None  # (6, 6) covariance of T_mount_board, GTSAM body frame
     mode_ratios: dict = field(default_factory=dict)  # camera -> noise_model.ModeRatio of the final graph
     fk_ratio: object | None = None  # fk_check.FkRatio of the final graph
+    graph: object | None = field(default=None, repr=False)  # the final graph and its values (error budget)
+    values: object | None = field(default=None, repr=False)
 
     def camera_model(self, name: str, cameras: dict) -> Intrinsics:
         """The intrinsics camera ``name`` is projected with: estimated, else given (``cameras``)."""

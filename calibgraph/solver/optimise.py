@@ -130,7 +130,7 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     mount_cov = factors_ppp.mount_cov_body(marg, values) if form == "corner" else marg.marginalCovariance(B(0))
     return replace(est, iterations=iterations, converged=converged, cost=graph.error(values), sigma_px=sigma_post,
                    slots=slots, formulation=form, marginals=marg, mount_cov_body=mount_cov, mode_ratios=mode_ratios,
-                   fk_ratio=fk_ratio)
+                   fk_ratio=fk_ratio, graph=graph, values=values)
 
 
 def solve_joint(problem: Problem, names: list, views: list, starts: list, timings: dict | None = None) -> Group:

@@ -80,6 +80,8 @@ class CameraResult:
     intrinsics: dict | None = None  # Intrinsics.to_dict() of the camera the result was solved with
     # within-view correlated corner noise (solver.batch.ModeRatio.to_dict()), when it was estimated
     corner_noise: dict | None = None
+    # what the 1-sigma is made of (solver.budget): sigma_translation_norm_mm, shares by source, advice
+    error_budget: dict | None = None
     # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
     residuals_px: dict = field(default_factory=dict, repr=False)
 
@@ -181,6 +183,8 @@ class Result:
                 cams[name]["intrinsics"] = c.intrinsics
             if c.corner_noise is not None:
                 cams[name]["corner_noise"] = c.corner_noise
+            if c.error_budget is not None:
+                cams[name]["error_budget"] = c.error_budget
         pairs = {}
         for (a, b), p in self.pairs.items():
             st, sr = sigmas_from_cov(p.covariance)
