@@ -80,6 +80,16 @@ def camera_result(problem: Problem, name: str, group: Group, rejected: list, lin
     return result, rejected_corners
 
 
+def not_calibrated(problem: Problem, name: str, why: str, rejected: list) -> CameraResult:
+    """The CameraResult of a camera too few of whose views survived: no pose, no covariance, why."""
+    mine = sorted(d.capture for d in problem.detections if d.camera == name)
+    refused = {r.capture: r for r in rejected if r.camera == name}
+    views_rejected = tuple(refused.get(k, RejectedView(name, k, f"camera not calibrated: {why}")) for k in mine)
+    return CameraResult(name=name, ref_frame="base" if problem.mode == "eye_to_hand" else "flange", T_ref_cam=None,
+                        covariance=None, reprojection_rms_px=float("nan"), reprojection_max_px=float("nan"),
+                        views_used=0, views_rejected=views_rejected, calibrated=False, why=why)
+
+
 def pair_results(names: list, cameras: dict, groups: list, joint: bool) -> dict:
     """(a, b) -> PairResult for every camera pair; in 'joint' from one joint marginal of all cameras
     (pairwise calls would be O(n^2) solves), in 'single' from independent per-camera marginals."""
