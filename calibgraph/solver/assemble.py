@@ -8,7 +8,7 @@ import numpy as np
 from calibgraph.core.problem import Problem
 from calibgraph.core.transforms import inv
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.budget import advice, budget
+from calibgraph.solver.budget import advice, budgets
 from calibgraph.solver.reduced import Linear
 from calibgraph.solver.camera_model import intrinsics_record
 from calibgraph.solver.covariance import pair_covariance, to_ref_axes
@@ -40,20 +40,20 @@ def view_residuals(name: str, est: Estimate, views: list, cameras: dict) -> tupl
     return residuals, np.concatenate(kept) if kept else np.zeros((0, 2)), rejected_corners
 
 
-def error_budget(problem: Problem, name: str, est: Estimate, lin: Linear) -> dict:
-    """``CameraResult.error_budget`` of camera ``name`` (see :mod:`calibgraph.solver.budget`)."""
-    cam_key = C(est.slots[name])
-    own_K = K(est.slots[name]) if est.values.exists(K(est.slots[name])) else None
-    b = budget(lin, cam_key, own_K)
-    line = advice(name, b, lin, cam_key, own_K)
-    return b.to_dict(line)
+def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
+    """name -> ``CameraResult.error_budget`` of the group's cameras (see :mod:`calibgraph.solver.budget`)."""
+    est = group.est
+    keys = {n: (C(est.slots[n]), K(est.slots[n]) if est.values.exists(K(est.slots[n])) else None) for n in group.names}
+    out = {}
+    for n, b in budgets(lin, keys).items():
+        out[n] = b.to_dict(advice(n, b, lin, *keys[n]))
+    return out
 
 
-def camera_result(problem: Problem, name: str, group: Group, rejected: list, lin: Linear | None = None
+def camera_result(problem: Problem, name: str, group: Group, rejected: list, budget: dict | None = None
                   ) -> tuple[CameraResult, list]:
     """(CameraResult of one camera, its rejected corners): pose, covariance in reference axes, residuals.
-    ``rejected``: views refused before the solve (RejectedView); ``lin``: the group's final graph
-    linearised (:func:`budget.linearise_graph`), for the error budget."""
+    ``rejected``: views refused before the solve (RejectedView); ``budget``: its error budget."""
     est, joint = group.est, problem.method == "joint"
     cov = to_ref_axes(est.T_ref_cam[name], est.marginals.marginalCovariance(C(est.slots[name])))
     check_after_solve(name, cov)
@@ -75,7 +75,7 @@ def camera_result(problem: Problem, name: str, group: Group, rejected: list, lin
         residuals_px=residuals,
         intrinsics=intrinsics_record(problem, name, est),
         corner_noise=est.mode_ratios[name].to_dict() if name in est.mode_ratios else None,
-        error_budget=error_budget(problem, name, est, lin) if lin is not None else None,
+        error_budget=budget,
     )
     return result, rejected_corners
 

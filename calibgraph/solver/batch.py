@@ -25,6 +25,7 @@ from calibgraph.core.problem import Problem
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.assemble import (
     camera_result,
+    error_budgets,
     mount_and_robot_poses,
     not_calibrated,
     pair_results,
@@ -99,9 +100,9 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
 def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve_time_s: float) -> Result:
     cameras, rejected_corners = {}, []
     for g in groups:
-        lin = linearise_graph(g.est.graph, g.est.values)
+        budget = error_budgets(problem, g, linearise_graph(g.est.graph, g.est.values))
         for n in g.names:
-            cameras[n], corners = camera_result(problem, n, g, rejected, lin)
+            cameras[n], corners = camera_result(problem, n, g, rejected, budget[n])
             rejected_corners += corners
         for n, why in g.dropped.items():
             cameras[n] = not_calibrated(problem, n, why, rejected)

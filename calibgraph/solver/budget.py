@@ -39,20 +39,28 @@ class Budget:
                 "own_intrinsics_share": self.own_intrinsics, "advice": advice}
 
 
-def budget(L: Linear, cam_key, own_K_key=None) -> Budget:
-    """The :class:`Budget` of the camera whose pose is ``cam_key`` (and intrinsics ``own_K_key``)."""
-    X = columns(L, L.S, cam_key, TRANSLATION)
-    parts = dict.fromkeys(SOURCES, 0.0)
-    own = 0.0
+def budgets(L: Linear, cameras: dict) -> dict:
+    """name -> :class:`Budget` for ``cameras`` (name -> (pose key, own intrinsics key or None)), from
+    one solve for all their translation columns and one pass over the factors."""
+    names = list(cameras)
+    X = columns(L, L.S, [(cameras[n][0], TRANSLATION) for n in names])
+    m = 3 * len(names)
+    parts = {src: np.zeros(m) for src in SOURCES}
+    own = np.zeros(m)
+    own_cols = {cameras[n][1]: slice(3 * i, 3 * i + 3) for i, n in enumerate(names) if cameras[n][1] is not None}
     for src, keys, blocks in L.factors:
         JX = sum(blocks[k] @ X[k] for k in keys)
-        v = float(np.sum(JX * JX))
+        v = np.sum(JX * JX, axis=0)
         parts[src] += v
-        if src == "intrinsics" and keys[0] == own_K_key:
-            own += v
-    total = float(np.trace(X[cam_key][TRANSLATION]))
-    shares = {s: (v / total if total > 0 else 0.0) for s, v in parts.items()}
-    return Budget(1e3 * np.sqrt(max(total, 0.0)), shares, own / total if total > 0 else 0.0)
+        if src == "intrinsics" and keys[0] in own_cols:
+            own[own_cols[keys[0]]] += v[own_cols[keys[0]]]
+    out = {}
+    for i, n in enumerate(names):
+        sl = slice(3 * i, 3 * i + 3)
+        total = float(np.trace(X[cameras[n][0]][TRANSLATION][:, sl]))
+        shares = {src: (float(v[sl].sum()) / total if total > 0 else 0.0) for src, v in parts.items()}
+        out[n] = Budget(1e3 * np.sqrt(max(total, 0.0)), shares, float(own[sl].sum()) / total if total > 0 else 0.0)
+    return out
 
 
 def _doubled_data(L: Linear) -> dict:

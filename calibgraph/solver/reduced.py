@@ -118,23 +118,33 @@ def linearise_graph(graph, values) -> Linear:
     return Linear(factors, index, locals_, 0.5 * (H + H.T), grad, prior_K)
 
 
-def columns(L: Linear, S: np.ndarray, key, rows: slice) -> dict:
-    """Columns ``rows`` of the variable ``key`` in the full covariance, per variable: key -> (d, m)."""
-    e = np.zeros((S.shape[0], rows.stop - rows.start))
-    start = L.index[key].start
-    e[start + rows.start: start + rows.stop, :] = np.eye(rows.stop - rows.start)
+def columns(L: Linear, S: np.ndarray, wanted: list) -> dict:
+    """Columns of the full covariance (from the global information ``S``): ``wanted`` is a list of
+    (key, slice of its rows); returns variable -> (d, m), the m columns in the order asked."""
+    m = sum(r.stop - r.start for _, r in wanted)
+    e = np.zeros((S.shape[0], m))
+    j = 0
+    for key, rows in wanted:
+        start = L.index[key].start
+        n = rows.stop - rows.start
+        e[start + rows.start: start + rows.stop, j:j + n] = np.eye(n)
+        j += n
     Xg = np.linalg.solve(S, e)
     X = {k: Xg[s] for k, s in L.index.items()}
-    for l, (inv, lg) in L.locals_.items():
-        X[l] = -inv @ sum(B @ X[g] for g, B in lg.items()) if lg else np.zeros((inv.shape[0], e.shape[1]))
+    for loc, (inv, lg) in L.locals_.items():
+        X[loc] = -inv @ sum(B @ X[g] for g, B in lg.items()) if lg else np.zeros((inv.shape[0], m))
     return X
 
 
 def sigma_with(L: Linear, cam_key, S: np.ndarray | None = None, add_info: dict | None = None) -> float:
     """sqrt(trace) of the translation covariance (mm) of the camera pose ``cam_key``, from the
-    information ``S`` (default: the graph's) with ``add_info`` (key -> information to add) added."""
+    information ``S`` (default: the graph's) with ``add_info`` (key -> information to add) added.
+    Only the global system is solved: the camera is a global variable."""
     S = (L.S if S is None else S).copy()
     for k, dH in (add_info or {}).items():
         S[L.index[k], L.index[k]] += dH
-    X = columns(L, S, cam_key, TRANSLATION)
-    return 1e3 * float(np.sqrt(max(np.trace(X[cam_key][TRANSLATION]), 0.0)))
+    rows = np.arange(L.index[cam_key].start, L.index[cam_key].stop)[TRANSLATION]
+    e = np.zeros((S.shape[0], len(rows)))
+    e[rows, np.arange(len(rows))] = 1.0
+    X = np.linalg.solve(S, e)
+    return 1e3 * float(np.sqrt(max(np.trace(X[rows]), 0.0)))
