@@ -203,3 +203,30 @@ def test_load_result_dict_stays_for_outside_scripts(tmp_path):
     d = load_result_dict(p)
     assert d == json.loads(p.read_text()) and cg.load_result_dict is load_result_dict
     assert Result.from_dict(d, str(p)) == r
+
+
+def test_a_camera_that_was_not_calibrated_round_trips_and_is_reported(tmp_path):
+    """One camera's images mirrored leaves it not calibrated (no pose, no covariance, why): the file
+    keeps that, the report fails it with its reason, the exports leave it out and say so."""
+    from calibgraph.report.exports import export
+    from calibgraph.report.html import write_report
+
+    sc = make_scene(n_poses=30, pixel_sigma_px=0.3, seed=13)
+    p = sc.problem
+    w = p.cameras["cam1"].width_px
+    dets = [Detection(d.camera, d.capture, d.ids, np.column_stack([w - 1 - d.uv_px[:, 0], d.uv_px[:, 1]]))
+            if d.camera == "cam1" else d for d in p.detections]
+    r = cg.solve(p.with_(detections=tuple(dets)))
+    assert not r.cameras["cam1"].calibrated and r.cameras["cam1"].why
+    for ext in ("json", "yaml"):
+        assert_same(cg.load_result(r.save(tmp_path / f"r.{ext}")), r)
+    text = write_report(r, tmp_path / "r.html").read_text()
+    assert "Overall: FAIL" in text and "failing: cam1" in text and "Not calibrated" in text
+    paths = export(r, "urdf", tmp_path / "e") + export(r, "opencv-yaml", tmp_path / "e")
+    urdf = paths[0].read_text()
+    assert "cam1_optical_frame" not in urdf and "'cam1' is not in this file" in urdf
+    assert sorted(q.name for q in paths[1:]) == ["cam0.yaml", "cam2.yaml"]
+    from calibgraph.solver.verify import verify
+
+    vr = verify(make_scene(n_poses=6, pixel_sigma_px=0.3, seed=14, shared_fraction=0.6).problem, r)
+    assert "cam1" not in vr.cameras and any("cam1 was not calibrated" in n for n in vr.notes), vr.notes

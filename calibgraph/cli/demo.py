@@ -117,7 +117,7 @@ def run(args) -> int:
     from calibgraph.core.transforms import log_so3, pose_error
 
     print("camera orientations (T_base_cam rotation vector, deg):")
-    for n, c in result.cameras.items():
+    for n, c in result.calibrated.items():
         print(f"  {n:10s} {np.round(np.degrees(log_so3(c.T_ref_cam[:3, :3])), 3).tolist()}")
 
     if result.T_mount_board is not None:
@@ -172,7 +172,9 @@ def _run_auto(args, cell, out, ds_dir, t_start) -> int:
     print(rep.summary())
     if rep.result is not None:
         print(f"{'camera':8s} {'views':>5s} {'1σ mm':>7s} {'1σ deg':>7s} {'err mm':>7s} {'err deg':>8s} {'err/1σ':>7s}")
-        for n, c in rep.result.cameras.items():
+        for n, why in rep.result.not_calibrated.items():
+            print(f"{n:8s} not calibrated: {why}")
+        for n, c in rep.result.calibrated.items():
             e_m, e_deg = pose_error(c.T_ref_cam, cell.camera(n).T_base_cam)
             s_mm = float(np.linalg.norm(c.sigma_translation_mm))
             print(f"{n:8s} {c.views_used:5d} {s_mm:7.3f} {float(np.linalg.norm(c.sigma_rotation_deg)):7.4f} "

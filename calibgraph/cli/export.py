@@ -46,6 +46,8 @@ def run(args) -> int:
         print(f"wrote {args.out} (Multi-Camera-Hand-Eye-Calibration layout)")
         return 0
     result = load_result(args.result)
+    for name, why in result.not_calibrated.items():
+        print(f"note: camera {name!r} is not exported: it was not calibrated ({why})")
     for name, ident in renamed(result).items():
         print(f"note: camera {name!r} is exported as {ident} (its sanitised name is shared with another camera)")
     for fmt in args.fmt:

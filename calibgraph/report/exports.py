@@ -122,6 +122,8 @@ def _header_lines(result) -> list:
         f"The transform is T_{ref}_cam: it maps points from the camera optical frame to the {ref} frame (p_{ref} = T @ p_cam).",
         "Units: translation metres, angles radians, quaternion (x, y, z, w); a name ending in _mm or _deg is in mm or degrees.",
     ]
+    for name, why in result.not_calibrated.items():
+        lines.append(f"Camera {name!r} is not in this file: it was not calibrated ({why}).")
     changed = renamed(result)
     if changed:
         lines.append("Camera names that sanitise to the same identifier were made unique: "
@@ -152,7 +154,7 @@ def urdf_snippet(result, parent: str | None = None, xacro: bool = True) -> str:
         lines.append(f'  <xacro:arg name="parent" default="{parent}"/>')
     else:
         lines.append('<robot name="calibgraph_cameras">')
-    for name, cam in result.cameras.items():
+    for name, cam in result.calibrated.items():
         T = cam.T_ref_cam
         xyz = T[:3, 3]
         rpy = R_to_rpy(T[:3, :3])
@@ -214,7 +216,7 @@ def ros2_launch_text(result, parent: str | None = None) -> str:
         "# name: (x_m, y_m, z_m, qx, qy, qz, qw, parent_frame, child_frame)",
         "CAMERAS = {",
     ]
-    for name, cam in result.cameras.items():
+    for name, cam in result.calibrated.items():
         T = cam.T_ref_cam
         q = R_to_quat_xyzw(T[:3, :3])
         t = T[:3, 3]
@@ -265,7 +267,7 @@ def write_opencv_yaml(result, out_dir, dataset=None) -> list:
     out = output_folder(out_dir, "export folder")
     ids = export_names(result)
     paths = []
-    for name in result.cameras:
+    for name in result.calibrated:
         intr = camera_intrinsics(result, name, dataset)
         stem = ids[name] if ids[name] not in RESERVED_FILE_STEMS else f"camera_{ids[name]}"
         p = out / f"{stem}.yaml"

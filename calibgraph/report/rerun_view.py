@@ -78,7 +78,7 @@ def log_result(rec, result, source=None) -> None:
     obs = observations(source) if source is not None else None
     ref = result.ref_frame
     eih = result.mode == "eye_in_hand"
-    names = list(result.cameras)
+    names = list(result.calibrated)
 
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log("world/robot_base", _axes(rr, 0.2), static=True)
@@ -105,7 +105,7 @@ def log_result(rec, result, source=None) -> None:
 
     cam_root = "world/flange" if eih else "world/cameras"
     intr = {}
-    for n, c in result.cameras.items():
+    for n, c in result.calibrated.items():
         T = c.T_ref_cam
         rec.log(f"{cam_root}/{n}", _pose(rr, T), static=True)
         rec.log(f"{cam_root}/{n}/axes", _axes(rr, 0.1), static=True)
@@ -143,11 +143,12 @@ def log_result(rec, result, source=None) -> None:
 
     lines = [f"# calibgraph result ({result.mode}, {result.method})", "",
              "| camera | t (m) | 1σ t (mm) | 1σ r (deg) | RMS px | views |", "|---|---|---|---|---|---|"]
-    for n, c in result.cameras.items():
+    for n, c in result.calibrated.items():
         lines.append(f"| {n} | {np.round(c.T_ref_cam[:3, 3], 4).tolist()} | "
                      f"{np.round(c.sigma_translation_mm, 3).tolist()} | "
                      f"{np.round(c.sigma_rotation_deg, 4).tolist()} | {c.reprojection_rms_px:.3f} | "
                      f"{c.views_used} used, {len(c.views_rejected)} rejected |")
+    lines += [f"| {n} | not calibrated: {why} | | | | |" for n, why in result.not_calibrated.items()]
     rec.log("summary", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True)
 
 
@@ -276,7 +277,7 @@ def default_blueprint(result, plan: bool = False):
     cam_root = "world/flange" if result.mode == "eye_in_hand" else "world/cameras"
 
     images = []
-    for n, c in result.cameras.items():
+    for n, c in result.calibrated.items():
         intr = c.solved_intrinsics
         # show the whole image, so where the corners fall in the frame is visible even without images
         bounds = (rrb.VisualBounds2D(x_range=[-0.5, intr.width_px - 0.5], y_range=[-0.5, intr.height_px - 0.5])

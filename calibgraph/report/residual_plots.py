@@ -14,7 +14,7 @@ def residuals_html(result, residuals: dict, source: str) -> str:
     h = ["<h2>Residuals</h2>"]
     if any(residuals.values()):
         h.append(f'<p class="note">Per-corner residuals ({esc(source)}): residual = reprojected − detected corner.</p>')
-        h += [_camera_plots(result, n, residuals.get(n) or {}) for n in result.cameras]
+        h += [_camera_plots(result, n, residuals[n]) for n in result.calibrated if residuals.get(n)]
     else:
         h.append('<p class="note">No per-corner residuals: the result has no <code>residuals</code> section and no '
                  "dataset was given (<code>calibgraph report RESULT --dataset DIR</code> recomputes them).</p>")

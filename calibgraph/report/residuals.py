@@ -59,7 +59,7 @@ def compute_residuals(result, source) -> dict:
     for cam, k, i, _r in result.rejected_corners:
         rejected_ids.setdefault((cam, k), set()).add(i)
     out = {}
-    for name, cam in result.cameras.items():
+    for name, cam in result.calibrated.items():
         T_mount_board = result.T_mount_board if result.T_mount_board is not None else cam.T_mount_board
         intr = cam.solved_intrinsics or obs["cameras"].get(name)
         if T_mount_board is None or intr is None:

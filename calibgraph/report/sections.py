@@ -47,6 +47,11 @@ def summary_html(result, verdicts: dict) -> str:
          "<th>1σ translation x, y, z (mm)</th><th>1σ rotation x, y, z (deg)</th><th>reproj. RMS (px)</th>"
          "<th>reproj. max (px)</th><th>views used</th><th>views rejected</th><th>verdict</th></tr>"]
     for n, c in result.cameras.items():
+        if not c.calibrated:
+            h.append(f'<tr data-camera="{esc(n)}"><td class="l"><a href="#cam-{esc(n)}">{esc(n)}</a></td>'
+                     f'<td class="l" colspan="6">not calibrated: {esc(c.why)}</td><td>{num(c.views_used, ".0f")}</td>'
+                     f"<td>{num(len(c.views_rejected), '.0f')}</td><td>{badge(False)}</td></tr>")
+            continue
         T = c.T_ref_cam
         h.append(f'<tr data-camera="{esc(n)}"><td class="l"><a href="#cam-{esc(n)}">{esc(n)}</a></td>'
                  f"<td>{vec(T[:3, 3], '.4f')}</td><td>{vec(np.degrees(R_to_rpy(T[:3, :3])), '.2f')}</td>"
@@ -63,6 +68,9 @@ def summary_html(result, verdicts: dict) -> str:
 def camera_html(result, n: str, intr, verdict: dict, residuals: dict, ws: dict) -> str:
     """One camera: pose, 1σ and weakest directions, checks, rejected views, coverage and workspace maps."""
     c = result.cameras[n]
+    if not c.calibrated:
+        return "\n".join([f'<div class="cam" id="cam-{esc(n)}"><h3>{esc(n)} {badge(False)}</h3>',
+                          f"<p><b>Not calibrated</b>: {esc(c.why)}</p>", _rejected_views_html(c), "</div>"])
     ref, T = result.ref_frame, c.T_ref_cam
     h = [f'<div class="cam" id="cam-{esc(n)}"><h3>{esc(n)} {badge(verdict["pass"])}</h3>', '<div class="plots"><div>',
          f"<b>T_{ref}_cam</b> (maps camera optical-frame points to the {ref} frame, metres){matrix(T)}",
@@ -85,10 +93,7 @@ def camera_html(result, n: str, intr, verdict: dict, residuals: dict, ws: dict) 
              f"{num(c.reprojection_max_px, '.3f', ' px')}; corners used {num(c.corners_used, '.0f')}, "
              f"rejected {num(c.corners_rejected, '.0f')}<br>views used {num(c.views_used, '.0f')}, "
              f"rejected {num(len(c.views_rejected), '.0f')}</p>")
-    if c.views_rejected:
-        h.append('<table class="rejected"><tr><th>capture</th><th class="l">reason</th></tr>')
-        h += [f'<tr><td>{esc(v.capture)}</td><td class="l">{esc(v.reason)}</td></tr>' for v in c.views_rejected]
-        h.append("</table>")
+    h.append(_rejected_views_html(c))
     if intr is not None:
         h.append(f'<p class="note">intrinsics: {intr.width_px}×{intr.height_px} px, fx {intr.K[0, 0]:.1f}, fy {intr.K[1, 1]:.1f}, '
                  f"cx {intr.K[0, 2]:.1f}, cy {intr.K[1, 2]:.1f}, dist {np.round(intr.dist, 4).tolist()}</p>")
@@ -99,6 +104,14 @@ def camera_html(result, n: str, intr, verdict: dict, residuals: dict, ws: dict) 
         h.append(ws["svg"][n])
     h.append("</div></div>")
     return "\n".join(h)
+
+
+def _rejected_views_html(c) -> str:
+    if not c.views_rejected:
+        return ""
+    return ('<table class="rejected"><tr><th>capture</th><th class="l">reason</th></tr>'
+            + "".join(f'<tr><td>{esc(v.capture)}</td><td class="l">{esc(v.reason)}</td></tr>' for v in c.views_rejected)
+            + "</table>")
 
 
 def pairs_html(result) -> str:

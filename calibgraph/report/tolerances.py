@@ -111,6 +111,8 @@ def camera_verdict(name: str, cam, tol: dict, worst_ws_mm) -> dict:
     """One :class:`~calibgraph.solver.result.CameraResult` against its tolerances:
     ``{'pass', 'rows': [(label, value, op, limit, ok)], 'reasons': [why it fails]}``. A row with
     ``ok`` None could not be evaluated (a value that is not a number)."""
+    if not cam.calibrated:
+        return {"pass": False, "rows": [], "reasons": [f"not calibrated: {cam.why}"]}
     limits = dict(tol["defaults"])
     limits.update(tol["cameras"].get(name, {}))
     rows, reasons = [], []

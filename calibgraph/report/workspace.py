@@ -37,8 +37,8 @@ def workspace_maps(result, tol: dict, intr: dict) -> dict:
     """Per-camera 1σ point-error maps of ``result``: ``{'svg': camera -> plot, 'worst': camera ->
     worst visible 1σ (mm) or None, 'html': the explanation and the comparison table}``."""
     wcfg = tol.get("workspace") or {}
-    poses = {n: c.T_ref_cam for n, c in result.cameras.items()}
-    cov = {n: c.covariance for n, c in result.cameras.items()}
+    poses = {n: c.T_ref_cam for n, c in result.calibrated.items()}
+    cov = {n: c.covariance for n, c in result.calibrated.items()}
     names = list(poses)
     out = {"svg": {}, "worst": {}, "html": ""}
     n_grid = int(wcfg.get("grid_n", 24))

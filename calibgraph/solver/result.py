@@ -8,14 +8,16 @@ round-trip it exactly (every number, array and note), in JSON or YAML.
 - ``mode``: 'eye_to_hand' | 'eye_in_hand'; ``method``: 'joint' | 'single'; ``dataset``: where the
   data came from; ``target``: the target spec (kind, rows, cols, pitch_m, ...) when it was known.
 - ``T_flange_board`` (eye-to-hand, joint) or ``T_base_board`` (eye-in-hand, joint).
-- ``cameras.<name>``: ``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand),
+- ``cameras.<name>``: ``calibrated`` (false: too few of its views survived rejection; then only
+  ``why``, ``views_used`` and ``views_rejected`` follow), ``T_base_cam`` (eye-to-hand) or
+  ``T_flange_cam`` (eye-in-hand),
   ``sigma_translation_mm`` (3, base/flange axes), ``sigma_rotation_deg`` (3, same axes),
   ``covariance`` (6x6, rotation first, rad and m, perturbation expressed in the reference frame
   axes: rotation vector of ``R_est R_true^T`` and camera-centre offset), ``reprojection_rms_px``,
   ``reprojection_max_px``, ``views_used``, ``views_rejected`` (list of {capture, reason}),
   ``corners_used``, ``corners_rejected``, ``intrinsics`` (K, dist, width_px, height_px used; with
-  ``sigma`` and ``given`` when they were estimated), ``corner_noise``; in 'single' mode also the
-  camera's own board mount.
+  ``sigma`` and ``given`` when they were estimated), ``corner_noise``, ``error_budget`` (what the
+  1-sigma is made of); in 'single' mode also the camera's own board mount.
 - ``camera_pairs.<a>__<b>``: ``a``, ``b``, ``T_<a>_<b>`` with its ``sigma_translation_mm`` /
   ``sigma_rotation_deg`` and ``covariance`` (6x6, rotation first, in frame a's axes).
 - ``board_mount``: covariance and sigmas of the board mount.
@@ -116,12 +118,13 @@ class CameraResult:
     residuals_px: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
-        _set(self, T_ref_cam=_floats(self.T_ref_cam), covariance=_floats(self.covariance),
+        _set(self, T_ref_cam=_floats_or_none(self.T_ref_cam), covariance=_floats_or_none(self.covariance),
              reprojection_rms_px=float(self.reprojection_rms_px), reprojection_max_px=float(self.reprojection_max_px),
              views_used=int(self.views_used), views_rejected=tuple(self.views_rejected),
              corners_used=int(self.corners_used), corners_rejected=int(self.corners_rejected),
-             T_mount_board=None if self.T_mount_board is None else _floats(self.T_mount_board),
+             T_mount_board=_floats_or_none(self.T_mount_board),
              intrinsics=_plain(self.intrinsics), corner_noise=_plain(self.corner_noise),
+             error_budget=_plain(self.error_budget), calibrated=bool(self.calibrated), why=str(self.why),
              residuals_px={int(k): _residual_record(v) for k, v in (self.residuals_px or {}).items()})
 
     def __eq__(self, other):  # exact, arrays included
@@ -535,6 +538,13 @@ def _result_from_dict(d: dict, where: str) -> Result:
 
 def _camera_from_dict(name: str, c: dict, frames, residuals: dict, where: str) -> CameraResult:
     what = f"{where}: camera {name!r}"
+    views_rejected = tuple(RejectedView(name, int(v["capture"]), str(v.get("reason", "")))
+                           for v in c.get("views_rejected") or [])
+    if c.get("calibrated", True) is False:  # too few views survived: no pose, no covariance
+        return CameraResult(name=name, ref_frame=frames.ref, T_ref_cam=None, covariance=None,
+                            reprojection_rms_px=float("nan"), reprojection_max_px=float("nan"),
+                            views_used=int(c.get("views_used") or 0), views_rejected=views_rejected, calibrated=False,
+                            why=str(c.get("why") or ""))
     if frames.camera_key not in c:
         raise InputError(f"{what} has no {frames.camera_key} (mode {'eye_to_hand' if frames.ref == 'base' else 'eye_in_hand'}).")
     if "covariance" not in c:
@@ -545,12 +555,11 @@ def _camera_from_dict(name: str, c: dict, frames, residuals: dict, where: str) -
         covariance=_matrix(c["covariance"], (6, 6), f"{what}: covariance"),
         reprojection_rms_px=_number(c.get("reprojection_rms_px"), float("nan")),
         reprojection_max_px=_number(c.get("reprojection_max_px"), float("nan")),
-        views_used=int(c.get("views_used") or 0),
-        views_rejected=tuple(RejectedView(name, int(v["capture"]), str(v.get("reason", "")))
-                             for v in c.get("views_rejected") or []),
+        views_used=int(c.get("views_used") or 0), views_rejected=views_rejected,
         corners_used=int(c.get("corners_used") or 0), corners_rejected=int(c.get("corners_rejected") or 0),
         T_mount_board=None if mount is None else _pose(mount, f"{what}: {frames.board_key}"),
         intrinsics=_section(c, "intrinsics", what), corner_noise=_section(c, "corner_noise", what),
+        error_budget=_section(c, "error_budget", what),
         residuals_px={int(k): _residual_from_dict(_mapping(v, f"{what}: residuals of capture {k}"))
                       for k, v in residuals.items()},
     )
@@ -617,6 +626,10 @@ def _set(obj, **values) -> None:
 
 def _floats(x) -> np.ndarray:
     return np.asarray(x, dtype=float)
+
+
+def _floats_or_none(x) -> np.ndarray | None:
+    return None if x is None else _floats(x)
 
 
 def _plain(x):

@@ -93,7 +93,7 @@ def stored_model(result: Result, where: str = "result") -> StoredModel:
         raise InputError(f"{where}: verify needs an eye-to-hand result with one board mount (method 'joint'); "
                          f"this one is mode={result.mode!r}, method={result.method!r}.")
     intr = {}
-    for name, c in result.cameras.items():
+    for name, c in result.calibrated.items():
         intr[name] = c.solved_intrinsics
         if intr[name] is None:
             raise InputError(f"{where}: camera {name!r} has no intrinsics (a result written by an older calibgraph); "
@@ -101,8 +101,8 @@ def stored_model(result: Result, where: str = "result") -> StoredModel:
     if not result.pixel_sigma_px > 0:
         raise InputError(f"{where}: no pixel sigma in 'solver'; re-solve the calibration with this calibgraph.")
     mount_cov = result.mount_covariance if result.mount_covariance is not None else np.diag([1e-16] * 6)
-    return StoredModel({n: c.T_ref_cam for n, c in result.cameras.items()},
-                       {n: c.covariance for n, c in result.cameras.items()}, intr, result.T_mount_board,
+    return StoredModel({n: c.T_ref_cam for n, c in result.calibrated.items()},
+                       {n: c.covariance for n, c in result.calibrated.items()}, intr, result.T_mount_board,
                        result.board_scale, result.pixel_sigma_px, mount_cov, result.board_scale_sigma or 0.0)
 
 
@@ -120,18 +120,20 @@ def check_fresh_data(result: Result, cameras, target: Target | None = None, wher
                          + (f"; {', '.join(absent)} of the result are not in the fresh data: was a camera renamed?"
                             if absent else "")
                          + " Use the camera names of the calibration (or remove the new camera from dataset.yaml).")
+    notes = [f"{n} was not calibrated in the stored result ({result.cameras[n].why}): not verified"
+             for n in sorted(fresh & set(result.not_calibrated))]
     if target is None:
-        return []
+        return notes
     solved = solved_target(result)
     if solved is None:
-        return ["the target the result was solved with is unknown (it does not record it and its dataset is gone): "
-                "make sure the fresh data declares the same board"]
+        return notes + ["the target the result was solved with is unknown (it does not record it and its dataset is "
+                        "gone): make sure the fresh data declares the same board"]
     differ = target_differences(solved, target)
     if differ:
         raise InputError(f"verify: the fresh data's target differs from the one {where} was solved with: "
                          f"{'; '.join(differ)}. Declare the calibration's target (a different board makes every camera "
                          "look moved), or calibrate again with the new one.")
-    return []
+    return notes
 
 
 @dataclass(frozen=True)
