@@ -211,12 +211,10 @@ def test_a_camera_that_was_not_calibrated_round_trips_and_is_reported(tmp_path):
     from calibgraph.report.exports import export
     from calibgraph.report.html import write_report
 
-    sc = make_scene(n_poses=30, pixel_sigma_px=0.3, seed=13)
-    p = sc.problem
-    w = p.cameras["cam1"].width_px
-    dets = [Detection(d.camera, d.capture, d.ids, np.column_stack([w - 1 - d.uv_px[:, 0], d.uv_px[:, 1]]))
-            if d.camera == "cam1" else d for d in p.detections]
-    r = cg.solve(p.with_(detections=tuple(dets)))
+    p = make_scene(n_poses=30, pixel_sigma_px=0.3, seed=13).problem
+    flip = np.array([-1.0, 1.0]), np.array([p.cameras["cam1"].width_px - 1.0, 0.0])  # u -> width - 1 - u
+    r = cg.solve(p.with_(detections=tuple(replace(d, uv_px=d.uv_px * flip[0] + flip[1]) if d.camera == "cam1" else d
+                                          for d in p.detections)))
     assert not r.cameras["cam1"].calibrated and r.cameras["cam1"].why
     for ext in ("json", "yaml"):
         assert_same(cg.load_result(r.save(tmp_path / f"r.{ext}")), r)
