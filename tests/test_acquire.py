@@ -407,9 +407,11 @@ for mod in pkgutil.walk_packages(calibgraph.__path__, "calibgraph."):
     if mod.name != "calibgraph.__main__":
         importlib.import_module(mod.name)  # every engine module imports without any SDK, MuJoCo or rerun
 from calibgraph.acquire.interfaces import DeviceError
-import drivers.franka, drivers.realsense, drivers.ros2, drivers.kinect
-for make in (lambda: drivers.franka.FrankaRobot("127.0.0.1"), lambda: drivers.realsense.RealSenseCamera("c"),
-             lambda: drivers.ros2.Ros2Camera("c", "/x/image_raw"), lambda: drivers.kinect.KinectV2Camera("c")):
+import calibgraph_drivers.franka, calibgraph_drivers.realsense, calibgraph_drivers.ros2, calibgraph_drivers.kinect
+for make in (lambda: calibgraph_drivers.franka.FrankaRobot("127.0.0.1"),
+             lambda: calibgraph_drivers.realsense.RealSenseCamera("c"),
+             lambda: calibgraph_drivers.ros2.Ros2Camera("c", "/x/image_raw"),
+             lambda: calibgraph_drivers.kinect.KinectV2Camera("c")):
     try:
         make()
     except DeviceError as e:
