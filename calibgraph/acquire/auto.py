@@ -13,8 +13,7 @@
 3. **Active loop** (:mod:`calibgraph.plan.active`): the next pose is the candidate with the highest
    expected reduction of the cameras' shortfall per second, predicted on the linearised graph of
    the captures so far; after each capture iSAM2 updates, the batch solver solves every capture
-   so far (a fraction of a second at these sizes) and its 1-sigma goes into the plan log beside
-   the predicted one.
+   so far and its 1-sigma goes into the plan log beside the predicted one.
 4. **Stop**: when the batch solve says every placed camera is within tolerance (its 1-sigma is
    what ``result.json`` reports), otherwise the loop goes on until ``max_poses`` captures.
    A camera short of tolerance at the end gets a line saying why and what would help.

@@ -32,7 +32,6 @@ inner claim checks its inputs against the record and adds them.
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import json
 import os
@@ -49,6 +48,11 @@ from calibgraph.core.targets import Target
 from calibgraph.core.version import __version__
 from calibgraph.io.dataset import write_header
 from calibgraph.io.files import output_folder, read_yaml
+
+try:  # POSIX; elsewhere (or on a file system without flock) the holder's pid decides, see _held_by_another
+    import fcntl
+except ImportError:  # pragma: no cover - not on the platforms calibgraph runs on
+    fcntl = None
 
 __all__ = ["Claim", "claim_dataset", "content_sha256", "file_sha256", "write_or_check_header", "LOCK_NAME",
            "TRAJECTORY_RUNS"]
@@ -155,18 +159,41 @@ def _describe(h: dict) -> str:
             f"started {when}")
 
 
+def _held_by_another(fd: int) -> bool:
+    """Take the exclusive flock on the lock file ``fd``; True when another process holds it. Where
+    flock is unavailable, the recorded holder's pid decides (held while that process lives)."""
+    if fcntl is not None:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return False
+        except BlockingIOError:
+            return True
+        except OSError:  # a file system without flock: fall back on the pid
+            pass
+    h = _holder(fd)
+    if h.get("pid") in (None, os.getpid()):  # a new lock file, or ours
+        return False
+    if h.get("host") != socket.gethostname():  # held from another machine: whether it lives cannot be told
+        return True
+    try:
+        os.kill(int(h["pid"]), 0)
+        return True
+    except ProcessLookupError:
+        return False
+    except (OSError, ValueError):
+        return True
+
+
 def _lock(out: Path, mode: str, log) -> int:
     """Take the dataset's lock (see the module docstring); the open descriptor that holds it."""
     path = out / LOCK_NAME
     for _ in range(20):
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        if _held_by_another(fd):
             h = _holder(fd)
             os.close(fd)
             raise InputError(f"{out}: another calibgraph run is writing this dataset ({_describe(h)}); wait for it to "
-                             "end or stop it, then resume (nothing was changed).") from None
+                             "end or stop it, then resume (nothing was changed).")
         try:
             same = os.stat(path).st_ino == os.fstat(fd).st_ino
         except FileNotFoundError:
