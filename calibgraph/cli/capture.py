@@ -40,7 +40,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-ROBOT_DRIVERS = ("sim", "franka")  # as calibgraph.acquire.devices.ROBOT_DRIVERS (argparse choices, kept import-free)
+from calibgraph.acquire.devices import ROBOT_DRIVERS  # the registry's robot drivers (a light import)
 
 
 def add_parser(sub):
