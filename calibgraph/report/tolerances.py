@@ -7,8 +7,6 @@ positive definite) cannot pass, whatever its 1σ says.
 from __future__ import annotations
 
 import json
-import os
-import stat
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +59,6 @@ def load_tolerances(config=None) -> dict:
         if isinstance(src, dict):
             d = src
         else:
-            _refuse_non_regular(src)
             d = read_yaml(src, "tolerance config (a mapping with 'defaults', 'cameras', 'workspace')", empty_ok=True)
         unknown = set(d) - {"format", "defaults", "cameras", "workspace", "description"}
         if unknown:
@@ -78,16 +75,6 @@ def load_tolerances(config=None) -> dict:
             tol["cameras"].setdefault(str(cam), {}).update(lim or {})
         tol["workspace"].update(d.get("workspace") or {})
     return tol
-
-
-def _refuse_non_regular(path) -> None:
-    """A FIFO or a device given as the config would block or never end: refuse it before reading."""
-    try:
-        mode = os.stat(path).st_mode
-    except OSError:
-        return  # read_yaml names the missing file
-    if not stat.S_ISREG(mode):
-        raise InputError(f"{path}: is not a regular file; give the tolerance config as a YAML file.")
 
 
 def covariance_problem(cov) -> str | None:

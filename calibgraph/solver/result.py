@@ -46,8 +46,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -58,7 +56,7 @@ from calibgraph.core.errors import CalibgraphError, InputError
 from calibgraph.core.problem import MODES, mode_frames
 from calibgraph.core.targets import Target
 from calibgraph.core.version import __version__
-from calibgraph.io.files import atomic_write_text, read_yaml
+from calibgraph.io.files import atomic_write_text, read_input_bytes, read_yaml
 
 RESULT_FORMAT = "calibgraph-result/1"
 
@@ -401,7 +399,10 @@ def load_result_dict(path) -> dict:
     checked; :func:`load_result` gives the :class:`Result`). Only a regular file is read (a FIFO or
     a device would block or never end)."""
     p = Path(path)
-    text = _read_regular_text(p, "result")
+    try:
+        text = read_input_bytes(p, "result").decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: not a calibgraph result file (not UTF-8 text).") from None
     try:
         if p.suffix.lower() in (".yaml", ".yml"):
             import yaml
@@ -461,29 +462,6 @@ def target_differences(solved: Target, given: Target) -> list:
 
 
 # -- reading ------------------------------------------------------------------------------------------
-def _read_regular_text(p: Path, what: str) -> str:
-    """The text of ``p``, opened without blocking and read only when it is a regular file."""
-    try:
-        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as e:
-        raise InputError(f"{p}: cannot read {what}: {e.strerror or e}.") from None
-    try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            kind = "a folder" if stat.S_ISDIR(mode) else "not a regular file (a pipe, device or socket)"
-            raise InputError(f"{p}: is {kind}; give the {what} file (result.json or result.yaml).")
-        with os.fdopen(fd, "rb", closefd=False) as f:
-            data = f.read()
-    except OSError as e:
-        raise InputError(f"{p}: cannot read {what}: {e.strerror or e}.") from None
-    finally:
-        os.close(fd)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise InputError(f"{p}: not a calibgraph result file (not UTF-8 text).") from None
-
-
 def _result_from_dict(d: dict, where: str) -> Result:
     mode = d["mode"] or "eye_to_hand"
     if mode not in MODES:
