@@ -43,9 +43,7 @@ newer format is refused in one line.
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -57,6 +55,20 @@ from calibgraph.core.problem import MODES, mode_frames
 from calibgraph.core.targets import Target
 from calibgraph.core.version import __version__
 from calibgraph.io.files import atomic_write_text, read_input_bytes, read_yaml
+from calibgraph.solver.result_values import (
+    exactly_equal,
+    floats,
+    floats_or_none,
+    mapping,
+    matrix,
+    number_or,
+    plain_json,
+    pose_matrix,
+    residual_from_dict,
+    residual_record,
+    section,
+    set_fields,
+)
 
 RESULT_FORMAT = "calibgraph-result/1"
 
@@ -116,14 +128,14 @@ class CameraResult:
     residuals_px: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
-        _set(self, T_ref_cam=_floats_or_none(self.T_ref_cam), covariance=_floats_or_none(self.covariance),
+        set_fields(self, T_ref_cam=floats_or_none(self.T_ref_cam), covariance=floats_or_none(self.covariance),
              reprojection_rms_px=float(self.reprojection_rms_px), reprojection_max_px=float(self.reprojection_max_px),
              views_used=int(self.views_used), views_rejected=tuple(self.views_rejected),
              corners_used=int(self.corners_used), corners_rejected=int(self.corners_rejected),
-             T_mount_board=_floats_or_none(self.T_mount_board),
-             intrinsics=_plain(self.intrinsics), corner_noise=_plain(self.corner_noise),
-             error_budget=_plain(self.error_budget), calibrated=bool(self.calibrated), why=str(self.why),
-             residuals_px={int(k): _residual_record(v) for k, v in (self.residuals_px or {}).items()})
+             T_mount_board=floats_or_none(self.T_mount_board),
+             intrinsics=plain_json(self.intrinsics), corner_noise=plain_json(self.corner_noise),
+             error_budget=plain_json(self.error_budget), calibrated=bool(self.calibrated), why=str(self.why),
+             residuals_px={int(k): residual_record(v) for k, v in (self.residuals_px or {}).items()})
 
     def __eq__(self, other):  # exact, arrays included
         return exactly_equal(self, other)
@@ -163,7 +175,7 @@ class PairResult:
     covariance: np.ndarray
 
     def __post_init__(self):
-        _set(self, T_a_b=_floats(self.T_a_b), covariance=_floats(self.covariance))
+        set_fields(self, T_a_b=floats(self.T_a_b), covariance=floats(self.covariance))
 
     def __eq__(self, other):
         return exactly_equal(self, other)
@@ -210,19 +222,19 @@ class Result:
     target: dict | None = None  # the target spec solved with (Target.to_dict()), when the caller knew it
 
     def __post_init__(self):
-        _set(self, T_mount_board=None if self.T_mount_board is None else _floats(self.T_mount_board),
-             mount_covariance=None if self.mount_covariance is None else _floats(self.mount_covariance),
+        set_fields(self, T_mount_board=None if self.T_mount_board is None else floats(self.T_mount_board),
+             mount_covariance=None if self.mount_covariance is None else floats(self.mount_covariance),
              converged=bool(self.converged), iterations=int(self.iterations), final_cost=float(self.final_cost),
              pixel_sigma_px=float(self.pixel_sigma_px), solve_time_s=float(self.solve_time_s),
              rejected_views=tuple(RejectedView(str(v.camera), int(v.capture), str(v.reason))
                                   for v in self.rejected_views),
              rejected_corners=tuple((str(c), int(k), int(i), float(r)) for c, k, i, r in self.rejected_corners),
-             T_base_flange_est={int(k): _floats(T) for k, T in (self.T_base_flange_est or {}).items()},
-             settings=_plain(dict(self.settings or {})), dataset=str(self.dataset or ""),
+             T_base_flange_est={int(k): floats(T) for k, T in (self.T_base_flange_est or {}).items()},
+             settings=plain_json(dict(self.settings or {})), dataset=str(self.dataset or ""),
              board_scale=float(self.board_scale),
              board_scale_sigma=None if self.board_scale_sigma is None else float(self.board_scale_sigma),
-             notes=tuple(str(n) for n in self.notes), robot=_plain(self.robot), fk_noise=_plain(self.fk_noise),
-             calibgraph_version=str(self.calibgraph_version), target=_plain(self.target))
+             notes=tuple(str(n) for n in self.notes), robot=plain_json(self.robot), fk_noise=plain_json(self.fk_noise),
+             calibgraph_version=str(self.calibgraph_version), target=plain_json(self.target))
 
     def __eq__(self, other):
         return exactly_equal(self, other)
@@ -467,24 +479,24 @@ def _result_from_dict(d: dict, where: str) -> Result:
     if mode not in MODES:
         raise InputError(f"{where}: mode {mode!r} is not one of {', '.join(MODES)}.")
     frames = mode_frames(mode)
-    cams_d = _mapping(d["cameras"], f"{where}: cameras")
+    cams_d = mapping(d["cameras"], f"{where}: cameras")
     if not cams_d:
         raise InputError(f"{where}: the result has no cameras.")
-    residuals = _mapping(d.get("residuals") or {}, f"{where}: residuals")
-    cameras = {str(n): _camera_from_dict(str(n), _mapping(c, f"{where}: camera {n!r}"), frames,
-                                         _mapping(residuals.get(n) or {}, f"{where}: residuals of {n!r}"), where)
+    residuals = mapping(d.get("residuals") or {}, f"{where}: residuals")
+    cameras = {str(n): _camera_from_dict(str(n), mapping(c, f"{where}: camera {n!r}"), frames,
+                                         mapping(residuals.get(n) or {}, f"{where}: residuals of {n!r}"), where)
                for n, c in cams_d.items()}
     pairs = {}
-    for key, p in _mapping(d.get("camera_pairs") or {}, f"{where}: camera_pairs").items():
+    for key, p in mapping(d.get("camera_pairs") or {}, f"{where}: camera_pairs").items():
         what = f"{where}: camera pair {key!r}"
-        p = _mapping(p, what)
+        p = mapping(p, what)
         a, b = (str(p["a"]), str(p["b"])) if "a" in p and "b" in p else str(key).split("__", 1)
-        pairs[(a, b)] = PairResult(a, b, _pose(p.get(f"T_{a}_{b}"), f"{what}: T_{a}_{b}"),
-                                   _matrix(p.get("covariance"), (6, 6), f"{what}: covariance"))
-    solver = _mapping(d.get("solver") or {}, f"{where}: solver")
-    scale = _mapping(d.get("board_scale") or {}, f"{where}: board_scale")
+        pairs[(a, b)] = PairResult(a, b, pose_matrix(p.get(f"T_{a}_{b}"), f"{what}: T_{a}_{b}"),
+                                   matrix(p.get("covariance"), (6, 6), f"{what}: covariance"))
+    solver = mapping(d.get("solver") or {}, f"{where}: solver")
+    scale = mapping(d.get("board_scale") or {}, f"{where}: board_scale")
     mount = d.get(frames.board_key)
-    mount_cov = (_mapping(d.get("board_mount") or {}, f"{where}: board_mount")).get("covariance")
+    mount_cov = (mapping(d.get("board_mount") or {}, f"{where}: board_mount")).get("covariance")
     if "rejected_views" in d:
         rejected_views = tuple(RejectedView(str(v["camera"]), int(v["capture"]), str(v.get("reason", "")))
                                for v in d["rejected_views"] or [])
@@ -492,25 +504,25 @@ def _result_from_dict(d: dict, where: str) -> Result:
         rejected_views = tuple(v for c in cameras.values() for v in c.views_rejected)
     return Result(
         mode=mode, method=str(d.get("method") or "joint"), cameras=cameras,
-        T_mount_board=None if mount is None else _pose(mount, f"{where}: {frames.board_key}"),
-        mount_covariance=None if mount is None or mount_cov is None else _matrix(mount_cov, (6, 6),
+        T_mount_board=None if mount is None else pose_matrix(mount, f"{where}: {frames.board_key}"),
+        mount_covariance=None if mount is None or mount_cov is None else matrix(mount_cov, (6, 6),
                                                                                  f"{where}: board_mount covariance"),
         pairs=pairs, converged=bool(solver.get("converged", True)), iterations=int(solver.get("iterations") or 0),
-        final_cost=_number(solver.get("final_cost"), float("nan")),
-        pixel_sigma_px=_number(solver.get("pixel_sigma_px"), float("nan")),
-        solve_time_s=_number(solver.get("solve_time_s"), float("nan")),
+        final_cost=number_or(solver.get("final_cost"), float("nan")),
+        pixel_sigma_px=number_or(solver.get("pixel_sigma_px"), float("nan")),
+        solve_time_s=number_or(solver.get("solve_time_s"), float("nan")),
         rejected_views=rejected_views,
         rejected_corners=tuple((str(r["camera"]), int(r["capture"]), int(r["id"]), float(r["residual_px"]))
                                for r in d.get("rejected_corners") or []),
-        T_base_flange_est={int(k): _pose(T, f"{where}: robot_flange_poses_refined[{k}]")
-                           for k, T in _mapping(d.get("robot_flange_poses_refined") or {}, where).items()},
-        settings=_mapping(solver.get("settings") or {}, f"{where}: solver settings"),
+        T_base_flange_est={int(k): pose_matrix(T, f"{where}: robot_flange_poses_refined[{k}]")
+                           for k, T in mapping(d.get("robot_flange_poses_refined") or {}, where).items()},
+        settings=mapping(solver.get("settings") or {}, f"{where}: solver settings"),
         dataset=str(d.get("dataset") or ""),
-        board_scale=_number(scale.get("scale"), 1.0),
+        board_scale=number_or(scale.get("scale"), 1.0),
         board_scale_sigma=None if scale.get("sigma") is None else float(scale["sigma"]),
-        notes=tuple(str(n) for n in d.get("notes") or []), robot=_section(d, "robot", where),
-        fk_noise=_section(d, "fk_noise", where),
-        calibgraph_version=str(d.get("calibgraph_version") or "unknown"), target=_section(d, "target", where),
+        notes=tuple(str(n) for n in d.get("notes") or []), robot=section(d, "robot", where),
+        fk_noise=section(d, "fk_noise", where),
+        calibgraph_version=str(d.get("calibgraph_version") or "unknown"), target=section(d, "target", where),
     )
 
 
@@ -529,120 +541,15 @@ def _camera_from_dict(name: str, c: dict, frames, residuals: dict, where: str) -
         raise InputError(f"{what} has no covariance.")
     mount = c.get(frames.board_key)
     return CameraResult(
-        name=name, ref_frame=frames.ref, T_ref_cam=_pose(c[frames.camera_key], f"{what}: {frames.camera_key}"),
-        covariance=_matrix(c["covariance"], (6, 6), f"{what}: covariance"),
-        reprojection_rms_px=_number(c.get("reprojection_rms_px"), float("nan")),
-        reprojection_max_px=_number(c.get("reprojection_max_px"), float("nan")),
+        name=name, ref_frame=frames.ref, T_ref_cam=pose_matrix(c[frames.camera_key], f"{what}: {frames.camera_key}"),
+        covariance=matrix(c["covariance"], (6, 6), f"{what}: covariance"),
+        reprojection_rms_px=number_or(c.get("reprojection_rms_px"), float("nan")),
+        reprojection_max_px=number_or(c.get("reprojection_max_px"), float("nan")),
         views_used=int(c.get("views_used") or 0), views_rejected=views_rejected,
         corners_used=int(c.get("corners_used") or 0), corners_rejected=int(c.get("corners_rejected") or 0),
-        T_mount_board=None if mount is None else _pose(mount, f"{what}: {frames.board_key}"),
-        intrinsics=_section(c, "intrinsics", what), corner_noise=_section(c, "corner_noise", what),
-        error_budget=_section(c, "error_budget", what),
-        residuals_px={int(k): _residual_from_dict(_mapping(v, f"{what}: residuals of capture {k}"))
+        T_mount_board=None if mount is None else pose_matrix(mount, f"{what}: {frames.board_key}"),
+        intrinsics=section(c, "intrinsics", what), corner_noise=section(c, "corner_noise", what),
+        error_budget=section(c, "error_budget", what),
+        residuals_px={int(k): residual_from_dict(mapping(v, f"{what}: residuals of capture {k}"))
                       for k, v in residuals.items()},
     )
-
-
-def _residual_from_dict(v: dict) -> dict:
-    ids = np.asarray(v["ids"], int).reshape(-1)
-    w = v.get("weight")
-    if w is None:  # files before the weights were written: the rejected flags are what is known
-        cr = v.get("corner_rejected")
-        w = np.ones(ids.size) if cr is None else np.where(np.asarray(cr, bool), 0.0, 1.0)
-    return {"ids": ids, "uv_detected_px": v["uv_detected_px"], "residual_px": v["residual_px"], "weight": w,
-            "rejected": v.get("rejected", False)}
-
-
-def _residual_record(v) -> dict:
-    """One view's residual record with its arrays in their shapes and dtypes."""
-    ids = np.asarray(v["ids"]).astype(int).reshape(-1)
-    w = v.get("weight")
-    return {"ids": ids,
-            "uv_detected_px": _floats(v["uv_detected_px"]).reshape(-1, 2),
-            "residual_px": _floats(v["residual_px"]).reshape(-1, 2),
-            "weight": np.ones(ids.size) if w is None else _floats(w).reshape(-1),
-            "rejected": bool(v.get("rejected", False))}
-
-
-def _mapping(x, what: str) -> dict:
-    if not isinstance(x, dict):
-        raise InputError(f"{what} is not a mapping.")
-    return x
-
-
-def _section(d: dict, key: str, where: str) -> dict | None:
-    """An optional free-form section: a mapping or absent."""
-    return None if d.get(key) is None else _mapping(d[key], f"{where}: {key}")
-
-
-def _matrix(x, shape: tuple, what: str) -> np.ndarray:
-    try:
-        a = np.asarray(x, float)
-    except (TypeError, ValueError):
-        raise InputError(f"{what} is not a {shape[0]}x{shape[1]} matrix of numbers.") from None
-    if a.shape != shape:
-        raise InputError(f"{what} is not a {shape[0]}x{shape[1]} matrix (got shape {a.shape}).")
-    return a
-
-
-def _pose(x, what: str) -> np.ndarray:
-    T = _matrix(x, (4, 4), what)
-    if not np.all(np.isfinite(T)):
-        raise InputError(f"{what} is not a finite 4x4 matrix.")
-    return T
-
-
-def _number(x, default: float) -> float:
-    return default if x is None else float(x)
-
-
-# -- plain values and exact equality -------------------------------------------------------------------
-def _set(obj, **values) -> None:
-    for k, v in values.items():
-        object.__setattr__(obj, k, v)
-
-
-def _floats(x) -> np.ndarray:
-    return np.asarray(x, dtype=float)
-
-
-def _floats_or_none(x) -> np.ndarray | None:
-    return None if x is None else _floats(x)
-
-
-def _plain(x):
-    """``x`` as the JSON value it is saved as (lists for tuples and arrays, Python scalars, string
-    keys), so a free-form section equals itself read back."""
-    if x is None or isinstance(x, (str, bool)):
-        return x
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.generic):
-        return _plain(x.item())
-    if isinstance(x, (int, float)):
-        return x
-    if isinstance(x, Path):
-        return str(x)
-    raise TypeError(f"result: {type(x).__name__} value {x!r} cannot be saved in a result file")
-
-
-def exactly_equal(a, b) -> bool:
-    """Exact equality of results and their parts (what ``==`` of a Result, CameraResult or
-    PairResult means): same types, arrays of equal shape and values, NaN equal to NaN."""
-    if type(a) is not type(b):
-        return False
-    if isinstance(a, np.ndarray):
-        return a.shape == b.shape and bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
-    if dataclasses.is_dataclass(a):
-        return all(exactly_equal(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a))
-    if isinstance(a, dict):
-        return a.keys() == b.keys() and all(exactly_equal(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)):
-        return len(a) == len(b) and all(exactly_equal(x, y) for x, y in zip(a, b))
-    if isinstance(a, float) and math.isnan(a):
-        return math.isnan(b)
-    return a == b
