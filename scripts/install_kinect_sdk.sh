@@ -94,14 +94,30 @@ tar -xzf "$VENDOR/$PYLIBFREENECT2_TGZ" -C "$WORK"
 for p in "${PATCHES[@]}"; do
     patch -s -p1 -d "$WORK/pylibfreenect2" <"$p" || die "pylibfreenect2: patch $(basename "$p") does not apply."
 done
-# build tools in the target environment (only when missing: a second run needs no network)
-"$PY" - 2>/dev/null <<'EOF' || "$PY" -m pip install -q "cython>=3" "setuptools>=70.1" wheel
-import sys
-from importlib.metadata import version
-ok = int(version("cython").split(".")[0]) >= 3
-major, minor = (int(x) for x in version("setuptools").split(".")[:2])
-sys.exit(0 if ok and (major, minor) >= (70, 1) else 1)
+# build tools in the target environment, only those missing (a second run needs no network):
+# Cython >= 3, and bdist_wheel (setuptools >= 70.1 has it, older ones need the wheel package)
+need=$("$PY" - 2>/dev/null <<'EOF'
+from importlib.metadata import version, PackageNotFoundError
+def v(name):
+    try:
+        return tuple(int(x) for x in version(name).split(".")[:2] if x.isdigit())
+    except PackageNotFoundError:
+        return None
+need = []
+if (v("cython") or (0,)) < (3,):
+    need.append("cython>=3")
+if (v("setuptools") or (0,)) < (70, 1) and v("wheel") is None:
+    need.append("wheel")
+print(" ".join(need))
 EOF
+)
+if [ -n "$need" ]; then
+    echo "install_kinect_sdk: installing build tools into $PREFIX: $need"
+    # shellcheck disable=SC2086
+    "$PY" -m pip install -q $need || die "cannot pip install $need (needed to build pylibfreenect2)."
+fi
+# -g0: no debug info for the 60k-line generated C++ (halves its compile time)
+CFLAGS="${CFLAGS:-} -g0" CXXFLAGS="${CXXFLAGS:-} -g0" \
 LIBFREENECT2_INSTALL_PREFIX="$DEST" LIBFREENECT2_INTERNAL_INCLUDE="$WORK/libfreenect2/include/internal" \
     "$PY" -m pip install -q --no-build-isolation --no-deps --force-reinstall "$WORK/pylibfreenect2" \
     >"$WORK/pip.log" 2>&1 || { tail -n 40 "$WORK/pip.log" >&2; die "pylibfreenect2: build failed (log above)."; }
