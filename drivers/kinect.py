@@ -132,8 +132,8 @@ class KinectV2Camera:
                  depth: bool = False):
         fn2 = _require_sdk()
         if serial is not None and not isinstance(serial, str):
-            raise DeviceError(f"Kinect V2 camera {name}: serial must be a string (quote it in YAML: "
-                              f"serial: \"00{serial}\" keeps leading zeros), got {serial!r}.")
+            raise DeviceError(f"Kinect V2 camera {name}: serial must be a string, got {serial!r} (quote it in YAML, "
+                              "so that leading zeros survive).")
         context = fn2.Freenect2()
         n = context.enumerateDevices()
         if n == 0:

@@ -249,6 +249,10 @@ def test_enumeration_and_no_device_message():
 
     with pytest.raises(DeviceError, match="no Kinect V2 connected"):
         open_camera("top", {"driver": "kinect", "serial": "003415165047"}, "cell.yaml")
+    # the patched build installs no top-level "tests" package (upstream's shadowed this project's tests)
+    from importlib.metadata import files
+
+    assert not any(str(f).startswith("tests/") for f in files("pylibfreenect2") or ())
     # the binding no longer hands out a wrapper around NULL (which crashed on first use)
     ctx = fn2.Freenect2()
     assert ctx.openDefaultDevice() is None and ctx.openDevice("003415165047") is None
