@@ -48,7 +48,7 @@ from calibgraph.acquire.run import run_acquisition  # noqa: E402
 from calibgraph.core.transforms import board_facing, inv, look_at, make_T, pose_error  # noqa: E402
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose  # noqa: E402
 from calibgraph.sim.board_image import render_view  # noqa: E402
-from calibgraph.sim.fakes import FakeRobot, q_from_T  # noqa: E402
+from calibgraph.sim.fakes import FakeRobot, T_from_q, q_from_T  # noqa: E402
 from calibgraph.sim.synth import DEFAULT_T_FLANGE_BOARD, WORKSPACE_CENTRE_M  # noqa: E402
 
 fn2.setGlobalLogger(None)  # libfreenect2 logs every stream start and stop to stderr otherwise
@@ -226,6 +226,27 @@ class SyntheticKinect:
             self.thread.join(10)
 
 
+def settle(cam, quiet_s=0.5, longest_s=30.0):
+    """Consume every frame still on its way to the camera's listener until none has arrived for
+    ``quiet_s`` (on a loaded machine TurboJPEG may finish a while after the last packet)."""
+    lst = cam._listener
+    t_end = time.monotonic() + longest_s
+    last = time.monotonic()
+    while time.monotonic() - last < quiet_s and time.monotonic() < t_end:
+        if lst.hasNewFrame():
+            lst.release(lst.waitForNewFrame())
+            last = time.monotonic()
+        time.sleep(0.02)
+
+
+def wait_queued(cam, longest_s=30.0):
+    """Wait until a frame waits in the camera's listener."""
+    t_end = time.monotonic() + longest_s
+    while not cam._listener.hasNewFrame() and time.monotonic() < t_end:
+        time.sleep(0.02)
+    return cam._listener.hasNewFrame()
+
+
 def pattern(seed=0):
     """A colour test image: smooth colour gradients plus blocks (JPEG-friendly, asymmetric)."""
     y, x = np.mgrid[0:H, 0:W]
@@ -263,7 +284,7 @@ def test_colour_frames_through_the_real_pipeline():
     state = {"img": raw}
     dev = SyntheticKinect(lambda: state["img"]).start()
     try:
-        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, settle_frames=3, timeout_s=5.0)
+        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, settle_frames=3, timeout_s=30.0)
         f1 = cam.grab()
         f2 = cam.grab()
         assert f1.camera == "k" and f1.image.shape == (H, W, 3) and f1.image.dtype == np.uint8
@@ -278,11 +299,15 @@ def test_colour_frames_through_the_real_pipeline():
         assert steps >= 1 and abs(steps - round(steps)) < 1e-6
         # freshness: after grab() is called, a frame queued before it is not returned
         dev.stop()
+        settle(cam)
         state["img"] = np.zeros_like(raw)
         dev.send()  # a black frame waits in the listener
-        time.sleep(0.5)
-        threading.Timer(0.3, lambda: (state.__setitem__("img", raw), dev.send())).start()
+        assert wait_queued(cam)
+        later = threading.Thread(target=lambda: [time.sleep(0.1) or dev.send() for _ in range(30)])
+        state["img"] = raw  # from now on the pattern, sent from another thread after the call
+        later.start()
         f3 = cam.grab()
+        later.join()
         assert f3.image.mean() > 50  # the pattern sent after the call, not the stale black frame
         cam.close()
     finally:
@@ -292,7 +317,7 @@ def test_colour_frames_through_the_real_pipeline():
 def test_intrinsics_from_device_parameters():
     dev = SyntheticKinect(lambda: np.zeros((H, W, 3), np.uint8)).start()
     try:
-        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, settle_frames=1, timeout_s=5.0)
+        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, settle_frames=1, timeout_s=30.0)
         K = cam.intrinsics().K
         np.testing.assert_allclose(K, [[COLOR["fx"], 0, (W - 1) - COLOR["cx"]], [0, COLOR["fy"], COLOR["cy"]], [0, 0, 1]],
                                    rtol=1e-6)
@@ -303,7 +328,7 @@ def test_intrinsics_from_device_parameters():
         dev.stop()
     dev = SyntheticKinect(lambda: np.zeros((H, W, 3), np.uint8)).start()
     try:  # the device's own orientation, and calibrated intrinsics passed in
-        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, unmirror=False, settle_frames=1)
+        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, unmirror=False, settle_frames=1, timeout_s=30.0)
         assert cam.intrinsics().K[0, 2] == pytest.approx(COLOR["cx"], abs=1e-4)
         cam.close()
     finally:
@@ -312,7 +337,7 @@ def test_intrinsics_from_device_parameters():
     try:
         given = {"fx": 1050.0, "fy": 1051.0, "cx": 950.0, "cy": 540.0, "dist": [0.05, -0.1, 0, 0, 0.02],
                  "width_px": W, "height_px": H, "source": "calibration"}
-        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, intrinsics=given, settle_frames=1)
+        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, intrinsics=given, settle_frames=1, timeout_s=30.0)
         assert cam.intrinsics().K[0, 0] == 1050.0 and cam.intrinsics().dist[0] == 0.05
         cam.close()
     finally:
@@ -334,7 +359,7 @@ def test_depth_ir_and_registration_to_colour():
     raw = pattern()[:, ::-1].copy()
     dev = SyntheticKinect(lambda: raw, depth_meas=meas, period_s=0.05).start()
     try:
-        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, depth=True, settle_frames=2, timeout_s=10.0)
+        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, depth=True, settle_frames=2, timeout_s=30.0)
         f = cam.grab_rgbd()
         assert f.depth_m.shape == (424, 512) and f.depth_m.dtype == np.float32
         assert f.ir.shape == (424, 512) and f.ir.dtype == np.float32
@@ -382,9 +407,11 @@ def test_stop_close_and_timeouts():
     img = pattern()
     dev = SyntheticKinect(lambda: img).start()
     try:
-        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, settle_frames=1, timeout_s=1.0)
+        cam = kinect.KinectV2Camera.from_device("k", dev.device, dev.replay, settle_frames=1, timeout_s=30.0)
         cam.grab()
         dev.stop()  # the stream stalls: grab gives up after timeout_s with a clear error
+        settle(cam)
+        cam.timeout_s = 1.0
         t0 = time.monotonic()
         with pytest.raises(DeviceError, match="no frame within 1 s"):
             cam.grab()
@@ -428,23 +455,25 @@ def test_capture_through_the_driver_into_a_dataset_that_solves(tmp_path):
         T_base_board = board_facing(T_base_cam[:3, 3], centre, tilt, rng.uniform(-0.5, 0.5)) @ make_T(np.eye(3), -centre_b)
         qs.append(q_from_T(T_base_board @ inv(DEFAULT_T_FLANGE_BOARD)))
 
-    cache = {}
+    # what the Kinect sends for the board where the robot holds it: the mirrored view (rendered up
+    # front, so that the device answers a move at once)
+    images = {}
+    for q in qs:
+        T_cam_board = inv(T_base_cam) @ T_from_q(q) @ DEFAULT_T_FLANGE_BOARD
+        grey = render_view(target, intr, T_cam_board, blur_sigma_px=0.6, noise_sigma=1.0, seed=len(images)).image
+        images[tuple(np.round(q, 9))] = np.ascontiguousarray(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)[:, ::-1])
+    empty = np.full((H, W, 3), 90, np.uint8)
 
     def device_image():
-        """What the Kinect sends for the board where the robot holds it now: the mirrored view."""
-        key = tuple(np.round(robot.joint_positions(), 9))
-        if key not in cache:
-            T_cam_board = inv(T_base_cam) @ robot.true_flange_pose() @ DEFAULT_T_FLANGE_BOARD
-            grey = render_view(target, intr, T_cam_board, blur_sigma_px=0.6, noise_sigma=1.0, seed=len(cache)).image
-            cache.clear()
-            cache[key] = np.ascontiguousarray(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)[:, ::-1])
-        return cache[key]
+        return images.get(tuple(np.round(robot.joint_positions(), 9)), empty)
 
     dev = SyntheticKinect(device_image).start()
     try:
-        cam = kinect.KinectV2Camera.from_device("kinect", dev.device, dev.replay, settle_frames=2, timeout_s=5.0)
+        cam = kinect.KinectV2Camera.from_device("kinect", dev.device, dev.replay, settle_frames=2, timeout_s=30.0)
+        # the settle dwell outlasts a frame still in the decoder when the robot stops (as a real
+        # robot's does): that frame shows the board where it was before the move
         rep = run_acquisition(robot, [cam], Trajectory(poses=tuple(TrajectoryPose(q) for q in qs), speed_scale=0.2),
-                              tmp_path / "ds", target, progress=False, settle_dwell_s=0.2)
+                              tmp_path / "ds", target, progress=False, settle_dwell_s=1.0)
         cam.close()
     finally:
         dev.stop()
