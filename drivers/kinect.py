@@ -3,7 +3,7 @@
 Install: ``bash scripts/install_kinect_sdk.sh`` builds libfreenect2 and a patched pylibfreenect2 from
 the upstream sources in ``../shared/vendor/kinect/`` into the active Python environment (neither is on
 a package registry). A live device also needs USB 3 and access to it (libfreenect2's udev rule, or
-root). The other supported way to use a Kinect V2 is its ROS 2 bridge with :mod:`drivers.ros2`.
+root). The other supported way to use a Kinect V2 is its ROS 2 bridge with :mod:`calibgraph_drivers.ros2`.
 
 Implements :class:`calibgraph.acquire.interfaces.Camera` for the 1920x1080 colour stream, and with
 ``depth=True`` also gives depth, IR and depth registered to the colour image (:meth:`KinectV2Camera.grab_rgbd`):

@@ -13,10 +13,11 @@ parsers, where a device's USB transfers go:
   decoded by the CPU depth processor with all-zero P0 tables. The phases follow the time-of-flight
   model of that decoder (:func:`tof_measurements`).
 
-The driver under test is the class live capture uses (``KinectV2Camera.from_device`` instead of
-opening by serial). What these tests cannot show: the USB transport, the firmware commands that
-start the device and read its parameters, whether a real device's images are mirrored as the
-driver assumes, whether depth values are right on a real device (real P0 tables), the GPU pipelines.
+The driver under test is the class live capture uses (``calibgraph_drivers.kinect.KinectV2Camera``,
+built with ``from_device`` instead of opening by serial). What these tests cannot show: the USB
+transport, the firmware commands that start the device and read its parameters, whether a real
+device's images are mirrored as the driver assumes, whether depth values are right on a real
+device (real P0 tables), the GPU pipelines.
 """
 
 import struct
@@ -27,11 +28,7 @@ import numpy as np
 import pytest
 from helpers import sdk_unavailable
 
-# TODO(after the drivers -> calibgraph_drivers rename lands): keep only the first import.
-try:
-    import calibgraph_drivers.kinect as kinect
-except ModuleNotFoundError:
-    import drivers.kinect as kinect
+import calibgraph_drivers.kinect as kinect
 
 fn2 = kinect._fn2
 if fn2 is None:
@@ -266,7 +263,7 @@ def test_enumeration_and_no_device_message():
     with pytest.raises(DeviceError, match="must be a string"):
         kinect.KinectV2Camera("top", serial=3415165047)  # an unquoted YAML serial
     # a workcell naming the driver gets the same one-line DeviceError (the CLI prints it, exit 2)
-    from calibgraph.cli.capture import open_camera
+    from calibgraph.acquire.devices import open_camera
 
     with pytest.raises(DeviceError, match="no Kinect V2 connected"):
         open_camera("top", {"driver": "kinect", "serial": "003415165047"}, "cell.yaml")
