@@ -224,12 +224,12 @@ def run(args) -> int:
                          "Run with --dry-run first to check every pose against the safety limits.")
     dwell = args.settle_dwell_s if args.settle_dwell_s is not None else (0.3 if real else 0.0)
 
-    robot, cameras, closers, detector = None, {}, [], None
+    robot, cameras, closers, detector, world = None, {}, [], None, None
     try:
         if driver == "sim":
             from calibgraph.sim.devices import make_devices
             from calibgraph.sim.render import SimWorld
-            from calibgraph.sim.simulate import VisibilityGatedDetector
+            from calibgraph.sim.rendered_dataset import VisibilityGatedDetector
             from calibgraph.sim.workcell import workcell_from_dict
 
             cell = workcell_from_dict(sim_workcell_dict(d), str(args.workcell))
@@ -263,6 +263,9 @@ def run(args) -> int:
                   f"Continue with: calibgraph capture --workcell {args.workcell} --out {args.out} --resume",
                   file=sys.stderr)
             return 130
+        finally:
+            if not args.dry_run:
+                _write_sim_truth(world, args.out)  # the true intrinsics and poses beside a simulated capture
         print(rep.summary())
         if rep.stopped_reason:
             return 3
@@ -296,7 +299,7 @@ def run_auto_capture(args, log) -> int:
         raise InputError("capture --auto on a real robot needs --workcell CELL.yaml (cameras, obstacles, safety).")
     cell = cell_from_dict(cell_d, str(args.workcell)) if cell_d is not None else cell_from_world_dict(world_d, str(args.sim_world))
     safety = _cell_safety(args, cell_d)
-    from calibgraph.sim.planning import planning_world
+    from calibgraph.sim.planning_world import planning_world
 
     pworld = planning_world(cell)
     robot, cameras, closers, detector, sim = None, {}, [], None, None
@@ -345,7 +348,7 @@ def _cell_safety(args, cell_d: dict | None):
 def _write_sim_truth(sim, out: Path) -> None:
     """ground_truth.json beside a simulated capture that wrote anything."""
     if sim is not None and (out / "captures").is_dir():
-        from calibgraph.sim.simulate import write_ground_truth
+        from calibgraph.sim.rendered_dataset import write_ground_truth
 
         write_ground_truth(out, sim.cell, sim)
 
@@ -366,7 +369,7 @@ def _sim_devices(args, cell, world_d: dict, check_target: bool = False, check_re
     from calibgraph.core.errors import InputError
     from calibgraph.sim.devices import make_devices
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.simulate import VisibilityGatedDetector
+    from calibgraph.sim.rendered_dataset import VisibilityGatedDetector
     from calibgraph.sim.workcell import workcell_from_dict
 
     wcell = workcell_from_dict(sim_workcell_dict(world_d), str(args.sim_world))
@@ -489,7 +492,7 @@ def run_verify_capture_cli(args, log) -> int:
     if missing:
         log(f"cameras not in the stored result, not verified: {', '.join(missing)}")
     safety = _cell_safety(args, cell_d)
-    from calibgraph.sim.planning import planning_world
+    from calibgraph.sim.planning_world import planning_world
 
     pworld = planning_world(cell)
     robot, cameras, closers, detector, sim = None, {}, [], None, None

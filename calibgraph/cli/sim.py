@@ -24,6 +24,9 @@ def add_parser(sub):
     p.add_argument("--poses", type=int, default=40, help="poses to plan when no trajectory is given (default 40)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planner")
     p.add_argument("--resume", action="store_true", help="continue an interrupted simulated capture")
+    p.add_argument("--reported-intrinsics", choices=("factory", "exact"), default=None,
+                   help="what the cameras report, overriding the workcell's realism.reported_intrinsics: factory "
+                        "(factory-class errors around the true intrinsics, the default) or exact (the true ones: an oracle)")
     p.add_argument("--full-detection", action="store_true",
                    help="run the detector on every frame (default: skip frames whose board is plainly out of view)")
     p.add_argument("--quiet", action="store_true")
@@ -36,16 +39,20 @@ def run(args) -> int:
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.plan.trajectory import load_trajectory
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.simulate import simulate_dataset
+    from calibgraph.sim.rendered_dataset import simulate_dataset
     from calibgraph.sim.workcell import load_workcell, ring_workcell
 
     cell = load_workcell(args.workcell) if args.workcell else ring_workcell(spread_deg=200.0, name="default")
+    if args.reported_intrinsics:
+        cell = cell.with_reported_intrinsics(args.reported_intrinsics)
     if args.out.exists() and (args.out / "dataset.yaml").exists() and not args.resume:
         raise InputError(f"{args.out}: a dataset already exists here; choose a new --out or pass --resume.")
     output_folder(args.out, "dataset folder")  # a file, a read-only folder: said now, not after simulating
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     say(f"building the simulated workcell {cell.name!r}: {len(cell.cameras)} cameras, board "
-        f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm")
+        f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm, "
+        + ("cameras report their true intrinsics (oracle)" if cell.oracle_intrinsics else
+           "cameras report factory-class intrinsics"))
     world = SimWorld(cell)
     world.check_rendering()  # no OpenGL: one clear error now, not after planning
     if args.trajectory:

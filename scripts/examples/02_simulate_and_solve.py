@@ -14,7 +14,7 @@ import numpy as np
 
 import calibgraph as cg
 from calibgraph.core.transforms import inv, log_so3
-from calibgraph.sim.synth import make_scene
+from calibgraph.sim.synthetic_corners import make_scene
 
 
 def main(argv=None) -> int:
