@@ -66,7 +66,7 @@ def test_joint_recovers_ground_truth_within_own_covariance(scene3, result3):
 def test_factory_intrinsics_are_covered_by_the_covariance():
     """Cameras that report factory-class intrinsics (0.6 % focal, 3 px principal point, 0.01 k1/k2):
     the solver estimates them under its prior, and each pose's 1-sigma, marginal over them, covers
-    the error (measured on this seed: 4 / 4 / 41 mm errors against 3.7 / 17 / 49 mm 1-sigma norms)."""
+    the error (measured on this seed: 4 / 4 / 41 mm errors against 3.6 / 18 / 49 mm 1-sigma norms)."""
     sc = make_scene(n_poses=60, pixel_sigma_px=0.3, seed=11)
     assert {c.source for c in sc.problem.cameras.values()} == {"factory"}
     r = solver.solve(sc.problem)
