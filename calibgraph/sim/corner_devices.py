@@ -1,7 +1,7 @@
 """Simulated cameras of a world that deliver projected corners instead of rendered images.
 
 For tests and planning benchmarks, where what matters is which poses are chosen, not how the
-corners were found: a camera "grabs" a tiny placeholder frame, and :meth:`CornerOracle.detect`
+corners were found: a camera "grabs" a tiny placeholder frame, and :class:`CornerOracle` (the detector)
 returns the true corners (through the true chain of the world, at the robot's true joints) plus
 seeded Gaussian pixel noise, when the board is fully visible, large enough and unoccluded in the
 true camera (:func:`calibgraph.plan.visibility.board_visibility`), else None. With ``partial``

@@ -31,7 +31,7 @@ class Truth:
     ``T_mount_board`` is ``T_flange_board`` (eye-to-hand) or ``T_base_board`` (eye-in-hand).
     ``T_base_flange_true`` are the noise-free flange poses. ``intrinsics`` (name -> Intrinsics) are
     the cameras' true intrinsics, the ones the corners were projected with (``problem.cameras``
-    holds what the cameras report); None in scenes built before they were recorded here.
+    holds what the cameras report); None when a Truth is made without them.
     """
 
     T_ref_cam: dict
@@ -89,9 +89,8 @@ def random_board_facing(T_base_cam: np.ndarray, centre_m: np.ndarray, tilt_deg: 
     """T_base_board (origin at ``centre_m``) with the board's -z looking at the camera, tilted about a
     random axis by 0.3-1.0 x ``tilt_deg`` and rolled by up to ±36 degrees.
 
-    The unperturbed board here is :func:`board_facing`'s turned by 180 degrees about its z (x = up × z),
-    as it always was in these scenes: the tilt axis and roll are mapped through that turn so that
-    seeded scenes, and the tests and benchmarks built on them, stay exactly as they were."""
+    The unperturbed board is :func:`board_facing`'s turned by 180 degrees about its z (x = up × z), the
+    orientation these seeded scenes are defined with; the tilt axis and roll are mapped through that turn."""
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
     tilt = axis * np.radians(tilt_deg) * rng.uniform(0.3, 1.0)
