@@ -140,13 +140,13 @@ def test_pool_scoring_equals_the_per_candidate_prediction():
 def test_joint_model_is_the_solver_linearised_covariance():
     """The planner's model of the graph (cameras sharing each capture's flange under the FK prior,
     the mount, the board scale) gives each camera the covariance the batch solver's own graph gives
-    at the same values (:func:`calibgraph.solver.batch.crlb`), with a candidate capture or without:
+    at the same values (:func:`calibgraph.solver.covariance.crlb`), with a candidate capture or without:
     its predictions are the solver's, not an approximation of it."""
     from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
     from calibgraph.plan.active import ActivePlanner, CameraBelief, _block_sigmas, joint_information
     from calibgraph.plan.visibility import board_visible
     from calibgraph.sim.workcell import workcell_from_dict
-    from calibgraph.solver.batch import crlb
+    from calibgraph.solver.covariance import crlb
 
     d = read_yaml(DEFAULT, "world")
     cell, wc = cell_from_world_dict(d, "world"), workcell_from_dict(d, "world")

@@ -7,7 +7,7 @@ import pytest
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.transforms import pose_error
 from calibgraph.sim.synthetic_corners import bump_camera, make_scene
-from calibgraph.solver.batch import _solve_once as solver_once
+from calibgraph.solver.batch import solve_once as solver_once
 from calibgraph.solver.batch import solve
 
 K_SIGMA = 4.0  # an estimate is "at" a pose when within 4 of its reported 1-sigma (norms of the 3 axes)

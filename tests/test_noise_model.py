@@ -23,6 +23,7 @@ import pytest
 from calibgraph.core.transforms import log_so3
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 from calibgraph.solver import batch as solver
+from calibgraph.solver.noise_model import view_mode_basis
 
 SIGMA_PX = 0.2
 
@@ -33,7 +34,7 @@ def _scene(seed: int, factor: float, reported_intrinsics="factory"):
     rng = np.random.default_rng(seed + 100)
     dets = []
     for d in sc.problem.detections:
-        Q = solver.view_mode_basis(d.uv_px)
+        Q = view_mode_basis(d.uv_px)
         extra = Q @ rng.normal(0.0, SIGMA_PX * np.sqrt(factor - 1.0), Q.shape[1]) if factor > 1 else 0.0 * Q[:, 0]
         dets.append(dataclasses.replace(d, uv_px=d.uv_px + extra.reshape(d.uv_px.shape)))
     return sc, dataclasses.replace(sc.problem, detections=dets)

@@ -5,6 +5,8 @@ Tolerances come from the noise: each estimate must lie within the solver's own c
 must match the Monte-Carlo spread.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -21,6 +23,10 @@ from calibgraph.core.transforms import (
 )
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 from calibgraph.solver import batch as solver
+from calibgraph.solver.graph import Estimate
+from calibgraph.solver.optimise import solve_from_start
+from calibgraph.solver.start import best_initial_guess
+from calibgraph.solver.views import prepare_views, view_candidates
 
 CHI2_6_999 = 22.46
 
@@ -132,9 +138,10 @@ def test_converges_from_perturbed_starts():
     rng = np.random.default_rng(7)
     ref = solver.solve(p)
     for trial in range(4):
-        views, _ = solver.prepare_views(p)
+        views, _ = prepare_views(p)
         T0 = {n: _perturb(T, rng) for n, T in sc.truth.T_ref_cam.items()}
-        est = solver.solve_from_start(p, list(p.cameras), views, T0, _perturb(sc.truth.T_mount_board, rng))
+        start = Estimate(T_ref_cam=T0, T_mount_board=_perturb(sc.truth.T_mount_board, rng), T_ref_mount={})
+        est = solve_from_start(p, list(p.cameras), views, start).est
         for n in p.cameras:
             # same optimum: differences far below the estimate's own 1-sigma (LM stopping tolerance only)
             e_m, e_deg = pose_error(est.T_ref_cam[n], ref.cameras[n].T_ref_cam)
@@ -158,15 +165,15 @@ def test_initialiser_survives_planar_ambiguity_at_5m(seed):
     cams = ring_cameras([3.0, 5.0], presets=("d455",))
     sc = make_scene(cameras=cams, n_poses=40, pixel_sigma_px=1.0, seed=seed)
     p = sc.problem
-    views, _ = solver.prepare_views(p)
-    cands, _ = solver.view_candidates(p, views)
+    views, _ = prepare_views(p)
+    cands, _ = view_candidates(p, views)
     wrong = 0
     for name, vs in cands.items():
         for v in vs:
             T_cb_true = inv(sc.truth.T_ref_cam[name]) @ sc.truth.T_base_flange_true[v.capture] @ sc.truth.T_mount_board
             wrong += np.degrees(np.linalg.norm(log_so3(v.R[0] @ T_cb_true[:3, :3].T))) > 5
     assert wrong >= 5, "scene does not exercise the ambiguity"
-    T0, mounts = solver.best_initial_guess(p.cameras, views, cands, joint=True, seed=0)
+    T0, mounts = best_initial_guess(p.cameras, views, cands, joint=True, seed=0)
     for n in p.cameras:
         e_m, e_deg = pose_error(T0[n], sc.truth.T_ref_cam[n])
         assert e_deg < 8.0, (n, e_m, e_deg, wrong)  # a mirrored consensus would be tens of degrees off
@@ -384,3 +391,12 @@ def test_timings_hook_times_every_stage_and_changes_nothing():
     for n in plain.cameras:
         assert np.array_equal(timed.cameras[n].T_ref_cam, plain.cameras[n].T_ref_cam)
         assert np.array_equal(timed.cameras[n].covariance, plain.cameras[n].covariance)
+
+
+def test_converged_comes_from_the_optimiser():
+    """``converged`` is the optimiser's termination, not a constant: LM capped at one iteration
+    from the initialiser's start cannot reach its error tolerance."""
+    sc = make_scene(n_poses=20, pixel_sigma_px=0.3, seed=2)
+    assert solver.solve(sc.problem).converged
+    capped = sc.problem.with_(options=replace(sc.problem.options, max_iterations=1))
+    assert not solver.solve(capped).converged

@@ -243,12 +243,12 @@ class SolverOptions:
         kinematics_staging: 'staged' (cameras with an inflated FK prior, then offsets, then all
             jointly) or 'joint' (all at once).
         view_noise_modes: model corner errors that are correlated within a view (see
-            :func:`calibgraph.solver.batch.mode_variance_ratios`): per camera, the variance of each
+            :func:`calibgraph.solver.noise_model.mode_variance_ratios`): per camera, the variance of each
             view's low-order image modes (shift, rotation, scale, shear of the board) is estimated
             against the rest of the residuals and, where larger, weighted and propagated as such
             (view formulation). False treats every corner as independent.
         fk_variance: compare the fitted robot poses with the FK prior (see
-            :func:`calibgraph.solver.batch.fk_variance_ratio`) and, when they depart from it more
+            :func:`calibgraph.solver.fk_check.fk_variance_ratio`) and, when they depart from it more
             than the stated FK sigmas allow (p < 0.05), solve with the sigmas the fit implies and say so.
 
     Every field can be set in dataset.yaml's ``solver`` section (by its name, SI units); those with a

@@ -13,7 +13,7 @@ see one capture share it:
     Sigma = (priors + sum over the captures so far of I_k)^-1,  Sigma' = (Sigma^-1 + I_candidate)^-1
 
 This is the solver's graph at the current estimate (``tests/test_auto.py`` checks it against
-:func:`calibgraph.solver.batch.crlb`); what it leaves out (intrinsics, robust weights) is carried
+:func:`calibgraph.solver.covariance.crlb`); what it leaves out (intrinsics, robust weights) is carried
 by applying its *ratio* to the batch 1-sigma: predicted sigma_c = batch sigma_c x model sigma'_c /
 model sigma_c. It matters for far cameras: their depth is tied to the board scale and their
 lateral position to their rotation, and only views at several depths and sides, or other

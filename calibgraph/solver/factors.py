@@ -31,6 +31,18 @@ def project_chain(T_ref_cam: np.ndarray, T_ref_mount: np.ndarray, T_mount_board:
     return intr.project(p_cam)
 
 
+def fk_noise(opts, mode: str = "eye_to_hand", T_ref_mount: np.ndarray | None = None):
+    """Noise model of the forward-kinematics prior on F(k) = ``T_ref_mount``.
+
+    The sigmas describe T_base_flange (perturbed at the flange); in eye-in-hand the variable is its
+    inverse T_flange_base, whose right perturbation is -Ad(T_base_flange) xi, so the square-root
+    information becomes diag(1/sigma) Ad(T_flange_base)."""
+    s = np.array([opts.fk_sigma_rotation_rad] * 3 + [opts.fk_sigma_translation_m] * 3)
+    if mode == "eye_to_hand" or T_ref_mount is None:
+        return gtsam.noiseModel.Diagonal.Sigmas(s)
+    return gtsam.noiseModel.Gaussian.SqrtInformation(np.diag(1.0 / s) @ gtsam.Pose3(T_ref_mount).AdjointMap(), False)
+
+
 def _cross_rows(a: np.ndarray, p: np.ndarray) -> np.ndarray:
     """cross(a[n, r], p[n]) for a (N, 2, 3) and p (N, 3), without np.cross's axis shuffling."""
     px, py, pz = p[:, None, 0], p[:, None, 1], p[:, None, 2]

@@ -38,7 +38,9 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Problem
 from calibgraph.core.transforms import log_so3
-from calibgraph.solver.batch import MIN_CORNERS_PER_VIEW, fk_noise, to_ref_axes
+from calibgraph.solver.covariance import to_ref_axes
+from calibgraph.solver.factors import fk_noise
+from calibgraph.solver.views import MIN_CORNERS_PER_VIEW
 from calibgraph.solver.factors import make_calibration_factor, view_residual
 from calibgraph.solver.keys import B, C, F, S
 

@@ -1,0 +1,157 @@
+"""One graph optimised from a start: robust rounds, the final weighted graph, its marginals.
+
+:func:`solve_from_start` is the path every solve takes: the robust rounds
+(:mod:`calibgraph.solver.robust`), then the final graph, judged on what the fit says about the
+forward kinematics (:mod:`calibgraph.solver.fk_check`) and about correlated corner noise
+(:mod:`calibgraph.solver.noise_model`), solved at the a posteriori pixel sigma, and its marginals.
+:func:`solve_joint` tries every start it is given and keeps the lowest cost.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.problem import Problem
+from calibgraph.solver import factors_ppp
+from calibgraph.solver import kinematics as kin
+from calibgraph.solver.fk_check import fk_variance_ratio, widened
+from calibgraph.solver.graph import (
+    Estimate,
+    build_graph,
+    estimates_intrinsics,
+    extract,
+    formulation,
+    levenberg_marquardt,
+    marginals,
+)
+from calibgraph.solver.keys import B
+from calibgraph.solver.linearise import linearise
+from calibgraph.solver.noise_model import a_posteriori_sigma, mode_variance_ratios
+from calibgraph.solver.robust import Rounds, robust_rounds
+from calibgraph.solver.timing import timed
+
+
+@dataclass(frozen=True)
+class Group:
+    """One solved graph: its cameras, its estimate and its views (one group in 'joint', one per
+    camera in 'single')."""
+
+    names: list
+    est: Estimate
+    views: list
+
+
+def solve_from_start(problem: Problem, names: list, views: list, est0: Estimate,
+                     timings: dict | None = None) -> Group:
+    """Robust rounds, final graph and marginals for one graph (all cameras in 'joint', one camera
+    in 'single') from the values of ``est0`` (its T_ref_cam, T_mount_board, joint offsets, and which
+    cameras' intrinsics get the wide prior). The corner formulation, when it fails numerically,
+    falls back to the per-view graph."""
+    form = formulation(problem, names, len(views), est0)
+    try:
+        return _solve(problem, names, views, est0, form, timings)
+    except ObservabilityError:
+        if form != "corner" or problem.options.formulation == "corner":
+            raise
+        return _solve(problem, names, views, est0, "view", timings)
+
+
+def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str, timings: dict | None) -> Group:
+    slots = {n: i for i, n in enumerate(names)}
+    est = Estimate(T_ref_cam=dict(est0.T_ref_cam), T_mount_board=est0.T_mount_board, T_ref_mount={},
+                   intrinsics=dict(est0.intrinsics), wide_intrinsics=est0.wide_intrinsics,
+                   free_intrinsics=est0.free_intrinsics, joint_offsets=est0.joint_offsets)
+    rounds = robust_rounds(problem, views, slots, est, form, timings)
+    est = final_graph(problem, names, rounds, slots, form, timings)
+    return Group(names, est, rounds.views)
+
+
+def _n_parameters(problem: Problem, names: list, est: Estimate) -> int:
+    n_intr = sum(estimates_intrinsics(problem, n, est) for n in names)
+    n = 6 * (len(names) + 1) + 6 * n_intr + int(problem.options.board_scale)
+    return n + (0 if est.joint_offsets is None else len(est.joint_offsets))
+
+
+def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form: str,
+                timings: dict | None) -> Estimate:
+    """The final weighted graph at the a posteriori pixel sigma (re-solved when that sigma, a wider
+    FK prior or correlated corner noise moves the optimum), its cost, convergence and marginals."""
+    opts = problem.options
+    est, views, sigma, iterations = rounds.est, rounds.views, rounds.sigma_px, rounds.iterations
+    converged = rounds.settled
+    check_modes = form == "view" and opts.view_noise_modes and not opts.pixel_sigma_px
+    lin = linearise(problem, views, est, sigma) if opts.fk_variance or check_modes else None
+    fk_ratio = fk_variance_ratio(problem, views, est, sigma, lin) if opts.fk_variance else None
+    if fk_ratio is not None and fk_ratio.applied > 1.0:
+        # the robot is less accurate than stated: the final graph uses the FK sigmas the fit implies,
+        # and the corner-noise modes are judged on the residuals of that graph
+        problem = problem.with_(options=widened(opts, fk_ratio))
+        with timed(timings, "lm"):
+            graph, values = build_graph(views, slots, problem, est, sigma, form)
+            run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        iterations += run.iterations
+        converged = converged and run.converged
+        est = extract(run.values, slots, views, est, problem.cameras, form)
+        lin = None
+    mode_ratios = mode_variance_ratios(problem, views, est, sigma, lin) if check_modes else {}
+    factors = {c: m.applied for c, m in mode_ratios.items() if m.applied > 1.0}
+    if opts.pixel_sigma_px:
+        sigma_post = opts.pixel_sigma_px
+    else:
+        active = [v for v in views if v.active]
+        sigma_post = a_posteriori_sigma(active, est.residual_norms(active, problem.cameras),
+                                        _n_parameters(problem, names, est), mode_ratios)
+    with timed(timings, "build_graph"):
+        graph, values = build_graph(views, slots, problem, est, sigma_post, form, factors)
+    if abs(sigma_post - sigma) > 0.05 * sigma or any(f > 1.05 for f in factors.values()):
+        # the pixel/FK balance moved enough to shift the optimum: re-solve before the marginals
+        with timed(timings, "lm"):
+            run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        iterations += run.iterations
+        converged = converged and run.converged
+        values = run.values
+        est = extract(values, slots, views, est, problem.cameras, form)
+    marg = marginals(graph, values, form, timings)
+    mount_cov = factors_ppp.mount_cov_body(marg, values) if form == "corner" else marg.marginalCovariance(B(0))
+    return replace(est, iterations=iterations, converged=converged, cost=graph.error(values), sigma_px=sigma_post,
+                   slots=slots, formulation=form, marginals=marg, mount_cov_body=mount_cov, mode_ratios=mode_ratios,
+                   fk_ratio=fk_ratio)
+
+
+def solve_joint(problem: Problem, names: list, views: list, starts: list, timings: dict | None = None) -> Group:
+    """All cameras in one graph from each Estimate in ``starts``: the lowest final cost wins. Raises
+    the last ObservabilityError when no start can be solved."""
+    best, error = None, None
+    for est0 in starts:
+        try:
+            g = solve_from_start(problem, names, views, est0, timings)
+        except ObservabilityError as e:
+            error = e
+            continue
+        if best is None or g.est.cost < best.est.cost:
+            best = g
+    if best is None:
+        raise error
+    return best
+
+
+def solve_single(problem: Problem, name: str, views: list, est0: Estimate, timings: dict | None = None) -> Group:
+    """One camera in its own graph, with its own board mount."""
+    return solve_from_start(problem, [name], [v for v in views if v.camera == name], est0, timings)
+
+
+def kinematics_start(problem: Problem, names: list, views: list, starts: list, ks, timings: dict | None) -> Estimate:
+    """The start of a joint solve with kinematics_staging='staged': the cameras solved with the FK
+    prior inflated (and no offsets), then the joint offsets that best explain the flange poses that
+    solve found."""
+    o = problem.options
+    loose = replace(o, kinematics="none", fk_sigma_rotation_rad=o.fk_sigma_rotation_rad * kin.STAGE1_FK_INFLATION,
+                    fk_sigma_translation_m=o.fk_sigma_translation_m * kin.STAGE1_FK_INFLATION)
+    g1 = solve_joint(problem.with_(options=loose), names, views, starts, timings)
+    fk_sigmas = np.array([o.fk_sigma_rotation_rad] * 3 + [o.fk_sigma_translation_m] * 3)
+    offsets = kin.offsets_from_poses(ks, g1.est.T_ref_mount, o.joint_offset_prior_rad, fk_sigmas)
+    return Estimate(T_ref_cam=g1.est.T_ref_cam, T_mount_board=g1.est.T_mount_board, T_ref_mount={},
+                    joint_offsets=offsets)
