@@ -64,9 +64,9 @@ def import_sdk(name: str, install_hint: str):
 
 
 def require_realsense():
-    """pyrealsense2 as drivers.realsense loaded it: rclpy's libraries first, then libusb from the
+    """pyrealsense2 as calibgraph_drivers.realsense loaded it: rclpy's libraries first, then libusb from the
     libusb-package wheel (see the notes there), then the SDK."""
-    import drivers.realsense as drv
+    import calibgraph_drivers.realsense as drv
 
     if drv._rs is None:
         sdk_unavailable(f"pyrealsense2 is unavailable (pip install 'calibgraph[realsense]') [{drv._IMPORT_ERROR}]")

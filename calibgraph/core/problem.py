@@ -67,7 +67,8 @@ INTRINSICS_MODES = ("auto", "estimate", "fixed")
 # width; k1 and k2). Factory values of RGB-D cameras are often 1-2 % off in focal length; a proper
 # calibration file is good to a few tenths of a percent.
 INTRINSICS_PRIORS = {"factory": (0.02, 0.01, 0.05), "calibration": (0.003, 0.002, 0.01)}
-# the prior of intrinsics found inadequate by their residuals: wide, only keeping the problem well posed
+# the prior of intrinsics found inadequate by their residuals, or of a camera whose intrinsics are
+# unknown (around the values found from its views): wide, only keeping the problem well posed
 WIDE_INTRINSICS_PRIOR = (0.10, 0.05, 0.5)
 
 
@@ -77,16 +78,31 @@ def intrinsics_source(intr: Intrinsics, options: "SolverOptions") -> str:
 
 
 def intrinsics_estimated(intr: Intrinsics, options: "SolverOptions") -> bool:
-    """True when the solver treats this camera's intrinsics as unknowns (with a prior)."""
+    """True when the solver treats this camera's intrinsics as unknowns (with a prior); always for
+    a camera whose intrinsics are unknown."""
+    if not intr.known:
+        return True
     if options.intrinsics == "fixed":
         return False
     return options.intrinsics == "estimate" or intrinsics_source(intr, options) != "exact"
 
 
+def intrinsics_prior_covariance(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
+    """(6, 6) covariance of the prior on [fx, fy, cx, cy, k1, k2] of a camera: the covariance its
+    intrinsics came with (a calibration file's), else the diagonal width of its source."""
+    if intr.covariance is not None and not wide and intr.known and options.intrinsics == "auto":
+        return intr.covariance
+    return np.diag(intrinsics_prior_sigmas(intr, options, wide) ** 2)
+
+
 def intrinsics_prior_sigmas(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
-    """1-sigma of the prior on [fx, fy, cx, cy, k1, k2] of a camera (see ``SolverOptions.intrinsics``)."""
-    if options.intrinsics == "estimate":
+    """1-sigma of the prior on [fx, fy, cx, cy, k1, k2] of a camera (see ``SolverOptions.intrinsics``),
+    without the correlations of a calibration file's covariance (:func:`intrinsics_prior_covariance`)."""
+    if intr.covariance is not None and not wide and intr.known and options.intrinsics == "auto":
+        return np.sqrt(np.diag(intr.covariance))
+    if options.intrinsics == "estimate" and intr.known:
         return np.array([options.intrinsics_sigma_px] * 4 + [options.distortion_sigma] * 2)
+    wide = wide or not intr.known
     f_rel, c_frac, k = WIDE_INTRINSICS_PRIOR if wide else INTRINSICS_PRIORS[intrinsics_source(intr, options)]
     fx, fy = intr.K[0, 0], intr.K[1, 1]
     c = c_frac * max(intr.width_px, 1)

@@ -3,7 +3,8 @@
 It reads as GTSAM's own SFMExample does, one stage per module::
 
     views      the detections as views (too few corners, no PnP solution: refused)   views.py
-    start      initial camera poses and board mount from the views' PnP poses         start.py
+    start      unknown intrinsics from the board homographies; initial camera poses
+               and board mount from the views' PnP poses                               start.py
     optimise   robust rounds, FK check, corner-noise model, final graph, marginals     optimise.py
     camera     intrinsics the data reject re-solved with a wide prior, board scale    camera_model.py
     assemble   poses with covariances in reference axes, pairs, residuals, notes      assemble.py
@@ -22,7 +23,15 @@ import numpy as np
 
 from calibgraph.core.problem import Problem
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.assemble import camera_result, mount_and_robot_poses, pair_results, robot_result
+from calibgraph.solver.assemble import (
+    camera_result,
+    error_budgets,
+    mount_and_robot_poses,
+    not_calibrated,
+    pair_results,
+    robot_result,
+)
+from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_inadequate_intrinsics
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note
@@ -31,7 +40,7 @@ from calibgraph.solver.noise_model import corner_noise_notes
 from calibgraph.solver.observability import check_before_solve
 from calibgraph.solver.optimise import kinematics_start, solve_joint, solve_single
 from calibgraph.solver.result import Result
-from calibgraph.solver.start import initial_values
+from calibgraph.solver.start import initial_intrinsics, initial_values
 from calibgraph.solver.timing import STAGES, timed  # noqa: F401 - STAGES: the keys of ``timings``
 from calibgraph.solver.views import captures_by_camera, usable_views
 
@@ -59,6 +68,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
 def solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, timings: dict | None = None) -> Result:
     """One solve of ``problem``, without the moved-camera test (see :func:`solve`)."""
     t0 = time.perf_counter()
+    problem = initial_intrinsics(problem)
     with timed(timings, "candidates"):
         views, cands, rejected = usable_views(problem)
     check_before_solve(problem, captures_by_camera(views))
@@ -71,7 +81,8 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
     """The solved graphs (one in 'joint', one per camera in 'single') and what was noticed on the way."""
     names = list(problem.cameras)
     if problem.method == "single":
-        return [solve_single(problem, n, views, s, timings) for n, s in zip(names, starts)], []
+        groups = [solve_single(problem, n, views, s, timings) for n, s in zip(names, starts)]
+        return groups, [n for g in groups for n in g.notes]
     ks = kin.setup(problem)
     if ks is not None:
         kin.check_motion(ks, sorted({v.capture for v in views}))
@@ -79,21 +90,27 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
             first = kinematics_start(problem, names, views, starts, ks, timings)
             starts = [first] + [replace(s, joint_offsets=first.joint_offsets) for s in starts[1:]]
     group = solve_joint(problem, names, views, starts, timings)
-    notes = []
+    notes = list(group.notes)
     if problem.options.intrinsics == "auto":
-        group, notes = widen_inadequate_intrinsics(problem, group, timings)
+        group, widened = widen_inadequate_intrinsics(problem, group, timings)
+        notes += widened
     return [group], notes
 
 
 def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve_time_s: float) -> Result:
     cameras, rejected_corners = {}, []
     for g in groups:
+        budget = error_budgets(problem, g, linearise_graph(g.est.graph, g.est.values))
         for n in g.names:
-            cameras[n], corners = camera_result(problem, n, g, rejected)
+            cameras[n], corners = camera_result(problem, n, g, rejected, budget[n])
             rejected_corners += corners
+        for n, why in g.dropped.items():
+            cameras[n] = not_calibrated(problem, n, why, rejected)
+    cameras = {n: cameras[n] for n in problem.cameras if n in cameras}
     T_mount_board, mount_cov, T_base_flange_est = mount_and_robot_poses(problem, groups)
     scale, scale_sigma, scale_notes = board_scale(problem, groups)
     notes = [*notes, *scale_notes, *intrinsics_notes(cameras)]
+    notes += [f"camera {n} is NOT calibrated: {why}" for g in groups for n, why in g.dropped.items()]
     for g in groups:
         notes += corner_noise_notes(g.est.mode_ratios)
     notes += next((n for n in (fk_note(problem.options, g.est.fk_ratio) for g in groups) if n), [])
@@ -107,7 +124,8 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
     fk_ratio = groups[0].est.fk_ratio if len(groups) == 1 else None
     return Result(
         mode=problem.mode, method=problem.method, cameras=cameras, T_mount_board=T_mount_board,
-        mount_covariance=mount_cov, pairs=pair_results(list(problem.cameras), cameras, groups, problem.method == "joint"),
+        mount_covariance=mount_cov, pairs=pair_results([n for n in problem.cameras if cameras[n].calibrated], cameras,
+                                                       groups, problem.method == "joint"),
         converged=all(g.est.converged for g in groups),
         iterations=sum(g.est.iterations for g in groups), final_cost=sum(g.est.cost for g in groups),
         pixel_sigma_px=float(np.mean([g.est.sigma_px for g in groups])), solve_time_s=solve_time_s,

@@ -60,7 +60,7 @@ def intrinsics_disagreement(problem: Problem, est: Estimate, name: str) -> float
         return 0.0
     given = problem.cameras[name]
     delta = intrinsics_vector(est.camera_model(name, problem.cameras)) - intrinsics_vector(given)
-    P_prior = np.diag(intrinsics_prior(problem, name, est) ** 2)
+    P_prior = intrinsics_prior(problem, name, est)
     P_post = est.marginals.marginalCovariance(K(est.slots[name]))
     w, V = np.linalg.eigh(0.5 * (P_prior - P_post + (P_prior - P_post).T))
     keep = w > 1e-9 * max(float(w.max()), 1e-30)
@@ -146,7 +146,7 @@ def intrinsics_notes(cameras: dict) -> list:
     out = []
     for n, c in cameras.items():
         d = c.intrinsics or {}
-        if not d.get("estimated") or d.get("prior") == "wide":
+        if not d.get("estimated") or d.get("prior") in ("wide", "unknown"):
             continue
         given, sig = d["given"], d["sigma"]
         Km = np.asarray(d["K"], float)

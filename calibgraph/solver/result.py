@@ -46,7 +46,10 @@ FRAME_CONVENTION = (
 
 
 def sigmas_from_cov(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(sigma_translation_mm (3,), sigma_rotation_deg (3,)) from a rotation-first 6x6 covariance."""
+    """(sigma_translation_mm (3,), sigma_rotation_deg (3,)) from a rotation-first 6x6 covariance
+    (NaN for none: a camera that was not calibrated)."""
+    if cov is None:
+        return np.full(3, np.nan), np.full(3, np.nan)
     d = np.sqrt(np.clip(np.diag(cov), 0, None))
     return d[3:] * 1e3, np.degrees(d[:3])
 
@@ -80,6 +83,11 @@ class CameraResult:
     intrinsics: dict | None = None  # Intrinsics.to_dict() of the camera the result was solved with
     # within-view correlated corner noise (solver.batch.ModeRatio.to_dict()), when it was estimated
     corner_noise: dict | None = None
+    # what the 1-sigma is made of (solver.budget): sigma_translation_norm_mm, shares by source, advice
+    error_budget: dict | None = None
+    # False when too few of its views survived rejection: no pose and no covariance then, ``why`` says why
+    calibrated: bool = True
+    why: str = ""
     # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
     residuals_px: dict = field(default_factory=dict, repr=False)
 
@@ -148,6 +156,16 @@ class Result:
     fk_noise: dict | None = None  # the FK prior against the fit (solver.batch.FkRatio.to_dict())
 
     @property
+    def calibrated(self) -> dict:
+        """The cameras that were calibrated (name -> CameraResult)."""
+        return {n: c for n, c in self.cameras.items() if c.calibrated}
+
+    @property
+    def not_calibrated(self) -> dict:
+        """name -> why, for the cameras too few of whose views survived rejection."""
+        return {n: c.why for n, c in self.cameras.items() if not c.calibrated}
+
+    @property
     def T_flange_board(self):
         return self.T_mount_board if self.mode == "eye_to_hand" else None
 
@@ -162,8 +180,13 @@ class Result:
         ref_key, mount_key = frames.camera_key, frames.board_key
         cams = {}
         for name, c in self.cameras.items():
+            if not c.calibrated:
+                cams[name] = {"calibrated": False, "why": c.why, "views_used": c.views_used,
+                              "views_rejected": [{"capture": v.capture, "reason": v.reason} for v in c.views_rejected]}
+                continue
             st, sr = sigmas_from_cov(c.covariance)
             cams[name] = {
+                "calibrated": True,
                 ref_key: c.T_ref_cam.tolist(),
                 "sigma_translation_mm": st.tolist(),
                 "sigma_rotation_deg": sr.tolist(),
@@ -181,6 +204,8 @@ class Result:
                 cams[name]["intrinsics"] = c.intrinsics
             if c.corner_noise is not None:
                 cams[name]["corner_noise"] = c.corner_noise
+            if c.error_budget is not None:
+                cams[name]["error_budget"] = c.error_budget
         pairs = {}
         for (a, b), p in self.pairs.items():
             st, sr = sigmas_from_cov(p.covariance)
@@ -228,7 +253,7 @@ class Result:
                     }
                     for k, r in c.residuals_px.items()
                 }
-                for name, c in self.cameras.items()
+                for name, c in self.cameras.items() if c.calibrated
             },
         }
         if self.T_mount_board is not None:

@@ -8,8 +8,10 @@ self-consistent in rotation as the right one; it cannot explain the corners.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
+from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.problem import Problem
 from calibgraph.solver.graph import Estimate
@@ -17,6 +19,51 @@ from calibgraph.solver.initialise import initialise, refine_translations
 from calibgraph.solver.timing import timed
 
 INIT_SCORE_MAX_VIEWS = 300  # hypotheses of a joint graph are ranked on a subsample of this many views
+MIN_VIEWS_FOR_INTRINSICS = 3  # Zhang's method needs at least three views of a plane
+
+
+def _plane_coordinates(p_board_m: np.ndarray) -> np.ndarray:
+    """(M, 3) board points expressed in the board's own plane (z = 0), as Zhang's method needs."""
+    c = p_board_m.mean(axis=0)
+    _, _, Vt = np.linalg.svd(p_board_m - c)
+    q = (p_board_m - c) @ Vt.T
+    q[:, 2] = 0.0
+    return q
+
+
+def initial_intrinsics(problem: Problem) -> Problem:
+    """``problem`` with every camera of unknown intrinsics given values from its own views: Zhang's
+    method on the board homographies (fx, fy, cx, cy, k1, k2; OpenCV's calibrateCamera), which the
+    joint graph then refines under a wide prior. Refuses a camera with too few views to do so."""
+    unknown = [n for n, c in problem.cameras.items() if not c.known]
+    if not unknown:
+        return problem
+    plane = _plane_coordinates(problem.points_board_m).astype(np.float32)
+    cameras = dict(problem.cameras)
+    for name in unknown:
+        given = problem.cameras[name]
+        dets = [d for d in problem.detections if d.camera == name and len(d.ids) >= 6]
+        if len(dets) < MIN_VIEWS_FOR_INTRINSICS:
+            raise ObservabilityError(
+                f"camera {name!r} has no intrinsics and only {len(dets)} view(s) with 6 or more corners: at least "
+                f"{MIN_VIEWS_FOR_INTRINSICS} views of the board at different tilts are needed to find them (or give "
+                "its intrinsics: calibgraph intrinsics IMAGES --target T.yaml --out CAM.yaml).", camera=name)
+        obj = [plane[d.ids] for d in dets]
+        img = [d.uv_px.astype(np.float32) for d in dets]
+        flags = cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3
+        try:
+            rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, (given.width_px, given.height_px), None, None,
+                                                     flags=flags)
+        except cv2.error as e:
+            raise ObservabilityError(f"camera {name!r}: its intrinsics could not be found from its views "
+                                     f"({str(e).strip().splitlines()[-1][:100]}); tilt the board more between views, "
+                                     "or give its intrinsics.", camera=name) from None
+        if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0):
+            raise ObservabilityError(f"camera {name!r}: its views do not determine its intrinsics; tilt the board "
+                                     "more between views, or give its intrinsics.", camera=name)
+        cameras[name] = Intrinsics(K=K, dist=np.asarray(dist, float).reshape(-1)[:5], width_px=given.width_px,
+                                   height_px=given.height_px, source="unknown")
+    return problem.with_(cameras=cameras)
 
 
 def _init_score(cameras: dict, views, T_ref_cam, T_mount_board) -> float:
