@@ -211,9 +211,7 @@ def test_a_camera_that_was_not_calibrated_round_trips_and_is_reported(tmp_path):
     from calibgraph.report.exports import export
     from calibgraph.report.html import write_report
 
-    # the oracle's scene (true intrinsics held): with factory intrinsics estimated the mirrored camera is
-    # not left out but stops the solve (see tests/test_solver.py)
-    p = make_scene(n_poses=30, pixel_sigma_px=0.3, seed=13, reported_intrinsics="exact").problem
+    p = make_scene(n_poses=30, pixel_sigma_px=0.3, seed=13).problem
     flip = np.array([-1.0, 1.0]), np.array([p.cameras["cam1"].width_px - 1.0, 0.0])  # u -> width - 1 - u
     r = cg.solve(p.with_(detections=tuple(replace(d, uv_px=d.uv_px * flip[0] + flip[1]) if d.camera == "cam1" else d
                                           for d in p.detections)))
