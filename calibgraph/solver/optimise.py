@@ -70,6 +70,13 @@ def _rounds_keeping_enough_views(problem: Problem, names: list, views: list, est
     rejection) taken out of the graph and the rest solved again: (names, views, rounds, dropped)
     with ``dropped`` camera -> why. A camera alone in its graph is refused as before."""
     dropped, need = {}, problem.options.min_views_per_camera
+    for n in list(names) if len(names) > 1 else []:
+        behind = seen_from_behind(problem, [v for v in views if v.camera == n], [v for v in views if v.camera != n])
+        if behind:  # no camera model explains a board seen from its back; freeing the intrinsics only hides it
+            dropped[n] = (f"the images look mirrored: the board appears from behind in {behind[0]} of its {behind[1]} "
+                          "views while the other cameras see its front; check the camera's flip/mirror setting")
+            names = [m for m in names if m != n]
+            views = [v for v in views if v.camera != n]
     while True:
         slots = {n: i for i, n in enumerate(names)}
         try:
