@@ -94,8 +94,8 @@ class SimWorld:
 
     def board_truth_px(self, camera: str) -> np.ndarray:
         """(N, 2) exact pixels of the board's points in ``camera`` at the current state: the
-        board pose through the camera's reported intrinsics (distortion included), the model the
-        solver uses."""
+        board pose through the camera's true intrinsics (the ones it renders with, distortion
+        included)."""
         spec = self.cell.camera(camera)
         T_cam_board = np.linalg.solve(spec.T_base_cam, self.T_base_board())
         return spec.intrinsics.project(self.cell.target.points_board_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3])
