@@ -46,7 +46,7 @@ from calibgraph.core.transforms import board_facing, inv, look_at, make_T, pose_
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose  # noqa: E402
 from calibgraph.sim.board_image import render_view  # noqa: E402
 from calibgraph.sim.fakes import FakeRobot, T_from_q, q_from_T  # noqa: E402
-from calibgraph.sim.synth import DEFAULT_T_FLANGE_BOARD, WORKSPACE_CENTRE_M  # noqa: E402
+from calibgraph.sim.synthetic_corners import DEFAULT_T_FLANGE_BOARD, WORKSPACE_CENTRE_M  # noqa: E402
 
 fn2.setGlobalLogger(None)  # libfreenect2 logs every stream start and stop to stderr otherwise
 

@@ -153,7 +153,7 @@ def _real_result() -> dict:
     """A real result file's content (a small synthetic solve), made once."""
     if not _REAL_RESULT:
         from calibgraph import solve
-        from calibgraph.sim.synth import make_scene
+        from calibgraph.sim.synthetic_corners import make_scene
 
         d = json.loads(json.dumps(solve(make_scene(n_poses=10, seed=3).problem).to_dict()))
         for name, per in d["residuals"].items():  # two views per camera keep every kind of entry and the file small
