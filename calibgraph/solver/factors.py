@@ -8,8 +8,8 @@ capture k, T_base_flange in eye-to-hand and T_flange_base in eye-in-hand):
     r_i   = sqrt(w_i) / sigma_px * (project(p_cam_i) - uv_i)       (2 rows per corner)
 
 One ``gtsam.CustomFactor`` per view with vectorised numpy keeps the corner as the unit of
-observation (each corner has its own robust weight ``w_i`` and its own two rows) while being ~20x
-faster than one Python factor per corner. Jacobians are analytic, in GTSAM's Pose3 tangent
+observation (each corner has its own robust weight ``w_i`` and its own two rows) without the cost of
+one Python call per corner per linearisation. Jacobians are analytic, in GTSAM's Pose3 tangent
 (right perturbation ``T @ Exp(xi)``, ``xi = [omega, v]``).
 """
 
