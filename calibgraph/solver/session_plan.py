@@ -58,53 +58,46 @@ def _outline_board_m(target: Target, per_edge: int = 6) -> np.ndarray:
     return np.column_stack([xs, ys, np.zeros_like(xs)])
 
 
-def _facing(ray: np.ndarray) -> np.ndarray:
-    """Rotation whose z axis is ``ray`` (unit) and whose x axis is as close to the camera's x as possible."""
-    z = ray
-    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
-    x /= np.linalg.norm(x)
-    y = np.array([z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]])
-    return np.column_stack([x, y, z])
+def _poses(Kinv: np.ndarray, aims_px: np.ndarray, dist: float, turn: np.ndarray, centre_b: np.ndarray):
+    """(R (k, 3, 3), t (k, 3)) of poses with the pattern's centre ``dist`` along the pinhole ray of each
+    of ``aims_px`` (k, 2), facing the camera (board x as close to the camera's x as it can be), then
+    turned by ``turn``."""
+    rays = np.column_stack([aims_px, np.ones(len(aims_px))]) @ Kinv.T
+    z = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    x = np.column_stack([np.ones(len(z)), np.zeros(len(z)), np.zeros(len(z))]) - z[:, :1] * z
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.column_stack([z[:, 1] * x[:, 2] - z[:, 2] * x[:, 1], z[:, 2] * x[:, 0] - z[:, 0] * x[:, 2],
+                         z[:, 0] * x[:, 1] - z[:, 1] * x[:, 0]])
+    R = np.stack([x, y, z], axis=2) @ turn
+    return R, dist * z - R @ centre_b
 
 
-def _overflow_px(intr: Intrinsics, T_cam_board: np.ndarray, outline_m: np.ndarray, margin_px: float,
-                 r_max: float):
-    """The image shift (2,) that would bring the pattern's outline ``margin_px`` inside the image
-    (zeros when it is); 'pull' when part of it lies beyond the field of view (normalised radius over
-    ``r_max``, where the distortion polynomial no longer maps into the image, or behind the camera),
-    'back' when it is larger than the image."""
-    p = outline_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
-    if np.any(p[:, 2] < 0.05) or np.any(np.hypot(p[:, 0], p[:, 1]) > r_max * p[:, 2]):
-        return "pull"
-    uv = intr.project(p)
-    lo = np.array([margin_px - 0.5, margin_px - 0.5])
-    hi = np.array([intr.width_px - 0.5 - margin_px, intr.height_px - 0.5 - margin_px])
-    u_min, u_max = uv.min(axis=0), uv.max(axis=0)
-    if np.any(u_max - u_min > hi - lo):
-        return "back"
-    return np.maximum(lo - u_min, 0.0) - np.maximum(u_max - hi, 0.0)
+def _fit(intr: Intrinsics, R: np.ndarray, t: np.ndarray, outline_m: np.ndarray, margin_px: float,
+         r_max: float) -> np.ndarray:
+    """(k,) True where the pattern's outline lies in front of the camera, inside its field of view
+    (normalised radius ``r_max``: beyond it the distortion polynomial no longer maps into the image)
+    and ``margin_px`` inside the image."""
+    p = np.einsum("kij,mj->kmi", R, outline_m) + t[:, None, :]
+    ok = np.all(p[:, :, 2] > 0.05, axis=1) & np.all(np.hypot(p[:, :, 0], p[:, :, 1]) <= r_max * p[:, :, 2], axis=1)
+    uv = intr.project(p.reshape(-1, 3)).reshape(len(p), -1, 2)
+    inside = intr.in_image(uv.reshape(-1, 2), margin_px=margin_px).reshape(len(p), -1)
+    return ok & np.all(inside, axis=1)
 
 
-def _bisect(fits, good: np.ndarray, bad: np.ndarray, steps: int = 8) -> np.ndarray:
-    """The point nearest ``bad`` on the segment from ``good`` (which fits) that still fits, to 1/2^steps."""
-    if fits(bad):
-        return bad
-    for _ in range(steps):
-        mid = 0.5 * (good + bad)
-        if fits(mid):
-            good = mid
-        else:
-            bad = mid
-    return good
-
-
-def _aimed(Kinv: np.ndarray, aim_px: np.ndarray, dist: float, turn: np.ndarray, centre_b: np.ndarray) -> np.ndarray:
-    """T_cam_board with the pattern's centre ``dist`` along the pinhole ray of ``aim_px``, facing
-    the camera, then turned by ``turn``."""
-    ray = Kinv @ np.append(aim_px, 1.0)
-    ray /= np.linalg.norm(ray)
-    R = _facing(ray) @ turn
-    return make_T(R, dist * ray - R @ centre_b)
+def _furthest(fits, start: np.ndarray, end: np.ndarray, n: int = 16) -> np.ndarray | None:
+    """The point nearest ``end`` on the segment from ``start`` that fits (``fits``: (k, 2) -> (k,)
+    bool), sampled at n points then refined between the last fit and the next sample; None when
+    none fits."""
+    f = np.linspace(0.0, 1.0, n)
+    ok = fits(start + f[:, None] * (end - start))
+    if not ok.any():
+        return None
+    i = int(np.nonzero(ok)[0].max())
+    if i == n - 1:
+        return end
+    g = np.linspace(f[i], f[i + 1], n)
+    ok = fits(start + g[:, None] * (end - start))
+    return start + g[int(np.nonzero(ok)[0].max()) if ok.any() else 0] * (end - start)
 
 
 def session_poses(intr: Intrinsics, target: Target, n_views: int = 25, distance_range_m=(0.3, 0.8),
@@ -115,8 +108,8 @@ def session_poses(intr: Intrinsics, target: Target, n_views: int = 25, distance_
     distance (to the pattern's centre) across ``distance_range_m``, facing the camera and tilted by
     ``tilt_range_deg`` about an axis turned by the golden angle from the previous view's, rolled by
     up to 30 degrees; the first eight views aim at the image's corners and edges. A pose whose
-    pattern would leave the image is shifted back in (moved away when it is larger than the image)
-    until the whole pattern is ``margin_px`` inside. ``rng`` (a numpy Generator)
+    pattern would leave the image is brought back towards the centre only as far as needed for the
+    whole pattern to lie ``margin_px`` inside (and moved away when it fits nowhere). ``rng`` (a numpy Generator)
     draws these instead of the deterministic sequence.
     """
     if intr.width_px <= 0 or intr.height_px <= 0:
@@ -153,33 +146,23 @@ def session_poses(intr: Intrinsics, target: Target, n_views: int = 25, distance_
         tilt = np.radians(tilt_range_deg[0] + (tilt_range_deg[1] - tilt_range_deg[0]) * f_t)
         roll = np.radians(ROLL_RANGE_DEG[0] + (ROLL_RANGE_DEG[1] - ROLL_RANGE_DEG[0]) * f_r)
         turn = exp_so3(tilt * np.array([np.cos(psi), np.sin(psi), 0.0])) @ exp_so3([0.0, 0.0, roll])
-        aim_px = first_px = intr.K[:2, 2] + aim * half
-        pose = lambda a: _aimed(Kinv, a, dist, turn, centre_b)  # noqa: E731
-        bad = None
-        for _ in range(80):
-            shift = _overflow_px(intr, pose(aim_px), outline, margin_px, r_max)
-            if isinstance(shift, str) and shift == "back":
-                dist *= 1.1
-                bad = None
-                continue
-            if not isinstance(shift, str) and not np.any(shift):
+        aim_px = intr.K[:2, 2] + aim * half
+        for _ in range(40):
+            # as far towards the aim as the whole pattern fits, then along each image axis alone;
+            # stepping back while it fits nowhere
+            fits = lambda a: _fit(intr, *_poses(Kinv, a, dist, turn, centre_b), outline, margin_px, r_max)  # noqa: E731
+            at = _furthest(fits, intr.K[:2, 2], aim_px)
+            if at is not None:
                 break
-            bad = aim_px
-            if isinstance(shift, str):
-                aim_px = intr.K[:2, 2] + 0.85 * (aim_px - intr.K[:2, 2])
-            else:
-                aim_px = aim_px + np.clip(1.1 * shift, -0.2 * half, 0.2 * half)
-        if bad is not None:
-            # as far out as it fits: bisect towards the first aim, along the way there, then along
-            # each image axis alone
-            fits = lambda a: not isinstance(sh := _overflow_px(intr, pose(a), outline, margin_px, r_max), str) \
-                and not np.any(sh)  # noqa: E731
-            aim_px = _bisect(fits, aim_px, bad)
-            for axis in (0, 1):
-                far = aim_px.copy()
-                far[axis] = first_px[axis]
-                aim_px = _bisect(fits, aim_px, far)
-        T = pose(aim_px)
+            dist *= 1.1
+        else:
+            at = intr.K[:2, 2]
+        for axis in (0, 1):
+            far = at.copy()
+            far[axis] = aim_px[axis]
+            at = _furthest(fits, at, far) if far[axis] != at[axis] else at
+        R, t = _poses(Kinv, at[None], dist, turn, centre_b)
+        T = make_T(R[0], t[0])
         poses.append(T)
     return poses
 
@@ -193,16 +176,29 @@ def predict_session_covariance(intrinsics: Intrinsics, target: Target, n_views: 
     coefficients (``model``, default k1 k2 p1 p2 k3) marginalised out.
 
     A prediction at the camera's current values: it assumes the whole board is seen in every view
-    and ignores bad views, which a real session rejects. A few milliseconds.
+    and ignores bad views, which a real session rejects. 10-40 ms the first time for a camera and
+    board (the pose set), then cached.
     """
     if not pixel_sigma_px > 0:
         raise InputError(f"predict_session_covariance: pixel_sigma_px must be > 0, got {pixel_sigma_px}.")
     names = model_parameters(model)
-    pts = target.points_board_m
-    blocks = []
-    for T in session_poses(intrinsics, target, n_views, distance_range_m):
-        _, A, B = view_jacobians(intrinsics, names, pts, T)
-        blocks.append((A, B))
-    info = reduced_information(blocks)
+    key = (intrinsics.K.tobytes(), intrinsics.dist.tobytes(), intrinsics.width_px, intrinsics.height_px,
+           target.spec_hash(), int(n_views), tuple(float(d) for d in distance_range_m), model)
+    info = _INFO_CACHE.get(key)
+    if info is None:
+        pts = target.points_board_m
+        blocks = []
+        for T in session_poses(intrinsics, target, n_views, distance_range_m):
+            _, A, B = view_jacobians(intrinsics, names, pts, T)
+            blocks.append((A, B))
+        info = reduced_information(blocks)
+        if len(_INFO_CACHE) >= 64:
+            _INFO_CACHE.pop(next(iter(_INFO_CACHE)))
+        _INFO_CACHE[key] = info
     cov = np.linalg.inv(info) * pixel_sigma_px ** 2
     return intrinsics_block(0.5 * (cov + cov.T), names)
+
+
+# (camera, target, session) -> information of the intrinsics per unit corner variance: the error
+# budget asks for the same cameras again at every solve
+_INFO_CACHE: dict = {}
