@@ -6,6 +6,7 @@ Synthetic corners with known truth; tolerances from the reported 1-sigma (chi-sq
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -91,3 +92,25 @@ def test_a_false_exact_claim_is_named_and_dropped():
     for n, c in r.cameras.items():
         assert _z2(c, sc.truth.T_ref_cam[n]) < CHI2_6_9999, n
         assert (c.intrinsics.get("prior") == "wide") == (n == bad), (n, c.intrinsics.get("prior"))
+
+
+def test_error_budget_adds_up_to_the_covariance():
+    """Each camera's budget splits the trace of its translation covariance among the noise sources:
+    the shares sum to 1, the total is the reported 1-sigma, a far camera with a calibration file's
+    intrinsics is mostly its intrinsics (the hand-eye views barely pin its focal length), held
+    intrinsics contribute nothing, and the advice is one line naming the camera with numbers."""
+    sc = make_scene(cameras=ring_cameras([1.5, 5.0], presets=("d455",)), n_poses=50, pixel_sigma_px=0.3, seed=4,
+                    fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01))
+    given = _with(sc.problem, lambda i, n, c: Intrinsics(K=c.K, dist=c.dist, width_px=c.width_px,
+                                                          height_px=c.height_px, source="calibration"))
+    held = given.with_(options=replace(given.options, intrinsics="fixed"))
+    for r in (solve(given), solve(held)):
+        for n, c in r.cameras.items():
+            b = c.error_budget
+            assert set(b["shares"]) >= {"intrinsics", "corners", "robot_fk", "board"}
+            assert abs(sum(b["shares"].values()) - 1.0) < 1e-6, b
+            assert b["sigma_translation_norm_mm"] == pytest.approx(np.linalg.norm(c.sigma_translation_mm), rel=1e-6)
+            assert "\n" not in b["advice"] and b["advice"].startswith(f"{n}:") and "mm" in b["advice"]
+    far = list(sc.problem.cameras)[1]
+    assert solve(given).cameras[far].error_budget["shares"]["intrinsics"] > 0.5
+    assert all(c.error_budget["shares"]["intrinsics"] == 0.0 for c in solve(held).cameras.values())

@@ -78,8 +78,8 @@ def test_a_move_that_gets_every_view_rejected_is_still_named():
     caps = sorted(d.capture for d in scene.problem.detections if d.camera == "cam0")
     at = caps[len(caps) // 2]
     prob, T_after = bump_camera(scene, "cam0", at, 0.020, rot_deg=0.2, seed=101)
-    with pytest.raises(ObservabilityError, match="cam0.*rejected"):
-        solver_once(prob)
+    once = solver_once(prob)  # without the move test: not calibrated, never a pose from what is left
+    assert not once.cameras["cam0"].calibrated and "rejected" in once.cameras["cam0"].why
     res = solve(prob)
     notes = [x for x in res.notes if "moved during capture" in x]
     assert len(notes) == 1 and f"between captures {max(c for c in caps if c < at)} and {at}" in notes[0]

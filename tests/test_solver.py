@@ -382,3 +382,26 @@ def test_converged_comes_from_the_optimiser():
     assert solver.solve(sc.problem).converged
     capped = sc.problem.with_(options=replace(sc.problem.options, max_iterations=1))
     assert not solver.solve(capped).converged
+
+
+def test_a_camera_left_with_too_few_views_is_not_calibrated():
+    """Every image of one camera mirrored: each view alone fits a pose (the board seen from behind),
+    none fits the robot's motion, so rejection leaves too few. That camera is reported as not
+    calibrated, with why (mirrored images named), never with a pose and a 1-sigma; the others are
+    calibrated without it and the pairs leave it out."""
+    sc = make_scene(n_poses=30, pixel_sigma_px=0.3, seed=13)
+    p = sc.problem
+    w = p.cameras["cam1"].width_px
+    dets = [Detection(d.camera, d.capture, d.ids, np.column_stack([w - 1 - d.uv_px[:, 0], d.uv_px[:, 1]]))
+            if d.camera == "cam1" else d for d in p.detections]
+    r = solver.solve(p.with_(detections=tuple(dets)))
+    c = r.cameras["cam1"]
+    assert not c.calibrated and c.T_ref_cam is None and c.covariance is None, c
+    assert "rejected" in c.why and "mirrored" in c.why, c.why
+    assert any("cam1 is NOT calibrated" in n for n in r.notes), r.notes
+    d = r.to_dict()["cameras"]["cam1"]
+    assert d["calibrated"] is False and d["why"] == c.why and "T_base_cam" not in d
+    for n in ("cam0", "cam2"):
+        assert r.cameras[n].calibrated
+        assert mahalanobis2(r.cameras[n].T_ref_cam, sc.truth.T_ref_cam[n], r.cameras[n].covariance) < CHI2_6_999, n
+    assert set(r.pairs) == {("cam0", "cam2")}

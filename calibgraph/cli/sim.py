@@ -3,7 +3,9 @@
     calibgraph sim --workcell datasets/workcells/default.yaml --out DATASET [--trajectory traj.yaml]
 
 Without ``--trajectory`` a trajectory of ``--poses`` poses is planned for the cell and saved as
-``DATASET/planned_trajectory.yaml`` (reusable with ``--trajectory``).
+``DATASET/planned_trajectory.yaml`` (reusable with ``--trajectory``). The dataset records that
+``calibgraph sim`` made it, from which workcell and trajectory (:mod:`calibgraph.acquire.claim`):
+``--resume`` continues only such a run with the same inputs.
 """
 
 from __future__ import annotations
@@ -47,42 +49,49 @@ def _intrinsics_session(args, cell) -> int:
 
 
 def run(args) -> int:
+    from calibgraph.acquire.claim import claim_dataset, content_sha256
+    from calibgraph.acquire.workcell import read_workcell
     from calibgraph.core.errors import InputError
     from calibgraph.io.files import output_folder
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.plan.trajectory import load_trajectory
     from calibgraph.sim.render import SimWorld
     from calibgraph.sim.simulate import simulate_dataset
-    from calibgraph.sim.workcell import load_workcell, ring_workcell
+    from calibgraph.sim.workcell import ring_workcell, workcell_from_dict, workcell_to_dict
 
-    cell = load_workcell(args.workcell) if args.workcell else ring_workcell(spread_deg=200.0, name="default")
+    if args.workcell:  # read once: a pipe is refused, degenerate camera geometry too
+        cell = workcell_from_dict(read_workcell(args.workcell, "workcell file", hardware=False).data, str(args.workcell))
+    else:
+        cell = ring_workcell(spread_deg=200.0, name="default")
     if args.intrinsics_session is not None:
         if args.intrinsics_session < 1:
             raise InputError("--intrinsics-session must be >= 1 images.")
         return _intrinsics_session(args, cell)
-    if args.out.exists() and (args.out / "dataset.yaml").exists() and not args.resume:
-        raise InputError(f"{args.out}: a dataset already exists here; choose a new --out or pass --resume.")
-    output_folder(args.out, "dataset folder")  # a file, a read-only folder: said now, not after simulating
+    if not args.trajectory and args.poses < 1:
+        raise InputError("--poses must be >= 1.")
+    traj = load_trajectory(args.trajectory) if args.trajectory else None
+    inputs = {"workcell_sha256": content_sha256(workcell_to_dict(cell)),
+              "trajectory_sha256": None if traj is None else traj.sha256()}
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
-    say(f"building the simulated workcell {cell.name!r}: {len(cell.cameras)} cameras, board "
-        f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm")
-    world = SimWorld(cell)
-    world.check_rendering()  # no OpenGL: one clear error now, not after planning
-    if args.trajectory:
-        traj = load_trajectory(args.trajectory)
-    else:
-        if args.poses < 1:
-            raise InputError("--poses must be >= 1.")
-        traj = plan_trajectory(world, args.poses, seed=args.seed)
+    # the dataset is claimed before anything is built: a dataset of another run is refused untouched,
+    # a file or a read-only folder is said now, not after simulating
+    with claim_dataset(args.out, "sim", inputs, args.resume, say) as claim:
         output_folder(args.out, "dataset folder")
-        traj.save(args.out / "planned_trajectory.yaml")
-        via = f" + {traj.n_via} via poses for collision-free motion" if traj.n_via else ""
-        say(f"planned {traj.n_capture} poses{via} (expected views per camera: {traj.views_per_camera()}); "
-            f"saved {args.out / 'planned_trajectory.yaml'}")
-        for note in traj.notes:
-            say(f"  plan: {note}")
-    report = simulate_dataset(cell, traj, args.out, world=world, progress=False if args.quiet else True,
-                              resume=args.resume, gate=not args.full_detection)
+        say(f"building the simulated workcell {cell.name!r}: {len(cell.cameras)} cameras, board "
+            f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm")
+        world = SimWorld(cell)
+        world.check_rendering()  # no OpenGL: one clear error now, not after planning
+        if traj is None:
+            traj = plan_trajectory(world, args.poses, seed=args.seed)
+            claim.require({"trajectory_sha256": traj.sha256()})  # a resume with other --poses/--seed: refused here
+            traj.save(args.out / "planned_trajectory.yaml")
+            via = f" + {traj.n_via} via poses for collision-free motion" if traj.n_via else ""
+            say(f"planned {traj.n_capture} poses{via} (expected views per camera: {traj.views_per_camera()}); "
+                f"saved {args.out / 'planned_trajectory.yaml'}")
+            for note in traj.notes:
+                say(f"  plan: {note}")
+        report = simulate_dataset(cell, traj, args.out, world=world, progress=False if args.quiet else True,
+                                  resume=args.resume, gate=not args.full_detection)
     if not args.quiet:
         print(report.summary())
         print(f"wrote {args.out} (ground truth in {args.out / 'ground_truth.json'})")

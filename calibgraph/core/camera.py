@@ -96,6 +96,22 @@ class Intrinsics:
         K = np.array([[f, 0.0, (width_px - 1) / 2.0], [0.0, f, (height_px - 1) / 2.0], [0.0, 0.0, 1.0]])
         return cls(K=K, dist=np.zeros(5), width_px=width_px, height_px=height_px, source="unknown")
 
+    def with_pinhole(self, k6) -> "Intrinsics":
+        """A copy with [fx, fy, cx, cy] and, when given, [k1, k2] replaced by ``k6`` (4 or 6 values),
+        built without validation: the solver calls this for every view at every iteration with
+        values of its own graph (validating them cost a quarter of the optimiser's time)."""
+        K = self.K.copy()
+        K[0, 0], K[1, 1], K[0, 2], K[1, 2] = k6[:4]
+        dist = self.dist8 if self.dist.size < 5 else self.dist.copy()
+        if len(k6) > 4:
+            dist = dist.copy()
+            dist[:2] = k6[4:6]
+        out = object.__new__(Intrinsics)
+        for name, value in (("K", K), ("dist", dist), ("width_px", self.width_px), ("height_px", self.height_px),
+                            ("source", self.source), ("covariance", None)):
+            object.__setattr__(out, name, value)
+        return out
+
     @property
     def known(self) -> bool:
         """False when only the image size is known (``source == 'unknown'``)."""

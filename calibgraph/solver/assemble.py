@@ -8,11 +8,13 @@ import numpy as np
 from calibgraph.core.problem import Problem
 from calibgraph.core.transforms import inv
 from calibgraph.solver import kinematics as kin
+from calibgraph.solver.budget import advice, budgets
+from calibgraph.solver.reduced import Linear
 from calibgraph.solver.camera_model import intrinsics_record
 from calibgraph.solver.covariance import pair_covariance, to_ref_axes
 from calibgraph.solver.factors import project_chain
 from calibgraph.solver.graph import Estimate
-from calibgraph.solver.keys import B, C, O, S
+from calibgraph.solver.keys import B, C, K, O, S
 from calibgraph.solver.observability import check_after_solve
 from calibgraph.solver.optimise import Group
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView
@@ -38,9 +40,20 @@ def view_residuals(name: str, est: Estimate, views: list, cameras: dict) -> tupl
     return residuals, np.concatenate(kept) if kept else np.zeros((0, 2)), rejected_corners
 
 
-def camera_result(problem: Problem, name: str, group: Group, rejected: list) -> tuple[CameraResult, list]:
+def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
+    """name -> ``CameraResult.error_budget`` of the group's cameras (see :mod:`calibgraph.solver.budget`)."""
+    est = group.est
+    keys = {n: (C(est.slots[n]), K(est.slots[n]) if est.values.exists(K(est.slots[n])) else None) for n in group.names}
+    out = {}
+    for n, b in budgets(lin, keys).items():
+        out[n] = b.to_dict(advice(n, b, lin, *keys[n]))
+    return out
+
+
+def camera_result(problem: Problem, name: str, group: Group, rejected: list, budget: dict | None = None
+                  ) -> tuple[CameraResult, list]:
     """(CameraResult of one camera, its rejected corners): pose, covariance in reference axes, residuals.
-    ``rejected``: views refused before the solve (RejectedView)."""
+    ``rejected``: views refused before the solve (RejectedView); ``budget``: its error budget."""
     est, joint = group.est, problem.method == "joint"
     cov = to_ref_axes(est.T_ref_cam[name], est.marginals.marginalCovariance(C(est.slots[name])))
     check_after_solve(name, cov)
@@ -62,8 +75,19 @@ def camera_result(problem: Problem, name: str, group: Group, rejected: list) -> 
         residuals_px=residuals,
         intrinsics=intrinsics_record(problem, name, est),
         corner_noise=est.mode_ratios[name].to_dict() if name in est.mode_ratios else None,
+        error_budget=budget,
     )
     return result, rejected_corners
+
+
+def not_calibrated(problem: Problem, name: str, why: str, rejected: list) -> CameraResult:
+    """The CameraResult of a camera too few of whose views survived: no pose, no covariance, why."""
+    mine = sorted(d.capture for d in problem.detections if d.camera == name)
+    refused = {r.capture: r for r in rejected if r.camera == name}
+    views_rejected = tuple(refused.get(k, RejectedView(name, k, f"camera not calibrated: {why}")) for k in mine)
+    return CameraResult(name=name, ref_frame="base" if problem.mode == "eye_to_hand" else "flange", T_ref_cam=None,
+                        covariance=None, reprojection_rms_px=float("nan"), reprojection_max_px=float("nan"),
+                        views_used=0, views_rejected=views_rejected, calibrated=False, why=why)
 
 
 def pair_results(names: list, cameras: dict, groups: list, joint: bool) -> dict:

@@ -23,7 +23,15 @@ import numpy as np
 
 from calibgraph.core.problem import Problem
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.assemble import camera_result, mount_and_robot_poses, pair_results, robot_result
+from calibgraph.solver.assemble import (
+    camera_result,
+    error_budgets,
+    mount_and_robot_poses,
+    not_calibrated,
+    pair_results,
+    robot_result,
+)
+from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_inadequate_intrinsics
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note
@@ -92,12 +100,17 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
 def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve_time_s: float) -> Result:
     cameras, rejected_corners = {}, []
     for g in groups:
+        budget = error_budgets(problem, g, linearise_graph(g.est.graph, g.est.values))
         for n in g.names:
-            cameras[n], corners = camera_result(problem, n, g, rejected)
+            cameras[n], corners = camera_result(problem, n, g, rejected, budget[n])
             rejected_corners += corners
+        for n, why in g.dropped.items():
+            cameras[n] = not_calibrated(problem, n, why, rejected)
+    cameras = {n: cameras[n] for n in problem.cameras if n in cameras}
     T_mount_board, mount_cov, T_base_flange_est = mount_and_robot_poses(problem, groups)
     scale, scale_sigma, scale_notes = board_scale(problem, groups)
     notes = [*notes, *scale_notes, *intrinsics_notes(cameras)]
+    notes += [f"camera {n} is NOT calibrated: {why}" for g in groups for n, why in g.dropped.items()]
     for g in groups:
         notes += corner_noise_notes(g.est.mode_ratios)
     notes += next((n for n in (fk_note(problem.options, g.est.fk_ratio) for g in groups) if n), [])
@@ -111,7 +124,8 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
     fk_ratio = groups[0].est.fk_ratio if len(groups) == 1 else None
     return Result(
         mode=problem.mode, method=problem.method, cameras=cameras, T_mount_board=T_mount_board,
-        mount_covariance=mount_cov, pairs=pair_results(list(problem.cameras), cameras, groups, problem.method == "joint"),
+        mount_covariance=mount_cov, pairs=pair_results([n for n in problem.cameras if cameras[n].calibrated], cameras,
+                                                       groups, problem.method == "joint"),
         converged=all(g.est.converged for g in groups),
         iterations=sum(g.est.iterations for g in groups), final_cost=sum(g.est.cost for g in groups),
         pixel_sigma_px=float(np.mean([g.est.sigma_px for g in groups])), solve_time_s=solve_time_s,

@@ -19,9 +19,10 @@ import numpy as np
 
 from calibgraph.core.problem import Problem, intrinsics_source
 from calibgraph.solver.factors import intrinsics_vector
-from calibgraph.solver.graph import Estimate, build_graph, ordering
+from calibgraph.solver.graph import Estimate, build_graph
 from calibgraph.solver.keys import K
 from calibgraph.solver.noise_model import mode_variance_ratios
+from calibgraph.solver.reduced import linearise_graph
 
 CHI2_6_999 = 22.46
 FOCAL_REL = 0.002
@@ -53,36 +54,31 @@ def exact_claims(problem: Problem, names) -> list:
     return [n for n in names if problem.cameras[n].known and intrinsics_source(problem.cameras[n], problem.options) == "exact"]
 
 
-def _linear_gain(problem: Problem, views: list, slots: dict, est: Estimate, sigma_px: float, factors: dict):
-    """(decrease of the cost by one Gauss-Newton step of the graph at ``est``, that step)."""
-    graph, values = build_graph(views, slots, problem, est, sigma_px, "view", factors)
-    lin = graph.linearize(values)
-    step = lin.optimize(ordering(values))
-    zero = step.scale(0.0)
-    return lin.error(zero) - lin.error(step), step
-
-
 def contradicted(problem: Problem, views: list, slots: dict, est: Estimate, sigma_px: float) -> list:
     """The :class:`Contradiction` s among the exact claims of the graph's cameras at ``est``.
 
     Each claim is tested by how much freeing that camera's intrinsics alone lowers the linearised
-    cost beyond what re-fitting everything else does (twice that is the chi-square, 6 dof); the
-    residuals are whitened with the views' own noise model, since correlated corner noise moves
-    whole boards at random from view to view while a wrong camera model moves them all alike."""
+    cost beyond what re-fitting everything else does (twice that is the chi-square, 6 dof), in one
+    linearisation of the graph with every claimed camera's intrinsics as variables, reduced to its
+    global variables. The residuals are whitened with the views' own noise model, estimated even
+    when the final graph is told to ignore it: correlated corner noise moves whole boards at random
+    from view to view, a wrong camera model moves them all alike."""
     claimed = [n for n in exact_claims(problem, slots) if n not in est.free_intrinsics]
     if not claimed:
         return []
-    # whitened with the estimated corner-noise model even when the final graph is told to ignore it:
-    # the test is there to tell a camera-model misfit from noise
     modes = mode_variance_ratios(problem, views, est, sigma_px)
     factors = {c: m.applied for c, m in modes.items() if m.applied > 1.0}
-    held, _ = _linear_gain(problem, views, slots, est, sigma_px, factors)
+    free = replace(est, free_intrinsics=est.free_intrinsics | frozenset(claimed))
+    graph, values = build_graph(views, slots, problem, free, sigma_px, "view", factors)
+    lin = linearise_graph(graph, values)
+    claimed_keys = {K(slots[n]) for n in claimed}
+    nuisance = [k for k in lin.index if k not in claimed_keys]
+    held = lin.step_gain(nuisance)
     out = []
     for n in claimed:
-        free, step = _linear_gain(problem, views, slots, replace(est, free_intrinsics=est.free_intrinsics | {n}),
-                                  sigma_px, factors)
-        chi2 = 2.0 * (free - held)
-        change = np.asarray(step.at(K(slots[n])))
+        key = K(slots[n])
+        chi2 = 2.0 * (lin.step_gain(nuisance + [key]) - held)
+        change = lin.step(nuisance + [key])[key]
         given = intrinsics_vector(problem.cameras[n])
         large = (np.any(np.abs(change[:2] / given[:2]) > FOCAL_REL) or np.any(np.abs(change[2:4]) > PRINCIPAL_PX)
                  or np.any(np.abs(change[4:]) > DISTORTION))

@@ -15,6 +15,8 @@ faster than one Python factor per corner. Jacobians are analytic, in GTSAM's Pos
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gtsam
 import numpy as np
 
@@ -108,14 +110,10 @@ def make_view_factor(key_cam, key_robot, key_mount, p_board_m: np.ndarray, uv_px
 
 
 def with_pinhole(intr: Intrinsics, k6: np.ndarray) -> Intrinsics:
-    """Copy of ``intr`` with [fx, fy, cx, cy] and, when given, [k1, k2] replaced."""
-    K = intr.K.copy()
-    K[0, 0], K[1, 1], K[0, 2], K[1, 2] = k6[:4]
-    dist = intr.dist8 if intr.dist.size < 5 else intr.dist.copy()
-    if len(k6) > 4:
-        dist = dist.copy()
-        dist[:2] = k6[4:6]
-    return Intrinsics(K=K, dist=dist, width_px=intr.width_px, height_px=intr.height_px, source=intr.source)
+    """Copy of ``intr`` with [fx, fy, cx, cy] and, when given, [k1, k2] replaced (validated: for
+    values that leave the solver; the factors use :meth:`Intrinsics.with_pinhole`)."""
+    fast = intr.with_pinhole(k6)
+    return Intrinsics(K=fast.K, dist=fast.dist, width_px=intr.width_px, height_px=intr.height_px, source=intr.source)
 
 
 def intrinsics_vector(intr: Intrinsics) -> np.ndarray:
@@ -175,7 +173,7 @@ def make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, int
         scale = float(values.atVector(key_scale)[0]) if key_scale is not None else 1.0
         p_b = p_board_m * scale
         k6 = values.atVector(key_intr) if key_intr is not None else None
-        cur = with_pinhole(intr, k6) if k6 is not None else intr
+        cur = intr.with_pinhole(k6) if k6 is not None else intr
         e, J = view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_b, uv_px, cur, sqrt_w,
                              want_jacobians=H is not None)
         if H is not None:
@@ -194,8 +192,79 @@ def make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, int
     return gtsam.CustomFactor(model, keys, error_func)
 
 
-def make_view_factor_intrinsics(key_cam, key_robot, key_mount, key_intr, p_board_m, uv_px, intr: Intrinsics,
-                                sqrt_w) -> gtsam.CustomFactor:
-    """View factor that also estimates the camera's [fx, fy, cx, cy, k1, k2] (a Vector6 variable);
-    see :func:`make_calibration_factor`."""
-    return make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, intr, sqrt_w, key_intr=key_intr)
+@dataclass(frozen=True)
+class ViewTerm:
+    """One view inside a capture factor (:func:`make_capture_factor`): its camera's keys and model,
+    its kept corners and their weights (``sqrt_w`` (n,) already includes 1 / sigma_px), and
+    ``whiten`` (2n, 6) Q scaled so that ``e - whiten @ (Q^T e)`` whitens correlated low-order modes
+    (None: independent corners)."""
+
+    key_cam: int
+    key_intr: int | None
+    intr: Intrinsics
+    p_board_m: np.ndarray
+    uv_px: np.ndarray
+    sqrt_w: np.ndarray
+    modes: np.ndarray | None = None  # (2n, 6) orthonormal basis Q of the view's low-order modes
+    mode_factor: float = 1.0  # their variance factor
+
+
+def make_capture_factor(key_robot, key_mount, key_scale, terms: list) -> gtsam.CustomFactor:
+    """One CustomFactor for every view of one capture: the views share the robot pose ``key_robot``
+    (F(k)), the mount and the board scale (``key_scale`` or None), and each brings its camera pose
+    and, when estimated, its intrinsics. The residual is the views' residuals stacked, each view's
+    low-order modes whitened by its variance factor (covariance I + (f - 1) Q Q^T, whose inverse
+    square root is I - (1 - f^-1/2) Q Q^T), so the factor's noise model is unit.
+
+    The same model as one factor per view (:func:`make_calibration_factor`); one Python call per
+    capture instead of one per view is what makes large cells affordable."""
+    keys = [key_robot, key_mount] + ([key_scale] if key_scale is not None else [])
+    col = {}
+    rows, start = [], 0
+    prepared = []
+    for t in terms:
+        n = t.p_board_m.shape[0]
+        col[t.key_cam] = len(keys)
+        keys.append(t.key_cam)
+        if t.key_intr is not None:
+            col[t.key_intr] = len(keys)
+            keys.append(t.key_intr)
+        c = 1.0 - 1.0 / np.sqrt(t.mode_factor) if t.modes is not None and t.mode_factor > 1.0 else 0.0
+        prepared.append((t, np.ascontiguousarray(t.p_board_m, float), np.ascontiguousarray(t.uv_px, float),
+                         np.ascontiguousarray(t.sqrt_w, float), slice(start, start + 2 * n), c))
+        start += 2 * n
+    total = start
+    i_scale = 2 if key_scale is not None else None
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
+        T_ref_mount = values.atPose3(key_robot).matrix()
+        T_mount_board = values.atPose3(key_mount).matrix()
+        scale = float(values.atVector(key_scale)[0]) if key_scale is not None else 1.0
+        e_all = np.empty(total)
+        if H is not None:
+            blocks = [np.zeros((total, 6)), np.zeros((total, 6))] + ([np.zeros((total, 1))] if i_scale else [])
+            for k in keys[len(blocks):]:
+                blocks.append(np.zeros((total, 6)))
+        for t, p_b, uv, sw, rs, c in prepared:
+            T_ref_cam = values.atPose3(t.key_cam).matrix()
+            k6 = values.atVector(t.key_intr) if t.key_intr is not None else None
+            cur = t.intr.with_pinhole(k6) if k6 is not None else t.intr
+            ps = p_b * scale
+            e, J = view_residual(T_ref_cam, T_ref_mount, T_mount_board, ps, uv, cur, sw, want_jacobians=H is not None)
+            if H is not None:
+                parts = [(0, J[1]), (1, J[2]), (col[t.key_cam], J[0])]
+                if t.key_intr is not None:
+                    parts.append((col[t.key_intr], _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, ps, uv,
+                                                                        cur, k6, e, sw)))
+                if i_scale is not None:
+                    n = p_b.shape[0]
+                    parts.append((i_scale, np.einsum("nij,nj->ni", J[2].reshape(n, 2, 6)[:, :, 3:], p_b).reshape(2 * n, 1)))
+                for i, A in parts:
+                    blocks[i][rs] = A - c * (t.modes @ (t.modes.T @ A)) if c else A
+            e_all[rs] = e - c * (t.modes @ (t.modes.T @ e)) if c else e
+        if H is not None:
+            for i, A in enumerate(blocks):
+                H[i] = A
+        return e_all
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(total), keys, error_func)

@@ -31,15 +31,9 @@ from calibgraph.core.errors import InputError, ObservabilityError
 from calibgraph.core.problem import Problem, intrinsics_estimated, intrinsics_prior_covariance
 from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.factors import (
-    fk_noise,
-    intrinsics_vector,
-    make_calibration_factor,
-    make_view_factor,
-    with_pinhole,
-)
+from calibgraph.solver.factors import ViewTerm, fk_noise, intrinsics_vector, make_capture_factor, with_pinhole
 from calibgraph.solver.keys import B, C, F, K, O, S
-from calibgraph.solver.noise_model import MODE_MIN_CORNERS, view_noise
+from calibgraph.solver.noise_model import MODE_MIN_CORNERS, view_mode_basis
 from calibgraph.solver.timing import timed
 from calibgraph.solver.views import residual_norms
 
@@ -71,6 +65,8 @@ class Estimate:
     mount_cov_body: np.ndarray | None = None  # (6, 6) covariance of T_mount_board, GTSAM body frame
     mode_ratios: dict = field(default_factory=dict)  # camera -> noise_model.ModeRatio of the final graph
     fk_ratio: object | None = None  # fk_check.FkRatio of the final graph
+    graph: object | None = field(default=None, repr=False)  # the final graph and its values (error budget)
+    values: object | None = field(default=None, repr=False)
 
     def camera_model(self, name: str, cameras: dict) -> Intrinsics:
         """The intrinsics camera ``name`` is projected with: estimated, else given (``cameras``)."""
@@ -180,21 +176,20 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
     if o.board_scale:
         graph.add(gtsam.PriorFactorVector(S(0), np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, o.board_scale_sigma)))
         values.insert(S(0), np.array([est.board_scale]))
+    by_capture = {}
     for v in views:
-        if not v.active:
-            continue
-        keep = v.kept
-        sw = np.sqrt(v.w[keep]) / sigma_px
-        f = (mode_factors or {}).get(v.camera, 1.0)
-        noise = view_noise(v.uv_px[keep], f) if f > 1.0 and keep.sum() >= MODE_MIN_CORNERS else None
-        if refine or o.board_scale:
-            graph.add(make_calibration_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board_m[keep],
-                                              v.uv_px[keep], problem.cameras[v.camera], sw,
-                                              key_intr=K(slots[v.camera]) if v.camera in refine else None,
-                                              key_scale=S(0) if o.board_scale else None, noise=noise))
-        else:
-            graph.add(make_view_factor(C(slots[v.camera]), F(v.capture), B(0), v.p_board_m[keep], v.uv_px[keep],
-                                       problem.cameras[v.camera], sw, noise=noise))
+        if v.active:
+            by_capture.setdefault(v.capture, []).append(v)
+    for k, vs in by_capture.items():
+        terms = []
+        for v in vs:
+            keep = v.kept
+            f = (mode_factors or {}).get(v.camera, 1.0)
+            modes = view_mode_basis(v.uv_px[keep]) if f > 1.0 and keep.sum() >= MODE_MIN_CORNERS else None
+            terms.append(ViewTerm(C(slots[v.camera]), K(slots[v.camera]) if v.camera in refine else None,
+                                  problem.cameras[v.camera], v.p_board_m[keep], v.uv_px[keep],
+                                  np.sqrt(v.w[keep]) / sigma_px, modes, f))
+        graph.add(make_capture_factor(F(k), B(0), S(0) if o.board_scale else None, terms))
     return graph, values
 
 

@@ -161,7 +161,8 @@ def find_move(problem, result, name: str) -> Move | None:
         return None
     intr = _intrinsics(problem, result, name)
     P, uv, which = _base_points(problem, result, views)
-    T0 = inv(result.cameras[name].T_ref_cam) if name in result.cameras else _global_pnp(P, uv, intr)
+    known = name in result.cameras and result.cameras[name].calibrated
+    T0 = inv(result.cameras[name].T_ref_cam) if known else _global_pnp(P, uv, intr)
     T_one, rss_one, n = _fit(P, uv, intr, T0)
     if n <= 12:
         return None
@@ -285,6 +286,8 @@ def solve_minding_moves(problem, resolve) -> object:
     moves = [_measured_again(original, result, m) for m in moves]  # the mount is no longer dragged
     cams = dict(result.cameras)
     for m in moves:
+        if not cams[m.camera].calibrated:
+            continue
         reason = (f"camera moved between captures {m.last_before} and {m.first_after}: this view is from before the move "
                   "and was set aside")
         rv = tuple(RejectedView(m.camera, c, reason) for c in m.captures_before)
@@ -299,6 +302,8 @@ def _measured_again(problem, result, m: Move) -> Move:
     before = set(m.captures_before)
     views = [d for d in problem.detections if d.camera == m.camera and d.capture in before and len(d.ids) >= 4]
     if not views:
+        return m
+    if not views or not result.cameras[m.camera].calibrated:
         return m
     P, uv, _ = _base_points(problem, result, views)
     T_after = result.cameras[m.camera].T_ref_cam

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import gtsam
 import numpy as np
 
 from calibgraph.core.problem import Problem
@@ -67,13 +66,6 @@ def view_mode_basis(uv_px: np.ndarray) -> np.ndarray:
     A[0::2, 2], A[0::2, 3] = c[:, 0], c[:, 1]
     A[1::2, 4], A[1::2, 5] = c[:, 0], c[:, 1]
     return np.linalg.qr(A)[0]
-
-
-def view_noise(uv_px: np.ndarray, factor: float):
-    """Noise model of one view whose low-order modes have ``factor`` times the variance of the rest
-    (unit otherwise): covariance I + (factor - 1) Q Q^T on the weighted residuals."""
-    Q = view_mode_basis(uv_px)
-    return gtsam.noiseModel.Gaussian.Covariance(np.eye(len(Q)) + (factor - 1.0) * (Q @ Q.T))
 
 
 def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Linearised | None = None) -> dict:

@@ -9,7 +9,7 @@ forward kinematics (:mod:`calibgraph.solver.fk_check`) and about correlated corn
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -29,6 +29,7 @@ from calibgraph.solver.graph import (
     levenberg_marquardt,
     marginals,
 )
+from calibgraph.solver.initialise import pnp_candidates
 from calibgraph.solver.keys import B
 from calibgraph.solver.linearise import linearise
 from calibgraph.solver.noise_model import a_posteriori_sigma, mode_variance_ratios
@@ -45,6 +46,7 @@ class Group:
     est: Estimate
     views: list
     notes: tuple = ()
+    dropped: dict = field(default_factory=dict)  # camera -> why it is not calibrated (its views left the graph)
 
 
 def solve_from_start(problem: Problem, names: list, views: list, est0: Estimate,
@@ -62,12 +64,69 @@ def solve_from_start(problem: Problem, names: list, views: list, est0: Estimate,
         return _solve(problem, names, views, est0, "view", timings)
 
 
+def _rounds_keeping_enough_views(problem: Problem, names: list, views: list, est: Estimate, form: str,
+                                 timings: dict | None):
+    """The robust rounds, with every camera left with fewer usable views than it needs (after
+    rejection) taken out of the graph and the rest solved again: (names, views, rounds, dropped)
+    with ``dropped`` camera -> why. A camera alone in its graph is refused as before."""
+    dropped, need = {}, problem.options.min_views_per_camera
+    while True:
+        slots = {n: i for i, n in enumerate(names)}
+        try:
+            rounds = robust_rounds(problem, views, slots, est, form, timings)
+        except ObservabilityError as e:
+            if e.camera not in names or len(names) < 2:
+                raise
+            dropped[e.camera] = not_calibrated_why(problem, e.camera, [v for v in views if v.camera == e.camera],
+                                                   views, need, str(e))
+            names = [n for n in names if n != e.camera]
+            views = [v for v in views if v.camera != e.camera]
+            continue
+        short = [n for n in names if sum(v.active for v in rounds.views if v.camera == n) < need]
+        if not short or len(short) == len(names):
+            return names, views, rounds, dropped
+        for n in short:
+            dropped[n] = not_calibrated_why(problem, n, [v for v in rounds.views if v.camera == n], views, need)
+        names = [n for n in names if n not in short]
+        views = [v for v in views if v.camera not in short]
+        est = replace(est, T_ref_cam={n: T for n, T in rounds.est.T_ref_cam.items() if n in names})
+
+
+def not_calibrated_why(problem: Problem, name: str, mine: list, views: list, need: int, error: str = "") -> str:
+    """Why camera ``name`` cannot be calibrated from what is left of its views ``mine`` (``error``:
+    the solver's refusal when every view was rejected)."""
+    if error:
+        why = f"all {len(mine)} of its views were rejected as inconsistent with the other cameras'"
+    else:
+        used = [v for v in mine if v.active]
+        reasons = sorted({v.reason for v in mine if not v.active and v.reason})[:2]
+        why = (f"{len(mine) - len(used)} of {len(mine)} views rejected" + (f" ({'; '.join(reasons)})" if reasons else "")
+               + f": {len(used)} left, at least {need} needed")
+    mirrored = seen_from_behind(problem, mine, [v for v in views if v.camera != name])
+    if mirrored:
+        why += f"; the images look mirrored (the board appears from behind in {mirrored[0]} of {mirrored[1]} views)"
+    return why
+
+
+def seen_from_behind(problem: Problem, mine: list, others: list) -> tuple | None:
+    """(views of ``mine`` whose board appears from behind, len(mine)) when most of them do, judged
+    against the side the other cameras' views show; None otherwise. A mirrored image shows a planar
+    board from its other side."""
+    def side(v):
+        R, _, _ = pnp_candidates(v.p_board_m, v.uv_px, problem.cameras[v.camera])
+        return np.sign(R[0][2, 2]) if len(R) else 0.0
+
+    ref = np.sign(sum(side(v) for v in others[:50])) if others else 1.0
+    flipped = sum(side(v) == -ref for v in mine)
+    return (int(flipped), len(mine)) if mine and ref != 0 and flipped >= max(2, 0.7 * len(mine)) else None
+
+
 def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str, timings: dict | None) -> Group:
-    slots = {n: i for i, n in enumerate(names)}
     est = Estimate(T_ref_cam=dict(est0.T_ref_cam), T_mount_board=est0.T_mount_board, T_ref_mount={},
                    intrinsics=dict(est0.intrinsics), wide_intrinsics=est0.wide_intrinsics,
                    free_intrinsics=est0.free_intrinsics, joint_offsets=est0.joint_offsets)
-    rounds = robust_rounds(problem, views, slots, est, form, timings)
+    names, views, rounds, dropped = _rounds_keeping_enough_views(problem, names, views, est, form, timings)
+    slots = {n: i for i, n in enumerate(names)}
     notes = []
     # A claim the data contradict is named and dropped before anything shared is judged on the misfit;
     # one camera at a time, the worst first, since one wrong camera drags the others' fit.
@@ -78,7 +137,7 @@ def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str
         form = formulation(problem, names, len(views), est)
         rounds = robust_rounds(problem, views, slots, est, form, timings)
     est = final_graph(problem, names, rounds, slots, form, timings)
-    return Group(names, est, rounds.views, tuple(notes))
+    return Group(names, est, rounds.views, tuple(notes), dropped)
 
 
 def _n_parameters(problem: Problem, names: list, est: Estimate) -> int:
@@ -130,7 +189,7 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     mount_cov = factors_ppp.mount_cov_body(marg, values) if form == "corner" else marg.marginalCovariance(B(0))
     return replace(est, iterations=iterations, converged=converged, cost=graph.error(values), sigma_px=sigma_post,
                    slots=slots, formulation=form, marginals=marg, mount_cov_body=mount_cov, mode_ratios=mode_ratios,
-                   fk_ratio=fk_ratio)
+                   fk_ratio=fk_ratio, graph=graph, values=values)
 
 
 def solve_joint(problem: Problem, names: list, views: list, starts: list, timings: dict | None = None) -> Group:
