@@ -225,7 +225,7 @@ def _pnp(intr: Intrinsics, p_board_m: np.ndarray, uv_px: np.ndarray):
     """(best T_cam_board, best RMS px, mirror solution's RMS px) of a planar view (IPPE, both solutions)."""
     import cv2
 
-    ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(p_board_m.astype(np.float64), uv_px.astype(np.float64), intr.K,
+    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(p_board_m.astype(np.float64), uv_px.astype(np.float64), intr.K,
                                                  intr.dist, flags=cv2.SOLVEPNP_IPPE)
     if not ok or len(rvecs) == 0:
         return None, np.inf, np.inf
@@ -306,13 +306,13 @@ def refine(intr: Intrinsics, poses: list, views: list, target: Target, model: st
             Ki = np.linalg.solve(Hpp_d, np.column_stack([Hpi, gp]))
             S += B.T @ B - Hpi.T @ Ki[:, :m]
             g += B.T @ rw - Hpi.T @ Ki[:, m]
-            blocks.append((Ki, Hpi))
+            blocks.append(Ki)
         try:
             dx_i = -np.linalg.solve(S + lam * np.diag(d_ii), g)
         except np.linalg.LinAlgError:
             lam *= 10.0
             continue
-        dx_p = [-(Ki[:, m] + Ki[:, :m] @ dx_i) for Ki, _ in blocks]
+        dx_p = [-(Ki[:, m] + Ki[:, :m] @ dx_i) for Ki in blocks]
         try:
             cand_intr, cand_poses = _apply(intr, names, poses, dx_i, dx_p, n_coeff)
             cand_lin, cand_cost = _linearise(cand_intr, names, views, cand_poses, pts, factor)
