@@ -11,6 +11,10 @@
   axes: rotation vector of ``R_est R_true^T`` and camera-centre offset), ``reprojection_rms_px``,
   ``reprojection_max_px``, ``views_used``, ``views_rejected`` (list of {capture, reason}),
   ``corners_used``, ``corners_rejected``, ``intrinsics`` (K, dist, width_px, height_px used);
+  ``moved`` when the camera moved during capture (the pose above is the one after the move):
+  ``capture`` (first capture after it), ``last_capture_before``, ``views_before``/``views_after``,
+  ``displacement_mm``, ``sigma_displacement_mm``, ``rotation_deg``, ``f_stat``, ``T_base_cam_before``
+  (``T_flange_cam_before``; null when too few views to solve it), ``covariance_before`` and its sigmas;
   in 'single' mode also the camera's own board mount.
 - ``camera_pairs.<a>__<b>``: ``T_a_b`` with its ``sigma_translation_mm`` / ``sigma_rotation_deg``
   and ``covariance`` (6x6, rotation first, in frame a's axes).
@@ -88,6 +92,11 @@ class CameraResult:
     # False when too few of its views survived rejection: no pose and no covariance then, ``why`` says why
     calibrated: bool = True
     why: str = ""
+    # a camera that moved during capture (solver.moved): capture (the first after the move),
+    # last_capture_before, views_before, views_after, displacement_mm, sigma_displacement_mm,
+    # rotation_deg, f_stat, T_before (4x4, the pose before; None when too few views to solve it),
+    # covariance_before (6x6, as ``covariance``); None when it did not move
+    moved: dict | None = None
     # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
     residuals_px: dict = field(default_factory=dict, repr=False)
 
@@ -183,6 +192,8 @@ class Result:
             if not c.calibrated:
                 cams[name] = {"calibrated": False, "why": c.why, "views_used": c.views_used,
                               "views_rejected": [{"capture": v.capture, "reason": v.reason} for v in c.views_rejected]}
+                if c.moved is not None:
+                    cams[name]["moved"] = moved_to_dict(c.moved, ref_key)
                 continue
             st, sr = sigmas_from_cov(c.covariance)
             cams[name] = {
@@ -206,6 +217,8 @@ class Result:
                 cams[name]["corner_noise"] = c.corner_noise
             if c.error_budget is not None:
                 cams[name]["error_budget"] = c.error_budget
+            if c.moved is not None:
+                cams[name]["moved"] = moved_to_dict(c.moved, ref_key)
         pairs = {}
         for (a, b), p in self.pairs.items():
             st, sr = sigmas_from_cov(p.covariance)
@@ -282,6 +295,18 @@ class Result:
 
 
 RESULT_FORMAT = "calibgraph-result/1"
+
+
+def moved_to_dict(moved: dict, ref_key: str) -> dict:
+    """``cameras.<name>.moved`` of result.json: ``T_before`` named as the pose is (``T_base_cam_before``)."""
+    out = {k: v for k, v in moved.items() if k not in ("T_before", "covariance_before")}
+    T, cov = moved.get("T_before"), moved.get("covariance_before")
+    out[f"{ref_key}_before"] = None if T is None else np.asarray(T).tolist()
+    out["covariance_before"] = None if cov is None else np.asarray(cov).tolist()
+    if T is not None and cov is not None:
+        st, sr = sigmas_from_cov(np.asarray(cov))
+        out["sigma_translation_mm_before"], out["sigma_rotation_deg_before"] = st.tolist(), sr.tolist()
+    return out
 
 
 def load_result_dict(path) -> dict:
