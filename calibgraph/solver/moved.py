@@ -210,7 +210,7 @@ def _note(m: Move, rec: dict, after_cam: CameraResult | None, need: int) -> str:
             f"(1-sigma {rec['sigma_displacement_mm']:.1f} mm) and {rec['rotation_deg']:.2f} deg: its views before and "
             f"after disagree (F {m.split.f_stat:.0f} against the other cameras)")
     if after_cam is None or not after_cam.calibrated:
-        return f"{head}; {_too_few_after(m, need)}."
+        return f"{head}; it is NOT calibrated: {_too_few_after(m, need)}."
     nb = rec["views_before"]
     before = (f"its pose before the move, from the {nb} views before it, is reported beside it" if rec["T_before"] is not None
               else f"the {nb} views before the move were set aside (too few to solve that pose)")
@@ -237,7 +237,6 @@ def _fold(problem, result, moves: list):
             after_cam = CameraResult(name=m.camera, ref_frame="base" if problem.mode == "eye_to_hand" else "flange",
                                      T_ref_cam=None, covariance=None, reprojection_rms_px=float("nan"),
                                      reprojection_max_px=float("nan"), views_used=0, calibrated=False, why=why)
-            notes.append(f"camera {m.camera} is NOT calibrated: {why}")
         residuals = dict(after_cam.residuals_px)
         if pseudo_cam is not None:
             residuals.update(pseudo_cam.residuals_px)
