@@ -9,7 +9,8 @@ One camera (round robin) is knocked before capture ``at`` (20 / 50 / 80 % of the
 a random direction or a turn about a random axis (``sim.synth.bump_camera``); still cells with and
 without corner noise correlated within each view (5x the corner variance in the board's 6 image
 modes). Rendered: the default ``calibgraph sim`` cell (three L515 at 3 m, MuJoCo, image noise and
-blur, the real detector), 40 planned poses, the camera's MuJoCo pose changed before the capture.
+blur, the real detector), 40 planned poses, the camera's MuJoCo pose changed before the capture
+``frac`` of the way through the poses planned for it (the planner visits the cameras in turn).
 
 Figures per case: detection (the knocked camera named moved), located (between the right captures),
 wrong camera (another one named), not calibrated (too few views after the move), the knocked camera's
@@ -148,8 +149,11 @@ def rendered_trial(tmp: Path, k: int, victim, shift, rot, frac, n_poses: int = 4
     cell = dataclasses.replace(ring_workcell(spread_deg=200.0, name="default"), seed=1000 + k)
     world = SimWorld(cell)
     traj = plan_trajectory(world, n_poses, seed=0)
-    capture_poses = [p for p in traj.poses if p.capture]
-    at_pose = capture_poses[int(round(frac * len(capture_poses)))]
+    # the knock comes `frac` of the way through the poses planned for the knocked camera (the planner
+    # visits the cameras in turn, so a fraction of the whole run could leave it no view after the knock)
+    mine = [i for i, p in enumerate(traj.poses) if p.capture and (victim or "cam0") in p.cameras]
+    at_index = mine[min(max(int(round(frac * len(mine))), 1), len(mine) - 1)]
+    at_pose = traj.poses[at_index]
     rng = np.random.default_rng(100 + k)
     T0 = cell.camera(victim).T_base_cam if victim else None
     T_after = None
@@ -170,7 +174,7 @@ def rendered_trial(tmp: Path, k: int, victim, shift, rot, frac, n_poses: int = 4
     if victim:
         truth[victim] = T_after
         caps = sorted(d.capture for d in problem.detections if d.camera == victim)
-        at = traj.poses.index(at_pose)
+        at = at_index
         stored = sorted(c.index for c in problem.captures)
         at = min((c for c in stored if c >= at), default=at)
     t0 = time.process_time()
