@@ -11,6 +11,7 @@ accuracy or the board's print scale to what the solve of the still cell says."""
 
 import dataclasses
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -179,6 +180,11 @@ def test_live_test_against_a_stored_result():
     moves = find_moves_live(prob, stored)
     assert [m.camera for m in moves] == ["cam2"] and moves[0].first_after >= 18 > moves[0].last_before
     assert find_moves_live(scene.problem, stored) == []
+    # a live estimate (what IncrementalSolver.add_capture returns): poses and mount, no pixel sigma
+    live = SimpleNamespace(cameras={n: SimpleNamespace(T_ref_cam=c.T_ref_cam) for n, c in stored.cameras.items()},
+                           T_mount_board=stored.T_mount_board)
+    assert [m.camera for m in find_moves_live(prob, live)] == ["cam2"]
+    assert find_moves_live(scene.problem, live) == []
 
 
 def test_absurd_intrinsics_do_not_crash_the_test():

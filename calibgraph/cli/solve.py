@@ -97,6 +97,9 @@ def format_summary(result, truth=None) -> str:
         hdr += f" {'err mm':>7s} {'err deg':>8s}"
     lines += [f"{ref} per camera:", hdr]
     for n, c in result.cameras.items():
+        if not c.calibrated:  # no pose, no 1-sigma: why instead
+            lines.append(f"{n:10s} NOT calibrated: {c.why}")
+            continue
         t = c.T_ref_cam[:3, 3]
         st = "/".join(f"{v:.2f}" for v in c.sigma_translation_mm)
         sr = "/".join(f"{v:.3f}" for v in c.sigma_rotation_deg)

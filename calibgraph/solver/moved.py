@@ -30,10 +30,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.transforms import inv
 from calibgraph.solver.change_point import Split, camera_splits
 from calibgraph.solver.graph import Estimate
+from calibgraph.solver.noise_model import robust_pixel_sigma
 from calibgraph.solver.result import CameraResult, RejectedView
 from calibgraph.solver.views import prepare_views
 
@@ -115,9 +117,12 @@ def find_moves_live(problem, reference) -> list:
     views = [v for v in views if v.camera in cams]
     if not cams or not views:
         return []
+    intr = {n: Intrinsics.from_dict(c.intrinsics) for n, c in reference.cameras.items()
+            if n in cams and isinstance(getattr(c, "intrinsics", None), dict)}
     est = Estimate(T_ref_cam=cams, T_mount_board=np.asarray(reference.T_mount_board, float), T_ref_mount={},
-                   board_scale=float(getattr(reference, "board_scale", 1.0) or 1.0))
-    sigma = float(getattr(reference, "pixel_sigma_px", 0.0) or problem.options.pixel_sigma_px or 0.5)
+                   intrinsics=intr, board_scale=float(getattr(reference, "board_scale", 1.0) or 1.0))
+    sigma = float(getattr(reference, "pixel_sigma_px", 0.0) or problem.options.pixel_sigma_px
+                  or robust_pixel_sigma(views, est.residual_norms(views, problem.cameras)))
     splits = camera_splits(problem, views, est, sigma, list(cams))
     return [Move(s.camera, s) for s in sorted(splits.values(), key=lambda s: -s.f_stat) if s.is_move]
 
