@@ -49,7 +49,8 @@ N_POSES = 36
 
 def _scene(layout: str, seed: int):
     if layout == "shared":
-        return make_scene(cameras=ring_cameras([1.5, 2.0, 2.5], spread_deg=60), tilt_deg=20, n_poses=N_POSES, seed=seed, **FK)
+        return make_scene(cameras=ring_cameras([1.5, 2.0, 2.5], spread_deg=60), tilt_deg=20, n_poses=N_POSES,
+                          seed=seed, **FK)
     return make_scene(n_poses=N_POSES, seed=seed, **FK)
 
 

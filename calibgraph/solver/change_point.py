@@ -243,7 +243,8 @@ def best_split(vp: ViewPoses, min_side: int = MIN_GROUP_VIEWS) -> Split | None:
     u = c_ab / max(np.linalg.norm(c_ab), 1e-12)
     var = float(u @ R @ (cov_a[3:, 3:] + cov_b[3:, 3:]) @ R.T @ u) * max(pooled, 1.0)
     return Split(vp.camera, k, tuple(int(c) for c in vp.captures[:k]), tuple(int(c) for c in vp.captures[k:]),
-                 float(f), float(glr), (rss_one / (6 * n - 6), ra / max(6 * k - 6, 1), rb / max(6 * (n - k) - 6, 1), pooled),
+                 float(f), float(glr),
+                 (rss_one / (6 * n - 6), ra / max(6 * k - 6, 1), rb / max(6 * (n - k) - 6, 1), pooled),
                  T_a, T_b, cov_a, cov_b, 1e3 * d_m, d_deg, 1e3 * np.sqrt(max(var, 0.0)))
 
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import ObservabilityError
-from calibgraph.core.transforms import inv
+from calibgraph.core.transforms import pose_error
 from calibgraph.solver.change_point import Split, camera_splits
 from calibgraph.solver.graph import Estimate
 from calibgraph.solver.noise_model import robust_pixel_sigma
@@ -123,8 +123,16 @@ def find_moves_live(problem, reference) -> list:
                    intrinsics=intr, board_scale=float(getattr(reference, "board_scale", 1.0) or 1.0))
     sigma = float(getattr(reference, "pixel_sigma_px", 0.0) or problem.options.pixel_sigma_px
                   or robust_pixel_sigma(views, est.residual_norms(views, problem.cameras)))
-    splits = camera_splits(problem, views, est, sigma, list(cams))
-    return [Move(s.camera, s) for s in sorted(splits.values(), key=lambda s: -s.f_stat) if s.is_move]
+    moves, names = [], list(cams)
+    while names:  # the clearest move first; its camera's views then no longer hold the robot poses
+        splits = camera_splits(problem, views, est, sigma, names)
+        found = sorted((s for s in splits.values() if s.is_move), key=lambda s: -s.f_stat)
+        if not found:
+            break
+        moves.append(Move(found[0].camera, found[0]))
+        names.remove(found[0].camera)
+        views = [replace(v, active=False) if v.camera == found[0].camera else v for v in views]
+    return moves
 
 
 def solve_minding_moves(problem, resolve) -> object:
@@ -199,14 +207,19 @@ def _moved_record(result, m: Move, pseudo_cam: CameraResult | None, after_cam: C
         rec["T_before"], rec["covariance_before"] = pseudo_cam.T_ref_cam, pseudo_cam.covariance
         if after_cam is not None and after_cam.calibrated:
             T_a, T_b = after_cam.T_ref_cam, pseudo_cam.T_ref_cam
-            d = T_a[:3, 3] - T_b[:3, 3]
-            rec["displacement_mm"] = 1e3 * float(np.linalg.norm(d))
-            R = T_b[:3, :3].T @ T_a[:3, :3]
-            rec["rotation_deg"] = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
-            pair = result.pairs.get((m.camera, m.pseudo)) or result.pairs.get((m.pseudo, m.camera))
-            if pair is not None:  # the displacement's 1-sigma along it, from the joint marginal
-                u = inv(T_a)[:3, :3] @ d / max(np.linalg.norm(d), 1e-12)
-                rec["sigma_displacement_mm"] = 1e3 * float(np.sqrt(max(u @ pair.covariance[3:, 3:] @ u, 0.0)))
+            d_m, rec["rotation_deg"] = pose_error(T_a, T_b)
+            rec["displacement_mm"] = 1e3 * d_m
+            u = (T_a[:3, 3] - T_b[:3, 3]) / max(d_m, 1e-12)  # the displacement's direction, reference axes
+            # its 1-sigma along it: from the joint marginal of the two poses (a pair, in its first camera's
+            # axes), else from the two marginals as if independent (covariances in reference axes)
+            for (a, b), T_axes in (((m.camera, m.pseudo), T_a), ((m.pseudo, m.camera), T_b)):
+                if (a, b) in result.pairs:
+                    w = T_axes[:3, :3].T @ u
+                    var = w @ result.pairs[(a, b)].covariance[3:, 3:] @ w
+                    break
+            else:
+                var = u @ (after_cam.covariance[3:, 3:] + pseudo_cam.covariance[3:, 3:]) @ u
+            rec["sigma_displacement_mm"] = 1e3 * float(np.sqrt(max(var, 0.0)))
     return rec
 
 
@@ -217,8 +230,8 @@ def _note(m: Move, rec: dict, after_cam: CameraResult | None, need: int) -> str:
     if after_cam is None or not after_cam.calibrated:
         return f"{head}; it is NOT calibrated: {_too_few_after(m, need)}."
     nb = rec["views_before"]
-    before = (f"its pose before the move, from the {nb} views before it, is reported beside it" if rec["T_before"] is not None
-              else f"the {nb} views before the move were set aside (too few to solve that pose)")
+    before = (f"its pose before the move, from the {nb} views before it, is reported beside it"
+              if rec["T_before"] is not None else f"the {nb} views before the move were set aside (too few to solve that pose)")
     return (f"{head}. Calibrated as it stood after the move, from the {rec['views_after']} views after it; {before} "
             "(never averaged). Fix the camera's mount; re-capture for more views in its final pose.")
 
