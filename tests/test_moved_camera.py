@@ -186,6 +186,9 @@ def test_live_test_against_a_stored_result():
                            T_mount_board=stored.T_mount_board)
     assert [m.camera for m in find_moves_live(prob, live)] == ["cam2"]
     assert find_moves_live(scene.problem, live) == []
+    stored_json = json.loads(json.dumps(stored.to_dict()))  # result.json, as verify reads it
+    assert [m.camera for m in find_moves_live(prob, stored_json)] == ["cam2"]
+    assert find_moves_live(scene.problem, stored_json) == []
 
 
 def test_absurd_intrinsics_do_not_crash_the_test():

@@ -101,29 +101,24 @@ def check_after_rounds(problem, views: list, start, rounds) -> None:
 
 def find_moves_live(problem, reference) -> list:
     """Cameras of ``problem`` whose views, in capture order, show a move, judged against
-    ``reference``: a :class:`~calibgraph.solver.result.Result` (a stored calibration) or any object
-    with ``cameras[name].T_ref_cam``, ``T_mount_board`` and optionally ``board_scale`` (the live
-    estimate of a capture). Returns :class:`Move` s, clearest first (``move.camera``,
-    ``move.where()``, ``move.split.displacement_mm`` / ``rotation_deg``); [] when nothing moved or
-    there is too little to tell (a camera needs ``2 * MIN_GROUP_VIEWS`` views in ``problem``).
+    ``reference``, a calibration at hand: a :class:`~calibgraph.solver.result.Result`, a result.json
+    dict (:func:`~calibgraph.solver.result.load_result_dict`), verify's ``StoredModel``, or the live
+    estimate of a capture (``IncrementalEstimate``: anything with ``cameras[name].T_ref_cam`` and
+    ``T_mount_board``). Returns :class:`Move` s, the clearest first (``move.camera``, ``move.where()``,
+    ``move.split.displacement_mm`` / ``rotation_deg`` / ``f_stat``); [] when nothing moved or there
+    is too little to tell (a camera needs ``2 * MIN_GROUP_VIEWS`` views in ``problem``).
 
     For ``verify`` (did a camera move *during* the fresh capture?) and the capture's live warning
     (call it every few captures with the views so far)."""
-    if reference is None or getattr(reference, "T_mount_board", None) is None:
+    est, sigma = _reference_estimate(problem, reference)
+    if est is None:
         return []
-    cams = {n: c.T_ref_cam for n, c in reference.cameras.items()
-            if getattr(c, "T_ref_cam", None) is not None and n in problem.cameras}
-    views, _ = prepare_views(problem)
-    views = [v for v in views if v.camera in cams]
-    if not cams or not views:
+    views = [v for v in prepare_views(problem)[0] if v.camera in est.T_ref_cam]
+    if not views:
         return []
-    intr = {n: Intrinsics.from_dict(c.intrinsics) for n, c in reference.cameras.items()
-            if n in cams and isinstance(getattr(c, "intrinsics", None), dict)}
-    est = Estimate(T_ref_cam=cams, T_mount_board=np.asarray(reference.T_mount_board, float), T_ref_mount={},
-                   intrinsics=intr, board_scale=float(getattr(reference, "board_scale", 1.0) or 1.0))
-    sigma = float(getattr(reference, "pixel_sigma_px", 0.0) or problem.options.pixel_sigma_px
-                  or robust_pixel_sigma(views, est.residual_norms(views, problem.cameras)))
-    moves, names = [], list(cams)
+    if not sigma:
+        sigma = problem.options.pixel_sigma_px or robust_pixel_sigma(views, est.residual_norms(views, problem.cameras))
+    moves, names = [], sorted({v.camera for v in views}, key=list(problem.cameras).index)
     while names:  # the clearest move first; its camera's views then no longer hold the robot poses
         splits = camera_splits(problem, views, est, sigma, names)
         found = sorted((s for s in splits.values() if s.is_move), key=lambda s: -s.f_stat)
@@ -133,6 +128,34 @@ def find_moves_live(problem, reference) -> list:
         names.remove(found[0].camera)
         views = [replace(v, active=False) if v.camera == found[0].camera else v for v in views]
     return moves
+
+
+def _reference_estimate(problem, ref) -> tuple:
+    """(Estimate of the cameras of ``problem`` that ``ref`` calibrated, its pixel sigma or 0) for
+    :func:`find_moves_live`; (None, 0) when ``ref`` has no board mount."""
+    if isinstance(ref, dict):  # result.json
+        key = "T_base_cam" if ref.get("mode", "eye_to_hand") == "eye_to_hand" else "T_flange_cam"
+        cams = {n: (c.get(key), c.get("intrinsics")) for n, c in (ref.get("cameras") or {}).items()}
+        mount = ref.get("T_flange_board", ref.get("T_base_board"))
+        scale = (ref.get("board_scale") or {}).get("scale")
+        sigma = (ref.get("solver") or {}).get("pixel_sigma_px")
+    elif hasattr(ref, "T_base_cam") and hasattr(ref, "T_flange_board"):  # verify's StoredModel
+        cams = {n: (T, ref.intrinsics.get(n)) for n, T in ref.T_base_cam.items()}
+        mount, scale, sigma = ref.T_flange_board, ref.board_scale, ref.pixel_sigma_px
+    else:  # Result, IncrementalEstimate
+        cams = {n: (getattr(c, "T_ref_cam", None), getattr(c, "intrinsics", None))
+                for n, c in (getattr(ref, "cameras", None) or {}).items()}
+        mount, scale = getattr(ref, "T_mount_board", None), getattr(ref, "board_scale", None)
+        sigma = getattr(ref, "pixel_sigma_px", None)
+    cams = {n: c for n, c in cams.items() if n in problem.cameras and c[0] is not None}
+    if mount is None or not cams:
+        return None, 0.0
+    intr = {n: Intrinsics.from_dict(i) if isinstance(i, dict) else i for n, (_, i) in cams.items()
+            if isinstance(i, (dict, Intrinsics))}
+    est = Estimate(T_ref_cam={n: np.asarray(T, float).reshape(4, 4) for n, (T, _) in cams.items()},
+                   T_mount_board=np.asarray(mount, float).reshape(4, 4), T_ref_mount={}, intrinsics=intr,
+                   board_scale=float(scale or 1.0))
+    return est, float(sigma or 0.0)
 
 
 def solve_minding_moves(problem, resolve) -> object:
@@ -230,8 +253,8 @@ def _note(m: Move, rec: dict, after_cam: CameraResult | None, need: int) -> str:
     if after_cam is None or not after_cam.calibrated:
         return f"{head}; it is NOT calibrated: {_too_few_after(m, need)}."
     nb = rec["views_before"]
-    before = (f"its pose before the move, from the {nb} views before it, is reported beside it"
-              if rec["T_before"] is not None else f"the {nb} views before the move were set aside (too few to solve that pose)")
+    before = (f"its pose before the move, from the {nb} views before it, is reported beside it" if rec["T_before"]
+              is not None else f"the {nb} views before the move were set aside (too few to solve that pose)")
     return (f"{head}. Calibrated as it stood after the move, from the {rec['views_after']} views after it; {before} "
             "(never averaged). Fix the camera's mount; re-capture for more views in its final pose.")
 
