@@ -164,6 +164,10 @@ def test_moved_in_result_json(tmp_path):
     assert np.asarray(m["T_base_cam_before"]).shape == (4, 4) and np.asarray(m["covariance_before"]).shape == (6, 6)
     assert set(d["cameras"]) == {"cam0", "cam1", "cam2"} and all("before" not in k for k in d["camera_pairs"])
     assert "moved" not in d["cameras"]["cam1"]
+    import yaml
+
+    moved = res.to_dict()["cameras"]["cam0"]["moved"]  # plain types: result.yaml can hold it
+    assert yaml.safe_load(yaml.safe_dump(moved))["capture"] == m["capture"]
 
 
 def test_solve_once_does_not_look_for_moves():

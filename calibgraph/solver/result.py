@@ -299,7 +299,8 @@ RESULT_FORMAT = "calibgraph-result/1"
 
 def moved_to_dict(moved: dict, ref_key: str) -> dict:
     """``cameras.<name>.moved`` of result.json: ``T_before`` named as the pose is (``T_base_cam_before``)."""
-    out = {k: v for k, v in moved.items() if k not in ("T_before", "covariance_before")}
+    out = {k: v.item() if isinstance(v, np.generic) else v for k, v in moved.items()
+           if k not in ("T_before", "covariance_before")}
     T, cov = moved.get("T_before"), moved.get("covariance_before")
     out[f"{ref_key}_before"] = None if T is None else np.asarray(T).tolist()
     out["covariance_before"] = None if cov is None else np.asarray(cov).tolist()
