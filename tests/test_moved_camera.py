@@ -210,3 +210,11 @@ def test_absurd_intrinsics_do_not_crash_the_test():
         solve(prob)
     except CalibgraphError as e:
         assert "\n" not in str(e).strip() or len(str(e)) < 2000
+
+
+def test_an_initial_guess_without_the_pose_before_the_move():
+    """``solve(..., initial=...)`` names the cameras of the dataset; the split adds one it cannot name."""
+    scene = make_scene(n_poses=36, seed=0, **FK)
+    prob, T_after = bump_camera(scene, "cam0", 18, 0.005, seed=0)
+    res = solve(prob, initial={"T_ref_cam": dict(scene.truth.T_ref_cam), "T_mount_board": scene.truth.T_mount_board})
+    assert [x.split()[1] for x in _moved_notes(res)] == ["cam0"] and _at(res.cameras["cam0"], T_after)
