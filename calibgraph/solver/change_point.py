@@ -17,9 +17,11 @@ in capture order, two means against one give the likelihood-ratio statistic ``gl
 statistic against the scatter the two means leave, ``F = (glr / 6) / (rss_two / (6 n - 12))``,
 which is what keeps the test honest under correlated corner noise and FK noise: both scale the
 views' scatter about their mean exactly as they scale the split (a view's six pose directions are
-its six low-order image modes). The split is a move when ``F`` passes ``F_LIMIT`` and each side is
-consistent on its own (no side a mixture of its own). Linear algebra on 6x6 blocks with prefix sums:
-all splits of all cameras cost about one linearisation of the views, not a solve per camera.
+its six low-order image modes). The split is a move when ``F`` passes ``F_LIMIT``, each side is
+consistent on its own (no side a mixture of its own) and the two poses leave the camera's corners at
+about the solve's pixel noise (a model error that is not a move is not explained by a cut in time).
+Linear algebra on 6x6 blocks with prefix sums: all splits of all cameras cost about one
+linearisation of the views, not a solve per camera.
 """
 
 from __future__ import annotations
@@ -39,6 +41,9 @@ F_LIMIT = 15.0          # two poses must explain the views this much better than
                         # p < 1e-9 for pure noise at 10 views; a still cell whose robot is 10x less accurate
                         # than stated, whose noise is then far from the stated shape, reaches F ~ 9)
 SELF_CONSISTENT = 2.0   # each side's scatter within this factor (RMS) of the pooled scatter of the split
+AT_NOISE = 2.0          # the two poses leave the camera's corners within this factor (RMS) of the solve's
+                        # pixel sigma: a camera whose views do not fit even on their own (a wrong lens model,
+                        # another target) has an error no cut in time explains
 LINEARISE_AGAIN = 1e-3  # re-linearise a camera when the views' mean is this far (rad, m) from T_lin
 
 
@@ -53,6 +58,8 @@ class ViewPoses:
     zeta: np.ndarray
     info: np.ndarray
     T_lin: np.ndarray
+    own_rss: np.ndarray  # (n,) each view's weighted squared residual (in sigmas) at its own best pose
+    n_obs: np.ndarray  # (n,) its residual count (2 per kept corner)
 
 
 @dataclass(frozen=True)
@@ -75,6 +82,7 @@ class Split:
     displacement_mm: float
     rotation_deg: float
     sigma_displacement_mm: float
+    rms_two_sigma: float  # RMS of the camera's corner residuals with the two poses, in pixel sigmas
 
     @property
     def consistent(self) -> bool:
@@ -84,7 +92,7 @@ class Split:
 
     @property
     def is_move(self) -> bool:
-        return self.f_stat >= F_LIMIT and self.consistent
+        return self.f_stat >= F_LIMIT and self.consistent and self.rms_two_sigma <= AT_NOISE
 
 
 def _pose(T) -> gtsam.Pose3:
@@ -164,7 +172,7 @@ def _view_tangent(v, T_lin, T_F, est, intr, sigma_px, A, d, opts, passes: int = 
         w = w_new
     if not (np.all(np.isfinite(zeta)) and np.all(np.isfinite(info))):
         return None
-    return zeta, 0.5 * (info + info.T)
+    return zeta, 0.5 * (info + info.T), float(np.sum(r * r)), 2 * int(keep.sum())
 
 
 def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per_capture: dict,
@@ -176,7 +184,7 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
     centre, noise = _prior_centres(problem, est, sorted({v.capture for v in views}))
     mine = sorted(views, key=lambda v: v.capture)
     for _ in range(3):
-        caps, zs, infos = [], [], []
+        caps, zs, infos, own = [], [], [], []
         for v in mine:
             T_F = est.T_ref_mount.get(v.capture, centre[v.capture])
             if v.capture in per_capture:
@@ -194,6 +202,7 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
             caps.append(v.capture)
             zs.append(out[0])
             infos.append(out[1])
+            own.append(out[2:])
         if len(zs) < 2 * MIN_GROUP_VIEWS:
             return None
         zeta, info = np.array(zs), np.array(infos)
@@ -201,7 +210,8 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
         if np.max(np.abs(mean)) < LINEARISE_AGAIN:
             break
         T_lin = (_pose(T_lin) * gtsam.Pose3.Expmap(mean)).matrix()  # the views' mean: linearise there
-    return ViewPoses(name, np.array(caps), zeta, info, np.asarray(T_lin))
+    own = np.array(own, float).reshape(-1, 2)
+    return ViewPoses(name, np.array(caps), zeta, info, np.asarray(T_lin), own[:, 0], own[:, 1])
 
 
 def best_split(vp: ViewPoses, min_side: int = MIN_GROUP_VIEWS) -> Split | None:
@@ -245,7 +255,8 @@ def best_split(vp: ViewPoses, min_side: int = MIN_GROUP_VIEWS) -> Split | None:
     return Split(vp.camera, k, tuple(int(c) for c in vp.captures[:k]), tuple(int(c) for c in vp.captures[k:]),
                  float(f), float(glr),
                  (rss_one / (6 * n - 6), ra / max(6 * k - 6, 1), rb / max(6 * (n - k) - 6, 1), pooled),
-                 T_a, T_b, cov_a, cov_b, 1e3 * d_m, d_deg, 1e3 * np.sqrt(max(var, 0.0)))
+                 T_a, T_b, cov_a, cov_b, 1e3 * d_m, d_deg, 1e3 * np.sqrt(max(var, 0.0)),
+                 float(np.sqrt((vp.own_rss.sum() + ra + rb) / max(vp.n_obs.sum(), 1))))
 
 
 def camera_splits(problem, views: list, est, sigma_px: float, names, start: dict | None = None) -> dict:
