@@ -37,7 +37,7 @@ sys.path.insert(0, str(REPO))
 
 from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.core.transforms import exp_so3, pose_error  # noqa: E402
-from calibgraph.sim.synth import bump_camera, make_scene, ring_cameras  # noqa: E402
+from calibgraph.sim.synth import bump_camera, correlate_corner_noise, make_scene, ring_cameras  # noqa: E402
 from calibgraph.solver.batch import solve  # noqa: E402
 
 FK = dict(fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01))
@@ -52,18 +52,6 @@ def _scene(layout: str, seed: int):
         return make_scene(cameras=ring_cameras([1.5, 2.0, 2.5], spread_deg=60), tilt_deg=20, n_poses=N_POSES,
                           seed=seed, **FK)
     return make_scene(n_poses=N_POSES, seed=seed, **FK)
-
-
-def _correlated(problem, factor, seed, sigma_px=0.3):
-    from calibgraph.solver.noise_model import view_mode_basis
-
-    rng = np.random.default_rng(seed)
-    dets = []
-    for d in problem.detections:
-        Q = view_mode_basis(d.uv_px)
-        extra = Q @ rng.normal(0.0, sigma_px * np.sqrt(factor - 1.0), Q.shape[1])
-        dets.append(dataclasses.replace(d, uv_px=d.uv_px + extra.reshape(d.uv_px.shape)))
-    return problem.with_(detections=tuple(dets))
 
 
 def judge(res, truth: dict, victim: str | None, captures: list | None, at: int | None, cpu_s: float) -> dict:
@@ -105,7 +93,7 @@ def synthetic_trial(layout, seed, victim, shift, rot, frac):
 
 def still_trial(layout, seed, factor):
     scene = _scene(layout, seed)
-    prob = _correlated(scene.problem, factor, seed) if factor > 1 else scene.problem
+    prob = correlate_corner_noise(scene.problem, factor, seed)
     t0 = time.process_time()
     res = solve(prob)
     return judge(res, scene.truth.T_ref_cam, None, None, None, time.process_time() - t0)

@@ -18,11 +18,10 @@ import pytest
 
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.transforms import pose_error
-from calibgraph.sim.synth import bump_camera, make_scene, ring_cameras
+from calibgraph.sim.synth import bump_camera, correlate_corner_noise, make_scene, ring_cameras
 from calibgraph.solver.batch import solve
 from calibgraph.solver.batch import solve_once
 from calibgraph.solver.moved import find_moves_live
-from calibgraph.solver.noise_model import view_mode_basis
 
 FK = dict(fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01))  # 0.1 mm, 0.01 deg
 
@@ -35,18 +34,6 @@ def _at(cam, T_true, k=3.0):
 
 def _moved_notes(res):
     return [x for x in res.notes if "moved" in x]
-
-
-def _correlated(problem, factor, seed, sigma_px=0.3):
-    """``problem`` with each view's board image also shifted, turned, scaled and sheared at random,
-    ``factor - 1`` times the corner variance in each of the 6 modes (what overlapping corner windows do)."""
-    rng = np.random.default_rng(seed)
-    dets = []
-    for d in problem.detections:
-        Q = view_mode_basis(d.uv_px)
-        extra = Q @ rng.normal(0.0, sigma_px * np.sqrt(factor - 1.0), Q.shape[1])
-        dets.append(dataclasses.replace(d, uv_px=d.uv_px + extra.reshape(d.uv_px.shape)))
-    return problem.with_(detections=tuple(dets))
 
 
 def _check_knock(scene, prob, res, victim, T_after, at, clean=None):
@@ -118,7 +105,7 @@ def test_large_knocks_are_named_not_rejected(case):
 def test_knock_with_correlated_corner_noise_is_named():
     scene = make_scene(n_poses=36, seed=5, **FK)
     prob, T_after = bump_camera(scene, "cam0", 18, 0.005, seed=5)
-    prob = _correlated(prob, 5.0, seed=5)
+    prob = correlate_corner_noise(prob, 5.0, seed=5)
     res = solve(prob)
     notes = _moved_notes(res)
     assert len(notes) == 1 and notes[0].startswith("camera cam0 moved"), res.notes
@@ -131,7 +118,7 @@ def test_no_move_reported_on_a_still_cell(seed):
     correlated within each view at 10x the corner variance (1, 3): nothing is said, nothing set aside."""
     fk = dict(fk_sigma_translation_m=1e-3, fk_sigma_rotation_rad=5e-4) if seed == 2 else FK
     scene = make_scene(n_poses=36, seed=20 + seed, **fk)
-    prob = _correlated(scene.problem, 10.0, seed) if seed % 2 else scene.problem
+    prob = correlate_corner_noise(scene.problem, 10.0, seed) if seed % 2 else scene.problem
     res = solve(prob)
     assert not _moved_notes(res), res.notes
     assert all(c.moved is None for c in res.cameras.values())
