@@ -141,9 +141,10 @@ def _robot_pose_terms(problem, views, est, sigma_px: float) -> tuple[dict, dict]
 
 
 def _view_tangent(v, T_lin, T_F, est, intr, sigma_px, A, d, opts, passes: int = 3):
-    """(zeta (6,), information (6, 6)) of the camera pose view ``v`` implies at ``T_lin``, the robot
-    pose at ``T_F`` + ``d`` with information ``A`` (prior and the other cameras), the corners
-    re-weighted against the view's own best fit; None when the view is degenerate."""
+    """(zeta (6,), information (6, 6), weighted squared residual in sigmas, residual count) of the
+    camera pose view ``v`` implies at ``T_lin``, the robot pose at ``T_F`` + ``d`` with information
+    ``A`` (prior and the other cameras), the corners re-weighted against the view's own best fit;
+    None when the view is degenerate."""
     w = np.ones(len(v.ids))
     p = est.board_scale * v.p_board_m
     for _ in range(passes):
