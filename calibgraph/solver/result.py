@@ -17,7 +17,11 @@ round-trip it exactly (every number, array and note), in JSON or YAML.
   ``reprojection_max_px``, ``views_used``, ``views_rejected`` (list of {capture, reason}),
   ``corners_used``, ``corners_rejected``, ``intrinsics`` (K, dist, width_px, height_px used; with
   ``sigma`` and ``given`` when they were estimated), ``corner_noise``, ``error_budget`` (what the
-  1-sigma is made of); in 'single' mode also the camera's own board mount.
+  1-sigma is made of); ``moved`` when the camera moved during capture (the pose above is the one
+  after the move): ``capture`` (first capture after it), ``last_capture_before``,
+  ``views_before``/``views_after``, ``displacement_mm``, ``sigma_displacement_mm``, ``rotation_deg``,
+  ``f_stat``, ``T_base_cam_before`` (``T_flange_cam_before``; null when too few views to solve it),
+  ``covariance_before`` and its sigmas; in 'single' mode also the camera's own board mount.
 - ``camera_pairs.<a>__<b>``: ``a``, ``b``, ``T_<a>_<b>`` with its ``sigma_translation_mm`` /
   ``sigma_rotation_deg`` and ``covariance`` (6x6, rotation first, in frame a's axes).
 - ``board_mount``: covariance and sigmas of the board mount.
@@ -124,6 +128,11 @@ class CameraResult:
     # False when too few of its views survived rejection: no pose and no covariance then, ``why`` says why
     calibrated: bool = True
     why: str = ""
+    # a camera that moved during capture (solver.moved): capture (the first after the move),
+    # last_capture_before, views_before, views_after, displacement_mm, sigma_displacement_mm,
+    # rotation_deg, f_stat, T_before (4x4, the pose before; None when too few views to solve it),
+    # covariance_before (6x6, as ``covariance``); None when it did not move
+    moved: dict | None = None
     # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
     residuals_px: dict = field(default_factory=dict, repr=False)
 
@@ -272,6 +281,8 @@ class Result:
             if not c.calibrated:
                 cams[name] = {"calibrated": False, "why": c.why, "views_used": c.views_used,
                               "views_rejected": [{"capture": v.capture, "reason": v.reason} for v in c.views_rejected]}
+                if c.moved is not None:
+                    cams[name]["moved"] = moved_to_dict(c.moved, ref_key)
                 continue
             st, sr = sigmas_from_cov(c.covariance)
             cams[name] = {
@@ -295,6 +306,8 @@ class Result:
                 cams[name]["corner_noise"] = c.corner_noise
             if c.error_budget is not None:
                 cams[name]["error_budget"] = c.error_budget
+            if c.moved is not None:
+                cams[name]["moved"] = moved_to_dict(c.moved, ref_key)
         pairs = {}
         for (a, b), p in self.pairs.items():
             st, sr = sigmas_from_cov(p.covariance)
@@ -404,6 +417,31 @@ def load_result(path) -> Result:
     """Read a result.json / result.yaml written by :meth:`Result.save` (of this or an earlier
     calibgraph) as a :class:`Result`; anything else is refused in one line (:class:`InputError`)."""
     return Result.from_dict(load_result_dict(path), str(path))
+
+
+def moved_from_dict(d: dict, ref_key: str, what: str) -> dict:
+    """The inverse of :func:`moved_to_dict`: ``T_before`` and ``covariance_before`` as arrays, the
+    derived sigmas dropped."""
+    d = mapping(d, f"{what}: moved")
+    out = {k: v for k, v in d.items() if k not in (f"{ref_key}_before", "covariance_before",
+                                                   "sigma_translation_mm_before", "sigma_rotation_deg_before")}
+    T, cov = d.get(f"{ref_key}_before"), d.get("covariance_before")
+    out["T_before"] = None if T is None else pose_matrix(T, f"{what}: moved {ref_key}_before")
+    out["covariance_before"] = None if cov is None else matrix(cov, (6, 6), f"{what}: moved covariance_before")
+    return out
+
+
+def moved_to_dict(moved: dict, ref_key: str) -> dict:
+    """``cameras.<name>.moved`` of result.json: ``T_before`` named as the pose is (``T_base_cam_before``)."""
+    out = {k: v.item() if isinstance(v, np.generic) else v for k, v in moved.items()
+           if k not in ("T_before", "covariance_before")}
+    T, cov = moved.get("T_before"), moved.get("covariance_before")
+    out[f"{ref_key}_before"] = None if T is None else np.asarray(T).tolist()
+    out["covariance_before"] = None if cov is None else np.asarray(cov).tolist()
+    if T is not None and cov is not None:
+        st, sr = sigmas_from_cov(np.asarray(cov))
+        out["sigma_translation_mm_before"], out["sigma_rotation_deg_before"] = st.tolist(), sr.tolist()
+    return out
 
 
 def load_result_dict(path) -> dict:
@@ -534,7 +572,8 @@ def _camera_from_dict(name: str, c: dict, frames, residuals: dict, where: str) -
         return CameraResult(name=name, ref_frame=frames.ref, T_ref_cam=None, covariance=None,
                             reprojection_rms_px=float("nan"), reprojection_max_px=float("nan"),
                             views_used=int(c.get("views_used") or 0), views_rejected=views_rejected, calibrated=False,
-                            why=str(c.get("why") or ""))
+                            why=str(c.get("why") or ""),
+                            moved=None if c.get("moved") is None else moved_from_dict(c["moved"], frames.camera_key, what))
     if frames.camera_key not in c:
         raise InputError(f"{what} has no {frames.camera_key} (mode {'eye_to_hand' if frames.ref == 'base' else 'eye_in_hand'}).")
     if "covariance" not in c:
@@ -550,6 +589,7 @@ def _camera_from_dict(name: str, c: dict, frames, residuals: dict, where: str) -
         T_mount_board=None if mount is None else pose_matrix(mount, f"{what}: {frames.board_key}"),
         intrinsics=section(c, "intrinsics", what), corner_noise=section(c, "corner_noise", what),
         error_budget=section(c, "error_budget", what),
+        moved=None if c.get("moved") is None else moved_from_dict(c["moved"], frames.camera_key, what),
         residuals_px={int(k): residual_from_dict(mapping(v, f"{what}: residuals of capture {k}"))
                       for k, v in residuals.items()},
     )
