@@ -71,6 +71,9 @@ CASES = {
     "oracle": "the true intrinsics held (source: exact): an oracle's figure",
     "iid": "control: the same views, corners replaced by true projections + i.i.d. Gaussian noise of the camera's "
            "detector RMS; factory intrinsics, default flags",
+    "factory_fk": "as factory, with the solver's robot prior set to the simulated arm's reported-pose error "
+                  "(fk_sigma_translation_m, fk_sigma_rotation_rad of the workcell; default flags otherwise)",
+    "oracle_fk": "as oracle, with the solver's robot prior set to the simulated arm's reported-pose error",
 }
 OK_BAND = (0.7, 1.3)  # error/σ RMS taken as honest
 
@@ -117,8 +120,10 @@ def render(work: Path, cell: str, poses: int, seed: int) -> Path:
     tmp = root.with_name(root.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     rep = simulate_dataset(wc, traj, tmp, world=world, progress=False)
+    renderer = world.renderer if world.renderer != "mujoco" else f"mujoco (MUJOCO_GL={os.environ.get('MUJOCO_GL', '')})"
     world.close()
-    (tmp / "bench_timing.json").write_text(json.dumps({"plan_s": t1 - t0, "render_s": time.perf_counter() - t1}))
+    (tmp / "bench_timing.json").write_text(json.dumps({"plan_s": t1 - t0, "render_s": time.perf_counter() - t1,
+                                                       "renderer": renderer}))
     tmp.rename(root)
     print(f"{cell} seed {seed}: {rep.captured} poses, views {dict(sorted(rep.accepted_per_camera.items()))}, "
           f"plan {t1 - t0:.0f} s, capture {time.perf_counter() - t1:.0f} s", flush=True)
@@ -192,9 +197,14 @@ def solve_case(root: Path, case: str, seed: int) -> dict:
 
     gt = load_ground_truth(root)
     ds = load_dataset(root)
-    if case == "oracle":
+    if case.startswith("oracle"):
         ds = replace(ds, cameras={n: replace(gt["intrinsics_true"][n], source="exact") for n in ds.cameras})
-    problem, _ = build_problem(ds, "joint", SolverOptions(**ds.solver), progress=False)
+    opts = dict(ds.solver)
+    if case.endswith("_fk"):
+        robot = gt["raw"]["robot"]
+        opts.update(fk_sigma_translation_m=robot["fk_sigma_translation_m"],
+                    fk_sigma_rotation_rad=float(np.radians(robot["fk_sigma_rotation_deg"])))
+    problem, _ = build_problem(ds, "joint", SolverOptions(**opts), progress=False)
     tc = true_corners(problem, gt)
     stats = corner_stats(problem, tc)
     out = {"case": case, "seed": seed, "reported": {n: c.to_dict() for n, c in ds.cameras.items()}}
@@ -345,8 +355,20 @@ def summarise(cell: str, poses: int, results: dict) -> dict:
             seeds=[r["seed"] for r in recs], solve_s_median=float(np.median([r["solve_s"] for r in recs])),
             pose=pose, params=per_parameter(recs, names), board_scale=board,
             corners=corner_summary(recs, names) if case != "iid" else None,
-            notes=sorted({nt for r in recs for nt in r["notes"]}))
+            notes=note_kinds(recs))
     return out
+
+
+def note_kinds(recs: list) -> list:
+    """[(note with its numbers as '#', seeds that printed it, example)], commonest first."""
+    import re
+
+    kinds = {}
+    for r in recs:
+        for nt in r["notes"]:
+            k = re.sub(r"(?<![A-Za-z\d])[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "#", nt)
+            kinds.setdefault(k, [set(), nt])[0].add(r["seed"])
+    return sorted(([k, len(v[0]), v[1]] for k, v in kinds.items()), key=lambda x: -x[1])
 
 
 def fmt_p(d: dict) -> str:
@@ -395,8 +417,10 @@ def markdown(summary: dict, timing: dict) -> list:
                          f"{c['rms_px']:.3f} | ({c['mean_px'][0]:+.4f}, {c['mean_px'][1]:+.4f}) | {c['mode_ratio']:.2f} | "
                          f"{sr} | {c['pitch_px']:.1f} |")
         if s["notes"]:
-            L += ["", "Notes the solves printed (distinct): " + "; ".join(s["notes"][:8])
-                  + (f"; ... {len(s['notes']) - 8} more" if len(s["notes"]) > 8 else "")]
+            L += ["", "Notes the solves printed, by kind (seeds that printed one; an example):", ""]
+            L += [f"- {k} seeds: {ex}" for _, k, ex in s["notes"][:8]]
+            if len(s["notes"]) > 8:
+                L.append(f"- ... {len(s['notes']) - 8} more kinds")
         L.append("")
     return L
 
@@ -421,9 +445,8 @@ def render_timing(work: Path, cell: str, poses: int) -> dict:
     ts = [json.loads(f.read_text()) for f in (work / f"{cell}_{poses}").glob("seed*/bench_timing.json")]
     if not ts:
         return {}
-    gl = os.environ.get("MUJOCO_GL", "")
     return {"n": len(ts), "median_s": float(np.median([t["plan_s"] + t["render_s"] for t in ts])),
-            "renderer": f"MuJoCo (MUJOCO_GL={gl})" if gl else "as SimWorld chose"}
+            "renderer": ", ".join(sorted({t.get("renderer", "not recorded") for t in ts}))}
 
 
 def report(work: Path, cell: str, poses: int, out: Path) -> None:
