@@ -19,18 +19,24 @@ Cases (what the solve is given):
   focal 0.6 %, principal point 3 px, k1/k2 0.01; ``source: factory``), default flags. The
   realistic case.
 * ``oracle``: the true intrinsics, held (``source: exact``): an oracle's figure.
-* ``iid`` (optional control): the same views with the detected corners replaced by the true
-  projections plus i.i.d. Gaussian noise of the camera's detector RMS per axis, the factory
-  intrinsics, default flags — synthetic i.i.d. corners on exactly the rendered geometry.
+* controls, on the same views with the factory intrinsics and default flags, that tell which
+  property of the rendered corners a miscalibrated 1σ comes from: ``iid`` (the true projections
+  plus i.i.d. Gaussian noise of the camera's detector RMS), ``iid_view`` (each view at its own
+  detector RMS: the noise level of each view kept), ``signflip`` (the rendered errors themselves
+  with a random sign per corner and axis: their sizes, tails and noise levels kept, any systematic
+  direction removed), ``factory_plain`` (plain least squares instead of the robust loss);
+  ``factory_fk`` / ``oracle_fk`` tell the solver the simulated arm's true reported-pose error.
 
 Per camera and per parameter — rotation about and translation along the base axes (rx, ry, rz,
-x, y, z), fx, fy, cx, cy, k1, k2 — the tables give error/σ RMS with its 95 % interval, max |z|,
-mean z, and the mean error with its standard error. Corners against the renderer's truth (the
-board points through the true flange pose, mount, camera pose and intrinsics): per view the
-radial scale error (least-squares scale of the error about the view's centroid) and the RMS.
-Board scale: the estimate against the printed truth (1).
+x, y, z), fx, fy, cx, cy, k1, k2 — the tables give error/σ RMS with its 95 % interval, max |z|
+and the mean error with its standard error (the JSON has the mean z too). Corners against the
+renderer's truth (the board points through the true flange pose, mount, camera pose and
+intrinsics): per view the radial scale error (least-squares scale of the error about the view's
+centroid), the RMS, the tails, and how far from the image centre they reach. Board scale: the
+estimate against the printed truth (1).
 
-    MUJOCO_GL=egl nice python scripts/bench_rendered_sigma.py run --seeds 0-29 --poses 50
+    MUJOCO_GL=egl python scripts/bench_rendered_sigma.py run --seeds 0-29
+    python scripts/bench_rendered_sigma.py solve --cases iid,iid_view,signflip,factory_plain
     python scripts/bench_rendered_sigma.py report
 
 ``run`` renders, solves and reports (seed by seed, skipping what is cached); ``render``, ``solve``
@@ -57,7 +63,7 @@ REPORTED_SEED_OFFSET = 1000  # factory-calibration draw of seed s: ReportedIntri
 
 # name -> (ring_workcell kwargs, poses requested by default, min_square_px of the planner)
 CELLS = {
-    "l515_3m": (dict(n_cameras=4, preset_name="l515", distance_m=3.0, spread_deg=360.0, board="a4_54"), 50, 7.0),
+    "l515_3m": (dict(n_cameras=4, preset_name="l515", distance_m=3.0, spread_deg=360.0, board="a4_54"), 40, 7.0),
     "d455_5m": (dict(n_cameras=3, preset_name="d455", distance_m=5.0, spread_deg=200.0, board="thesis",
                      height_above_floor_m=2.0), 50, 4.5),
 }
