@@ -2,7 +2,7 @@
 the camera calibrated from its final pose without dragging the others? And with nothing moved, how
 often is a move reported (false alarms)?
 
-Synthetic corners (``sim.synth.make_scene``: three L515-like cameras at 1.5 / 3 / 5 m, 0.3 px),
+Synthetic corners (``sim.synthetic_corners.make_scene``: three L515-like cameras at 1.5 / 3 / 5 m, 0.3 px),
 ``cam0`` knocked by a shift in a random direction plus a turn about a random axis before capture
 ``at``; fresh seeds per trial. Per case: how often the move is reported and located between the
 right captures, the reported vs true displacement, the moved camera's error against its final pose
@@ -27,7 +27,7 @@ sys.path.insert(0, str(REPO))
 
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.transforms import pose_error
-from calibgraph.sim.synth import bump_camera, make_scene
+from calibgraph.sim.synthetic_corners import bump_camera, make_scene
 from calibgraph.solver.batch import solve
 
 # name -> (poses, shift m, turn deg, where: 'half' | 'end' (3 views left) | capture index)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Benchmark of the calibgraph solver: accuracy vs the Cramer-Rao bound, OpenCV 4.x baselines, run times.
 
-Monte Carlo on seeded synthetic eye-to-hand workcells (:func:`calibgraph.sim.synth.make_scene`): three
+Monte Carlo on seeded synthetic eye-to-hand workcells (:func:`calibgraph.sim.synthetic_corners.make_scene`): three
 fixed cameras on a ring at 1.5 / 3 / 5 m, D455-like or L515-like intrinsics, the thesis's board
 (5 x 4 squares of 46 mm -> 12 corners) or a 7 x 10 board of 25 mm squares (54 corners), 20 or 110
 robot poses, corner noise 0.1 / 0.3 / 1 px, forward-kinematics noise 0 or Panda-class
@@ -60,11 +60,24 @@ from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.core.problem import SolverOptions  # noqa: E402
 from calibgraph.core.targets import a4_board_54, thesis_board  # noqa: E402
 from calibgraph.core.transforms import inv, make_T, pose_error  # noqa: E402
-from calibgraph.sim.synth import Scene, make_scene, ring_cameras  # noqa: E402
+<<<<<<< HEAD
+from calibgraph.sim.synthetic_corners import Scene, make_scene, ring_cameras  # noqa: E402
+from calibgraph.solver.batch import (  # noqa: E402
+    STAGES,
+    Estimate,
+    build_graph,
+    crlb,
+    levenberg_marquardt,
+    prepare_views,
+    solve,
+)
+=======
+from calibgraph.sim.synthetic_corners import Scene, make_scene, ring_cameras  # noqa: E402
 from calibgraph.solver.batch import STAGES, solve  # noqa: E402
 from calibgraph.solver.covariance import crlb  # noqa: E402
 from calibgraph.solver.graph import Estimate, build_graph, levenberg_marquardt  # noqa: E402
 from calibgraph.solver.views import prepare_views  # noqa: E402
+>>>>>>> main
 from calibgraph.solver.keys import C  # noqa: E402
 
 DISTANCES_M = (1.5, 3.0, 5.0)

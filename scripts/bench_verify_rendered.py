@@ -31,9 +31,9 @@ from calibgraph.core.transforms import exp_so3, make_T  # noqa: E402
 from calibgraph.io.files import read_yaml  # noqa: E402
 from calibgraph.plan.cell import cell_from_world_dict  # noqa: E402
 from calibgraph.sim.devices import make_devices  # noqa: E402
-from calibgraph.sim.planning import planning_world  # noqa: E402
+from calibgraph.sim.planning_world import planning_world  # noqa: E402
 from calibgraph.sim.render import SimWorld  # noqa: E402
-from calibgraph.sim.simulate import VisibilityGatedDetector  # noqa: E402
+from calibgraph.sim.rendered_dataset import VisibilityGatedDetector  # noqa: E402
 from calibgraph.sim.workcell import workcell_from_dict  # noqa: E402
 from calibgraph.solver.verify import chi2_isf_6  # noqa: E402
 

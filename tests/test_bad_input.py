@@ -26,7 +26,7 @@ import yaml
 from helpers import write_sim_dataset
 
 from calibgraph.cli.main import main
-from calibgraph.sim.synth import make_scene
+from calibgraph.sim.synthetic_corners import make_scene
 
 ROWS = []  # (case, exit code, what calibgraph said) for the table
 

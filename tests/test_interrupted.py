@@ -15,7 +15,7 @@ from helpers import CAPTURE_SCRIPT, dataset_content, write_sim_dataset
 from calibgraph.acquire.run import run_acquisition
 from calibgraph.io.layouts import load_dataset
 from calibgraph.sim.fakes import make_fake_cell
-from calibgraph.sim.synth import make_scene
+from calibgraph.sim.synthetic_corners import make_scene
 from calibgraph.solver.result import load_result_dict
 
 REPO = Path(__file__).resolve().parents[1]

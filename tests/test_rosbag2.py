@@ -1,7 +1,7 @@
 """calibgraph import rosbag2: a simulated capture written as a rosbag2 (sqlite3 and MCAP) with
 ``rosbags``, imported, and solved to the same result as the capture read directly.
 
-The capture: two 640x480 cameras 1.2 m from the workspace (calibgraph.sim.synth geometry), board
+The capture: two 640x480 cameras 1.2 m from the workspace (calibgraph.sim.synthetic_corners geometry), board
 images rendered by calibgraph.sim.board_image (exact area coverage, blur 0.6 px, noise 2 grey
 levels). The bag carries what a ROS 2 cell publishes: ``/camN/color/image_raw`` (``sensor_msgs/Image``
 mono8) or ``/camN/color/image_raw/compressed`` (PNG ``CompressedImage``), ``/camN/color/camera_info``,
@@ -41,7 +41,7 @@ INTR = Intrinsics(K=np.array([[600.0, 0, 320.5], [0, 600.0, 240.5], [0, 0, 1]]),
 
 
 def _cameras():
-    from calibgraph.sim.synth import WORKSPACE_CENTRE_M
+    from calibgraph.sim.synthetic_corners import WORKSPACE_CENTRE_M
 
     c = WORKSPACE_CENTRE_M
     return {"cam0": (look_at(c + [1.2, 0.1, 0.5], c), INTR), "cam1": (look_at(c + [0.1, 1.2, 0.4], c), INTR)}
@@ -51,7 +51,7 @@ def _cameras():
 def _capture():
     """(captures [(T_base_flange reported, q_rad)], {camera: [image per capture]}) of a synthetic cell."""
     from calibgraph.sim.board_image import board_texture, render_view
-    from calibgraph.sim.synth import make_scene
+    from calibgraph.sim.synthetic_corners import make_scene
 
     cams = _cameras()
     scene = make_scene(cams, n_poses=10, seed=3, shared_fraction=0.5, tilt_deg=30, fk_sigma_translation_m=5e-5,

@@ -141,6 +141,8 @@ def _trajectory(args, log) -> int:
                 safety=wc.safety, on_capture=on_capture, progress=log, dry_run=args.dry_run, mode=wc.mode,
                 settle_dwell_s=_dwell(args, driver)))
         finally:
+            if not args.dry_run:
+                dev.write_ground_truth(args.out)  # the true intrinsics and poses beside a simulated capture
             dev.close()
     if rep is None:
         return 130
@@ -158,7 +160,7 @@ def _auto(args, log) -> int:
     from calibgraph.acquire.claim import claim_dataset
     from calibgraph.acquire.devices import Devices
     from calibgraph.core.errors import InputError
-    from calibgraph.sim.planning import planning_world
+    from calibgraph.sim.planning_world import planning_world
 
     if args.trajectory is not None:
         raise InputError("capture --auto plans its own poses; drop --trajectory.")
@@ -214,7 +216,7 @@ def _verify(args, log) -> int:
     from calibgraph.cli.verify import EXIT_MOVED, format_verdict
     from calibgraph.core.errors import InputError
     from calibgraph.io.files import read_input_bytes
-    from calibgraph.sim.planning import planning_world
+    from calibgraph.sim.planning_world import planning_world
     from calibgraph.solver.result import load_result_dict
     from calibgraph.solver.verify import DEFAULT_ALPHA, stored_model
 
@@ -324,7 +326,7 @@ def _simulate(world: dict, where: str, render_check: bool = False, skip_hidden: 
     from calibgraph.acquire.devices import Simulation
     from calibgraph.sim.devices import make_devices
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.simulate import VisibilityGatedDetector, write_ground_truth
+    from calibgraph.sim.rendered_dataset import VisibilityGatedDetector, write_ground_truth
     from calibgraph.sim.workcell import workcell_from_dict
 
     cell = workcell_from_dict(world, where)

@@ -26,6 +26,9 @@ def add_parser(sub):
     p.add_argument("--poses", type=int, default=40, help="poses to plan when no trajectory is given (default 40)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planner")
     p.add_argument("--resume", action="store_true", help="continue an interrupted simulated capture")
+    p.add_argument("--reported-intrinsics", choices=("factory", "exact"), default=None,
+                   help="what the cameras report, overriding the workcell's realism.reported_intrinsics: factory "
+                        "(factory-class errors around the true intrinsics, the default) or exact (the true ones: an oracle)")
     p.add_argument("--full-detection", action="store_true",
                    help="run the detector on every frame (default: skip frames whose board is plainly out of view)")
     p.add_argument("--quiet", action="store_true")
@@ -40,13 +43,15 @@ def run(args) -> int:
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.plan.trajectory import load_trajectory
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.simulate import simulate_dataset
+    from calibgraph.sim.rendered_dataset import simulate_dataset
     from calibgraph.sim.workcell import ring_workcell, workcell_from_dict, workcell_to_dict
 
     if args.workcell:  # read once: a pipe is refused, degenerate camera geometry too
         cell = workcell_from_dict(read_workcell(args.workcell, "workcell file", hardware=False).data, str(args.workcell))
     else:
         cell = ring_workcell(spread_deg=200.0, name="default")
+    if args.reported_intrinsics:
+        cell = cell.with_reported_intrinsics(args.reported_intrinsics)
     if not args.trajectory and args.poses < 1:
         raise InputError("--poses must be >= 1.")
     traj = load_trajectory(args.trajectory) if args.trajectory else None
@@ -58,7 +63,9 @@ def run(args) -> int:
     with claim_dataset(args.out, "sim", inputs, args.resume, say) as claim:
         output_folder(args.out, "dataset folder")
         say(f"building the simulated workcell {cell.name!r}: {len(cell.cameras)} cameras, board "
-            f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm")
+            f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm, "
+            + ("cameras report their true intrinsics (oracle)" if cell.oracle_intrinsics else
+               "cameras report factory-class intrinsics"))
         world = SimWorld(cell)
         world.check_rendering()  # no OpenGL: one clear error now, not after planning
         if traj is None:

@@ -17,7 +17,7 @@ Methods:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Mapping
 
 import numpy as np
@@ -175,6 +175,47 @@ class Detection:
 
 
 @dataclass(frozen=True)
+class CliFlag:
+    """The command-line flag of a :class:`SolverOptions` field, declared on the field (its
+    ``metadata["flag"]``) so that the flags of ``calibgraph solve`` are generated from the options
+    and cannot drift from them. Fields without one are set in dataset.yaml's ``solver`` section.
+
+    Attributes:
+        name: the flag, e.g. ``'--fk-sigma-mm'``.
+        help: its help text.
+        type: the type of the flag's value (float, str); None for a switch (given or not).
+        choices: the values allowed, when there is a fixed set.
+        scale: option = flag value * scale (the flag's unit to SI: mm -> m 1e-3, deg -> rad pi/180).
+        positive: only values > 0 are meaningful (a zero sigma is refused, not taken for "unset").
+        const: the option's value when a switch is given.
+    """
+
+    name: str
+    help: str
+    type: type | None = None
+    choices: tuple = ()
+    scale: float = 1.0
+    positive: bool = False
+    const: object = None
+
+    def option_value(self, value):
+        """The option's value for the flag's (parsed) ``value``."""
+        if self.type is None:
+            return self.const
+        return value * self.scale if self.scale != 1.0 else value
+
+
+def _flag(default, flag: CliFlag | None = None):
+    """A SolverOptions field with its command-line flag (None: dataset.yaml's solver section only)."""
+    return field(default=default, metadata={"flag": flag})
+
+
+def option_flags() -> dict:
+    """SolverOptions field name -> its :class:`CliFlag`, for the fields that have one, in field order."""
+    return {f.name: f.metadata["flag"] for f in fields(SolverOptions) if f.metadata.get("flag") is not None}
+
+
+@dataclass(frozen=True)
 class SolverOptions:
     """Knobs of the solver; defaults suit a Panda-class arm and factory intrinsics.
 
@@ -225,30 +266,51 @@ class SolverOptions:
         fk_variance: compare the fitted robot poses with the FK prior (see
             :func:`calibgraph.solver.fk_check.fk_variance_ratio`) and, when they depart from it more
             than the stated FK sigmas allow (p < 0.05), solve with the sigmas the fit implies and say so.
+
+    Every field can be set in dataset.yaml's ``solver`` section (by its name, SI units); those with a
+    :class:`CliFlag` in their metadata also by that flag, which wins (see :func:`option_flags`).
     """
 
-    fk_sigma_translation_m: float = 1e-4
-    fk_sigma_rotation_rad: float = float(np.radians(0.01))
-    pixel_sigma_px: float | None = None
-    loss: str = "huber"
-    loss_scale: float = 2.45
-    outlier_sigmas: float = 5.0
-    min_views_per_camera: int = 3
-    max_iterations: int = 100
-    intrinsics: str = "auto"
-    intrinsics_source: str = "calibration"
-    refine_intrinsics: bool = False
-    intrinsics_sigma_px: float = 5.0
-    distortion_sigma: float = 0.1
-    board_scale: bool = True
-    board_scale_sigma: float = 0.02
-    formulation: str = "auto"
-    kinematics: str = "none"
-    kinematics_model: str = "franka"
-    joint_offset_prior_rad: float = 0.01
-    kinematics_staging: str = "joint"
-    view_noise_modes: bool = True
-    fk_variance: bool = True
+    fk_sigma_translation_m: float = _flag(1e-4, CliFlag(
+        "--fk-sigma-mm", "forward-kinematics translation 1-sigma, mm", float, scale=1e-3, positive=True))
+    fk_sigma_rotation_rad: float = _flag(float(np.radians(0.01)), CliFlag(
+        "--fk-sigma-deg", "forward-kinematics rotation 1-sigma, deg", float, scale=np.pi / 180.0, positive=True))
+    pixel_sigma_px: float | None = _flag(None, CliFlag(
+        "--pixel-sigma", "corner noise in px (default: estimated)", float, positive=True))
+    loss: str = _flag("huber", CliFlag("--loss", "corner-level robust loss", str, choices=LOSSES))
+    loss_scale: float = _flag(2.45)
+    outlier_sigmas: float = _flag(5.0)
+    min_views_per_camera: int = _flag(3)
+    max_iterations: int = _flag(100)
+    intrinsics: str = _flag("auto", CliFlag(
+        "--fixed-intrinsics", "take the given intrinsics as exact (the 1-sigma is then conditional on them)",
+        const="fixed"))
+    intrinsics_source: str = _flag("calibration", CliFlag(
+        "--intrinsics-source", "where the given intrinsics come from when dataset.yaml does not say: their prior "
+        "(calibration: f 0.3 %, factory: f 2 %; default calibration)", str, choices=("calibration", "factory", "exact")))
+    refine_intrinsics: bool = _flag(False, CliFlag(
+        "--refine-intrinsics", "estimate fx, fy, cx, cy, k1, k2 of every camera under a fixed prior (5 px, 0.1) around "
+        "the given values", const=True))
+    intrinsics_sigma_px: float = _flag(5.0)
+    distortion_sigma: float = _flag(0.1)
+    board_scale: bool = _flag(True, CliFlag(
+        "--fixed-board-scale", "take the target's declared size as exact (default: estimate a printer scale factor)",
+        const=False))
+    board_scale_sigma: float = _flag(0.02)
+    formulation: str = _flag("auto")
+    kinematics: str = _flag("none", CliFlag(
+        "--estimate-kinematics", "joint-offsets: estimate the arm's joint zero offsets in the same graph (needs q_rad "
+        "in every capture; eye-to-hand, method joint); result.json gains a 'robot' section", str,
+        choices=("none", "joint-offsets")))
+    kinematics_model: str = _flag("franka", CliFlag(
+        "--kinematic-model", "the arm's kinematic model for --estimate-kinematics: franka (Panda / FR3, default) or a "
+        "URDF path", str))
+    joint_offset_prior_rad: float = _flag(0.01)
+    kinematics_staging: str = _flag("joint", CliFlag(
+        "--kinematics-staging", "joint: all variables at once (default, see scripts/results/bench_kinematics.md); "
+        "staged: cameras with an inflated FK prior, then the offsets, then everything", str, choices=("joint", "staged")))
+    view_noise_modes: bool = _flag(True)
+    fk_variance: bool = _flag(True)
 
     def __post_init__(self):
         if self.loss not in LOSSES:
