@@ -99,6 +99,31 @@ def test_batched_visibility_and_information_equal_the_single_pose_versions():
         assert np.abs(I - I1).max() <= 1e-9 * np.abs(I1).max()
 
 
+def test_design_bound_is_below_every_choice_of_captures():
+    """The bound on what ``budget`` captures can give (:func:`calibgraph.plan.information.design_bound`)
+    is below the best integer choice of candidates (repeats allowed, all enumerated) and the design
+    it returns is within its stated gap of it: a camera said to be out of reach is."""
+    import itertools
+
+    from calibgraph.plan.information import design_bound
+
+    rng = np.random.default_rng(7)
+    P, M, B = 7, 5, 4
+    J0 = np.eye(P) * 0.05
+    infos = []
+    for _ in range(M):  # low-rank captures, each informing some directions only
+        G = rng.normal(size=(P, 3)) * rng.uniform(0.2, 3.0, P)[:, None]
+        infos.append(G @ G.T)
+    infos = np.array(infos)
+    rows = [0, 1, 2]
+    best = min(np.trace(np.linalg.inv(J0 + sum(infos[list(c)]))[np.ix_(rows, rows)])
+               for c in itertools.combinations_with_replacement(range(M), B))
+    lower, value = design_bound(J0, infos, B, rows)
+    assert lower <= best * (1 + 1e-9) and lower <= value <= best * (1 + 1e-9)
+    assert value - lower <= 0.02 * value
+    assert design_bound(J0, infos, 0, rows)[0] == pytest.approx(np.trace(np.linalg.inv(J0)[np.ix_(rows, rows)]))
+
+
 def test_pool_scoring_equals_the_per_candidate_prediction():
     """The vectorised pool scoring gives each candidate the cameras that the per-candidate
     visibility (:meth:`ActivePlanner.predict`) gives and the 1-sigma its one-candidate prediction
@@ -137,13 +162,18 @@ def test_pool_scoring_equals_the_per_candidate_prediction():
         assert np.all(sig[i, :, 0] <= 2.0 * np.sqrt(3) * (1 + 1e-9))  # and none loses
 
 
-def test_joint_model_is_the_solver_linearised_covariance():
+@pytest.mark.parametrize("source", ["exact", "factory", "calibration"])
+def test_joint_model_is_the_solver_linearised_covariance(source):
     """The planner's model of the graph (cameras sharing each capture's flange under the FK prior,
-    the mount, the board scale) gives each camera the covariance the batch solver's own graph gives
-    at the same values (:func:`calibgraph.solver.covariance.crlb`), with a candidate capture or without:
-    its predictions are the solver's, not an approximation of it."""
+    the mount, the board scale, and each camera's model [fx, fy, cx, cy, k1, k2] under the prior of
+    its source when the solver estimates it) gives each camera the covariance the batch solver's own
+    graph gives at the same values (:func:`calibgraph.solver.covariance.crlb`), with a candidate
+    capture or without: its predictions are the solver's, not an approximation of it."""
+    from dataclasses import replace
+
     from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
     from calibgraph.plan.active import ActivePlanner, CameraBelief, joint_information, sigma_norms
+    from calibgraph.plan.information import intrinsics_prior
     from calibgraph.plan.visibility import board_visible
     from calibgraph.sim.workcell import workcell_from_dict
     from calibgraph.solver.covariance import crlb
@@ -171,11 +201,14 @@ def test_joint_model_is_the_solver_linearised_covariance():
             dets.append(Detection(camera=n, capture=k, ids=np.arange(tg.n_points), uv_px=wc.camera(n).intrinsics.project(p)))
         hist.append((caps[-1].T_base_flange, seen))
     assert any(len(s) > 1 for _, s in hist)  # shared captures are exercised
-    opts = SolverOptions(intrinsics="fixed", board_scale=True)
+    opts = SolverOptions(board_scale=True)
     truth = {c.name: c.T_base_cam for c in wc.cameras}
-    intr = {c.name: c.intrinsics for c in wc.cameras}
+    intr = {c.name: replace(c.intrinsics, dist=np.array([0.05, -0.1, 0.0, 0.0, 0.0]), source=source)
+            for c in wc.cameras}
     cov = np.eye(6) * 1e-6
-    beliefs = {n: CameraBelief(n, intr[n], truth[n], cov, 3) for n in truth}
+    beliefs = {n: CameraBelief(n, intr[n], truth[n], cov, 3, intrinsics_prior(intr[n], opts)) for n in truth}
+    assert all((b.intrinsics_prior is None) == (source == "exact") for b in beliefs.values())
+    marginals = []
     planner = ActivePlanner(None, cell, np.ones(7), fk_sigma_translation_m=opts.fk_sigma_translation_m,
                             fk_sigma_rotation_rad=opts.fk_sigma_rotation_rad)
     for n_hist in (8, 9):  # the last capture as history, or as the candidate added to 8
@@ -183,15 +216,21 @@ def test_joint_model_is_the_solver_linearised_covariance():
                           detections=tuple(x for x in dets if x.capture < n_hist), options=opts)
         want = crlb(problem, truth, T_fb, 0.05)
         names, cams, J = planner.graph_information(beliefs, hist[:8], T_fb, 0.05)
+        assert J.shape == (6 * 3 + 7 + (0 if source == "exact" else 18),) * 2
         if n_hist == 9:
             rows = np.array([[n in hist[8][1] for n in names]])
             J = J + joint_information(cams, rows, hist[8][0][None], T_fb, tg.points_board_m, 0.05,
-                                      *planner.fk_sigmas)[0]
+                                      *planner.fk_sigmas, free_intrinsics=planner.free_intrinsics(beliefs, names))[0]
         cov = np.linalg.inv(J)
         for k, n in enumerate(names):
             got = sigma_norms(cov[6 * k:6 * k + 6, 6 * k:6 * k + 6])
             w = np.sqrt(np.diag(want[n]))
             assert np.allclose(got, [np.linalg.norm(w[3:]) * 1e3, np.degrees(np.linalg.norm(w[:3]))], rtol=2e-3)
+            marginals.append(got[0])
+    if source != "exact":  # the camera models cost the poses precision: the model must not leave them out
+        held = {n: replace(b, intrinsics_prior=None) for n, b in beliefs.items()}
+        cov = np.linalg.inv(planner.graph_information(held, hist, T_fb, 0.05)[2])
+        assert all(sigma_norms(cov[6 * k:6 * k + 6, 6 * k:6 * k + 6])[0] < 0.5 * m for k, m in enumerate(marginals[3:]))  # measured 0.07-0.24
 
 
 def test_camera_position_hypothesis_resolves_the_mirror_of_an_oblique_view():
@@ -374,7 +413,7 @@ def _check_never_silent(rep, wc, tol=(0.5, 0.03)):
             e_m, _ = pose_error(r.T_ref_cam, wc.camera(c).T_base_cam)
             assert e_m * 1e3 < 3 * s_mm, (c, e_m, s_mm)
         else:
-            assert status.startswith(("SHORT of tolerance", "NOT FOUND", "NOT PLACED")), status
+            assert status.startswith(("SHORT of tolerance", "NOT FOUND", "NOT PLACED", "OUT OF REACH")), status
             assert "would help" in status or "check that" in status or "needs views" in status, status
 
 
@@ -554,3 +593,27 @@ def test_refuted_mirror_candidates_survive_a_resume():
     got = refuted_from_steps(json.loads(json.dumps(steps)))  # through the log's JSON
     assert set(got) == {"cam1", "cam2"}
     assert np.allclose(got["cam1"], [[2.9, -0.4, 0.8]]) and np.allclose(got["cam2"], [[-3.0, 0.5, 1.2]])
+
+
+def test_a_far_camera_out_of_reach_is_said_early_and_the_others_calibrate(tmp_path):
+    """A camera 5.5 m away with factory intrinsics cannot get within 0.5 mm from the arm's reach:
+    its focal length is tied to its depth. The run says so early — the bound of what the captures
+    left could give, above tolerance — with what would help, calibrates the near camera, and stops
+    short of the budget (not converged)."""
+    require_sim()
+    d = {"name": "far", "board": "a4_54", "cameras": {
+        "near": {"preset": "l515", "position_m": [2.2, 0.4, 0.9], "look_at_m": [0.45, 0.05, 0.45]},
+        "far": {"preset": "l515", "position_m": [-1.0, 5.4, 1.2], "look_at_m": [-0.1, 0.45, 0.45]}}}
+    out = tmp_path / "auto"
+    rep, wc = _run(d, out, max_poses=60)
+    _check_never_silent(rep, wc)
+    log = json.loads((out / "plan_log.json").read_text())
+    assert list(log["out_of_reach"]) == ["far"], rep.summary()
+    given = log["out_of_reach"]["far"]
+    assert given["captures_left"] >= 30 and given["best_possible"][0] > 0.5  # early, and why
+    assert rep.captures < 60 and not rep.converged and "stopped early" in rep.summary()
+    assert rep.cameras["near"].startswith("within tolerance"), rep.summary()
+    status = rep.cameras["far"]
+    assert status.startswith("OUT OF REACH") and "would help" in status and "intrinsics" in status, status
+    # the bound was honest: what the far camera got is above it (and above tolerance)
+    assert np.linalg.norm(rep.result.cameras["far"].sigma_translation_mm) > given["best_possible"][0]
