@@ -1,8 +1,10 @@
 """Autonomous calibration (capture --auto): cell without placements, information model, the loop.
 
 The loop tests run on the MuJoCo planning model with cameras that deliver projected corners
-(:mod:`calibgraph.sim.corner_devices`, 0.05 px: what the batch solver estimates on rendered L515 frames
-at 3 m), so they take seconds, not minutes; nothing is timed.
+(:mod:`calibgraph.sim.corner_devices`, 0.02 px: what the batch solver estimates on rendered frames,
+0.016-0.018 px on L515, D455 and Kinect V2 cameras at 2.4-3 m), so they take seconds, not minutes;
+nothing is timed. The cameras report factory-class intrinsics (the solver estimates them) unless a
+test says otherwise.
 """
 
 from __future__ import annotations
@@ -97,6 +99,42 @@ def test_batched_visibility_and_information_equal_the_single_pose_versions():
     for T, I in zip(T_bbs[:20], I_many):
         I1 = view_information(intr, T_bc, T, tg.points_board_m, 0.1, T_fb, 1e-4, np.radians(0.01))
         assert np.abs(I - I1).max() <= 1e-9 * np.abs(I1).max()
+
+
+def test_with_a_weak_camera_model_the_model_asks_for_depth_spread():
+    """Ten views of the board at one spot 2.6 m from a camera whose factory intrinsics the solver
+    estimates: its focal length is tied to its depth, so the model values a view 0.5 m closer along
+    the line of sight far above one 0.5 m to the side at the same depth; with the intrinsics held
+    known the two are worth the same. The planner therefore asks for depth spread exactly when a
+    camera's model is weak."""
+    from dataclasses import replace
+
+    from calibgraph.plan.information import block_sigmas, intrinsics_prior, inv_scaled, joint_information
+
+    intr, tg = replace(preset("l515"), source="factory"), a4_board_54()
+    T_fb = default_T_flange_board(tg)
+    eye, c0 = np.array([3.0, 0.3, 0.9]), np.array([0.5, 0.0, 0.45])
+    T_bc = look_at(eye, [0.4, 0.0, 0.45])
+    rng = np.random.default_rng(1)
+    hist = [board_pose_facing(eye, c0 + rng.normal(scale=0.03, size=3), tg, np.r_[rng.normal(scale=0.15, size=2), 0])
+            for _ in range(10)]
+    los = (eye - c0) / np.linalg.norm(eye - c0)
+    side = np.cross(los, [0.0, 0.0, 1.0])
+    closer = board_pose_facing(eye, c0 + 0.5 * los, tg, [0.1, 0.0, 0.0])
+    aside = board_pose_facing(eye, c0 + 0.5 * side / np.linalg.norm(side), tg, [0.1, 0.0, 0.0])
+
+    def sigma_mm(T_bbs, free):
+        J = np.diag(np.r_[[1.0] * 3 + [0.01] * 3, [1.0] * 3 + [0.01] * 3, 1 / 0.02 ** 2])
+        if free:
+            J = np.block([[J, np.zeros((13, 6))], [np.zeros((6, 13)), np.linalg.inv(intrinsics_prior(intr))]])
+        I = joint_information([(intr, T_bc)], np.ones((len(T_bbs), 1), bool), np.array(T_bbs) @ inv(T_fb), T_fb,
+                              tg.points_board_m, 0.05, 1e-4, np.radians(0.01), free_intrinsics=[free])
+        return block_sigmas(inv_scaled(J + I.sum(axis=0)), 1)[0, 0]
+
+    for free, low, high in ((True, 10.0, np.inf), (False, 0.5, 2.0)):  # measured 25.3 and 0.99
+        now = sigma_mm(hist, free)
+        ratio = (now - sigma_mm(hist + [closer], free)) / (now - sigma_mm(hist + [aside], free))
+        assert low < ratio < high, (free, ratio)
 
 
 def test_design_bound_is_below_every_choice_of_captures():
@@ -230,7 +268,8 @@ def test_joint_model_is_the_solver_linearised_covariance(source):
     if source != "exact":  # the camera models cost the poses precision: the model must not leave them out
         held = {n: replace(b, intrinsics_prior=None) for n, b in beliefs.items()}
         cov = np.linalg.inv(planner.graph_information(held, hist, T_fb, 0.05)[2])
-        assert all(sigma_norms(cov[6 * k:6 * k + 6, 6 * k:6 * k + 6])[0] < 0.5 * m for k, m in enumerate(marginals[3:]))  # measured 0.07-0.24
+        held_mm = [sigma_norms(cov[6 * k:6 * k + 6, 6 * k:6 * k + 6])[0] for k in range(3)]
+        assert all(h < 0.5 * m for h, m in zip(held_mm, marginals[3:]))  # measured 0.07-0.24 of it
 
 
 def test_camera_position_hypothesis_resolves_the_mirror_of_an_oblique_view():
@@ -295,13 +334,6 @@ def test_hints_and_obstacles_parse_and_bad_ones_are_refused():
 
 
 # -- the loop ------------------------------------------------------------------------------------------
-def _oracle(world_d: dict) -> dict:
-    """The world with cameras that report their true intrinsics (the solver holds them): the loop's
-    tests that must stop at 0.5 mm / 0.03 deg within 40 poses need this oracle until the planner
-    plans for factory intrinsics (with those it stops at the pose budget 0.52-0.62 mm short)."""
-    return {**world_d, "realism": {**(world_d.get("realism") or {}), "reported_intrinsics": "exact"}}
-
-
 def _run(world_d, out, cell=None, max_poses=40, tol=(0.5, 0.03), fail_after=None, resume=False, seed=0, partial=False,
          tamper=None):
     from calibgraph.acquire.auto import AutoOptions, run_auto
@@ -313,7 +345,7 @@ def _run(world_d, out, cell=None, max_poses=40, tol=(0.5, 0.03), fail_after=None
     wc = workcell_from_dict(world_d, "world")
     sim = SimWorld(wc)
     cell = cell or cell_from_world_dict(world_d, "world")
-    robot, cams, oracle = corner_devices(sim, 0.05, seed, partial=partial)
+    robot, cams, oracle = corner_devices(sim, 0.02, seed, partial=partial)
     if fail_after is not None:  # a kill in the middle of the loop: Ctrl-C during a grab
         cam = cams[wc.camera_names[0]]
         grab, n = cam.grab, [0]
@@ -337,7 +369,7 @@ def test_auto_calibrates_the_default_cell_with_a_wrong_hint(tmp_path):
     cell_d = {"board": "a4_54", "cameras": {"cam0": {"preset": "l515"}, "cam2": {"preset": "l515"},
                                             # cam1 stands at azimuth 0, 3 m: the hint is 30 deg and ~1.6 m off
                                             "cam1": {"preset": "l515", "hint": {"position_m": [2.3, 1.3, 0.3], "sigma_m": 0.5}}}}
-    rep, wc = _run(_oracle(d), tmp_path / "auto", cell=cell_from_dict(cell_d, "cell"))
+    rep, wc = _run(d, tmp_path / "auto", cell=cell_from_dict(cell_d, "cell"))
     assert rep.converged, rep.summary()
     assert rep.captures <= 40  # measured 24-38 over seeds
     for c in wc.camera_names:
@@ -438,12 +470,14 @@ def test_two_cameras_facing_each_other_across_the_robot(tmp_path):
     steps = json.loads((tmp_path / "auto" / "plan_log.json").read_text())["steps"]
     assert not any({"east", "west"} <= set(s.get("seen_by", [])) for s in steps)
     assert all(len(v) >= 3 for v in _views(tmp_path / "auto").values())
-    # the same cell with a tolerance out of reach of 14 poses: each camera is named with why and what would help
+    # the same cell with a tolerance out of reach of 14 poses: each camera is named with why and what would
+    # help, given up before the budget is spent when the bound says so (measured: both at capture 11 of 14)
     tight = (0.1, 0.01)
     rep, wc = _run(d, tmp_path / "tight", max_poses=14, tol=tight)
     _check_never_silent(rep, wc, tight)
-    assert not rep.converged and "budget of 14 capture poses used up" in rep.summary()
-    assert all(rep.cameras[c].startswith("SHORT of tolerance") for c in wc.camera_names), rep.summary()
+    assert not rep.converged and ("budget of 14 capture poses used up" in rep.summary() or "stopped early" in rep.summary())
+    assert all(rep.cameras[c].startswith(("SHORT of tolerance", "OUT OF REACH")) for c in wc.camera_names), rep.summary()
+    assert rep.captures < 14 or not any(rep.cameras[c].startswith("OUT OF REACH") for c in wc.camera_names)
 
 
 def test_a_camera_a_metre_from_the_robot_that_sees_only_part_of_the_board(tmp_path):
@@ -500,7 +534,7 @@ def test_a_camera_whose_view_is_blocked_in_most_poses(tmp_path):
 
 def test_resume_after_a_kill_in_the_loop_loses_nothing(tmp_path):
     require_sim()
-    d = _oracle(read_yaml(DEFAULT, "world"))
+    d = read_yaml(DEFAULT, "world")
     out = tmp_path / "auto"
     with pytest.raises(KeyboardInterrupt):
         _run(d, out, fail_after=13)  # survey done (11 captures), in the active loop

@@ -373,12 +373,9 @@ def _judge_reach(L, planner, beliefs) -> bool:
         L.out_of_reach[n] = {"at_capture": L.n_captures, "captures_left": left, "sigma_now": [round(t, 4), round(d, 5)],
                              "best_possible": [round(r.lower[0], 4), round(r.lower[1], 5)],
                              "design": [round(r.design[0], 4), round(r.design[1], 5)], "candidates": r.candidates}
-        if r.model_known:
-            L.out_of_reach[n]["model_known"] = [round(r.model_known[0], 4), round(r.model_known[1], 5)]
-        line = (f"camera {n} cannot reach {tol[0]:g} mm / {tol[1]:g}° with the {left} capture poses left: from the "
-                f"reachable poses it could get to {_bound_text(r, tol)} at best (now {t:.2f} mm / {d:.3f}°)"
-                + (f"; with its camera model known (a close-range intrinsics session) down to about "
-                   f"{_pair_text(r.model_known, r.lower, tol)}" if r.model_known else "") + "; calibrating the others")
+        line = (f"camera {n} cannot reach {tol[0]:g} mm / {tol[1]:g}° with the {_poses(left)} left: from the "
+                f"reachable poses it could get to {_bound_text(r.lower, tol)} at best (now {t:.2f} mm / "
+                f"{d:.3f}°); calibrating the others")
         L.messages.append(line)
         L.log(line)
         gave_up = True
@@ -387,15 +384,15 @@ def _judge_reach(L, planner, beliefs) -> bool:
     return gave_up
 
 
-def _bound_text(r, tol) -> str:
-    return _pair_text(r.lower, r.lower, tol)
+def _poses(n) -> str:
+    return f"{n} capture pose{'' if n == 1 else 's'}"
 
 
-def _pair_text(value, lower, tol) -> str:
-    """'0.83 mm / 0.041°' with only the norms whose bound ``lower`` exceeds the tolerance (or, when
-    none does, the bounded ones)."""
+def _bound_text(lower, tol) -> str:
+    """'0.83 mm / 0.041°': the bounded norms (mm, deg) that exceed the tolerance (or, when none
+    does, those bounded)."""
     out = [i for i in (0, 1) if lower[i] > tol[i]] or [i for i in (0, 1) if lower[i] > 0]
-    return " / ".join(f"{value[i]:.2f} mm" if i == 0 else f"{value[i]:.3f}°" for i in out)
+    return " / ".join(f"{lower[i]:.2f} mm" if i == 0 else f"{lower[i]:.3f}°" for i in out)
 
 
 def _out_of_reach_status(c, rec, res, tol) -> str:
@@ -410,12 +407,9 @@ def _out_of_reach_status(c, rec, res, tol) -> str:
     lo = rec.get("best_possible") or [0.0, 0.0]
     advice = ((cr.error_budget or {}).get("advice") if cr is not None else None) or (
         f"a close-range intrinsics session (calibgraph intrinsics, then --intrinsics {c}=CAM.yaml)")
-    known = rec.get("model_known")
-    then = (f"; with its camera model known those poses could give down to about {_pair_text(known, lo, tol)}"
-            if known else "")
     return (f"OUT OF REACH of {tol[0]:g} mm / {tol[1]:g}°: {now}; at capture {rec.get('at_capture')} the model of the "
-            f"captures so far predicted at best {_pair_text(lo, lo, tol)} from the {rec.get('captures_left')} capture "
-            f"poses left (any reachable poses){then}; would help: {advice}")
+            f"captures so far predicted at best {_bound_text(lo, tol)} from the {_poses(rec.get('captures_left'))} "
+            f"left (any reachable poses); would help: {advice}")
 
 
 def _finish(L, stop) -> AutoReport:
@@ -453,9 +447,12 @@ def _finish(L, stop) -> AutoReport:
                          "it needs views from several tilts (a hint or a larger --max-poses may help)")
     if stop == "converged":
         reason = f"every camera within {tol} (1σ, batch solve) after {L.n_captures} capture poses"
-    elif stop == "out_of_reach":
+    elif stop == "out_of_reach" and any(c not in L.out_of_reach for c in (res.cameras if res is not None else ())):
         reason = (f"stopped early after {L.n_captures} capture poses: every camera within {tol} (1σ, batch solve) "
                   f"except {', '.join(L.out_of_reach)}, which the reachable poses cannot bring there (see below)")
+    elif stop == "out_of_reach":
+        reason = (f"stopped early after {L.n_captures} capture poses: no camera can reach {tol} from the reachable "
+                  "poses with the capture poses left (see below)")
     elif stop == "budget":
         reason = f"budget of {L.opts.max_poses} capture poses used up before every camera reached {tol}"
     elif stop == "no_candidate":

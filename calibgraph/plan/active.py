@@ -191,9 +191,6 @@ class Reach:
         candidates: pool candidates that show it the board.
         lower: (mm, deg) no ``budget`` captures from the pool give a smaller 1-sigma (0: not bounded).
         design: (mm, deg) the 1-sigma of the best weights found (an estimate of what planning reaches).
-        model_known: (mm, deg) the same with the camera's model [fx, fy, cx, cy, k1, k2] known, as a
-            close-range intrinsics session would make it; given only for a camera out of reach
-            whose model the solver estimates (else empty).
     """
 
     camera: str
@@ -201,7 +198,6 @@ class Reach:
     candidates: int
     lower: tuple
     design: tuple
-    model_known: tuple = ()
 
     def out_of_reach(self, tol_mm: float, tol_deg: float) -> bool:
         return self.lower[0] > tol_mm or self.lower[1] > tol_deg
@@ -486,15 +482,7 @@ class ActivePlanner:
                 if now > tol:
                     lb, v = design_bound(Jk, infos, budget if len(T_bf) else 0, rows)
                     lower[i], design[i] = (float(ratio[k, i] * unit * np.sqrt(x)) for x in (lb, v))
-            known = ()
-            if (lower[0] > tol_mm or lower[1] > tol_deg) and k in model_cols and len(T_bf):
-                # what if its camera model were known (a close-range intrinsics session): the same
-                # candidates without the model's columns
-                pose = np.arange(len(own) - 6)
-                Jp, Ip = Jk[np.ix_(pose, pose)], infos[:, pose][:, :, pose]
-                known = tuple(float(ratio[k, i] * unit * np.sqrt(design_bound(Jp, Ip, budget, rows)[1]))
-                              for i, (rows, unit) in enumerate((([3, 4, 5], 1e3), ([0, 1, 2], np.degrees(1.0)))))
-            out[n] = Reach(n, int(budget), int(len(T_bf)), tuple(lower), tuple(design), known)
+            out[n] = Reach(n, int(budget), int(len(T_bf)), tuple(lower), tuple(design))
         return out
 
     def _score_pool(self, predictor, T_flange_board):
