@@ -1,6 +1,6 @@
 """How the batch solve scales with cameras and poses: wall time, CPU time and peak memory.
 
-Synthetic corners (calibgraph.sim.synth.make_scene): D455-class cameras on a 3 m ring, the A4
+Synthetic corners (calibgraph.sim.synthetic_corners.make_scene): D455-class cameras on a 3 m ring, the A4
 board, 0.3 px corner noise, FK noise 0.1 mm / 0.01 deg; the intrinsics are given as a calibration
 file's (``source: calibration``), so the solve estimates them (the default). Each configuration
 runs in its own process, so its peak resident memory is its own. Prints a table and writes
@@ -29,7 +29,7 @@ import json, resource, sys, time
 import numpy as np
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.transforms import pose_error
-from calibgraph.sim.synth import make_scene, ring_cameras
+from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 from calibgraph.solver.batch import solve
 n_cam, n_poses, seed = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
 sc = make_scene(cameras=ring_cameras([3.0] * n_cam, presets=("d455",)), n_poses=n_poses, pixel_sigma_px=0.3,

@@ -60,24 +60,11 @@ from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.core.problem import SolverOptions  # noqa: E402
 from calibgraph.core.targets import a4_board_54, thesis_board  # noqa: E402
 from calibgraph.core.transforms import inv, make_T, pose_error  # noqa: E402
-<<<<<<< HEAD
-from calibgraph.sim.synthetic_corners import Scene, make_scene, ring_cameras  # noqa: E402
-from calibgraph.solver.batch import (  # noqa: E402
-    STAGES,
-    Estimate,
-    build_graph,
-    crlb,
-    levenberg_marquardt,
-    prepare_views,
-    solve,
-)
-=======
 from calibgraph.sim.synthetic_corners import Scene, make_scene, ring_cameras  # noqa: E402
 from calibgraph.solver.batch import STAGES, solve  # noqa: E402
 from calibgraph.solver.covariance import crlb  # noqa: E402
 from calibgraph.solver.graph import Estimate, build_graph, levenberg_marquardt  # noqa: E402
 from calibgraph.solver.views import prepare_views  # noqa: E402
->>>>>>> main
 from calibgraph.solver.keys import C  # noqa: E402
 
 DISTANCES_M = (1.5, 3.0, 5.0)

@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from calibgraph.core.transforms import exp_so3, make_T  # noqa: E402
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras  # noqa: E402
 from calibgraph.solver.batch import solve  # noqa: E402
+from calibgraph.solver.result import Result  # noqa: E402
 from calibgraph.solver.verify import chi2_isf_6, stored_model, verify  # noqa: E402
 from calibgraph.plan.verify import choose_verify_poses  # noqa: E402
 
@@ -65,7 +66,7 @@ def run(args):
         for t in range(n_trials):
             if trial % args.trials_per_cal == 0:
                 cal = make_scene(cams, n_poses=40, seed=10_000 + trial, fk_sigma_translation_m=FK_T, fk_sigma_rotation_rad=FK_R)
-                stored = json.loads(json.dumps(solve(cal.problem).to_dict()))
+                stored = Result.from_dict(json.loads(json.dumps(solve(cal.problem).to_dict())))  # as read back
                 model = stored_model(stored)
             trial += 1
             rng = np.random.default_rng(trial)

@@ -4,9 +4,11 @@ viewer and export tests."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
 import os
+import signal
 from functools import lru_cache
 from pathlib import Path
 
@@ -17,8 +19,8 @@ from calibgraph import solve
 from calibgraph.core.problem import Detection
 from calibgraph.core.targets import a4_board_54
 from calibgraph.io.dataset import write_capture, write_header
-from calibgraph.report.html import residuals_section
 from calibgraph.sim.synthetic_corners import make_scene
+from calibgraph.solver.result import Result
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -113,22 +115,18 @@ def _solved(seed: int, mode: str):
 
 
 def make_sim_result(seed: int = 0, mode: str = "eye_to_hand", intrinsics: bool = True, residuals: bool = True):
-    """(result dict as read back from result.json, scene, problem, Result) of a solved simulated cell
-    with injected outliers. Adds the 'residuals' (and 'intrinsics') sections the report reads when
-    Result.to_dict does not write them yet."""
+    """(the Result as read back from its result.json, scene, problem, the solver's Result) of a
+    solved simulated cell with injected outliers. ``intrinsics=False`` / ``residuals=False`` drop
+    those sections, as in a result.json of an earlier calibgraph."""
     scene, prob, res = _solved(seed, mode)
-    d = res.to_dict()
-    if residuals and "residuals" not in d:
-        d["residuals"] = residuals_section(res)
-    if not residuals:
-        d.pop("residuals", None)
-    for n, c in d["cameras"].items():
-        if intrinsics:
-            c.setdefault("intrinsics", prob.cameras[n].to_dict())
-        else:
-            c.pop("intrinsics", None)
+    d = json.loads(json.dumps(res.to_dict()))
     d["dataset"] = "simulated (calibgraph.sim.synthetic_corners.make_scene seed %d)" % seed
-    return json.loads(json.dumps(d)), scene, prob, res
+    if not residuals:
+        d.pop("residuals")
+    for c in d["cameras"].values():
+        if not intrinsics:
+            c.pop("intrinsics")
+    return Result.from_dict(d), scene, prob, res
 
 
 def write_sim_dataset(root: Path, prob) -> Path:
@@ -166,3 +164,19 @@ def dataset_content(root):
         caps[f.name] = d
     imgs = {str(p.relative_to(root)): p.read_bytes() for p in sorted((Path(root) / "images").rglob("*.png"))}
     return caps, imgs
+
+
+@contextlib.contextmanager
+def fails_instead_of_hanging(seconds: int, what: str):
+    """Run the block with an alarm: a call that blocks (a FIFO opened for reading, say) raises
+    TimeoutError naming ``what`` after ``seconds`` instead of hanging the test run."""
+    def hung(*_):
+        raise TimeoutError(f"{what} blocked for {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)

@@ -427,6 +427,110 @@ def test_readonly_output_folder(base):
         shutil.rmtree(top)
 
 
+# -- issue 26: fresh data against the stored result, report inputs, exported names -------------------------
+# (report, verify and export: a contiguous block, kept apart from the other corpus additions)
+def _renamed_result(base, tmp_path, old_new: dict) -> Path:
+    """The base result.json with cameras renamed (every occurrence of the name in the file)."""
+    text = (base / "ds" / "result.json").read_text()
+    for old, new in old_new.items():
+        text = text.replace(f'"{old}', f'"{new}').replace(f"_{old}_", f"_{new}_").replace(f"__{old}", f"__{new}")
+        text = text.replace(f"_{old}\"", f"_{new}\"")
+    p = tmp_path / "renamed.json"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def _with_covariance(base, tmp_path, name: str, cov) -> Path:
+    d = json.loads((base / "ds" / "result.json").read_text())
+    d["cameras"]["cam1"]["covariance"] = np.asarray(cov, float).tolist()
+    p = tmp_path / name
+    p.write_text(json.dumps(d))
+    return p
+
+
+def test_fresh_data_and_report_inputs_against_the_stored_result(base, ds, tmp_path):
+    res = base / "ds" / "result.json"
+    watch = [base / "ds", ds, tmp_path]
+    # verify: a camera renamed in the fresh data is named, not "nothing moved"
+    _edit_yaml(ds, lambda y: y["cameras"].update(camX=y["cameras"].pop("cam1")))
+    _edit_captures(ds, lambda c: c["views"].update(camX=c["views"].pop("cam1")) if "cam1" in c["views"] else None)
+    check("verify: a camera renamed in the fresh data", ["verify", "--result", res, ds, "--verdict", tmp_path / "v.json"],
+          2, ["camX", "not in the stored result", "cam1", "renamed"], watch=watch)
+    # verify: the fresh data declares another board (pitch 1.6 % off, rows/cols swapped): named, not every camera moved
+    fresh = tmp_path / "fresh"
+    shutil.copytree(base / "ds", fresh)
+    _edit_yaml(fresh, lambda y: y["target"].update(pitch_m=y["target"]["pitch_m"] * 1.016))
+    check("verify: fresh data with a 1.6 % different pitch", ["verify", "--result", res, fresh, "--verdict",
+                                                              tmp_path / "v.json"],
+          2, ["target differs", "pitch", "+1.60 %"], watch=watch)
+    # report --dataset OTHER: another dataset of the same cameras and capture numbers is refused, not mixed in
+    other = write_sim_dataset(tmp_path / "other", make_scene(n_poses=12, seed=2).problem)
+    check("report --dataset of another dataset", ["report", res, "--dataset", other, "--out", tmp_path / "r.html"], 2,
+          ["not the dataset this result was solved from", "robot poses", "stored corners"], watch=watch)
+    check("report --dataset with another target pitch",
+          ["report", res, "--dataset", fresh, "--out", tmp_path / "r.html"], 2,
+          ["not the dataset this result was solved from", "pitch", "+1.60 %"], watch=watch)
+    # rows and cols swapped in the fresh data: its stored corners give it away before any comparison
+    _edit_yaml(fresh, lambda y: y["target"].update(pitch_m=y["target"]["pitch_m"] / 1.016, rows=y["target"]["cols"],
+                                                    cols=y["target"]["rows"]))
+    check("verify: fresh data with rows and cols swapped", ["verify", "--result", res, fresh, "--verdict",
+                                                            tmp_path / "v.json"],
+          2, ["rows and cols look swapped"], watch=watch)
+    assert not (tmp_path / "r.html").exists() and not (tmp_path / "v.json").exists()
+    # a zero or non-positive-definite covariance never passes
+    for case, cov, said in (("zero", np.zeros((6, 6)), "covariance is zero"),
+                            ("not positive definite", np.diag([1e-8, 1e-8, -1e-8, 1e-7, 1e-7, 1e-7]),
+                             "not positive definite")):
+        p = _with_covariance(base, tmp_path, f"{case.replace(' ', '_')}.json", cov)
+        text = check(f"report: a result with a {case} covariance", ["report", p, "--out", tmp_path / f"{p.stem}.html"],
+                     0, ["verdict: FAIL", "cam1", said], watch=[base / "ds"])
+        page = (tmp_path / f"{p.stem}.html").read_text()
+        assert "Overall: FAIL" in page and said in page and "cam1" in text
+
+
+def test_report_and_export_refuse_a_fifo_without_blocking(base, tmp_path):
+    from helpers import fails_instead_of_hanging
+
+    fifo = tmp_path / "result.json"
+    os.mkfifo(fifo)
+    cfg = tmp_path / "tol.yaml"
+    os.mkfifo(cfg)
+    with fails_instead_of_hanging(60, "a command given a FIFO"):
+        check("report: RESULT is a FIFO", ["report", fifo, "--out", tmp_path / "r.html"], 2, "not a regular file")
+        check("report: --config is a FIFO", ["report", base / "ds" / "result.json", "--out", tmp_path / "r.html",
+                                             "--config", cfg], 2, "not a regular file", watch=[base / "ds"])
+        check("export: RESULT is a FIFO", ["export", fifo, "--format", "json", "--out", tmp_path / "e"], 2,
+              "not a regular file")
+        check("verify: --result is a FIFO", ["verify", "--result", fifo, base / "ds", "--verdict", tmp_path / "v.json"],
+              2, "not a regular file", watch=[base / "ds"])
+    assert not (tmp_path / "r.html").exists() and not (tmp_path / "e").exists()
+
+
+def test_export_of_cameras_whose_names_collide_when_sanitised(base, tmp_path):
+    res = _renamed_result(base, tmp_path, {"cam0": "kämera", "cam1": "kåmera", "cam2": "cam-2"})
+    out = tmp_path / "e"
+    text = check("export: two camera names that differ only in non-ASCII letters",
+                 ["export", res, "--format", "urdf", "--format", "opencv-yaml", "--format", "ros2-launch",
+                  "--out", out], 0, ["exported as", "kämera", "kåmera"], watch=[res])
+    from calibgraph.report.exports import parse_urdf_joints, read_opencv_yaml
+    from calibgraph.solver.result import load_result
+
+    r = load_result(res)
+    urdf = (out / "calibgraph_cameras.urdf.xacro").read_text(encoding="utf-8")
+    links = re.findall(r'<link name="([^"]+)"', urdf)
+    assert len(links) == len(set(links)) == 3, links
+    joints = parse_urdf_joints(urdf)
+    files = sorted(p.name for p in out.glob("*.yaml"))
+    assert len(files) == 3, files  # one OpenCV file per camera, none written over another
+    by_name = {read_opencv_yaml(out / f)["camera_name"]: read_opencv_yaml(out / f) for f in files}
+    assert set(by_name) == set(r.cameras)
+    for n, c in r.cameras.items():
+        child = by_name[n]["frame_child"]
+        assert np.array_equal(by_name[n]["T_base_cam"], c.T_base_cam)
+        assert np.abs(joints[child][1] - c.T_base_cam).max() < 1e-9  # the link of this camera has its pose
+    assert "cam_2_optical_frame" in links and "Traceback" not in text
+
+
 # -- capture runs own their datasets; capture inputs; workcell geometry (issue 26) ---------------------
 DEFAULT_WORLD = Path(__file__).resolve().parents[1] / "datasets" / "workcells" / "default.yaml"
 CELL = {"board": "a4_54", "safety": {"robot_model": "fr3", "max_speed_scale": 0.5},

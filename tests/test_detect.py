@@ -188,7 +188,7 @@ def test_detection_record_round_trips():
 
 def test_dataset_detector_parallel_cached_and_reports_bad_files(tmp_path, monkeypatch):
     from calibgraph.core.problem import Capture
-    from calibgraph.detect import corners as detect_mod
+    from calibgraph.detect import dataset as detect_mod  # where the dataset detector looks detect_image up
     from calibgraph.io.dataset import image_relpath, write_capture, write_header
     from calibgraph.io.layouts import load_dataset
 

@@ -1,7 +1,9 @@
 """Knowing the camera: unknown intrinsics solved from the hand-eye views, intrinsics that come with
 a covariance used as the prior, and an exact claim the views contradict named and dropped.
 
-Synthetic corners with known truth; tolerances from the reported 1-sigma (chi-square, 6 dof)."""
+Synthetic corners with known truth; tolerances from the reported 1-sigma (chi-square, 6 dof). The
+scenes hand over the true intrinsics (``reported_intrinsics=ORACLE``): each test then states its own
+given intrinsics around them (unknown, a file with a covariance, a false exact claim)."""
 
 from __future__ import annotations
 
@@ -13,9 +15,10 @@ import pytest
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.transforms import log_so3
-from calibgraph.sim.synth import make_scene, ring_cameras
+from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 from calibgraph.solver.batch import solve
 
+ORACLE = "exact"
 CHI2_6_9999 = 27.86  # chi-square 6 dof, 0.9999 quantile: a 1-sigma that covers the error passes
 
 
@@ -34,9 +37,9 @@ def test_unknown_intrinsics_are_found_from_the_views(mode):
     joint graph, and are reported with a 1-sigma that covers their error, as do the poses'."""
     if mode == "eye_to_hand":
         sc = make_scene(cameras=ring_cameras([1.5, 2.0], presets=("d455",)), n_poses=40, pixel_sigma_px=0.3, seed=5,
-                        workspace_half_extent_m=(0.3, 0.3, 0.3))
+                        workspace_half_extent_m=(0.3, 0.3, 0.3), reported_intrinsics=ORACLE)
     else:
-        sc = make_scene(mode="eye_in_hand", n_poses=30, pixel_sigma_px=0.3, seed=5)
+        sc = make_scene(mode="eye_in_hand", n_poses=30, pixel_sigma_px=0.3, seed=5, reported_intrinsics=ORACLE)
     p = sc.problem
     r = solve(_with(p, lambda i, n, c: Intrinsics.unknown(c.width_px, c.height_px)))
     for n, c in r.cameras.items():
@@ -52,7 +55,8 @@ def test_unknown_intrinsics_are_found_from_the_views(mode):
 def test_a_calibration_file_covariance_is_the_prior():
     """A focal length given with a 0.01 % covariance pins the camera far tighter than the generic
     0.3 % width of a calibration file; both 1-sigma cover the error."""
-    sc = make_scene(cameras=ring_cameras([3.0, 3.0], presets=("l515",)), n_poses=40, pixel_sigma_px=0.3, seed=7)
+    sc = make_scene(cameras=ring_cameras([3.0, 3.0], presets=("l515",)), n_poses=40, pixel_sigma_px=0.3, seed=7,
+                    reported_intrinsics=ORACLE)
     p = sc.problem
 
     def given(cov):
@@ -73,7 +77,7 @@ def test_a_false_exact_claim_is_named_and_dropped():
     intrinsics are wrong (not the corners, the robot or the board), frees them, and the result
     covers the truth; the cameras whose claim holds are left alone."""
     sc = make_scene(cameras=ring_cameras([3.0] * 3, presets=("l515",)), n_poses=120, pixel_sigma_px=0.3, seed=1,
-                    workspace_half_extent_m=(0.4, 0.4, 0.4))
+                    workspace_half_extent_m=(0.4, 0.4, 0.4), reported_intrinsics=ORACLE)
 
     def claim(i, n, c):
         K = c.K.copy()
@@ -100,7 +104,7 @@ def test_error_budget_adds_up_to_the_covariance():
     intrinsics is mostly its intrinsics (the hand-eye views barely pin its focal length), held
     intrinsics contribute nothing, and the advice is one line naming the camera with numbers."""
     sc = make_scene(cameras=ring_cameras([1.5, 5.0], presets=("d455",)), n_poses=50, pixel_sigma_px=0.3, seed=4,
-                    fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01))
+                    fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01), reported_intrinsics=ORACLE)
     given = _with(sc.problem, lambda i, n, c: Intrinsics(K=c.K, dist=c.dist, width_px=c.width_px,
                                                           height_px=c.height_px, source="calibration"))
     held = given.with_(options=replace(given.options, intrinsics="fixed"))

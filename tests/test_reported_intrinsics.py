@@ -132,3 +132,12 @@ def test_capture_with_the_simulated_robot_writes_factory_intrinsics_and_the_trut
     for n in cell.camera_names:
         assert ds.cameras[n].source == "factory" and np.allclose(ds.cameras[n].K, cell.reported_intrinsics(n).K)
         assert np.allclose(gt["intrinsics_true"][n].K, cell.camera(n).intrinsics.K)
+
+
+def test_the_public_synth_import_path_still_serves_make_scene_and_ring_cameras():
+    """Scripts outside the repository import ``calibgraph.sim.synth.make_scene`` / ``ring_cameras``."""
+    import calibgraph.sim.synth as synth
+    import calibgraph.sim.synthetic_corners as corners
+
+    assert synth.make_scene is corners.make_scene and synth.ring_cameras is corners.ring_cameras
+    assert set(synth.__all__) <= set(dir(corners))

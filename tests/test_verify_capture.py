@@ -20,13 +20,15 @@ import yaml
 
 from calibgraph.cli.main import main
 from calibgraph.io.files import read_yaml
+from calibgraph.solver.result import Result
 from tests.helpers import REPO, require_sim
 
 DEFAULT = REPO / "datasets" / "workcells" / "default.yaml"
 
 
 def _stored(tmp_root: str):
-    """(result dict, Workcell) of the default cell calibrated from 30 poses of projected corners."""
+    """(Result as read back from result.json, Workcell) of the default cell calibrated from 30 poses of
+    projected corners."""
     from calibgraph.acquire.run import run_acquisition
     from calibgraph.io.layouts import load_dataset
     from calibgraph.plan.planner import plan_trajectory
@@ -42,7 +44,7 @@ def _stored(tmp_root: str):
     out = f"{tmp_root}/calibration"
     run_acquisition(robot, cams, plan_trajectory(sim, 30, seed=0), out, wc.target, detector=oracle, progress=False)
     res = solve(build_problem(load_dataset(out), progress=False)[0])
-    return json.loads(json.dumps(res.to_dict())), wc
+    return Result.from_dict(json.loads(json.dumps(res.to_dict()))), wc
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +97,7 @@ def test_cli_capture_verify_renders_and_passes_an_unmoved_cell(stored, tmp_path,
     from calibgraph.sim.workcell import workcell_to_dict
 
     result, wc = stored
-    (tmp_path / "result.json").write_text(json.dumps(result))
+    result.save(tmp_path / "result.json")
     world = tmp_path / "world.yaml"  # the default cell with the stored calibration's (oracle's) intrinsics
     world.write_text(yaml.safe_dump(workcell_to_dict(wc)))
     out = tmp_path / "verify"
@@ -114,7 +116,7 @@ def test_cli_sim_capture_of_a_bumped_cell_is_verified_as_moved(stored, tmp_path,
     from calibgraph.sim.workcell import workcell_to_dict
 
     result, wc = stored
-    (tmp_path / "result.json").write_text(json.dumps(result))
+    result.save(tmp_path / "result.json")
     world = tmp_path / "bumped.yaml"
     world.write_text(yaml.safe_dump(workcell_to_dict(_bumped(wc, "cam2", np.array([0.002, 0.0, 0.0])))))
     out = tmp_path / "sim"

@@ -45,7 +45,7 @@ journal ``plan_log.json`` and ``result.json``, described in :mod:`calibgraph.acq
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -419,14 +419,17 @@ def _finish(L, stop) -> AutoReport:
     if res is None and L.n_captures:
         res, err = (L.ref, None) if (L.ref is not None and L.ref_at == L.n_captures) else L.batch_solve()
     if res is not None:
+        res = replace(res, dataset=str(L.out), target=L.cell.target.to_dict())
         res.save(L.out / "result.json")
     status, msgs = {}, list(L.messages)
-    converged = res is not None and all(c in res.cameras and L.within(res.cameras[c].covariance) for c in L.intr
-                                        if c not in L.lost)
+    converged = res is not None and all(c in res.cameras and res.cameras[c].calibrated
+                                        and L.within(res.cameras[c].covariance) for c in L.intr if c not in L.lost)
     for c in L.intr:
         views = L.views_bb.get(c, [])
         if c in L.lost:
             status[c] = "lost (grab failures); not calibrated"
+        elif res is not None and c in res.cameras and not res.cameras[c].calibrated:
+            status[c] = f"NOT CALIBRATED: {res.cameras[c].why}"
         elif c in L.out_of_reach and not (res is not None and c in res.cameras and L.within(res.cameras[c].covariance)):
             status[c] = _out_of_reach_status(c, L.out_of_reach[c], res, (L.opts.tolerance_mm, L.opts.tolerance_deg))
         elif res is not None and c in res.cameras:

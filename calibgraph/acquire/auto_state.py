@@ -177,7 +177,7 @@ class AutoState:
         out = {}
         for n, ce in (self.est.cameras if self.est else {}).items():
             rc = self._ref_camera(n)
-            if rc is not None:
+            if rc is not None and rc.calibrated:
                 out[n] = CameraBelief(n, self.intr[n], rc.T_ref_cam, rc.covariance, ce.views, self._model_prior(n, rc))
             else:
                 out[n] = CameraBelief(n, self.intr[n], ce.T_ref_cam, self.cov(n), ce.views, self._model_prior(n, None))

@@ -142,7 +142,7 @@ def _trajectory(args, log) -> int:
                 settle_dwell_s=_dwell(args, driver)))
         finally:
             if not args.dry_run:
-                dev.write_ground_truth(args.out)  # the true intrinsics and poses beside a simulated capture
+                dev.write_ground_truth(args.out)  # a simulated capture: the true poses and intrinsics beside it
             dev.close()
     if rep is None:
         return 130
@@ -217,7 +217,7 @@ def _verify(args, log) -> int:
     from calibgraph.core.errors import InputError
     from calibgraph.io.files import read_input_bytes
     from calibgraph.sim.planning_world import planning_world
-    from calibgraph.solver.result import load_result_dict
+    from calibgraph.solver.result import load_result
     from calibgraph.solver.verify import DEFAULT_ALPHA, stored_model
 
     if args.result is None:
@@ -227,7 +227,7 @@ def _verify(args, log) -> int:
     if args.verify_poses < 1:
         raise InputError(f"capture --verify: --verify-poses must be >= 1, got {args.verify_poses}.")
     result_sha = hashlib.sha256(read_input_bytes(args.result, "result")).hexdigest()  # a pipe is refused, not read
-    stored = load_result_dict(args.result)
+    stored = load_result(args.result)
     model = stored_model(stored, str(args.result))
     wc, world, driver = _cell_and_world(args, "workcell")
     if wc is None and world is None:

@@ -115,7 +115,7 @@ def run(args) -> int:
     ds = load_dataset(ds_dir)
     problem, _ = build_problem(ds, "joint", None, progress=True)
     t0 = time.monotonic()
-    result = replace(solve(problem), dataset=str(ds_dir))
+    result = replace(solve(problem), dataset=str(ds_dir), target=ds.target.to_dict())
     result_path = out / "result.json"
     result.save(result_path)
     gt = load_ground_truth(ds_dir)
@@ -123,7 +123,7 @@ def run(args) -> int:
     from calibgraph.core.transforms import log_so3, pose_error
 
     print("camera orientations (T_base_cam rotation vector, deg):")
-    for n, c in result.cameras.items():
+    for n, c in result.calibrated.items():
         print(f"  {n:10s} {np.round(np.degrees(log_so3(c.T_ref_cam[:3, :3])), 3).tolist()}")
 
     if result.T_mount_board is not None:
@@ -134,11 +134,10 @@ def run(args) -> int:
     if args.report:
         try:
             from calibgraph.report.html import write_report
-            from calibgraph.solver.result import load_result_dict
         except ImportError as e:
             print(f"report skipped: {e}", file=sys.stderr)
         else:
-            p = write_report(load_result_dict(result_path), out / "report.html", dataset=ds_dir, result_path=result_path)
+            p = write_report(result, out / "report.html", dataset=ds, result_path=result_path)
             print(f"wrote {p}")
     if args.rrd:
         try:
@@ -183,7 +182,9 @@ def _run_auto(args, cell, out, ds_dir, t_start) -> int:
         if oracle_label(rep.result):
             print(f"errors vs ground truth{oracle_label(rep.result)}")
         print(f"{'camera':8s} {'views':>5s} {'1σ mm':>7s} {'1σ deg':>7s} {'err mm':>7s} {'err deg':>8s} {'err/1σ':>7s}")
-        for n, c in rep.result.cameras.items():
+        for n, why in rep.result.not_calibrated.items():
+            print(f"{n:8s} not calibrated: {why}")
+        for n, c in rep.result.calibrated.items():
             e_m, e_deg = pose_error(c.T_ref_cam, cell.camera(n).T_base_cam)
             s_mm = float(np.linalg.norm(c.sigma_translation_mm))
             print(f"{n:8s} {c.views_used:5d} {s_mm:7.3f} {float(np.linalg.norm(c.sigma_rotation_deg)):7.4f} "

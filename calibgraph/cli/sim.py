@@ -31,8 +31,24 @@ def add_parser(sub):
                         "(factory-class errors around the true intrinsics, the default) or exact (the true ones: an oracle)")
     p.add_argument("--full-detection", action="store_true",
                    help="run the detector on every frame (default: skip frames whose board is plainly out of view)")
+    p.add_argument("--intrinsics-session", type=int, default=None, metavar="N",
+                   help="instead of a dataset, write a close-range intrinsics session to --out: N hand-held images "
+                        "per camera of the board at 0.3-0.8 m (OUT/<camera>/*.png, OUT/target.yaml, "
+                        "OUT/ground_truth.json) for calibgraph intrinsics; no robot, no OpenGL")
     p.add_argument("--quiet", action="store_true")
     return p
+
+
+def _intrinsics_session(args, cell) -> int:
+    from calibgraph.sim.session import simulate_intrinsics_session
+
+    say = None if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    simulate_intrinsics_session(args.out, {c.name: c.intrinsics for c in cell.cameras}, cell.target,
+                                args.intrinsics_session, realism=cell.realism, seed=args.seed, progress=say)
+    if not args.quiet:
+        print(f"wrote {args.out}: {args.intrinsics_session} images per camera of {len(cell.cameras)} cameras; "
+              f"calibrate one with: calibgraph intrinsics {args.out / cell.cameras[0].name} --out CAM.yaml")
+    return 0
 
 
 def run(args) -> int:
@@ -52,6 +68,10 @@ def run(args) -> int:
         cell = ring_workcell(spread_deg=200.0, name="default")
     if args.reported_intrinsics:
         cell = cell.with_reported_intrinsics(args.reported_intrinsics)
+    if args.intrinsics_session is not None:
+        if args.intrinsics_session < 1:
+            raise InputError("--intrinsics-session must be >= 1 images.")
+        return _intrinsics_session(args, cell)
     if not args.trajectory and args.poses < 1:
         raise InputError("--poses must be >= 1.")
     traj = load_trajectory(args.trajectory) if args.trajectory else None

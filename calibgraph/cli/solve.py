@@ -11,6 +11,9 @@ from calibgraph.core.problem import mode_frames, option_flags
 from calibgraph.solver.build import build_problem
 
 
+EXIT_NOT_CALIBRATED = 3  # the result is written, but a camera could not be calibrated from its views
+
+
 def add_parser(sub):
     p = sub.add_parser("solve", help="calibrate all cameras of a dataset folder",
                        description="Solve a dataset (calibgraph, industrial_calibration or MC-HEC layout).")
@@ -105,6 +108,9 @@ def format_summary(result, truth=None) -> str:
         hdr += f" {'err mm':>7s} {'err deg':>8s} {'err/1σ':>7s}"
     lines += [f"{ref} per camera:", hdr]
     for n, c in result.cameras.items():
+        if not c.calibrated:
+            lines.append(f"{n:10s} NOT CALIBRATED: {c.why}")
+            continue
         t = c.T_ref_cam[:3, 3]
         st = "/".join(f"{v:.2f}" for v in c.sigma_translation_mm)
         sr = "/".join(f"{v:.3f}" for v in c.sigma_rotation_deg)
@@ -132,6 +138,10 @@ def format_summary(result, truth=None) -> str:
         lines.append(f"rejected corners: {len(result.rejected_corners)} (listed in the result file)")
     if result.board_scale_sigma is not None:
         lines.append(f"board scale (printed / declared size): {result.board_scale:.5f} ± {result.board_scale_sigma:.5f}")
+    advice = [c.error_budget["advice"] for c in result.cameras.values() if c.calibrated and c.error_budget]
+    if advice:
+        lines.append("what the 1σ is made of (error_budget in the result file):")
+        lines += [f"  {a}" for a in advice]
     lines += robot_lines(result.robot)
     lines += [f"note: {n}" for n in result.notes]
     return "\n".join(lines)
@@ -203,11 +213,11 @@ def run(args) -> int:
     result = solve(problem)
     from dataclasses import replace
 
-    result = replace(result, dataset=str(args.dataset))
+    result = replace(result, dataset=str(args.dataset), target=ds.target.to_dict())
     result.save(out)
     if not args.quiet:
         print(format_summary(result))
-        rms_px = max((c.reprojection_rms_px / np.sqrt(2.0) for c in result.cameras.values()), default=0.0)
+        rms_px = max((c.reprojection_rms_px / np.sqrt(2.0) for c in result.calibrated.values()), default=0.0)
         if rms_px > 1.0 and opts.intrinsics == "fixed":
             print(f"hint: residuals of {rms_px:.2f} px per axis are large for a sub-pixel detector; "
                   "if the intrinsics come without (or with wrong) distortion, drop --fixed-intrinsics")
@@ -221,4 +231,6 @@ def run(args) -> int:
             write_rrd(result, problem, args.rrd, plan_log=plan_log_path(args.dataset))
             if not args.quiet:
                 print(f"wrote {args.rrd}")
-    return 0
+    for name, why in result.not_calibrated.items():
+        print(f"calibgraph solve: camera {name} is NOT calibrated: {why}", file=sys.stderr)
+    return EXIT_NOT_CALIBRATED if result.not_calibrated else 0

@@ -182,45 +182,9 @@ class Intrinsics:
         Returns:
             uv_px (N, 2) [, J (N, 2, 3)]. Points with z <= 0 project to NaN.
         """
-        P = np.asarray(p_cam_m, float).reshape(-1, 3)
-        Z = P[:, 2]
-        valid = Z > 1e-9
-        Zs = np.where(valid, Z, np.nan)
-        x = P[:, 0] / Zs
-        y = P[:, 1] / Zs
-        k1, k2, p1, p2, k3, k4, k5, k6 = self.dist8
-        r2 = x * x + y * y
-        a = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-        rad = a / b
-        xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        fx, s, cx = self.K[0]
-        fy, cy = self.K[1, 1], self.K[1, 2]
-        uv = np.column_stack([fx * xd + s * yd + cx, fy * yd + cy])
-        if not with_jacobian:
-            return uv
-        da = k1 + r2 * (2 * k2 + 3 * k3 * r2)
-        db = k4 + r2 * (2 * k5 + 3 * k6 * r2)
-        drad = (da * b - a * db) / (b * b)
-        dxd_dx = rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
-        dxd_dy = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-        dyd_dx = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-        dyd_dy = rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
-        # d(uv)/d(xd, yd)
-        du_dx = fx * dxd_dx + s * dyd_dx
-        du_dy = fx * dxd_dy + s * dyd_dy
-        dv_dx = fy * dyd_dx
-        dv_dy = fy * dyd_dy
-        iz = 1.0 / Zs
-        J = np.empty((P.shape[0], 2, 3))
-        J[:, 0, 0] = du_dx * iz
-        J[:, 0, 1] = du_dy * iz
-        J[:, 0, 2] = -(du_dx * x + du_dy * y) * iz
-        J[:, 1, 0] = dv_dx * iz
-        J[:, 1, 1] = dv_dy * iz
-        J[:, 1, 2] = -(dv_dx * x + dv_dy * y) * iz
-        return uv, J
+        uv, J, _ = project_points(p_cam_m, self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2], self.K[0, 1],
+                                  self.dist8, with_jacobian)
+        return (uv, J) if with_jacobian else uv
 
     def in_image(self, uv_px: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
         """Boolean mask of pixels inside the image (needs width/height)."""
@@ -232,6 +196,50 @@ class Intrinsics:
             & (uv[:, 0] <= self.width_px - 0.5 - margin_px)
             & (uv[:, 1] <= self.height_px - 0.5 - margin_px)
         )
+
+
+def project_points(p_cam_m, fx, fy, cx, cy, s, dist8, with_jacobian: bool = False):
+    """The OpenCV camera model, with parameters that are scalars (one camera) or (N,) arrays (one
+    per point: many cameras' points projected in one pass). ``dist8``: (8,) or (8, N).
+
+    Returns (uv_px (N, 2), d uv / d p_cam (N, 2, 3) or None, normalised coordinates
+    (x, y, x_d, y_d, r2, b) for the intrinsics' Jacobian or None). Points with z <= 0 give NaN.
+    """
+    P = np.asarray(p_cam_m, float).reshape(-1, 3)
+    Zs = np.where(P[:, 2] > 1e-9, P[:, 2], np.nan)
+    x = P[:, 0] / Zs
+    y = P[:, 1] / Zs
+    k1, k2, p1, p2, k3, k4, k5, k6 = dist8
+    r2 = x * x + y * y
+    a = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    rad = a / b
+    xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    uv = np.column_stack([fx * xd + s * yd + cx, fy * yd + cy])
+    if not with_jacobian:
+        return uv, None, None
+    da = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+    db = k4 + r2 * (2 * k5 + 3 * k6 * r2)
+    drad = (da * b - a * db) / (b * b)
+    dxd_dx = rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
+    dxd_dy = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
+    dyd_dx = dxd_dy
+    dyd_dy = rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
+    # d(uv)/d(xd, yd)
+    du_dx = fx * dxd_dx + s * dyd_dx
+    du_dy = fx * dxd_dy + s * dyd_dy
+    dv_dx = fy * dyd_dx
+    dv_dy = fy * dyd_dy
+    iz = 1.0 / Zs
+    J = np.empty((P.shape[0], 2, 3))
+    J[:, 0, 0] = du_dx * iz
+    J[:, 0, 1] = du_dy * iz
+    J[:, 0, 2] = -(du_dx * x + du_dy * y) * iz
+    J[:, 1, 0] = dv_dx * iz
+    J[:, 1, 1] = dv_dy * iz
+    J[:, 1, 2] = -(dv_dx * x + dv_dy * y) * iz
+    return uv, J, (x, y, xd, yd, r2, b)
 
 
 def _intrinsics_block(cov: np.ndarray, order, n_dist: int) -> np.ndarray:

@@ -244,7 +244,7 @@ class SolverOptions:
             principal point 1 % of the width, k1, k2 0.05), 'calibration' (the default; a camera
             calibration file: f 0.3 %, principal point 0.2 % of the width, k1, k2 0.01), 'exact'
             (held fixed, as a simulation's own cameras are).
-        refine_intrinsics: the former switch for ``intrinsics='estimate'`` (kept: True means that).
+        refine_intrinsics: True means ``intrinsics='estimate'`` (the ``--refine-intrinsics`` flag sets it).
         board_scale: estimate a scale factor of the printed board (printer scaling) under a prior of
             ``board_scale_sigma``, shared by all views; False takes the declared pitch as exact.
         formulation: 'view' (one vectorised CustomFactor per view, any OpenCV distortion),

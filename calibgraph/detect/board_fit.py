@@ -3,10 +3,9 @@
 Why: OpenCV's corner refiners look at a window around one corner and assume what they see is a
 lone saddle. On small squares the window (or the blur) also sees the neighbouring corners and the
 board's white border; these are not point-symmetric about an edge corner, so the corners move
-outwards (scripts/results/bench_detect_bias.md, thesis board: SB +0.09 px at 11 px squares, the
-up-scaled detection of 4-8 px squares +0.04 to +0.09 px; a scale bias that puts cameras
-millimetres too close). Fitting a model that *contains* the neighbours and the border removes
-that cause instead of hoping it is small: with it the bias is within +-0.004 px at 4-60 px.
+outwards: a scale bias that puts cameras millimetres too close (scripts/results/bench_detect_bias.md
+measures it). Fitting a model that *contains* the neighbours and the border removes that cause
+instead of hoping it is small.
 
 The model (for each inner corner, fitted to the original image's pixels, no interpolation):
 
@@ -37,15 +36,13 @@ failing again, the corner keeps its input position.
 
 ChArUco (:func:`refine_charuco`): the same fit, with each marker in the model as the solid black
 square its border bit makes (inset by (square - marker) / 2 in every white square) and the
-pixels within 3 blur sigmas of its data bits left out; 12 px windows (the masks take part of
-each; on the real ChArUco set of industrial_calibration, whose printed squares do not quite
-touch at the corners, 12 px gave 0.518 px RMS, 7 px 0.536, CharucoDetector's corners 0.539).
-Rendered 7x5 board: bias within +-0.0006 px at 20-60 px squares (scripts/results/
-bench_detect_charuco.md).
+pixels within 3 blur sigmas of its data bits left out; 12 px windows, larger than for a
+checkerboard because the masks take part of each (scripts/results/bench_detect_charuco.md and
+scripts/results/detect_design_figures.md have the figures behind the choice).
 
 What is not modelled: the pixel's square shape beyond its variance (folded into ``sigma``) and
 the paper's edge beyond the board's white margin. Together with the pixel phase of each corner
-they leave per-corner errors of ~0.01 px that average out over corners and views, not a bias.
+they leave small per-corner errors that average out over corners and views, not a bias.
 """
 
 from __future__ import annotations

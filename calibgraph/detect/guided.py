@@ -11,8 +11,8 @@ large its squares are. Then:
   empty cheaply: OpenCV's quick chessboard check on the half-resolution frame, a few ms. Only if
   that check sees a board after all (the prediction was wrong) does the full detector run.
 
-On a frame without the board the blind detector spends 0.15-3.5 s (the up-scaled searches of
-regions that merely look like a board); the confirmation costs the image decode plus ~5 ms.
+On a frame without the board the blind detector spends most of its time in the up-scaled searches
+of regions that merely look like a board; the confirmation costs little more than the image decode.
 """
 
 from __future__ import annotations
@@ -23,7 +23,9 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.targets import Target
-from calibgraph.detect.corners import ImageDetection, detect_image, read_grey
+from calibgraph.detect.detection import ImageDetection
+from calibgraph.detect.image import read_grey
+from calibgraph.detect.search import detect_image
 
 # Squares predicted smaller than this (pixels; the blind detector's min_pitch_px) are searched with
 # up-scaling of the region.

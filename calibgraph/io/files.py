@@ -122,7 +122,8 @@ def output_folder(path, what: str = "output folder", empty: bool = False) -> Pat
     if str(path) == "":
         raise InputError(f"an empty {what} was given; name a folder.")
     if p.exists() and not p.is_dir():
-        raise InputError(f"{path}: is a file, not a folder; the {what} must be a folder "
+        kind = "a file" if p.is_file() else "a device, pipe or socket"
+        raise InputError(f"{path}: is {kind}, not a folder; the {what} must be a folder "
                          f"(e.g. {p.with_suffix('')}_out); nothing was written.")
     try:
         p.mkdir(parents=True, exist_ok=True)

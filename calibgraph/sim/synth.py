@@ -11,11 +11,12 @@ from calibgraph.sim.synthetic_corners import (
     Scene,
     Truth,
     bump_camera,
+    correlate_corner_noise,
     make_scene,
     random_board_facing,
     reported_cameras,
     ring_cameras,
 )
 
-__all__ = ["DEFAULT_T_FLANGE_BOARD", "WORKSPACE_CENTRE_M", "Scene", "Truth", "bump_camera", "make_scene",
+__all__ = ["DEFAULT_T_FLANGE_BOARD", "WORKSPACE_CENTRE_M", "Scene", "Truth", "bump_camera", "correlate_corner_noise", "make_scene",
            "random_board_facing", "reported_cameras", "ring_cameras"]

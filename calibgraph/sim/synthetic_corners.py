@@ -20,6 +20,7 @@ from calibgraph.core.camera import preset
 from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
 from calibgraph.core.targets import Target, a4_board_54
 from calibgraph.core.transforms import board_facing, exp_so3, inv, look_at, make_T
+from calibgraph.solver.noise_model import view_mode_basis
 from calibgraph.sim.reported_intrinsics import FACTORY, parse_reported, reported_intrinsics
 
 
@@ -275,3 +276,18 @@ def bump_camera(scene, camera: str, at_capture: int, shift_m: float, rot_deg: fl
             d = Detection(d.camera, d.capture, d.ids, uv + rng.normal(scale=pixel_sigma_px, size=uv.shape))
         dets.append(d)
     return prob.with_(detections=tuple(dets)), T_after
+
+
+def correlate_corner_noise(problem, factor: float, seed: int = 0, pixel_sigma_px: float = 0.3):
+    """``problem`` with each view's board image also shifted, turned, scaled and sheared at random:
+    ``factor - 1`` times the corner variance (``pixel_sigma_px``^2) in each of the view's 6 low-order
+    image modes, as overlapping corner windows on small squares produce (``factor`` 1: unchanged)."""
+    if factor <= 1.0:
+        return problem
+    rng = np.random.default_rng(seed)
+    dets = []
+    for d in problem.detections:
+        Q = view_mode_basis(d.uv_px)
+        extra = Q @ rng.normal(0.0, pixel_sigma_px * np.sqrt(factor - 1.0), Q.shape[1])
+        dets.append(replace(d, uv_px=d.uv_px + extra.reshape(d.uv_px.shape)))
+    return problem.with_(detections=tuple(dets))

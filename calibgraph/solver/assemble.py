@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.problem import Problem
 from calibgraph.core.transforms import inv
 from calibgraph.solver import kinematics as kin
@@ -56,7 +57,10 @@ def camera_result(problem: Problem, name: str, group: Group, rejected: list, bud
     ``rejected``: views refused before the solve (RejectedView); ``budget``: its error budget."""
     est, joint = group.est, problem.method == "joint"
     cov = to_ref_axes(est.T_ref_cam[name], est.marginals.marginalCovariance(C(est.slots[name])))
-    check_after_solve(name, cov)
+    try:
+        check_after_solve(name, cov)
+    except ObservabilityError as e:  # a pose the data do not determine is no calibration
+        return not_calibrated(problem, name, str(e).replace(f"camera {name!r} is ", "", 1), rejected), []
     mine = [v for v in group.views if v.camera == name]
     used = [v for v in mine if v.active]
     residuals, kept_px, rejected_corners = view_residuals(name, est, mine, problem.cameras)

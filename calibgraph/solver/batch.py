@@ -110,7 +110,7 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
     T_mount_board, mount_cov, T_base_flange_est = mount_and_robot_poses(problem, groups)
     scale, scale_sigma, scale_notes = board_scale(problem, groups)
     notes = [*notes, *scale_notes, *intrinsics_notes(cameras)]
-    notes += [f"camera {n} is NOT calibrated: {why}" for g in groups for n, why in g.dropped.items()]
+    notes += [f"camera {n} is NOT calibrated: {c.why}" for n, c in cameras.items() if not c.calibrated]
     for g in groups:
         notes += corner_noise_notes(g.est.mode_ratios)
     notes += next((n for n in (fk_note(problem.options, g.est.fk_ratio) for g in groups) if n), [])

@@ -2,12 +2,12 @@
 the images that carry no stored corners — guided by a first estimate when there are many.
 
 Guided detection (:mod:`calibgraph.detect.guided`): a blind search of a frame without the board
-costs 0.15-3.5 s (it tries up-scaled regions that merely look like a board), and in recordings
-where every camera captures at every robot pose most frames are such frames. So, for a dataset
-with many undetected views:
+is the detector's most expensive case (it tries up-scaled regions that merely look like a board),
+and in recordings where every camera captures at every robot pose most frames are such frames.
+So, for a dataset with many undetected views:
 
 1. a *survey*: the views of ``SURVEY_CAPTURES`` captures spread over the run are detected blind,
-   first without up-scaling (an empty frame then costs ~0.15 s instead of seconds); only the
+   first without up-scaling (an empty frame then costs a fraction of the full search); only the
    survey views of cameras that this leaves without a pose are searched again with up-scaling;
 2. a coarse solve of the survey gives every camera that saw the board a pose (and the board mount);
 3. every other view gets a prediction from its capture's flange pose — the board's image region
@@ -27,7 +27,7 @@ import numpy as np
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.problem import Problem, SolverOptions, mode_frames
 from calibgraph.core.transforms import inv
-from calibgraph.detect.corners import dataset_detector
+from calibgraph.detect.dataset import dataset_detector, view_points
 from calibgraph.detect.guided import GUIDED_MIN_PITCH_PX, ViewHint, detect_with_hint, predict_view
 from calibgraph.io.dataset import Dataset
 from calibgraph.solver.batch import solve
@@ -57,7 +57,7 @@ def build_problem(dataset: Dataset, method: str = "joint", options: SolverOption
 @dataclass
 class GuidedDatasetDetector:
     """A dataset detector (callable ``(view, dataset) -> (ids, uv_px) | None``, with ``results`` and
-    ``problems`` like :class:`~calibgraph.detect.corners.DatasetDetector`) that detects a survey
+    ``problems`` like :class:`~calibgraph.detect.dataset.DatasetDetector`) that detects a survey
     blind and the other views guided by the survey's coarse solve.
 
     Attributes:
@@ -132,10 +132,7 @@ class GuidedDatasetDetector:
 
     def _answer(self, view, dataset=None):
         """Detections found so far (no further search)."""
-        if view.detected:
-            return view.ids, view.uv_px
-        det = self.results.get((view.camera, view.capture))
-        return (det.ids, det.uv_px) if det is not None and det.ok else None
+        return view_points(view, self.results)
 
     def _coarse_solve(self, survey_caps):
         """Solve the survey's detections; None (and a note) when they cannot place the cameras.
@@ -161,12 +158,7 @@ class GuidedDatasetDetector:
 
     def __call__(self, view, dataset=None):
         self.run()
-        if view.detected:
-            return view.ids, view.uv_px
-        det = self.results.get((view.camera, view.capture))
-        if det is None or not det.ok:
-            return None
-        return det.ids, det.uv_px
+        return view_points(view, self.results)
 
 
 def _good_native(det) -> bool:

@@ -32,6 +32,7 @@ from calibgraph.solver.graph import (
 from calibgraph.solver.initialise import pnp_candidates
 from calibgraph.solver.keys import B
 from calibgraph.solver.linearise import linearise
+from calibgraph.solver.moved import check_after_rounds
 from calibgraph.solver.noise_model import a_posteriori_sigma, mode_variance_ratios
 from calibgraph.solver.robust import Rounds, robust_rounds
 from calibgraph.solver.timing import timed
@@ -70,6 +71,13 @@ def _rounds_keeping_enough_views(problem: Problem, names: list, views: list, est
     rejection) taken out of the graph and the rest solved again: (names, views, rounds, dropped)
     with ``dropped`` camera -> why. A camera alone in its graph is refused as before."""
     dropped, need = {}, problem.options.min_views_per_camera
+    for n in list(names) if len(names) > 1 else []:
+        behind = seen_from_behind(problem, [v for v in views if v.camera == n], [v for v in views if v.camera != n])
+        if behind:  # no camera model explains a board seen from its back; freeing the intrinsics only hides it
+            dropped[n] = (f"the images look mirrored: the board appears from behind in {behind[0]} of its {behind[1]} "
+                          "views while the other cameras see its front; check the camera's flip/mirror setting")
+            names = [m for m in names if m != n]
+            views = [v for v in views if v.camera != n]
     while True:
         slots = {n: i for i, n in enumerate(names)}
         try:
@@ -125,7 +133,9 @@ def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str
     est = Estimate(T_ref_cam=dict(est0.T_ref_cam), T_mount_board=est0.T_mount_board, T_ref_mount={},
                    intrinsics=dict(est0.intrinsics), wide_intrinsics=est0.wide_intrinsics,
                    free_intrinsics=est0.free_intrinsics, joint_offsets=est0.joint_offsets)
+    given = views
     names, views, rounds, dropped = _rounds_keeping_enough_views(problem, names, views, est, form, timings)
+    check_after_rounds(problem, given, est, rounds)  # a camera that moved during capture is split first (solver.moved)
     slots = {n: i for i, n in enumerate(names)}
     notes = []
     # A claim the data contradict is named and dropped before anything shared is judged on the misfit;

@@ -149,6 +149,7 @@ def initial_values(problem: Problem, views: list, cands: dict, seed: int = 0, in
                 for n in problem.cameras]
     starts = [Estimate(T_ref_cam=T_ref_cam0, T_mount_board=mounts0[0], T_ref_mount={})]
     if initial:
-        starts.append(Estimate(T_ref_cam=dict(initial["T_ref_cam"]), T_mount_board=np.asarray(initial["T_mount_board"]),
-                               T_ref_mount={}))
+        # a camera the guess does not name (e.g. a moved camera's pose before the move) starts where the initialiser put it
+        given = {**T_ref_cam0, **{n: T for n, T in initial["T_ref_cam"].items() if n in problem.cameras}}
+        starts.append(Estimate(T_ref_cam=given, T_mount_board=np.asarray(initial["T_mount_board"]), T_ref_mount={}))
     return starts

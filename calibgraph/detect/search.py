@@ -1,0 +1,291 @@
+"""Finding a target in one image: :func:`detect_image`, the search ladder around the per-kind finders.
+
+The finder is chosen by the target's kind (:mod:`~calibgraph.detect.chessboard`,
+:mod:`~calibgraph.detect.charuco`, :mod:`~calibgraph.detect.circles`). Checkerboard and ChArUco
+corners are then refined on the original image by the photometric board fit
+(:mod:`calibgraph.detect.board_fit`), which removes the detectors' outward bias on small squares
+and most of their noise; ``refine=False`` keeps OpenCV's corners.
+
+Far cameras (thesis §6.3): when the target is not found, or its grid pitch is below
+``min_pitch_px``, the region of interest is up-scaled (bicubic, x2 then x3) and searched again;
+corners are mapped back to original pixels (``cv2.resize`` maps destination pixel ``X`` to source
+``(X + 0.5) / k - 0.5``). The region comes from the first detection or, when there is none, from
+a saddle-point (checkerboard) or blob (circles) response map (:mod:`calibgraph.detect.regions`).
+Up-scaling finds boards the original image loses, but where the original image already works it
+does not improve accuracy, so it is used only when needed (scripts/results/bench_detect.md).
+
+Every detection passes :func:`calibgraph.detect.grid_filter.check_grid` (thesis Algorithm 3 +
+homography); a rejection says why.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calibgraph.core.camera import Intrinsics
+from calibgraph.core.errors import DetectionError, InputError
+from calibgraph.core.targets import Target
+from calibgraph.detect.board_fit import refine_charuco, refine_checkerboard
+from calibgraph.detect.charuco import find_charuco
+from calibgraph.detect.chessboard import find_checkerboard
+from calibgraph.detect.circles import find_circles
+from calibgraph.detect.detection import ImageDetection, failed_detection
+from calibgraph.detect.grid_filter import check_grid, grid_pitch_px
+from calibgraph.detect.image import read_grey, to_grey8
+from calibgraph.detect.quality import edge_sigma_px, hull_area
+from calibgraph.detect.regions import roi_candidates, roi_from_points
+
+
+def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, upscale="auto", method: str = "auto",
+                 allow_symmetric: bool = False, filter: bool = True, min_pitch_px: float = 12.0,
+                 min_points: int = 4, source: str | None = None, refine: bool = True,
+                 region_px: tuple | None = None) -> ImageDetection:
+    """Detect ``target`` in one image.
+
+    Args:
+        image: a path or an image array (grey/colour, 8/16-bit or float in [0, 1]).
+        target: the target spec.
+        intrinsics: camera intrinsics; used to undistort points for the filter and to help ChArUco.
+        upscale: ``"auto"`` (up-scale the region of interest x2, then x3, when the target is not
+            found or its pitch is below ``min_pitch_px``), ``1``/``"off"`` (never), or an int ``k``
+            (always detect on the region up-scaled by ``k``).
+        method: checkerboard detector, ``"classic"`` (findChessboardCorners + cornerSubPix),
+            ``"sb"`` (findChessboardCornersSB, accuracy flag) or ``"auto"`` (default: classic, but SB
+            for squares under ``SB_BELOW_PITCH_PX`` original pixels or when classic finds nothing).
+        allow_symmetric: accept symmetric targets with an orientation guessed from the image.
+        filter: run the grid filter (thesis Algorithm 3 + homography check).
+        min_pitch_px: below this grid pitch ``"auto"`` also tries the up-scaled region.
+        min_points: fewer points than this is a failed detection (partial ChArUco views).
+        source: file name for messages when ``image`` is an array.
+        refine: checkerboards and ChArUco: refine every corner by the photometric board fit of
+            :mod:`calibgraph.detect.board_fit` on the original image (removes the detectors'
+            bias; ``False`` keeps OpenCV's corners).
+        region_px: (x0, y0, x1, y1) where the board is expected (guided detection,
+            :mod:`calibgraph.detect.guided`): only that region is searched, like a candidate region
+            of the blind search (no quick whole-frame rejection), at full resolution and, with
+            ``upscale="auto"``, up-scaled when its squares are small.
+    Returns:
+        :class:`ImageDetection`; never raises for a bad image: ``ok=False`` and ``reason`` say why.
+    """
+    t0 = time.perf_counter()
+    src = str(image) if isinstance(image, (str, Path)) else source
+    try:
+        grey = read_grey(image) if isinstance(image, (str, Path)) else to_grey8(image, src or "image")
+    except DetectionError as e:
+        return failed_detection(str(e), target, src, t0)
+    s = _Search(grey=grey, target=target, intrinsics=intrinsics, method=method, upscale=_check_options(method, upscale),
+                allow_symmetric=allow_symmetric, filter=filter, min_pitch_px=min_pitch_px, min_points=min_points,
+                refine=refine, src=src, t0=t0)
+    if region_px is not None:
+        best = _search_region(s, tuple(int(v) for v in region_px))
+        return best if best is not None else _not_found(s)
+    native = _attempt(s, _raw_detect, s, grey, 1.0) if s.upscale in ("auto", 1) else None
+    first = _finish(s, native, 1) if native is not None else None
+    if s.upscale == 1 or (first is not None and first.ok and first.pitch_px >= min_pitch_px):
+        best = first
+    else:
+        if native is None and s.upscale != "auto":
+            native = _attempt(s, _raw_detect, s, grey, 1.0)  # its points give the region to up-scale
+        rois, first = _upscale_regions(s, native, first)
+        best = _search_upscaled(s, rois, first)
+    return best if best is not None else _not_found(s)
+
+
+@dataclass
+class _Search:
+    """One :func:`detect_image` call: its image, options and the reasons of failed attempts."""
+
+    grey: np.ndarray
+    target: Target
+    intrinsics: Intrinsics | None
+    method: str
+    upscale: object
+    allow_symmetric: bool
+    filter: bool
+    min_pitch_px: float
+    min_points: int
+    refine: bool
+    src: str | None
+    t0: float
+    attempts: list = field(default_factory=list)
+
+
+def _check_options(method: str, upscale):
+    """Validate ``method`` and ``upscale``; returns ``upscale`` as ``"auto"`` or an int."""
+    if method not in ("classic", "sb", "auto"):
+        raise InputError(f"detect: method must be 'classic', 'sb' or 'auto', got {method!r}.")
+    if upscale in ("off", None, False):
+        upscale = 1
+    if upscale != "auto" and int(upscale) not in (1, 2, 3, 4):
+        raise InputError(f"detect: upscale must be 'auto', 1, 2, 3 or 4, got {upscale!r}.")
+    return upscale
+
+
+def _raw_detect(s: _Search, img: np.ndarray, scale: float, fast=None):
+    """Raw detection on ``img`` (the original image or an up-scaled region): (ids, uv, method,
+    note) or None; DetectionError for orientation problems. ``fast=True`` is a quick probe:
+    OpenCV's fast check, no SB."""
+    target = s.target
+    if target.kind == "checkerboard":
+        return find_checkerboard(img, target, s.method, s.allow_symmetric, scale=scale,
+                                  sb_fallback=(scale > 1 or s.upscale == 1) and not fast, fast=fast)
+    if target.kind == "charuco":
+        r, _ = find_charuco(img, target, s.intrinsics, scale)
+        return r
+    return find_circles(img, target, s.method, s.allow_symmetric)
+
+
+def _detect_in_roi(s: _Search, roi, k: int, fast=None):
+    """Raw detection in region ``roi`` (x0, y0, x1, y1) up-scaled by ``k``, mapped back to
+    original pixels."""
+    import cv2
+
+    x0, y0, x1, y1 = roi
+    crop = s.grey[y0:y1, x0:x1]
+    if crop.shape[0] < 8 or crop.shape[1] < 8:
+        return None
+    big = crop if k == 1 else cv2.resize(crop, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC)
+    r = _raw_detect(s, big, float(k), fast=(False if k == 1 else None) if fast is None else fast)
+    if r is None:
+        return None
+    ids, uv, m, note = r
+    # cv2.resize: destination pixel X samples source (X + 0.5) / k - 0.5.
+    uv = (uv + 0.5) / k - 0.5 + np.array([x0, y0], float)
+    return ids, uv, m, note
+
+
+def _attempt(s: _Search, fn, *a):
+    """``fn(*a)``, or None with the reason kept for the final message when it raises."""
+    try:
+        return fn(*a)
+    except DetectionError as e:
+        s.attempts.append(str(e))
+        return None
+
+
+def _finish(s: _Search, result, k: int) -> ImageDetection:
+    """A raw detection (from an image up-scaled by ``k``) refined, filtered and measured."""
+    ids, uv, m, note = result
+    target, grey = s.target, s.grey
+    n_refined = 0
+    if s.refine and target.kind == "checkerboard" and ids.size:
+        # On the original pixels whatever the search scale: interpolation adds its own shift.
+        fit = refine_checkerboard(grey, target, ids, uv)
+        uv, n_refined = fit.uv_px, int(fit.refined.sum())
+    elif s.refine and target.kind == "charuco" and ids.size >= 4:
+        blur_px = edge_sigma_px(grey, uv, max(_pitch(ids, uv, target), 4.0))
+        fit = refine_charuco(grey, target, ids, uv, blur_px=blur_px)
+        uv, n_refined = fit.uv_px, int(fit.refined.sum())
+    ok, reason = True, note
+    if ids.size < s.min_points:
+        ok, reason = False, f"only {ids.size} points found (minimum {s.min_points})"
+    pitch = _pitch(ids, uv, target) if ids.size >= 2 else 0.0
+    h_rms = float("nan")
+    if ok and s.filter:
+        fr = check_grid(uv, target.line_ij[ids], target.points_board_m[ids], intrinsics=s.intrinsics)
+        h_rms = fr.homography_rms_px
+        if not fr.ok:
+            ok, reason = False, f"rejected by the grid filter{'' if k == 1 else f' (x{k} up-scaled)'}: {fr.reason}"
+    area = hull_area(uv)
+    return ImageDetection(
+        ids=ids, uv_px=uv, ok=ok, reason=reason, n_expected=target.n_points, size_px=float(np.sqrt(area)),
+        spread=area / float(grey.size), pitch_px=pitch, sharpness_px=edge_sigma_px(grey, uv, max(pitch, 4.0)),
+        upscale=k, method=m, homography_rms_px=h_rms, n_refined=n_refined, time_s=time.perf_counter() - s.t0,
+        image=s.src)
+
+
+def _upscale_regions(s: _Search, native, first):
+    """Regions to search up-scaled: around the native detection, else saddle/blob clusters of a
+    plausible size. Returns (regions, first detection), the latter possibly found here on a
+    board touching the arm (see below)."""
+    grey, target = s.grey, s.target
+    if native is not None and len(native[1]):
+        return [roi_from_points(native[1], grey.shape)], first
+    # Up-scaling helps small boards only: skip regions whose size implies squares of more
+    # than 2x min_pitch_px (a miss there has another cause, e.g. a wrong target spec, and
+    # searching them up-scaled costs seconds). Regions are padded by 60 % + 8 px per side.
+    n_steps = max(target.rows, target.cols) + 1
+    cands = roi_candidates(grey, target)
+    rois = [r for r in cands if (max(r[2] - r[0], r[3] - r[1]) - 16) / 2.2 / n_steps < 2 * s.min_pitch_px]
+    if first is None and target.kind == "checkerboard":
+        # A board on the flange touches the arm, whose shading also answers the saddle
+        # filter: its region then looks too big for a small board, and OpenCV's fast check
+        # on the whole frame rejects boards of ~10-12 px squares. Search such regions
+        # up-scaled x2 with the fast check (a miss costs ~0.1 s where a search without it
+        # costs seconds), then redo the found board at full resolution in a tight region.
+        for roi in (r for r in cands if r not in rois):
+            got = _attempt(s, _detect_in_roi, s, roi, 2, True)
+            if got is None:
+                continue
+            tight = roi_from_points(got[1], grey.shape)
+            nat = _attempt(s, _detect_in_roi, s, tight, 1)
+            first = _finish(s, nat, 1) if nat is not None else _finish(s, got, 2)
+            rois = [] if first.ok and first.pitch_px >= s.min_pitch_px else [tight]
+            break
+    return rois, first
+
+
+def _search_upscaled(s: _Search, rois, first):
+    """Search ``rois`` up-scaled (x2 then x3 for ``"auto"``); the first accepted detection wins,
+    else the best so far (``first``, or the first rejected one for its reason)."""
+    factors = (2, 3) if s.upscale == "auto" else (int(s.upscale),)
+    best = first
+    for k in factors:
+        for roi in rois:
+            got = _attempt(s, _detect_in_roi, s, roi, k)
+            if got is None:
+                continue
+            det = _finish(s, got, k)
+            if det.ok:
+                best = det
+                break
+            if best is None:
+                best = det
+        if best is not None and best.ok and best.upscale > 1:
+            break
+    return best
+
+
+def _search_region(s: _Search, roi) -> ImageDetection | None:
+    """Guided search of one region, as the blind search treats a candidate region: full
+    resolution, then (``upscale="auto"``) x2 and x3 while the squares are under ``min_pitch_px``;
+    the first passing detection, else the best failure. Before the up-scaled full searches, a
+    quick probe (OpenCV's fast check at x2 and x3, no SB) must see a board: where the estimate
+    expected one but none is (occluded, out of focus), a miss then costs a fraction of a full search."""
+    if s.upscale != "auto":
+        got = _attempt(s, _detect_in_roi, s, roi, int(s.upscale), False)
+        return _finish(s, got, int(s.upscale)) if got is not None else None
+    got = _attempt(s, _detect_in_roi, s, roi, 1, False)
+    best = _finish(s, got, 1) if got is not None else None
+    if best is not None and best.ok and best.pitch_px >= s.min_pitch_px:
+        return best
+    if best is None and all(_attempt(s, _detect_in_roi, s, roi, k, True) is None for k in (2, 3)):
+        return None
+    for k in (2, 3):
+        got = _attempt(s, _detect_in_roi, s, roi, k, False)
+        if got is None:
+            continue
+        det = _finish(s, got, k)
+        if det.ok:
+            return det
+        if best is None:
+            best = det
+    return best
+
+
+def _not_found(s: _Search) -> ImageDetection:
+    """The failed detection, with the reasons met on the way (or advice when there were none)."""
+    t = s.target
+    why = "; ".join(dict.fromkeys(s.attempts)) if s.attempts else (
+        f"no {t.kind} with {t.rows}x{t.cols} points found; check the target spec matches the board "
+        "and that the whole board is in view and in focus")
+    return failed_detection(why, t, s.src, s.t0)
+
+
+def _pitch(ids: np.ndarray, uv: np.ndarray, target: Target) -> float:
+    """Median image distance between neighbours one pitch apart along a row/column, pixels."""
+    return grid_pitch_px(uv, target.line_ij[ids])
