@@ -56,7 +56,14 @@ from calibgraph.acquire.loop import Settings, Station, acquisition_loop, make_lo
 from calibgraph.acquire.safety import FRANKA_LIMITS, SafetyLimits, check_motion, check_speed, fk_function
 from calibgraph.core.errors import InputError
 from calibgraph.detect.corners import detect_image
-from calibgraph.plan.active import ActivePlanner, CameraBelief, explain_shortfall, motion_time_s, sigma_norms
+from calibgraph.plan.active import (
+    SESSION_VIEWS,
+    ActivePlanner,
+    CameraBelief,
+    explain_shortfall,
+    motion_time_s,
+    sigma_norms,
+)
 from calibgraph.plan.planner import free_motion
 from calibgraph.plan.survey import (
     SURVEY_ROUNDS,
@@ -373,9 +380,11 @@ def _judge_reach(L, planner, beliefs) -> bool:
         L.out_of_reach[n] = {"at_capture": L.n_captures, "captures_left": left, "sigma_now": [round(t, 4), round(d, 5)],
                              "best_possible": [round(r.lower[0], 4), round(r.lower[1], 5)],
                              "design": [round(r.design[0], 4), round(r.design[1], 5)], "candidates": r.candidates}
+        if r.with_session:
+            L.out_of_reach[n]["with_session"] = [round(r.with_session[0], 4), round(r.with_session[1], 5)]
         line = (f"camera {n} cannot reach {tol[0]:g} mm / {tol[1]:g}° with the {_poses(left)} left: from the "
                 f"reachable poses it could get to {_bound_text(r.lower, tol)} at best (now {t:.2f} mm / "
-                f"{d:.3f}°); calibrating the others")
+                f"{d:.3f}°){_session_text(n, r.with_session)}; calibrating the others")
         L.messages.append(line)
         L.log(line)
         gave_up = True
@@ -386,6 +395,14 @@ def _judge_reach(L, planner, beliefs) -> bool:
 
 def _poses(n) -> str:
     return f"{n} capture pose{'' if n == 1 else 's'}"
+
+
+def _session_text(name, sigma) -> str:
+    """'; a close-range intrinsics session ... would bring it to about 0.31 mm / 0.012° ...' (or '')."""
+    if not sigma:
+        return ""
+    return (f"; a close-range intrinsics session of {SESSION_VIEWS} images (calibgraph intrinsics, then --intrinsics "
+            f"{name}=CAM.yaml) would bring it to about {sigma[0]:.2f} mm / {sigma[1]:.3f}° with those poses")
 
 
 def _bound_text(lower, tol) -> str:
@@ -405,7 +422,8 @@ def _out_of_reach_status(c, rec, res, tol) -> str:
     else:
         now = "no pose"
     lo = rec.get("best_possible") or [0.0, 0.0]
-    advice = ((cr.error_budget or {}).get("advice") if cr is not None else None) or (
+    advice = _session_text(c, rec.get("with_session"))[2:] or ((cr.error_budget or {}).get("advice") if cr is not None
+                                                              else None) or (
         f"a close-range intrinsics session (calibgraph intrinsics, then --intrinsics {c}=CAM.yaml)")
     return (f"OUT OF REACH of {tol[0]:g} mm / {tol[1]:g}°: {now}; at capture {rec.get('at_capture')} the model of the "
             f"captures so far predicted at best {_bound_text(lo, tol)} from the {_poses(rec.get('captures_left'))} "

@@ -66,6 +66,7 @@ from calibgraph.plan.information import (
 from calibgraph.plan.planner import free_motion
 from calibgraph.plan.survey import board_pose_facing, reach_pose, seeds_at
 from calibgraph.plan.visibility import board_visible, boards_visible, occlusion_probes, square_px
+from calibgraph.solver.session_plan import predict_session_covariance
 
 __all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_information", "joint_information",
            "sigma_norms", "shortfall", "motion_time_s", "keepout_violation", "explain_shortfall"]
@@ -85,6 +86,7 @@ OVERSAMPLE = 4
 # photometric board fit) finds 96 % of boards with 5 px squares at 0.01 px per corner
 # (scripts/results/bench_detect_bias.md); a D455 sees the A4 board's 25 mm squares that small from 3 m.
 MIN_SQUARE_PX = 5.0
+SESSION_VIEWS = 25  # images of the close-range intrinsics session a camera out of reach is advised (Reach.with_session)
 REACH_SAMPLE = 240  # board poses drawn per camera to bound what the captures left can give it (ActivePlanner.reach)
 
 
@@ -191,6 +193,9 @@ class Reach:
         candidates: pool candidates that show it the board.
         lower: (mm, deg) no ``budget`` captures from the pool give a smaller 1-sigma (0: not bounded).
         design: (mm, deg) the 1-sigma of the best weights found (an estimate of what planning reaches).
+        with_session: (mm, deg) the same design's 1-sigma after a close-range intrinsics session of
+            ``SESSION_VIEWS`` images (its predicted covariance of [fx, fy, cx, cy, k1, k2] added to the
+            camera's prior); given only for a camera out of reach whose model the solver estimates.
     """
 
     camera: str
@@ -198,6 +203,7 @@ class Reach:
     candidates: int
     lower: tuple
     design: tuple
+    with_session: tuple = ()
 
     def out_of_reach(self, tol_mm: float, tol_deg: float) -> bool:
         return self.lower[0] > tol_mm or self.lower[1] > tol_deg
@@ -482,7 +488,15 @@ class ActivePlanner:
                 if now > tol:
                     lb, v = design_bound(Jk, infos, budget if len(T_bf) else 0, rows)
                     lower[i], design[i] = (float(ratio[k, i] * unit * np.sqrt(x)) for x in (lb, v))
-            out[n] = Reach(n, int(budget), int(len(T_bf)), tuple(lower), tuple(design))
+            session = ()
+            if (lower[0] > tol_mm or lower[1] > tol_deg) and k in model_cols and len(T_bf):
+                m = np.arange(len(own) - 6, len(own))  # the camera model's columns of ``own``
+                Js = Jk.copy()
+                Js[np.ix_(m, m)] += np.linalg.inv(predict_session_covariance(scored[n].intrinsics, self.cell.target,
+                                                                             SESSION_VIEWS))
+                session = tuple(float(ratio[k, i] * unit * np.sqrt(design_bound(Js, infos, budget, rows)[1]))
+                                for i, (rows, unit) in enumerate((([3, 4, 5], 1e3), ([0, 1, 2], np.degrees(1.0)))))
+            out[n] = Reach(n, int(budget), int(len(T_bf)), tuple(lower), tuple(design), session)
         return out
 
     def _score_pool(self, predictor, T_flange_board):
