@@ -49,7 +49,7 @@ sys.path.insert(0, str(REPO))
 
 from calibgraph.acquire.auto import AutoOptions, run_auto  # noqa: E402
 from calibgraph.core.problem import Capture, Detection, Problem  # noqa: E402
-from calibgraph.core.transforms import exp_so3, inv, make_T, pose_error  # noqa: E402
+from calibgraph.core.transforms import exp_so3, inv, log_so3, make_T, pose_error  # noqa: E402
 from calibgraph.io.files import read_yaml  # noqa: E402
 from calibgraph.plan.active import motion_time_s, sigma_norms  # noqa: E402
 from calibgraph.plan.cell import cell_from_world_dict  # noqa: E402
@@ -121,9 +121,13 @@ def _judge(res, wc) -> dict:
             out[n] = None
             continue
         t, r = sigma_norms(c.covariance)
-        e_m, e_deg = pose_error(c.T_ref_cam, wc.camera(n).T_base_cam)
+        T = wc.camera(n).T_base_cam
+        e_m, e_deg = pose_error(c.T_ref_cam, T)
+        # per axis (rotation about, then translation along the base axes: the covariance's convention)
+        z = np.r_[log_so3(c.T_ref_cam[:3, :3] @ T[:3, :3].T), c.T_ref_cam[:3, 3] - T[:3, 3]] / np.sqrt(np.diag(c.covariance))
         out[n] = {"sigma_mm": round(t, 3), "sigma_deg": round(r, 4), "err_mm": round(e_m * 1e3, 3),
-                  "err_deg": round(e_deg, 4), "err_over_sigma": round(e_m * 1e3 / t, 2), "views": c.views_used}
+                  "err_deg": round(e_deg, 4), "err_over_sigma": round(e_m * 1e3 / t, 2),
+                  "z_max": round(float(np.abs(z).max()), 2), "views": c.views_used}
     return out
 
 
