@@ -21,9 +21,10 @@
    stops the run. A camera that the captures left cannot bring within tolerance — the
    optimistic bound of :meth:`~calibgraph.plan.active.ActivePlanner.reach` stays above it at two
    choices in a row (a far camera with factory intrinsics: its focal length is tied to its depth) —
-   is given up early and said so with the bound and what would help (the batch solve's error-budget
-   advice: typically a close-range intrinsics session, ``calibgraph intrinsics``, then the camera
-   file with ``--intrinsics NAME=CAM.yaml``); the loop goes on for the others and stops when they
+   is given up early and said so with the bound and what would help: the 1-sigma the same poses
+   would give after a close-range intrinsics session (``calibgraph intrinsics``, then the camera
+   file with ``--intrinsics NAME=CAM.yaml``; predicted by :mod:`calibgraph.solver.session_plan`), else
+   the batch solve's error-budget advice; the loop goes on for the others and stops when they
    are within tolerance ("stopped short": ``converged`` false, ``capture --auto`` exits 3),
    otherwise at ``max_poses`` captures. A camera short of tolerance at the end gets a line saying
    why and what would help.
