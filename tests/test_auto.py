@@ -478,6 +478,12 @@ def test_two_cameras_facing_each_other_across_the_robot(tmp_path):
     assert not rep.converged and ("budget of 14 capture poses used up" in rep.summary() or "stopped early" in rep.summary())
     assert all(rep.cameras[c].startswith(("SHORT of tolerance", "OUT OF REACH")) for c in wc.camera_names), rep.summary()
     assert rep.captures < 14 or not any(rep.cameras[c].startswith("OUT OF REACH") for c in wc.camera_names)
+    # a camera given up says what a close-range intrinsics session would bring it to with the same poses
+    # (information added to its model's prior: never above the design's 1-sigma without it)
+    given_up = json.loads((tmp_path / "tight" / "plan_log.json").read_text())["out_of_reach"]
+    for c, rec in given_up.items():
+        assert "close-range intrinsics session of 25 images" in rep.cameras[c], rep.cameras[c]
+        assert 0 < rec["with_session"][0] <= rec["design"][0] + 1e-9, rec
 
 
 def test_a_camera_a_metre_from_the_robot_that_sees_only_part_of_the_board(tmp_path):
