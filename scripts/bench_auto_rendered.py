@@ -16,7 +16,7 @@ over intrinsics, board scale and FK: what ``result.json`` reports), the true err
 largest per-axis error / 1-sigma (rotation about, translation along the base axes), against the
 issue's targets: 1-sigma <= 0.5 mm / 0.03 deg, error <= 1.0 mm / 0.1 deg and within 4 sigma per axis,
 in <= 80 captures (``capture --auto``); error <= 0.5 mm in <= 60 captures (``demo --auto``); error
-<= 1 mm in < 180 s (``demo``). Wall times depend on the machine's load, which is printed.
+<= 1 mm in < 180 s (``demo``). Wall times depend on the machine's load, which is printed with the command's CPU time (user + system).
 
     nice python scripts/bench_auto_rendered.py [--cases mixed_0 mixed_1 demo_auto demo] [--out scripts/results]
 """
@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -80,11 +81,12 @@ def run_case(case: str, work: Path) -> dict:
             world = Path(case) if Path(case).is_file() else REPO / "datasets" / "workcells" / f"{case}.yaml"
         cmd, ds = ["capture", "--auto", "--robot", "sim", "--sim-world", str(world), "--out", str(out)], out
     load0 = os.getloadavg()[0]
-    t0 = time.perf_counter()
+    t0, r0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
     p = subprocess.run([sys.executable, "-m", "calibgraph", *cmd], env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
+    wall, r1 = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     row = {"case": case, "command": "calibgraph " + " ".join(cmd[:-2] if case.startswith(("demo",)) else cmd[:-3]),
-           "exit": p.returncode, "wall_s": round(wall, 1), "load_start": round(load0, 1),
+           "exit": p.returncode, "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "load_start": round(load0, 1),
            "load_end": round(os.getloadavg()[0], 1), "stdout_tail": p.stdout.splitlines()[-12:],
            "stderr_tail": p.stderr.splitlines()[-5:]}
     result = out / "result.json" if case == "demo" else ds / "result.json"
@@ -126,7 +128,7 @@ def _md(rows) -> list:
           "(load average at start / end per case).", ""]
     for r in rows:
         md += [f"## {r['case']}: `{r['command']}`", "",
-               f"exit {r['exit']}, {r.get('captures', '-')} captures, wall {r['wall_s']:.0f} s "
+               f"exit {r['exit']}, {r.get('captures', '-')} captures, wall {r['wall_s']:.0f} s, CPU {r['cpu_s']:.0f} s "
                f"(load {r['load_start']} / {r['load_end']}); {r.get('stop') or ''}", "",
                "| camera | views | 1σ mm | 1σ deg | err mm | err deg | z max | intrinsics prior |",
                "|---|---|---|---|---|---|---|---|"]

@@ -451,8 +451,10 @@ class ActivePlanner:
         is optimistic on purpose, so that a camera said to be out of reach is: no IK or keep-out
         test and no occlusion (a drawn pose need not be reachable), the convex relaxation's weights
         (any non-negative weights summing to ``budget``, repeats allowed, every capture spent on this
-        camera), and the other cameras' poses and models held known (their views of a capture then
-        pin its flange, the mount and the scale for free). The model's 1-sigma is scaled to the
+        camera), and the other cameras' poses and models held known in the new captures (their views
+        of a capture then pin its flange, the mount and the scale for free); what the captures so
+        far tell is the camera's marginal (the others marginalised, not held), so that a budget of
+        none gives today's 1-sigma. The model's 1-sigma is scaled to the
         batch solve's as in the choice. Only the norms short of ``tol_mm`` / ``tol_deg`` are bounded
         (the other is given as 0)."""
         scored = {n: b for n, b in beliefs.items() if b.covariance is not None}
@@ -480,7 +482,11 @@ class ActivePlanner:
             own = np.r_[6 * k:6 * k + 6, 6 * K:6 * K + 7, model_cols.get(k, np.zeros(0, int))]
             infos = joint_information(cams, vis, T_bf, T_flange_board, self._points_b, pixel_sigma_px, *self.fk_sigmas,
                                       free_intrinsics=free)[:, own][:, :, own] if len(T_bf) else np.zeros((0, 0, 0))
-            Jk = J0[np.ix_(own, own)]
+            # what the captures so far tell of its own columns: the others marginalised (Schur
+            # complement), so that no captures give exactly today's 1-sigma
+            oth = np.setdiff1d(np.arange(len(J0)), own)
+            Jk = J0[np.ix_(own, own)] - J0[np.ix_(own, oth)] @ inv_scaled(J0[np.ix_(oth, oth)]) @ J0[np.ix_(oth, own)]
+            Jk = 0.5 * (Jk + Jk.T)
             t_now, r_now = sigma_norms(scored[n].covariance)
             lower, design = [0.0, 0.0], [t_now, r_now]
             for i, (rows, now, tol, unit) in enumerate((([3, 4, 5], t_now, tol_mm, 1e3),
