@@ -457,8 +457,10 @@ def _finish(L, stop) -> AutoReport:
                 status[c] = f"within tolerance: 1σ {t:.2f} mm / {r:.3f}° from {res.cameras[c].views_used} views"
             else:
                 b = CameraBelief(c, L.intr[c], res.cameras[c].T_ref_cam, res.cameras[c].covariance)
+                advice = (res.cameras[c].error_budget or {}).get("advice")
                 status[c] = "SHORT of tolerance: " + explain_shortfall(c, b, views, L.cell.target, L.opts.tolerance_mm,
-                                                                         L.opts.tolerance_deg)
+                                                                         L.opts.tolerance_deg) + (
+                    f"; error budget: {advice}" if advice else "")
         elif not views:
             rej = L.station.reasons.get(c, {})
             what = ", ".join(f"{n}x {r}" for r, n in sorted(rej.items(), key=lambda x: -x[1])[:3]) or "no frames"
