@@ -219,3 +219,13 @@ def test_synthetic_corners_along_a_planned_trajectory_carry_the_offsets():
     assert {c.source for c in sc.problem.cameras.values()} == {"factory"}
     for n, intr in cell.intrinsics().items():
         assert np.allclose(sc.problem.cameras[n].K, intr.K) and not np.allclose(intr.K, sc.truth.intrinsics[n].K)
+
+
+def test_offsets_left_out_are_not_taken_for_a_misprinted_board():
+    """Joint offsets present but not estimated (issue 26): the fit's board scale moves, and the
+    robot departs from its FK; the notes point at the kinematics, never at a misprinted board."""
+    sc, _ = _scene(tuple(OFFSETS))
+    r = solve(sc.problem)
+    text = " ".join(r.notes)
+    assert "estimate-kinematics" in text
+    assert "printed at" not in text, r.notes

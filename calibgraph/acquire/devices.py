@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calibgraph.core.errors import InputError
+from calibgraph.io.camera_file import check_image_size
 
 __all__ = ["ROBOT_DRIVERS", "CAMERA_DRIVERS", "ROBOT_KEYS", "SIM_ROBOT_KEYS", "PLANNING_KEYS", "Simulation", "Devices",
            "open_camera", "open_cameras", "connect_franka", "open_devices"]
@@ -79,6 +80,22 @@ class Devices:
         """``ground_truth.json`` beside a simulated capture that wrote anything."""
         if self.simulation is not None and (Path(out) / "captures").is_dir():
             self.simulation.write_ground_truth(out)
+
+
+class FileIntrinsicsCamera:
+    """A camera whose intrinsics come from a camera file (``--intrinsics NAME=CAM.yaml``) instead of
+    the device; everything else is the device's. A file made for another image size is refused
+    when the intrinsics are first asked for."""
+
+    def __init__(self, name: str, camera, intrinsics, where: str):
+        self._name, self._camera, self._intrinsics, self._where = name, camera, intrinsics, where
+
+    def intrinsics(self):
+        check_image_size(self._name, self._camera.intrinsics(), self._intrinsics, self._where)
+        return self._intrinsics
+
+    def __getattr__(self, attr):
+        return getattr(self._camera, attr)
 
 
 def _camera_class(driver: str):
@@ -154,7 +171,7 @@ def connect_franka(robot: dict, where: str, ip: str | None = None, dry_run: bool
 def open_devices(driver: str, workcell=None, *, world=None, names=None, simulate=None, dry_run: bool = False,
                  cleared: bool = False, robot_ip: str | None = None, log=print, dry_run_shows: str = "",
                  plans_without_robot: str = "", render_check: bool = False, skip_hidden: bool = False,
-                 check_target: bool = False) -> Devices:
+                 check_target: bool = False, camera_files: dict | None = None) -> Devices:
     """The robot, cameras and detector of a run (see the module docstring).
 
     Args:
@@ -168,6 +185,8 @@ def open_devices(driver: str, workcell=None, *, world=None, names=None, simulate
         dry_run_shows, plans_without_robot: how the refusal and the dry run without a robot say
             what a dry run does.
         render_check, skip_hidden, check_target: passed to ``simulate`` / checked against it.
+        camera_files: name -> Intrinsics of ``--intrinsics NAME=CAM.yaml``: those cameras report
+            the file's intrinsics (with its covariance) instead of their own.
     """
     dev = Devices()
     try:
@@ -202,6 +221,15 @@ def open_devices(driver: str, workcell=None, *, world=None, names=None, simulate
             dev.closers.append(dev.robot)
         if not dry_run and (hw or driver != "sim"):
             open_cameras(hw, where, log, dev)
+        if camera_files:
+            known = set(dev.cameras) | set(names or ()) | (set(workcell.cameras) if workcell is not None else set())
+            unknown = sorted(set(camera_files) - known)
+            if unknown:
+                raise InputError(f"--intrinsics: {where} has no camera {', '.join(map(repr, unknown))} (its cameras: "
+                                 f"{', '.join(sorted(known)) or 'none'}).")
+            for name, intr in camera_files.items():
+                if name in dev.cameras:
+                    dev.cameras[name] = FileIntrinsicsCamera(name, dev.cameras[name], intr, where)
         return dev
     except BaseException:
         dev.close()

@@ -61,6 +61,9 @@ def add_parser(sub):
     p.add_argument("--settle-dwell-s", type=float, default=None,
                    help="extra wait after the robot reports still (default 0.3 s real, 0 s sim)")
     p.add_argument("--incremental", action="store_true", help="show the live 1-sigma per camera (iSAM2)")
+    p.add_argument("--intrinsics", action="append", default=[], metavar="NAME=CAM.yaml",
+                   help="camera NAME's intrinsics from a camera file (calibgraph intrinsics), used instead of what "
+                        "the device reports; its covariance becomes the prior (repeatable)")
     p.add_argument("--quiet", action="store_true")
     a = p.add_argument_group("autonomous calibration (--auto)")
     a.add_argument("--auto", action="store_true",
@@ -83,7 +86,9 @@ def add_parser(sub):
 
 def run(args) -> int:
     from calibgraph.core.errors import InputError
+    from calibgraph.io.camera_file import read_camera_file_args
 
+    args.camera_files = read_camera_file_args(args.intrinsics)  # read (or refused) before anything moves
     log = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     if args.auto and args.verify:
         raise InputError("capture: --auto and --verify are different runs; choose one.")
@@ -307,6 +312,11 @@ def _claim(args, mode: str, inputs: dict, log, claim_dataset):
 
     if args.dry_run:
         return contextlib.nullcontext()
+    if getattr(args, "camera_files", None):  # a resume must use the same camera files
+        from calibgraph.acquire.claim import content_sha256
+
+        inputs = {**inputs, "camera_files_sha256": content_sha256(
+            {n: i.to_dict() for n, i in sorted(args.camera_files.items())})}
     return claim_dataset(args.out, mode, inputs, args.resume, log)
 
 
@@ -316,7 +326,7 @@ def _devices(args, driver, wc, world, log, **kw):
 
     return open_devices(driver, wc, world=None if world is None else (world.sim_world(), world.where),
                         simulate=_simulate, dry_run=args.dry_run, cleared=args.cleared, robot_ip=args.robot_ip,
-                        log=log, **kw)
+                        log=log, camera_files=getattr(args, "camera_files", None), **kw)
 
 
 def _simulate(world: dict, where: str, render_check: bool = False, skip_hidden: bool = False):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,9 @@ def add_parser(sub):
     p.add_argument("--method", choices=("joint", "single"), default="joint",
                    help="joint: one shared board mount (default); single: each camera alone")
     add_solver_flags(p)
+    p.add_argument("--intrinsics", action="append", default=[], metavar="NAME=CAM.yaml",
+                   help="camera NAME's intrinsics from a camera file (calibgraph intrinsics): its values and "
+                        "covariance become the camera's prior (repeatable)")
     p.add_argument("--rrd", type=Path, default=None, help="also write a rerun recording")
     p.add_argument("--quiet", action="store_true")
     return p
@@ -185,12 +189,16 @@ def print_problems(problems, per_kind: int = 3) -> None:
 
 
 def run(args) -> int:
+    from calibgraph.io.camera_file import apply_camera_files, read_camera_file_args
     from calibgraph.io.files import output_file
     from calibgraph.io.layouts import load_dataset
     from calibgraph.solver.batch import solve
 
     out = args.out or (args.dataset / "result.json")
+    files = read_camera_file_args(args.intrinsics)
     ds = load_dataset(args.dataset)
+    if files:
+        ds = replace(ds, cameras=apply_camera_files(ds.cameras, files, f"dataset {args.dataset}"))
     output_file(out, "result file")  # said now, not after solving; the previous result stays until the new one is whole
     if args.rrd:
         output_file(args.rrd, "rerun recording", "calibgraph.rrd")
@@ -211,8 +219,6 @@ def run(args) -> int:
         for note in getattr(detector, "notes", []) or []:
             print(note)
     result = solve(problem)
-    from dataclasses import replace
-
     result = replace(result, dataset=str(args.dataset), target=ds.target.to_dict())
     result.save(out)
     if not args.quiet:

@@ -352,6 +352,8 @@ class Problem:
         mode: 'eye_to_hand' or 'eye_in_hand'.
         method: 'joint' or 'single'.
         options: :class:`SolverOptions`.
+        target: the :class:`~calibgraph.core.targets.Target` the points come from, when known (the
+            error budget's advice then predicts a close-range session with that board).
     """
 
     points_board_m: np.ndarray
@@ -361,6 +363,7 @@ class Problem:
     mode: str = "eye_to_hand"
     method: str = "joint"
     options: SolverOptions = field(default_factory=SolverOptions)
+    target: object = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         pts = np.asarray(self.points_board_m, float)

@@ -59,6 +59,45 @@ def read_camera_file(path) -> Intrinsics:
                          "height_px.") from None
 
 
+def read_camera_file_args(specs, flag: str = "--intrinsics") -> dict:
+    """``{name: Intrinsics}`` from ``NAME=CAM.yaml`` arguments (``flag`` names them in errors); a
+    malformed argument, a camera named twice or an unreadable file is refused in one line."""
+    out = {}
+    for spec in specs or ():
+        name, sep, path = str(spec).partition("=")
+        name, path = name.strip(), path.strip()
+        if not sep or not name or not path:
+            raise InputError(f"{flag} {spec!r}: expected NAME=CAM.yaml (the camera's name in the dataset or "
+                             "workcell, then its camera file).")
+        if name in out:
+            raise InputError(f"{flag}: camera {name!r} is given two camera files; give one.")
+        out[name] = read_camera_file(path)
+    return out
+
+
+def apply_camera_files(cameras: dict, files: dict, where: str, flag: str = "--intrinsics") -> dict:
+    """``cameras`` (name -> Intrinsics) with each camera named in ``files`` replaced by its camera
+    file's intrinsics (values, source and covariance: the solver's prior for that camera). A name
+    ``cameras`` lacks, or a file made for another image size, is refused naming both."""
+    unknown = sorted(set(files) - set(cameras))
+    if unknown:
+        raise InputError(f"{flag}: {where} has no camera {', '.join(map(repr, unknown))} (its cameras: "
+                         f"{', '.join(cameras) or 'none'}).")
+    out = dict(cameras)
+    for name, intr in files.items():
+        check_image_size(name, cameras[name], intr, where, flag)
+        out[name] = intr
+    return out
+
+
+def check_image_size(name: str, have, intr, where: str, flag: str = "--intrinsics") -> None:
+    """Refuse a camera file whose image size differs from the camera's own (a zero size: unknown)."""
+    w, h = int(getattr(have, "width_px", 0) or 0), int(getattr(have, "height_px", 0) or 0)
+    if w and h and intr.width_px and intr.height_px and (w, h) != (intr.width_px, intr.height_px):
+        raise InputError(f"{flag} {name}: the camera file is for {intr.width_px}x{intr.height_px} images, but "
+                         f"camera {name!r} of {where} has {w}x{h}; calibrate it at the resolution it captures.")
+
+
 def _plain(x):
     """numpy scalars and arrays as plain Python for YAML."""
     if isinstance(x, dict):

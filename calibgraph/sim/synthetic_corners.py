@@ -195,7 +195,8 @@ def make_scene(
         fk_sigma_rotation_rad=max(fk_sigma_rotation_rad, 1e-8),
     )
     prob = Problem(points_board_m=pts, cameras=reported_cameras(cameras, reported_intrinsics),
-                   captures=tuple(captures), detections=tuple(dets), mode="eye_to_hand", method=method, options=opts)
+                   captures=tuple(captures), detections=tuple(dets), mode="eye_to_hand", method=method, options=opts,
+                   target=target)
     truth = Truth(T_ref_cam={n: cameras[n][0] for n in names}, T_mount_board=T_fb, T_base_flange_true=flange_true,
                   intrinsics={n: cameras[n][1] for n in names})
     return Scene(prob, truth)
@@ -248,7 +249,7 @@ def _make_eye_in_hand(cameras, target, n_poses, pixel_sigma_px, fk_t, fk_r, T_ba
         k += 1
     opts = options or SolverOptions(fk_sigma_translation_m=max(fk_t, 1e-6), fk_sigma_rotation_rad=max(fk_r, 1e-8))
     prob = Problem(points_board_m=pts, cameras=reported_cameras(cameras, reported), captures=tuple(captures),
-                   detections=tuple(dets), mode="eye_in_hand", method=method, options=opts)
+                   detections=tuple(dets), mode="eye_in_hand", method=method, options=opts, target=target)
     truth = Truth(T_ref_cam={n: cameras[n][0] for n in names}, T_mount_board=T_base_board, T_base_flange_true=flange_true,
                   intrinsics={n: cameras[n][1] for n in names})
     return Scene(prob, truth)

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.errors import CalibgraphError, ObservabilityError
 from calibgraph.core.problem import Problem
 from calibgraph.core.transforms import inv
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.budget import advice, budgets
+from calibgraph.solver.budget import advice, budgets, doubled_information
 from calibgraph.solver.reduced import Linear
+from calibgraph.solver.session_plan import predict_session_covariance
 from calibgraph.solver.camera_model import intrinsics_record
 from calibgraph.solver.covariance import pair_covariance, to_ref_axes
 from calibgraph.solver.factors import project_chain
@@ -45,10 +46,26 @@ def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
     """name -> ``CameraResult.error_budget`` of the group's cameras (see :mod:`calibgraph.solver.budget`)."""
     est = group.est
     keys = {n: (C(est.slots[n]), K(est.slots[n]) if est.values.exists(K(est.slots[n])) else None) for n in group.names}
-    out = {}
+    out, doubled = {}, doubled_information(lin)
     for n, b in budgets(lin, keys).items():
-        out[n] = b.to_dict(advice(n, b, lin, *keys[n]))
+        out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=_session_information(problem, est, n),
+                                  doubled=doubled))
     return out
+
+
+def _session_information(problem: Problem, est: Estimate, name: str):
+    """A callable giving the (6, 6) information a close-range session of 25 images with the
+    problem's board would give camera ``name`` at its estimated intrinsics (None: board unknown)."""
+    if problem.target is None:
+        return None
+
+    def info():
+        try:
+            cov = predict_session_covariance(est.camera_model(name, problem.cameras), problem.target)
+        except (CalibgraphError, np.linalg.LinAlgError):  # a board or camera no session plan fits
+            return None
+        return np.linalg.inv(cov)
+    return info
 
 
 def camera_result(problem: Problem, name: str, group: Group, rejected: list, budget: dict | None = None

@@ -104,10 +104,12 @@ def widen_inadequate_intrinsics(problem: Problem, group: Group, timings: dict | 
     return g2, notes
 
 
-def board_scale(problem: Problem, groups: list) -> tuple[float, float | None, list]:
+def board_scale(problem: Problem, groups: list, robot_suspect: bool = False) -> tuple[float, float | None, list]:
     """(estimated board scale, its 1-sigma, notes) of the joint graph — (1, None, []) when not
     estimated — with a note when the board's printed size differs from the declared one by more
-    than 3 sigma."""
+    than 3 sigma. ``robot_suspect``: the robot poses depart from forward kinematics, and a scale
+    departure is then as likely the arm's kinematics as the print (the note says so, and blames
+    neither)."""
     est = groups[0].est
     if not problem.options.board_scale or len(groups) != 1 or est.marginals is None or not est.marginals.has(S(0)):
         return 1.0, None, []
@@ -118,6 +120,11 @@ def board_scale(problem: Problem, groups: list) -> tuple[float, float | None, li
     pts = problem.points_board_m
     d = np.linalg.norm(pts[1:] - pts[:1], axis=1)
     pitch = float(d[d > 1e-9].min()) if np.any(d > 1e-9) else 0.0
+    if robot_suspect:
+        return s, sigma, [f"the board's fitted scale is {100 * (s - 1):+.2f} % (± {100 * sigma:.2f} %) off its spec, but "
+                          "the robot poses also depart from forward kinematics (below): kinematic errors such as joint "
+                          "zero offsets scale the board's apparent size too, so this is not taken for a misprint; "
+                          "measure the board with a ruler, and try --estimate-kinematics joint-offsets"]
     return s, sigma, [f"the board is {100 * (s - 1):+.2f} % (± {100 * sigma:.2f} %) the size the target spec declares: "
                       f"printed at {100 * s:.1f} %" + (f" (pitch {1e3 * pitch * s:.2f} mm, not {1e3 * pitch:.2f} mm)"
                                                        if pitch else "")
