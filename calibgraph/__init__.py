@@ -14,6 +14,7 @@ The package is layered in data-flow order — :mod:`~calibgraph.core` → :mod:`
     result = cg.solve(problem)                        # Problem in, Result out
     print(result.cameras["cam0"].T_base_cam, result.cameras["cam0"].sigma_translation_mm)
     result.save("result.json")
+    same = cg.load_result("result.json")               # equal to result, every number
 
 Importing it never imports a camera/robot SDK, MuJoCo or rerun (see ``scripts/examples/``).
 """
@@ -39,12 +40,12 @@ from calibgraph.plan.visibility import board_visibility
 from calibgraph.solver.batch import solve
 from calibgraph.solver.build import build_problem
 from calibgraph.solver.incremental import IncrementalSolver
-from calibgraph.solver.result import CameraResult, PairResult, Result, load_result_dict
+from calibgraph.solver.result import CameraResult, PairResult, Result, load_result, load_result_dict
 
 __all__ = [
     "CalibgraphError", "CameraResult", "Capture", "Dataset", "Detection", "DetectionError", "ImageDetection",
     "IncrementalSolver", "InputError", "Intrinsics", "ObservabilityError", "PairResult", "Problem", "Result",
     "SolverError", "SolverOptions", "Target", "Trajectory", "TrajectoryPose", "__version__", "a4_board_54",
-    "board_visibility", "build_problem", "dataset_detector", "detect_image", "load_dataset", "load_result_dict",
-    "load_target", "load_trajectory", "plan_trajectory", "preset", "solve", "thesis_board",
+    "board_visibility", "build_problem", "dataset_detector", "detect_image", "load_dataset", "load_result",
+    "load_result_dict", "load_target", "load_trajectory", "plan_trajectory", "preset", "solve", "thesis_board",
 ]

@@ -59,7 +59,7 @@ from calibgraph.core.camera import Intrinsics
 
 try:
     # Load rclpy's libraries (when installed) before librealsense's: with pyrealsense2 2.59 loaded
-    # first, a process that later starts rclpy (drivers.ros2) double-frees in its C exit handlers
+    # first, a process that later starts rclpy (calibgraph_drivers.ros2) double-frees in its C exit handlers
     # and dies with SIGSEGV after all work is done. Loaded in this order both exit cleanly.
     import rclpy  # noqa: F401
 except ImportError:

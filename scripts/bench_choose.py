@@ -46,9 +46,9 @@ from calibgraph.io.files import read_yaml  # noqa: E402
 from calibgraph.plan import active  # noqa: E402
 from calibgraph.plan.active import sigma_norms  # noqa: E402
 from calibgraph.plan.cell import cell_from_world_dict  # noqa: E402
-from calibgraph.sim.planning import planning_world  # noqa: E402
+from calibgraph.sim.planning_world import planning_world  # noqa: E402
 from calibgraph.sim.render import SimWorld  # noqa: E402
-from calibgraph.sim.synthetic import corner_devices  # noqa: E402
+from calibgraph.sim.corner_devices import corner_devices  # noqa: E402
 from calibgraph.sim.workcell import workcell_from_dict  # noqa: E402
 
 PIXEL_SIGMA_PX = 0.05

@@ -41,7 +41,7 @@ def make_recording(root: Path, n_poses: int, seed: int) -> Path:
 
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.simulate import write_ground_truth
+    from calibgraph.sim.rendered_dataset import write_ground_truth
     from calibgraph.sim.workcell import ring_workcell
 
     if (root / "ground_truth.json").is_file():
@@ -50,7 +50,7 @@ def make_recording(root: Path, n_poses: int, seed: int) -> Path:
                          seed=seed, name="bench_guided")
     world = SimWorld(cell)
     traj = plan_trajectory(world, n_poses=n_poses, seed=seed, shared_fraction=0.0)
-    write_header(root, cell.target, {c.name: c.intrinsics for c in cell.cameras})
+    write_header(root, cell.target, cell.intrinsics())  # what the cameras report (factory-class)
     k = 0
     for pose in traj.poses:
         if not pose.capture:

@@ -47,7 +47,7 @@ def simulate(work: Path, name: str, quick: bool) -> Path:
     """The cell's simulated dataset (made once)."""
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.simulate import simulate_dataset
+    from calibgraph.sim.rendered_dataset import simulate_dataset
     from calibgraph.sim.workcell import ring_workcell
 
     kw, n = CELLS[name]

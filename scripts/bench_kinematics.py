@@ -5,10 +5,10 @@ Cell (``--cell default``): the simulator's default workcell (``datasets/workcell
 three L515 at 3 m around the FR3, 200 deg spread, FK repeatability 0.05 mm / 0.005 deg per pose),
 poses planned for it by :func:`calibgraph.plan.planner.plan_trajectory` (seed = the case's seed),
 and SYNTHETIC corners, not rendered images: every board point projected through the true chain
-with 0.1 px Gaussian noise (:func:`calibgraph.sim.synth_kinematics.kinematic_scene_from_trajectory`;
+with 0.1 px Gaussian noise (:func:`calibgraph.sim.kinematic_scene.kinematic_scene_from_trajectory`;
 the detector leaves 0.02 px RMS on this cell's rendered images, bench_honest, and real images more:
 a sensitivity table at 60 captures gives 0.02 and 0.3 px too).
-``--cell synthetic``: :func:`calibgraph.sim.synth_kinematics.make_kinematic_scene` (cameras at
+``--cell synthetic``: :func:`calibgraph.sim.kinematic_scene.make_kinematic_scene` (cameras at
 1.5 / 3 / 5 m, IK of random board presentations, 0.1 mm / 0.01 deg). Offsets of 0.5-2 mrad with
 random signs on joints 2-6; 30 / 60 / 110 captures; 3 seeds. For each case:
 
@@ -43,7 +43,7 @@ sys.path.insert(0, str(REPO))
 
 from calibgraph.core.kinematics import franka_chain  # noqa: E402
 from calibgraph.core.transforms import pose_error  # noqa: E402
-from calibgraph.sim.synth_kinematics import make_kinematic_scene  # noqa: E402
+from calibgraph.sim.kinematic_scene import make_kinematic_scene  # noqa: E402
 from calibgraph.solver.batch import solve  # noqa: E402
 from calibgraph.solver.kinematics import STAGE1_FK_INFLATION as STAGE1  # noqa: E402
 
@@ -79,7 +79,7 @@ def make_case_scenes(cell: str, n: int, seed: int, o_true: np.ndarray, pixel_sig
                 make_kinematic_scene(None, n_poses=n, seed=seed, pixel_sigma_px=pixel_sigma_px)[0])
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.synth_kinematics import kinematic_scene_from_trajectory
+    from calibgraph.sim.kinematic_scene import kinematic_scene_from_trajectory
     from calibgraph.sim.workcell import load_workcell
 
     if "world" not in _CELL:

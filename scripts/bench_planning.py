@@ -46,9 +46,9 @@ from calibgraph.plan.cell import cell_from_world_dict  # noqa: E402
 from calibgraph.plan.planner import free_motion, plan_trajectory  # noqa: E402
 from calibgraph.plan.survey import board_pose_facing, reach_pose, seeds_at  # noqa: E402
 from calibgraph.plan.visibility import board_visibility  # noqa: E402
-from calibgraph.sim.planning import planning_world  # noqa: E402
+from calibgraph.sim.planning_world import planning_world  # noqa: E402
 from calibgraph.sim.render import SimWorld  # noqa: E402
-from calibgraph.sim.synthetic import corner_devices  # noqa: E402
+from calibgraph.sim.corner_devices import corner_devices  # noqa: E402
 from calibgraph.sim.workcell import workcell_from_dict  # noqa: E402
 from calibgraph.solver.batch import solve  # noqa: E402
 
@@ -103,7 +103,7 @@ def _sequence_run(world, wc, qs_capture, vias_time, seed, step=1, all_at_once=Fa
     seen_all = None
     for n in (range(len(caps), len(caps) + 1) if all_at_once else range(3, len(caps) + 1, step)):
         sub = [d for d in dets if d.capture < n]
-        cams = {c.name: c.intrinsics for c in wc.cameras if sum(d.camera == c.name for d in sub) >= 3}
+        cams = {n: intr for n, intr in wc.intrinsics().items() if sum(d.camera == n for d in sub) >= 3}  # as reported
         if len(cams) < len(wc.cameras) and not all_at_once:
             continue
         try:

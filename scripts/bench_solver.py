@@ -1,14 +1,14 @@
 #!/usr/bin/env python
 """Benchmark of the calibgraph solver: accuracy vs the Cramer-Rao bound, OpenCV 4.x baselines, run times.
 
-Monte Carlo on seeded synthetic eye-to-hand workcells (:func:`calibgraph.sim.synth.make_scene`): three
+Monte Carlo on seeded synthetic eye-to-hand workcells (:func:`calibgraph.sim.synthetic_corners.make_scene`): three
 fixed cameras on a ring at 1.5 / 3 / 5 m, D455-like or L515-like intrinsics, the thesis's board
 (5 x 4 squares of 46 mm -> 12 corners) or a 7 x 10 board of 25 mm squares (54 corners), 20 or 110
 robot poses, corner noise 0.1 / 0.3 / 1 px, forward-kinematics noise 0 or Panda-class
 (0.1 mm / 0.01 deg per flange pose). For every configuration it reports, over all cameras and trials:
 
 * translation / rotation error of ``T_base_cam`` vs truth (median, 95th percentile);
-* the Cramer-Rao bound (:func:`calibgraph.solver.batch.crlb`, inverse Fisher information at the truth with
+* the Cramer-Rao bound (:func:`calibgraph.solver.covariance.crlb`, inverse Fisher information at the truth with
   the true pixel sigma): ``sqrt(trace)`` of the translation and rotation blocks;
 * error / CRLB = pooled RMS error / RMS CRLB sigma (1.0 = efficient estimator), and the solver's
   own reported sigma checked the same way (error / reported sigma, 1.0 = honest covariance);
@@ -60,16 +60,11 @@ from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.core.problem import SolverOptions  # noqa: E402
 from calibgraph.core.targets import a4_board_54, thesis_board  # noqa: E402
 from calibgraph.core.transforms import inv, make_T, pose_error  # noqa: E402
-from calibgraph.sim.synth import Scene, make_scene, ring_cameras  # noqa: E402
-from calibgraph.solver.batch import (  # noqa: E402
-    STAGES,
-    Estimate,
-    build_graph,
-    crlb,
-    levenberg_marquardt,
-    prepare_views,
-    solve,
-)
+from calibgraph.sim.synthetic_corners import Scene, make_scene, ring_cameras  # noqa: E402
+from calibgraph.solver.batch import STAGES, solve  # noqa: E402
+from calibgraph.solver.covariance import crlb  # noqa: E402
+from calibgraph.solver.graph import Estimate, build_graph, levenberg_marquardt  # noqa: E402
+from calibgraph.solver.views import prepare_views  # noqa: E402
 from calibgraph.solver.keys import C  # noqa: E402
 
 DISTANCES_M = (1.5, 3.0, 5.0)
@@ -200,17 +195,15 @@ def mle_from_truth(problem, truth, pixel_sigma_px) -> dict | None:
     """Reference estimator: plain least squares (known pixel sigma, no robust loss, no view screening)
     started at the truth. Its error vs the CRLB says how far the *problem* is from the bound in small
     samples (nonlinearity); solve() vs this says how much the solver's own machinery costs. Built
-    from the solver's internal API (calibgraph.solver.batch); None when the LM run fails."""
+    from the solver's internal API (calibgraph.solver.graph); None when the LM run fails."""
     views, _ = prepare_views(problem)
-    for v in views:
-        v.w = np.ones(len(v.ids))
     names = list(problem.cameras)
     slots = {n: i for i, n in enumerate(names)}
     est = Estimate(T_ref_cam=dict(truth.T_ref_cam), T_mount_board=truth.T_mount_board,
                    T_ref_mount=dict(truth.T_base_flange_true))
     try:
         graph, values = build_graph(views, slots, problem, est, pixel_sigma_px)
-        out = levenberg_marquardt(graph, values, 100)[0]
+        out = levenberg_marquardt(graph, values, 100).values
     except CalibgraphError:  # optional diagnostic: a singular graph costs this column, not the trial
         return None
     return {n: out.atPose3(C(i)).matrix() for n, i in slots.items()}

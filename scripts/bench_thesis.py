@@ -99,7 +99,7 @@ def simulate(distance_m, preset, board, n_poses, seed, work: Path, spread_deg, p
     from calibgraph.io.ground_truth import load_ground_truth
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.simulate import simulate_dataset
+    from calibgraph.sim.rendered_dataset import simulate_dataset
     from calibgraph.sim.workcell import ring_workcell
 
     t0 = time.monotonic()

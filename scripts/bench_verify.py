@@ -1,6 +1,6 @@
 """Benchmark of ``calibgraph verify``: false alarms with nothing moved, detection of a bumped camera.
 
-Synthetic cells (calibgraph.sim.synth: exact projection, 0.3 px Gaussian corner noise, FK noise
+Synthetic cells (calibgraph.sim.synthetic_corners: exact projection, 0.3 px Gaussian corner noise, FK noise
 0.1 mm / 0.01 deg as the solver's prior says), three L515-class cameras on a ring at 3 m:
 
 1. calibrate the cell from 40 poses (default solver: board scale estimated; the simulated
@@ -30,8 +30,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from calibgraph.core.transforms import exp_so3, make_T  # noqa: E402
-from calibgraph.sim.synth import make_scene, ring_cameras  # noqa: E402
+from calibgraph.sim.synthetic_corners import make_scene, ring_cameras  # noqa: E402
 from calibgraph.solver.batch import solve  # noqa: E402
+from calibgraph.solver.result import Result  # noqa: E402
 from calibgraph.solver.verify import chi2_isf_6, stored_model, verify  # noqa: E402
 from calibgraph.plan.verify import choose_verify_poses  # noqa: E402
 
@@ -65,7 +66,7 @@ def run(args):
         for t in range(n_trials):
             if trial % args.trials_per_cal == 0:
                 cal = make_scene(cams, n_poses=40, seed=10_000 + trial, fk_sigma_translation_m=FK_T, fk_sigma_rotation_rad=FK_R)
-                stored = json.loads(json.dumps(solve(cal.problem).to_dict()))
+                stored = Result.from_dict(json.loads(json.dumps(solve(cal.problem).to_dict())))  # as read back
                 model = stored_model(stored)
             trial += 1
             rng = np.random.default_rng(trial)
@@ -150,7 +151,7 @@ def main():
     t0 = time.time()
     rows = run(args)
     md, summary = tables(rows)
-    head = (f"# bench_verify\n\nSynthetic corners (calibgraph.sim.synth: exact projection plus Gaussian noise, no "
+    head = (f"# bench_verify\n\nSynthetic corners (calibgraph.sim.synthetic_corners: exact projection plus Gaussian noise, no "
             f"rendering or detection; {args.null_trials + len(CASES[1:]) * args.trials} verifies x 6 pose counts are too "
             f"many to render on 2 cores). Three L515-class cameras at 3 m (ring, 200 deg), calibrated from 40 poses; 0.3 px "
             f"corner noise, FK noise 0.1 mm / 0.01 deg. {args.null_trials} trials with nothing moved, {args.trials} "

@@ -31,10 +31,11 @@ from calibgraph.core.transforms import exp_so3, make_T  # noqa: E402
 from calibgraph.io.files import read_yaml  # noqa: E402
 from calibgraph.plan.cell import cell_from_world_dict  # noqa: E402
 from calibgraph.sim.devices import make_devices  # noqa: E402
-from calibgraph.sim.planning import planning_world  # noqa: E402
+from calibgraph.sim.planning_world import planning_world  # noqa: E402
 from calibgraph.sim.render import SimWorld  # noqa: E402
-from calibgraph.sim.simulate import VisibilityGatedDetector  # noqa: E402
+from calibgraph.sim.rendered_dataset import VisibilityGatedDetector  # noqa: E402
 from calibgraph.sim.workcell import workcell_from_dict  # noqa: E402
+from calibgraph.solver.result import load_result  # noqa: E402
 from calibgraph.solver.verify import chi2_isf_6  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -70,7 +71,7 @@ def main():
                     str(args.cal_poses), "--out", str(tmp / "cal"), "--quiet"], check=True)
     subprocess.run([sys.executable, "-m", "calibgraph.cli.main", "solve", str(tmp / "cal"), "--out",
                     str(tmp / "result.json"), "--quiet"], check=True, stdout=subprocess.DEVNULL)
-    stored = json.loads((tmp / "result.json").read_text())
+    stored = load_result(tmp / "result.json")
     world_d = read_yaml(WORLD, "world")
     wc0 = workcell_from_dict(world_d, str(WORLD))
     cell = cell_from_world_dict(world_d, str(WORLD))
@@ -97,7 +98,7 @@ def main():
     thr = chi2_isf_6(1e-3)
     lines = [f"# bench_verify_rendered\n\nRendered check of `calibgraph verify` (MuJoCo default cell, three L515 at 3 m, "
              f"real detector): stored result from a rendered {args.cal_poses}-pose capture (pixel sigma "
-             f"{stored['solver']['pixel_sigma_px']:.3f} px); per trial a rendered verify capture of {args.poses} poses "
+             f"{stored.pixel_sigma_px:.3f} px); per trial a rendered verify capture of {args.poses} poses "
              f"planned from the stored result, new image noise and FK error; alpha 0.001 per camera (m2 > {thr:.1f}). "
              f"{args.trials} trials per case. Run time {time.time() - t0:.0f} s.\n",
              "| case | trials | bumped camera called moved | another camera called moved | m2 of unmoved cameras (median, max) |",

@@ -4,9 +4,11 @@ viewer and export tests."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
 import os
+import signal
 from functools import lru_cache
 from pathlib import Path
 
@@ -17,8 +19,8 @@ from calibgraph import solve
 from calibgraph.core.problem import Detection
 from calibgraph.core.targets import a4_board_54
 from calibgraph.io.dataset import write_capture, write_header
-from calibgraph.report.html import residuals_section
-from calibgraph.sim.synth import make_scene
+from calibgraph.sim.synthetic_corners import make_scene
+from calibgraph.solver.result import Result
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -64,9 +66,9 @@ def import_sdk(name: str, install_hint: str):
 
 
 def require_realsense():
-    """pyrealsense2 as drivers.realsense loaded it: rclpy's libraries first, then libusb from the
+    """pyrealsense2 as calibgraph_drivers.realsense loaded it: rclpy's libraries first, then libusb from the
     libusb-package wheel (see the notes there), then the SDK."""
-    import drivers.realsense as drv
+    import calibgraph_drivers.realsense as drv
 
     if drv._rs is None:
         sdk_unavailable(f"pyrealsense2 is unavailable (pip install 'calibgraph[realsense]') [{drv._IMPORT_ERROR}]")
@@ -95,7 +97,9 @@ OUTLIER_CORNERS = 2     # detection index with 3 corners moved by 25 px -> rejec
 
 @lru_cache(maxsize=4)
 def _solved(seed: int, mode: str):
-    scene = make_scene(n_poses=24, seed=seed, mode=mode)
+    # the oracle's scene (true intrinsics, held): the report, viewer and export tests recompute
+    # residuals with the dataset's intrinsics, which are then the ones the solver used
+    scene = make_scene(n_poses=24, seed=seed, mode=mode, reported_intrinsics="exact")
     prob = scene.problem
     dets = list(prob.detections)
     rng = np.random.default_rng(seed + 100)
@@ -111,22 +115,18 @@ def _solved(seed: int, mode: str):
 
 
 def make_sim_result(seed: int = 0, mode: str = "eye_to_hand", intrinsics: bool = True, residuals: bool = True):
-    """(result dict as read back from result.json, scene, problem, Result) of a solved simulated cell
-    with injected outliers. Adds the 'residuals' (and 'intrinsics') sections the report reads when
-    Result.to_dict does not write them yet."""
+    """(the Result as read back from its result.json, scene, problem, the solver's Result) of a
+    solved simulated cell with injected outliers. ``intrinsics=False`` / ``residuals=False`` drop
+    those sections, as in a result.json of an earlier calibgraph."""
     scene, prob, res = _solved(seed, mode)
-    d = res.to_dict()
-    if residuals and "residuals" not in d:
-        d["residuals"] = residuals_section(res)
+    d = json.loads(json.dumps(res.to_dict()))
+    d["dataset"] = "simulated (calibgraph.sim.synthetic_corners.make_scene seed %d)" % seed
     if not residuals:
-        d.pop("residuals", None)
-    for n, c in d["cameras"].items():
-        if intrinsics:
-            c.setdefault("intrinsics", prob.cameras[n].to_dict())
-        else:
-            c.pop("intrinsics", None)
-    d["dataset"] = "simulated (calibgraph.sim.synth.make_scene seed %d)" % seed
-    return json.loads(json.dumps(d)), scene, prob, res
+        d.pop("residuals")
+    for c in d["cameras"].values():
+        if not intrinsics:
+            c.pop("intrinsics")
+    return Result.from_dict(d), scene, prob, res
 
 
 def write_sim_dataset(root: Path, prob) -> Path:
@@ -164,3 +164,19 @@ def dataset_content(root):
         caps[f.name] = d
     imgs = {str(p.relative_to(root)): p.read_bytes() for p in sorted((Path(root) / "images").rglob("*.png"))}
     return caps, imgs
+
+
+@contextlib.contextmanager
+def fails_instead_of_hanging(seconds: int, what: str):
+    """Run the block with an alarm: a call that blocks (a FIFO opened for reading, say) raises
+    TimeoutError naming ``what`` after ``seconds`` instead of hanging the test run."""
+    def hung(*_):
+        raise TimeoutError(f"{what} blocked for {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)

@@ -407,9 +407,11 @@ for mod in pkgutil.walk_packages(calibgraph.__path__, "calibgraph."):
     if mod.name != "calibgraph.__main__":
         importlib.import_module(mod.name)  # every engine module imports without any SDK, MuJoCo or rerun
 from calibgraph.acquire.interfaces import DeviceError
-import drivers.franka, drivers.realsense, drivers.ros2, drivers.kinect
-for make in (lambda: drivers.franka.FrankaRobot("127.0.0.1"), lambda: drivers.realsense.RealSenseCamera("c"),
-             lambda: drivers.ros2.Ros2Camera("c", "/x/image_raw"), lambda: drivers.kinect.KinectV2Camera("c")):
+import calibgraph_drivers.franka, calibgraph_drivers.realsense, calibgraph_drivers.ros2, calibgraph_drivers.kinect
+for make in (lambda: calibgraph_drivers.franka.FrankaRobot("127.0.0.1"),
+             lambda: calibgraph_drivers.realsense.RealSenseCamera("c"),
+             lambda: calibgraph_drivers.ros2.Ros2Camera("c", "/x/image_raw"),
+             lambda: calibgraph_drivers.kinect.KinectV2Camera("c")):
     try:
         make()
     except DeviceError as e:
@@ -624,3 +626,37 @@ def test_dry_run_lists_via_poses_apart_from_capture_poses(tmp_path):
     st = {o.index: (o.status, o.message) for o in rep.outcomes}
     assert st[1][0] == "skipped_unsafe" and st[2] == ("skipped_unsafe", "via pose 1 on the way to it would be skipped")
     assert rep.count("planned") == 3 and rep.count("via") == 1
+
+
+def test_a_run_records_what_made_it_and_takes_over_the_lock_of_a_killed_run(tmp_path):
+    """dataset.yaml says which run made the dataset and with which trajectory; the lock a killed
+    process left behind is recognised (the kernel dropped its flock), said, and taken over."""
+    import yaml
+
+    out = tmp_path / "ds"
+    code = ("import sys, time\nfrom calibgraph.acquire.claim import claim_dataset\n"
+            "with claim_dataset(sys.argv[1], 'trajectory', {}, False):\n    print('held', flush=True)\n"
+            "    time.sleep(120)\n")
+    p = subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE, text=True,
+                         env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert p.stdout.readline().strip() == "held"
+    p.send_signal(signal.SIGKILL)
+    p.wait(10)
+    assert json.loads((out / ".calibgraph.lock").read_text())["pid"] == p.pid  # left behind
+    cell = make_fake_cell(n_cameras=2, n_poses=4, seed=21)
+    lines = []
+    rep = _run(cell, out, resume=True, progress=lines.append)
+    assert rep.complete and rep.captured == 4
+    assert any(f"taking over the lock left by process {p.pid}" in ln and "no longer running" in ln for ln in lines), lines
+    assert not (out / ".calibgraph.lock").exists()  # released at the end of the run
+    made = yaml.safe_load((out / "dataset.yaml").read_text())["made_by"]
+    assert made["mode"] == "trajectory" and made["trajectory_sha256"] == cell.trajectory.sha256()
+    # a run of another kind may not continue it, and one with another trajectory neither
+    from calibgraph.acquire.claim import claim_dataset
+
+    with pytest.raises(InputError, match="made by a trajectory capture"):
+        with claim_dataset(out, "auto", {}, True):
+            pass
+    with pytest.raises(InputError, match="different trajectory"):
+        _run(make_fake_cell(n_cameras=2, n_poses=5, seed=21), out, resume=True)
+    assert not (out / ".calibgraph.lock").exists()

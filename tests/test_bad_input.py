@@ -26,7 +26,7 @@ import yaml
 from helpers import write_sim_dataset
 
 from calibgraph.cli.main import main
-from calibgraph.sim.synth import make_scene
+from calibgraph.sim.synthetic_corners import make_scene
 
 ROWS = []  # (case, exit code, what calibgraph said) for the table
 
@@ -425,3 +425,307 @@ def test_readonly_output_folder(base):
     finally:
         os.chmod(ro, 0o755)
         shutil.rmtree(top)
+
+
+# -- issue 26: fresh data against the stored result, report inputs, exported names -------------------------
+# (report, verify and export: a contiguous block, kept apart from the other corpus additions)
+def _renamed_result(base, tmp_path, old_new: dict) -> Path:
+    """The base result.json with cameras renamed (every occurrence of the name in the file)."""
+    text = (base / "ds" / "result.json").read_text()
+    for old, new in old_new.items():
+        text = text.replace(f'"{old}', f'"{new}').replace(f"_{old}_", f"_{new}_").replace(f"__{old}", f"__{new}")
+        text = text.replace(f"_{old}\"", f"_{new}\"")
+    p = tmp_path / "renamed.json"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def _with_covariance(base, tmp_path, name: str, cov) -> Path:
+    d = json.loads((base / "ds" / "result.json").read_text())
+    d["cameras"]["cam1"]["covariance"] = np.asarray(cov, float).tolist()
+    p = tmp_path / name
+    p.write_text(json.dumps(d))
+    return p
+
+
+def test_fresh_data_and_report_inputs_against_the_stored_result(base, ds, tmp_path):
+    res = base / "ds" / "result.json"
+    watch = [base / "ds", ds, tmp_path]
+    # verify: a camera renamed in the fresh data is named, not "nothing moved"
+    _edit_yaml(ds, lambda y: y["cameras"].update(camX=y["cameras"].pop("cam1")))
+    _edit_captures(ds, lambda c: c["views"].update(camX=c["views"].pop("cam1")) if "cam1" in c["views"] else None)
+    check("verify: a camera renamed in the fresh data", ["verify", "--result", res, ds, "--verdict", tmp_path / "v.json"],
+          2, ["camX", "not in the stored result", "cam1", "renamed"], watch=watch)
+    # verify: the fresh data declares another board (pitch 1.6 % off, rows/cols swapped): named, not every camera moved
+    fresh = tmp_path / "fresh"
+    shutil.copytree(base / "ds", fresh)
+    _edit_yaml(fresh, lambda y: y["target"].update(pitch_m=y["target"]["pitch_m"] * 1.016))
+    check("verify: fresh data with a 1.6 % different pitch", ["verify", "--result", res, fresh, "--verdict",
+                                                              tmp_path / "v.json"],
+          2, ["target differs", "pitch", "+1.60 %"], watch=watch)
+    # report --dataset OTHER: another dataset of the same cameras and capture numbers is refused, not mixed in
+    other = write_sim_dataset(tmp_path / "other", make_scene(n_poses=12, seed=2).problem)
+    check("report --dataset of another dataset", ["report", res, "--dataset", other, "--out", tmp_path / "r.html"], 2,
+          ["not the dataset this result was solved from", "robot poses", "stored corners"], watch=watch)
+    check("report --dataset with another target pitch",
+          ["report", res, "--dataset", fresh, "--out", tmp_path / "r.html"], 2,
+          ["not the dataset this result was solved from", "pitch", "+1.60 %"], watch=watch)
+    # rows and cols swapped in the fresh data: its stored corners give it away before any comparison
+    _edit_yaml(fresh, lambda y: y["target"].update(pitch_m=y["target"]["pitch_m"] / 1.016, rows=y["target"]["cols"],
+                                                    cols=y["target"]["rows"]))
+    check("verify: fresh data with rows and cols swapped", ["verify", "--result", res, fresh, "--verdict",
+                                                            tmp_path / "v.json"],
+          2, ["rows and cols look swapped"], watch=watch)
+    assert not (tmp_path / "r.html").exists() and not (tmp_path / "v.json").exists()
+    # a zero or non-positive-definite covariance never passes
+    for case, cov, said in (("zero", np.zeros((6, 6)), "covariance is zero"),
+                            ("not positive definite", np.diag([1e-8, 1e-8, -1e-8, 1e-7, 1e-7, 1e-7]),
+                             "not positive definite")):
+        p = _with_covariance(base, tmp_path, f"{case.replace(' ', '_')}.json", cov)
+        text = check(f"report: a result with a {case} covariance", ["report", p, "--out", tmp_path / f"{p.stem}.html"],
+                     0, ["verdict: FAIL", "cam1", said], watch=[base / "ds"])
+        page = (tmp_path / f"{p.stem}.html").read_text()
+        assert "Overall: FAIL" in page and said in page and "cam1" in text
+
+
+def test_report_and_export_refuse_a_fifo_without_blocking(base, tmp_path):
+    from helpers import fails_instead_of_hanging
+
+    fifo = tmp_path / "result.json"
+    os.mkfifo(fifo)
+    cfg = tmp_path / "tol.yaml"
+    os.mkfifo(cfg)
+    with fails_instead_of_hanging(60, "a command given a FIFO"):
+        check("report: RESULT is a FIFO", ["report", fifo, "--out", tmp_path / "r.html"], 2, "not a regular file")
+        check("report: --config is a FIFO", ["report", base / "ds" / "result.json", "--out", tmp_path / "r.html",
+                                             "--config", cfg], 2, "not a regular file", watch=[base / "ds"])
+        check("export: RESULT is a FIFO", ["export", fifo, "--format", "json", "--out", tmp_path / "e"], 2,
+              "not a regular file")
+        check("verify: --result is a FIFO", ["verify", "--result", fifo, base / "ds", "--verdict", tmp_path / "v.json"],
+              2, "not a regular file", watch=[base / "ds"])
+    assert not (tmp_path / "r.html").exists() and not (tmp_path / "e").exists()
+
+
+def test_export_of_cameras_whose_names_collide_when_sanitised(base, tmp_path):
+    res = _renamed_result(base, tmp_path, {"cam0": "kämera", "cam1": "kåmera", "cam2": "cam-2"})
+    out = tmp_path / "e"
+    text = check("export: two camera names that differ only in non-ASCII letters",
+                 ["export", res, "--format", "urdf", "--format", "opencv-yaml", "--format", "ros2-launch",
+                  "--out", out], 0, ["exported as", "kämera", "kåmera"], watch=[res])
+    from calibgraph.report.exports import parse_urdf_joints, read_opencv_yaml
+    from calibgraph.solver.result import load_result
+
+    r = load_result(res)
+    urdf = (out / "calibgraph_cameras.urdf.xacro").read_text(encoding="utf-8")
+    links = re.findall(r'<link name="([^"]+)"', urdf)
+    assert len(links) == len(set(links)) == 3, links
+    joints = parse_urdf_joints(urdf)
+    files = sorted(p.name for p in out.glob("*.yaml"))
+    assert len(files) == 3, files  # one OpenCV file per camera, none written over another
+    by_name = {read_opencv_yaml(out / f)["camera_name"]: read_opencv_yaml(out / f) for f in files}
+    assert set(by_name) == set(r.cameras)
+    for n, c in r.cameras.items():
+        child = by_name[n]["frame_child"]
+        assert np.array_equal(by_name[n]["T_base_cam"], c.T_base_cam)
+        assert np.abs(joints[child][1] - c.T_base_cam).max() < 1e-9  # the link of this camera has its pose
+    assert "cam_2_optical_frame" in links and "Traceback" not in text
+
+
+# -- capture runs own their datasets; capture inputs; workcell geometry (issue 26) ---------------------
+DEFAULT_WORLD = Path(__file__).resolve().parents[1] / "datasets" / "workcells" / "default.yaml"
+CELL = {"board": "a4_54", "safety": {"robot_model": "fr3", "max_speed_scale": 0.5},
+        "cameras": {"c0": {"preset": "d455", "position_m": [1.2, 0.3, 0.6], "look_at_m": [0.5, 0.0, 0.45]}}}
+
+
+def _fake_capture(out: Path) -> Path:
+    """A dataset made by a trajectory capture (the acquisition loop on the in-process fake cell)."""
+    from calibgraph.acquire.run import run_acquisition
+    from calibgraph.sim.fakes import make_fake_cell
+
+    cell = make_fake_cell(n_cameras=2, n_poses=3, seed=1)
+    run_acquisition(cell.robot, cell.cameras, cell.trajectory, out, cell.target, detector=cell.detector, progress=False)
+    return out
+
+
+def _yaml(path: Path, d) -> Path:
+    path.write_text(yaml.safe_dump(d, sort_keys=False))
+    return path
+
+
+def _with_made_by(ds: Path, **made_by) -> Path:
+    _edit_yaml(ds, lambda y: y.update(made_by=made_by))
+    return ds
+
+
+def test_resume_continues_only_a_run_of_the_same_kind_with_the_same_inputs(ds, tmp_path):
+    """Every refusal is one line, exit 2, and leaves every file of the dataset as it was."""
+    from calibgraph.acquire.claim import content_sha256
+
+    cell = _yaml(tmp_path / "cell.yaml", CELL)
+    traj = _fake_capture(tmp_path / "traj") / "trajectory.yaml"
+    auto = ["capture", "--auto", "--robot", "sim", "--sim-world", DEFAULT_WORLD, "--resume", "--out"]
+    # a dataset that does not say what made it, and holds no journal of the run that would continue it
+    check("capture --auto --resume into a dataset written by another tool", auto + [ds], 2,
+          ["does not say which run made it", "nothing was changed"], watch=[ds])
+    check("sim --resume into a dataset written by another tool", ["sim", "--resume", "--out", ds], 2,
+          "does not say which run made it", watch=[ds])
+    # a trajectory capture's dataset
+    cap = tmp_path / "traj"
+    check("capture --auto --resume into a trajectory capture", auto + [cap], 2,
+          ["made by a trajectory capture", "capture --auto", "nothing was changed"], watch=[cap])
+    check("sim --resume into a trajectory capture", ["sim", "--resume", "--out", cap], 2,
+          ["made by a trajectory capture", "calibgraph sim"], watch=[cap])
+    # an autonomous run's dataset
+    made = _with_made_by(_fake_capture(tmp_path / "auto"), mode="auto", calibgraph="0.1.0")
+    check("capture --trajectory --resume into an autonomous run's dataset",
+          ["capture", "--workcell", cell, "--trajectory", traj, "--resume", "--out", made], 2,
+          ["made by `calibgraph capture --auto`", "trajectory capture"], watch=[made])
+    check("capture --verify --resume into an autonomous run's dataset",
+          ["capture", "--verify", "--result", ds / "result.json", "--robot", "sim", "--sim-world", DEFAULT_WORLD,
+           "--resume", "--out", made], 2, "made by `calibgraph capture --auto`", watch=[made])
+    # the same kind of run with another input
+    other = _with_made_by(_fake_capture(tmp_path / "other"), mode="trajectory", calibgraph="0.1.0",
+                          workcell_sha256=content_sha256({"another": "cell"}))
+    check("capture --trajectory --resume with another workcell",
+          ["capture", "--workcell", cell, "--resume", "--out", other], 2,
+          ["different workcell", "nothing was changed"], watch=[other])
+    check("capture --trajectory --resume with another trajectory",
+          ["capture", "--workcell", cell, "--trajectory", traj, "--speed-scale", "0.1", "--resume", "--out", cap], 2,
+          "different trajectory", watch=[cap])
+    # captures without a header: not a dataset any run made, never written into
+    loose = tmp_path / "loose"
+    shutil.copytree(ds, loose)
+    (loose / "dataset.yaml").unlink()
+    check("capture --auto into a folder of captures without dataset.yaml", auto[:-2] + ["--out", loose], 2,
+          "no dataset.yaml", watch=[loose])
+
+
+def test_a_second_process_is_kept_out_while_a_run_holds_the_dataset(tmp_path):
+    """A run holds its dataset's lock; a second capture on it is refused in one line, untouched."""
+    cap = _fake_capture(tmp_path / "ds")
+    cell = _yaml(tmp_path / "cell.yaml", CELL)
+    code = ("import sys, time\nfrom calibgraph.acquire.claim import claim_dataset\n"
+            "with claim_dataset(sys.argv[1], 'trajectory', {}, True, accept=('trajectory',)):\n"
+            "    print('held', flush=True)\n    time.sleep(120)\n")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    holder = subprocess.Popen([sys.executable, "-c", code, str(cap)], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        lock = json.loads((cap / ".calibgraph.lock").read_text())
+        assert lock["pid"] == holder.pid and lock["mode"] == "trajectory"
+        before = _hashes(cap)
+        check("capture --resume while another process captures into the dataset",
+              ["capture", "--workcell", cell, "--resume", "--out", cap], 2,
+              ["another calibgraph run is writing this dataset", f"process {holder.pid}"], watch=[cap])
+        assert _hashes(cap) == before
+    finally:
+        holder.kill()
+        holder.wait(10)
+
+
+def test_capture_inputs_that_are_not_regular_files_are_refused_without_blocking(ds, tmp_path):
+    import signal
+
+    cell = _yaml(tmp_path / "cell.yaml", CELL)
+    traj = _fake_capture(tmp_path / "traj") / "trajectory.yaml"
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+
+    def hang(*_):
+        raise TimeoutError("blocked on a FIFO")
+
+    old = signal.signal(signal.SIGALRM, hang)
+    signal.alarm(60)  # a blocking open of the FIFO would hang here; the alarm turns that into a failure
+    try:
+        out = tmp_path / "o"
+        for case, argv in (
+                ("capture --workcell a FIFO", ["capture", "--workcell", fifo, "--trajectory", traj, "--out", out]),
+                ("capture --trajectory a FIFO", ["capture", "--workcell", cell, "--trajectory", fifo, "--out", out]),
+                ("capture --auto --sim-world a FIFO", ["capture", "--auto", "--robot", "sim", "--sim-world", fifo,
+                                                       "--out", out]),
+                ("capture --verify --result a FIFO", ["capture", "--verify", "--result", fifo, "--robot", "sim",
+                                                      "--sim-world", DEFAULT_WORLD, "--out", out]),
+                ("sim --workcell a FIFO", ["sim", "--workcell", fifo, "--out", out]),
+                ("capture --workcell a device (/dev/zero)", ["capture", "--workcell", "/dev/zero", "--trajectory", traj,
+                                                             "--out", out]),
+                ("capture --workcell a folder", ["capture", "--workcell", tmp_path, "--trajectory", traj, "--out", out])):
+            check(case, argv, 2, ["not a regular file" if "folder" not in case else "is a folder"], watch=[ds])
+            assert not out.exists()
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def _degenerate(tmp_path, name, camera) -> Path:
+    return _yaml(tmp_path / f"{name}.yaml", {**CELL, "cameras": {"c0": camera}})
+
+
+def test_degenerate_workcell_geometry_is_refused_by_the_dry_run_and_the_run(base, tmp_path):
+    traj = _fake_capture(tmp_path / "traj") / "trajectory.yaml"
+    same = _degenerate(tmp_path, "same", {"preset": "d455", "position_m": [1.2, 0.3, 0.6], "look_at_m": [1.2, 0.3, 0.6]})
+    nan = _degenerate(tmp_path, "nan", {"preset": "d455", "position_m": [1.2, float("nan"), 0.6]})
+    pose = _degenerate(tmp_path, "pose", {"preset": "d455", "T_base_cam": [[1, 0, 0, float("nan")], [0, 1, 0, 0],
+                                                                           [0, 0, 1, 0], [0, 0, 0, 1]]})
+    ring = _yaml(tmp_path / "ring.yaml", {"board": "a4_54", "ring": {"distances_m": [3.0, 0.0, 3.0]}})
+    out = tmp_path / "o"
+    for case, argv, cause in (
+            ("capture --dry-run: camera position_m equals look_at_m",
+             ["capture", "--workcell", same, "--trajectory", traj, "--out", out, "--dry-run"], "position_m equals look_at_m"),
+            ("capture: camera position_m equals look_at_m",
+             ["capture", "--workcell", same, "--trajectory", traj, "--out", out], "position_m equals look_at_m"),
+            ("capture --auto --dry-run: camera position_m equals look_at_m",
+             ["capture", "--auto", "--workcell", same, "--out", out, "--dry-run"], "position_m equals look_at_m"),
+            ("capture --verify: camera position_m equals look_at_m",
+             ["capture", "--verify", "--result", base / "ds" / "result.json", "--workcell", same, "--out", out],
+             "position_m equals look_at_m"),
+            ("sim: camera position_m equals look_at_m", ["sim", "--workcell", same, "--out", out],
+             "position_m equals look_at_m"),
+            ("capture --dry-run: camera position with a NaN",
+             ["capture", "--workcell", nan, "--trajectory", traj, "--out", out, "--dry-run"], ["position_m", "finite"]),
+            ("capture --dry-run: camera pose with a NaN",
+             ["capture", "--workcell", pose, "--trajectory", traj, "--out", out, "--dry-run"], ["T_base_cam", "NaN"]),
+            ("sim: a ring camera at distance 0", ["sim", "--workcell", ring, "--out", out], "distances_m must be positive")):
+        check(case, argv, 2, cause, watch=[same, nan, pose, ring])
+        assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def sim_made(tmp_path_factory):
+    """A dataset made by ``calibgraph sim`` (2 rendered poses)."""
+    from helpers import require_sim
+
+    require_sim()
+    out = tmp_path_factory.mktemp("sim_made") / "ds"
+    rc, _, err = _run(["sim", "--poses", "2", "--out", out, "--quiet"])
+    assert rc == 0, err
+    return out
+
+
+def test_auto_resume_into_a_dataset_made_by_sim_changes_nothing(sim_made, tmp_path):
+    """Issue 26: `capture --auto --resume` into a `calibgraph sim` dataset used to overwrite its
+    captures, images and ground truth; now it is refused and not one file changes (every file hashed)."""
+    files = {p for p in sim_made.rglob("*") if p.is_file()}
+    assert (sim_made / "ground_truth.json").is_file() and len(files) > 5
+    check("capture --auto --resume into a dataset made by calibgraph sim",
+          ["capture", "--auto", "--robot", "sim", "--sim-world", DEFAULT_WORLD, "--out", sim_made, "--resume"], 2,
+          ["made by `calibgraph sim`", "nothing was changed"], watch=[sim_made])
+    other = _yaml(tmp_path / "other.yaml", {**yaml.safe_load(DEFAULT_WORLD.read_text()), "seed": 7})
+    check("sim --resume with another world", ["sim", "--workcell", other, "--out", sim_made, "--resume"], 2,
+          ["different workcell"], watch=[sim_made])
+    check("capture --trajectory --resume into a dataset made by calibgraph sim",
+          ["capture", "--workcell", _yaml(tmp_path / "cell.yaml", CELL), "--out", sim_made, "--resume"], 2,
+          "made by `calibgraph sim`", watch=[sim_made])
+    assert {p for p in sim_made.rglob("*") if p.is_file()} == files  # nothing added either (no lock left behind)
+
+
+def test_readme_auto_dry_run_on_the_shipped_default_workcell(tmp_path):
+    """`calibgraph capture --auto --workcell cell.yaml --out DIR --dry-run` (README) with the shipped
+    default workcell shows the survey and writes nothing (it used to ask for --sim-world)."""
+    from helpers import require_sim
+
+    require_sim()
+    rc, out, err = _run(["capture", "--auto", "--workcell", DEFAULT_WORLD, "--out", tmp_path / "d", "--dry-run"])
+    ROWS.append(("capture --auto --workcell default.yaml --dry-run (README)", rc, out.strip().splitlines()[-1]))
+    assert rc == 0, err
+    assert "survey stops pass the checks" in out and "nothing moved" in out and "Traceback" not in err
+    assert not (tmp_path / "d").exists()

@@ -16,7 +16,7 @@ def test_demo_recovers_ground_truth(tmp_path, capsys):
     require_sim()
     from calibgraph.cli.main import main
     from calibgraph.io.ground_truth import load_ground_truth
-    from calibgraph.solver.result import load_result_dict
+    from calibgraph.solver.result import load_result
 
     out = tmp_path / "demo"
     rc = main(["demo", "--out", str(out), "--cameras", "2", "--preset", "d455", "--distance-m", "1.5",
@@ -27,19 +27,18 @@ def test_demo_recovers_ground_truth(tmp_path, capsys):
     for f in ("result.json", "report.html", "calibration.rrd", "trajectory.yaml", "dataset/dataset.yaml",
               "dataset/ground_truth.json"):
         assert (out / f).is_file(), f
-    R = load_result_dict(out / "result.json")
+    R = load_result(out / "result.json")
     gt = load_ground_truth(out / "dataset")
-    assert set(R["cameras"]) == {"cam0", "cam1"}
-    for name, cam in R["cameras"].items():
-        T = np.asarray(cam["T_base_cam"], float)
-        e_m, e_deg = pose_error(T, gt["T_base_cam"][name])
-        s_t_mm = np.linalg.norm(cam["sigma_translation_mm"])
-        s_r_deg = np.linalg.norm(cam["sigma_rotation_deg"])
+    assert set(R.cameras) == {"cam0", "cam1"}
+    for name, cam in R.cameras.items():
+        e_m, e_deg = pose_error(cam.T_base_cam, gt["T_base_cam"][name])
+        s_t_mm = np.linalg.norm(cam.sigma_translation_mm)
+        s_r_deg = np.linalg.norm(cam.sigma_rotation_deg)
         # error within 3x the solver's own 1-sigma (3-D norm) and within absolute bounds; measured
         # on this seed: errors ~0.1-0.3 mm / 0.01 deg with sigmas of the same size at 1.5 m
         assert e_m * 1e3 < 3 * s_t_mm + 0.05, (name, e_m, s_t_mm)
         assert e_deg < 3 * s_r_deg + 0.005, (name, e_deg, s_r_deg)
         assert e_m < 2e-3 and e_deg < 0.1
-        assert cam["reprojection_rms_px"] < 0.5
+        assert cam.reprojection_rms_px < 0.5
     raw = json.loads((out / "dataset" / "ground_truth.json").read_text())
     assert len(raw["captures"]) == 12

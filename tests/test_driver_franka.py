@@ -28,7 +28,7 @@ from calibgraph.core.targets import a4_board_54  # noqa: E402
 from calibgraph.core.transforms import exp_so3, inv, look_at, make_T, pose_error  # noqa: E402
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
 from calibgraph.sim.fakes import FakeCamera, FakeCell  # noqa: E402
-from drivers.franka import FrankaRobot, quintic_duration_s  # noqa: E402
+from calibgraph_drivers.franka import FrankaRobot, quintic_duration_s  # noqa: E402
 
 HOME = np.array([0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785])
 

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from helpers import import_sdk, require_realsense
 
-# drivers.realsense first: it loads rclpy (if installed) before pyrealsense2, the load order in which
+# calibgraph_drivers.realsense first: it loads rclpy (if installed) before pyrealsense2, the load order in which
 # a process using both exits cleanly, and libusb from the libusb-package wheel before pyrealsense2
 # (see the notes in drivers/realsense.py)
-from drivers.realsense import RealSenseCamera, distortion_from_rs, intrinsics_from_rs  # noqa: E402
+from calibgraph_drivers.realsense import RealSenseCamera, distortion_from_rs, intrinsics_from_rs  # noqa: E402
 
 rs = require_realsense()  # skips the module (with the reason) when the SDK cannot be loaded
 
@@ -89,9 +89,9 @@ class SoftwareColourCamera:
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the Linux SDK wheel is the one that needs libusb")
 def test_libusb_comes_from_the_libusb_package_wheel():
     # pyrealsense2's wheel links libusb-1.0.so.0 without shipping it; the realsense extra brings
-    # libusb-package, whose copy drivers.realsense loads first, so no apt package is needed: the only
+    # libusb-package, whose copy calibgraph_drivers.realsense loads first, so no apt package is needed: the only
     # libusb mapped in this process is that one
-    import drivers.realsense as drv
+    import calibgraph_drivers.realsense as drv
 
     import_sdk("libusb_package", "pip install 'calibgraph[realsense]'")
     assert drv.LIBUSB is not None

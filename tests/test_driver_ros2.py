@@ -16,7 +16,7 @@ rclpy = import_sdk("rclpy", "pip install 'calibgraph[ros2]'")
 sensor_msgs = import_sdk("sensor_msgs.msg", "pip install 'calibgraph[ros2]'")
 
 from calibgraph.acquire.interfaces import DeviceError  # noqa: E402
-from drivers import ros2 as drv  # noqa: E402
+from calibgraph_drivers import ros2 as drv  # noqa: E402
 
 W, H = 8, 6
 

@@ -39,11 +39,11 @@ def test_urdf_round_trips(tmp_path, mode):
     text = urdf_snippet(d)
     assert f"T_{ref}_cam" in text and "metres" in text and "radians" in text
     joints = parse_urdf_joints(text.replace("$(arg parent)", "PARENT"))
-    assert len(joints) == len(d["cameras"])
-    for n, c in d["cameras"].items():
+    assert len(joints) == len(d.cameras)
+    for n, c in d.cameras.items():
         parent, T = joints[f"{n}_optical_frame"]
         assert parent == "PARENT"
-        assert np.abs(T - np.asarray(c[f"T_{ref}_cam"])).max() < 1e-9
+        assert np.abs(T - getattr(c, f"T_{ref}_cam")).max() < 1e-9
     plain = parse_urdf_joints(urdf_snippet(d, parent="world", xacro=False))
     assert {p for p, _ in plain.values()} == {"world"}
     paths = export(d, "urdf", tmp_path)
@@ -59,9 +59,9 @@ def test_ros2_launch_file(tmp_path):
     assert "metres" in src and "quaternion (x, y, z, w)" in src
     cams = next(n.value for n in tree.body if isinstance(n, ast.Assign) and n.targets[0].id == "CAMERAS")
     table = ast.literal_eval(cams)
-    for n, c in d["cameras"].items():
+    for n, c in d.cameras.items():
         x, y, z, qx, qy, qz, qw, parent, child = table[n]
-        T = np.asarray(c["T_base_cam"])
+        T = c.T_base_cam
         assert parent == "base_link" and child == f"{n}_optical_frame"
         assert np.allclose([x, y, z], T[:3, 3], atol=1e-12)
         assert np.allclose(quat_xyzw_to_R([qx, qy, qz, qw]), T[:3, :3], atol=1e-9)
@@ -70,19 +70,19 @@ def test_ros2_launch_file(tmp_path):
 def test_opencv_filestorage_round_trip(tmp_path):
     d, scene, prob, _ = make_sim_result()
     paths = write_opencv_yaml(d, tmp_path)
-    assert len(paths) == len(d["cameras"])
+    assert len(paths) == len(d.cameras)
     for p in paths:
         back = read_opencv_yaml(p)
         n = back["camera_name"]
-        c = d["cameras"][n]
-        intr = Intrinsics.from_dict(c["intrinsics"])  # the intrinsics the calibration used (estimated by default)
+        c = d.cameras[n]
+        intr = Intrinsics.from_dict(c.intrinsics)  # the intrinsics the calibration used (estimated by default)
         assert np.array_equal(back["camera_matrix"], intr.K)
         assert np.array_equal(back["distortion_coefficients"].ravel(), intr.dist)
         assert back["image_width"] == intr.width_px and back["image_height"] == intr.height_px
-        assert np.array_equal(back["T_base_cam"], np.asarray(c["T_base_cam"]))
-        assert np.array_equal(back["sigma_translation_mm"].ravel(), np.asarray(c["sigma_translation_mm"]))
-        assert np.array_equal(back["sigma_rotation_deg"].ravel(), np.asarray(c["sigma_rotation_deg"]))
-        assert np.array_equal(back["covariance"], np.asarray(c["covariance"]))
+        assert np.array_equal(back["T_base_cam"], c.T_base_cam)
+        assert np.array_equal(back["sigma_translation_mm"].ravel(), c.sigma_translation_mm)
+        assert np.array_equal(back["sigma_rotation_deg"].ravel(), c.sigma_rotation_deg)
+        assert np.array_equal(back["covariance"], c.covariance)
         assert back["frame_parent"] == "base" and back["frame_child"] == f"{n}_optical_frame"
         text = p.read_text()
         assert text.startswith("%YAML") and "metres" in text and "optical" in text
@@ -99,8 +99,9 @@ def test_opencv_yaml_without_intrinsics_says_so(tmp_path):
 def test_yaml_and_json_outputs_and_cli(tmp_path):
     from calibgraph.cli.main import main
 
-    d, *_ = make_sim_result()
-    (tmp_path / "result.json").write_text(json.dumps(d))
+    r, *_ = make_sim_result()
+    r.save(tmp_path / "result.json")
+    d = json.loads((tmp_path / "result.json").read_text())
     rc = main(["export", str(tmp_path / "result.json"), "--format", "yaml", "--format", "urdf",
                "--format", "ros2-launch", "--format", "opencv-yaml", "--out", str(tmp_path / "out")])
     assert rc == 0

@@ -13,7 +13,7 @@ from calibgraph.core.transforms import inv
 from calibgraph.io.dataset import image_relpath, write_capture, write_header
 from calibgraph.io.layouts import load_dataset
 from calibgraph.sim.board_image import board_texture, render_view
-from calibgraph.sim.synth import make_scene, ring_cameras
+from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 from calibgraph.solver.batch import solve
 from calibgraph.solver.build import (
     GUIDED_MIN_VIEWS,

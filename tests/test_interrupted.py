@@ -15,8 +15,8 @@ from helpers import CAPTURE_SCRIPT, dataset_content, write_sim_dataset
 from calibgraph.acquire.run import run_acquisition
 from calibgraph.io.layouts import load_dataset
 from calibgraph.sim.fakes import make_fake_cell
-from calibgraph.sim.synth import make_scene
-from calibgraph.solver.result import load_result_dict
+from calibgraph.sim.synthetic_corners import make_scene
+from calibgraph.solver.result import load_result
 
 REPO = Path(__file__).resolve().parents[1]
 N_POSES = 30
@@ -98,7 +98,7 @@ def test_solve_killed_while_writing_keeps_the_previous_result(tmp_path):
         p.send_signal(sig)
         p.wait(30)
         assert (ds / "result.json").read_bytes() == prev  # the previous result, whole
-        load_result_dict(ds / "result.json")
+        load_result(ds / "result.json")
     # the next solve replaces it and leaves no temporary file of the killed writers behind
     assert main(["solve", str(ds), "--quiet"]) == 0
     assert (ds / "result.json").read_bytes() != prev

@@ -16,7 +16,7 @@ from helpers import write_sim_dataset
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.kinematics import chain_from_urdf, franka_chain
 from calibgraph.core.transforms import pose_error
-from calibgraph.sim.synth_kinematics import make_kinematic_scene
+from calibgraph.sim.kinematic_scene import make_kinematic_scene
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.batch import solve
 
@@ -25,7 +25,8 @@ OFFSETS = np.array([0.0, 1.5e-3, -1.0e-3, 2.0e-3, -0.5e-3, 1.2e-3, 0.0])
 
 @lru_cache(maxsize=2)
 def _scene(offsets: tuple, n: int = 50, seed: int = 1):
-    return make_kinematic_scene(np.array(offsets), n_poses=n, seed=seed)
+    # the oracle's scene (true intrinsics held): what the offsets do to the cameras, alone
+    return make_kinematic_scene(np.array(offsets), n_poses=n, seed=seed, reported_intrinsics="exact")
 
 
 def _with(problem, **kw):
@@ -191,7 +192,7 @@ def test_synthetic_corners_along_a_planned_trajectory_carry_the_offsets():
 
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.synth_kinematics import kinematic_scene_from_trajectory
+    from calibgraph.sim.kinematic_scene import kinematic_scene_from_trajectory
     from calibgraph.sim.workcell import load_workcell
 
     cell = load_workcell(Path(__file__).resolve().parents[1] / "datasets" / "workcells" / "default.yaml")
@@ -212,5 +213,19 @@ def test_synthetic_corners_along_a_planned_trajectory_carry_the_offsets():
     pts = sc.problem.points_board_m
     for d in sc.problem.detections:
         T_cb = np.linalg.inv(sc.truth.T_ref_cam[d.camera]) @ sc.truth.T_base_flange_true[d.capture] @ sc.truth.T_mount_board
-        uv = sc.problem.cameras[d.camera].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+        uv = sc.truth.intrinsics[d.camera].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
         assert np.abs(uv - d.uv_px).max() < 5 * 0.1
+    # the problem holds what the cell's cameras report (factory-class), not the true intrinsics
+    assert {c.source for c in sc.problem.cameras.values()} == {"factory"}
+    for n, intr in cell.intrinsics().items():
+        assert np.allclose(sc.problem.cameras[n].K, intr.K) and not np.allclose(intr.K, sc.truth.intrinsics[n].K)
+
+
+def test_offsets_left_out_are_not_taken_for_a_misprinted_board():
+    """Joint offsets present but not estimated (issue 26): the fit's board scale moves, and the
+    robot departs from its FK; the notes point at the kinematics, never at a misprinted board."""
+    sc, _ = _scene(tuple(OFFSETS))
+    r = solve(sc.problem)
+    text = " ".join(r.notes)
+    assert "estimate-kinematics" in text
+    assert "printed at" not in text, r.notes

@@ -19,7 +19,7 @@ from hypothesis import strategies as st  # noqa: E402
 from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
 from calibgraph.plan.trajectory import load_trajectory  # noqa: E402
-from calibgraph.solver.result import load_result_dict  # noqa: E402
+from calibgraph.solver.result import load_result  # noqa: E402
 
 SETTINGS = settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -86,10 +86,29 @@ def test_dataset_loader_says_what_is_wrong_or_loads(head, caps, raw):
         assert len(ds.captures) >= 1
 
 
+result_camera = st.fixed_dictionaries({}, optional={
+    "T_base_cam": matrix(4, 4), "T_flange_cam": matrix(4, 4), "T_ref_cam": matrix(4, 4), "covariance": matrix(6, 6),
+    "views_used": maybe(num), "views_rejected": st.one_of(st.lists(st.fixed_dictionaries(
+        {"capture": maybe(num)}, optional={"reason": maybe(num)}), max_size=2), maybe(num)),
+    "intrinsics": st.one_of(camera, maybe(num)), "reprojection_rms_px": maybe(num)})
 result = st.fixed_dictionaries({"cameras": st.one_of(st.dictionaries(st.text(max_size=3), st.one_of(
-    st.fixed_dictionaries({"T_ref_cam": matrix(4, 4)}), maybe(num)), max_size=2), maybe(num)),
+    result_camera, maybe(num)), max_size=2), maybe(num)),
     "mode": st.one_of(st.sampled_from(["eye_to_hand", "eye_in_hand"]), maybe(num))},
-    optional={"format": st.one_of(st.sampled_from(["calibgraph-result/1", "calibgraph-result/3"]), st.text(max_size=4))})
+    optional={"format": st.one_of(st.sampled_from(["calibgraph-result/1", "calibgraph-result/3"]), st.text(max_size=4)),
+              "solver": st.one_of(st.fixed_dictionaries({}, optional={"converged": maybe(st.booleans()),
+                                                                      "iterations": maybe(num),
+                                                                      "settings": maybe(num)}), maybe(num)),
+              "T_flange_board": matrix(4, 4), "board_scale": st.one_of(st.fixed_dictionaries(
+                  {"scale": maybe(num), "sigma": maybe(num)}), maybe(num)),
+              "notes": st.one_of(st.lists(st.text(max_size=4), max_size=2), maybe(num)),
+              "rejected_corners": st.one_of(st.lists(st.fixed_dictionaries(
+                  {"camera": maybe(num), "capture": maybe(num), "id": maybe(num), "residual_px": maybe(num)}),
+                  max_size=2), maybe(num)),
+              "residuals": st.one_of(st.dictionaries(st.text(max_size=3), st.dictionaries(
+                  st.one_of(st.text(max_size=2), st.just("0")), st.fixed_dictionaries(
+                      {"ids": maybe(num), "uv_detected_px": matrix(2, 2), "residual_px": matrix(2, 2)},
+                      optional={"weight": maybe(num), "rejected": maybe(st.booleans())}), max_size=2),
+                  max_size=2), maybe(num))})
 
 
 @SETTINGS
@@ -99,9 +118,9 @@ def test_result_loader_says_what_is_wrong_or_loads(res, yaml_ext):
         p = Path(d) / ("r.yaml" if yaml_ext else "r.json")
         p.write_text(yaml.safe_dump(res) if yaml_ext else json.dumps(res))
         try:
-            load_result_dict(p)
+            load_result(p)
         except CalibgraphError as e:
-            assert str(e)
+            assert str(e) and "\n" not in str(e).strip()
 
 
 traj = st.fixed_dictionaries({"poses": st.one_of(st.lists(st.one_of(
@@ -125,3 +144,57 @@ def test_trajectory_loader_says_what_is_wrong_or_loads(t):
             assert str(e)
 
 
+
+
+_REAL_RESULT = []
+
+
+def _real_result() -> dict:
+    """A real result file's content (a small synthetic solve), made once."""
+    if not _REAL_RESULT:
+        from calibgraph import solve
+        from calibgraph.sim.synthetic_corners import make_scene
+
+        d = json.loads(json.dumps(solve(make_scene(n_poses=10, seed=3).problem).to_dict()))
+        for name, per in d["residuals"].items():  # two views per camera keep every kind of entry and the file small
+            d["residuals"][name] = dict(list(per.items())[:2])
+        d["robot_flange_poses_refined"] = dict(list(d["robot_flange_poses_refined"].items())[:3])
+        _REAL_RESULT.append(d)
+    return _REAL_RESULT[0]
+
+
+def _leaves(d, path=()):
+    """Every (path, container) in a JSON document, leaves and branches alike."""
+    out = [path]
+    items = d.items() if isinstance(d, dict) else enumerate(d) if isinstance(d, list) else ()
+    for k, v in items:
+        out += _leaves(v, path + (k,))
+    return out
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data(), yaml_ext=st.integers(0, 4).map(lambda k: k == 0))
+def test_a_real_result_with_one_entry_replaced_loads_or_says_what_is_wrong(data, yaml_ext):
+    d = json.loads(json.dumps(_real_result()))
+    paths = _leaves(d)[1:]
+    for _ in range(data.draw(st.integers(1, 3))):
+        path = data.draw(st.sampled_from(paths))
+        parent = d
+        try:
+            for k in path[:-1]:
+                parent = parent[k]
+            value = data.draw(st.one_of(maybe(num), st.dictionaries(st.text(max_size=2), num, max_size=2),
+                                        st.just(None), st.just(object)))
+            if value is object:
+                del parent[path[-1]]
+            else:
+                parent[path[-1]] = value
+        except (KeyError, IndexError, TypeError):
+            continue  # an earlier replacement removed this path
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / ("r.yaml" if yaml_ext else "r.json")
+        p.write_text(yaml.dump(d, Dumper=getattr(yaml, "CSafeDumper", yaml.SafeDumper)) if yaml_ext else json.dumps(d))
+        try:
+            load_result(p)
+        except CalibgraphError as e:
+            assert str(e) and "\n" not in str(e).strip()

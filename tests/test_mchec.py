@@ -167,3 +167,30 @@ def test_export_then_import_round_trip(tmp_path):
             assert (out / f).read_bytes() == (out2 / f).read_bytes(), f
     with pytest.raises(InputError, match="not empty"):
         export_mchec(back, tmp_path / "mc2")
+
+
+def test_a_truncated_image_costs_one_view(tmp_path):
+    """Issue 26: in the MC-HEC layout too, an unreadable image is a warning naming the file and one
+    view fewer; the solve succeeds from the rest (it used to abort)."""
+    import subprocess
+    import sys
+
+    import cv2
+
+    cell = make_fake_cell(n_cameras=2, n_poses=12, seed=3, render=True)
+
+    def detector(img, target, intr):
+        ok, c = cv2.findChessboardCorners(img, (target.cols, target.rows))
+        return (np.arange(len(c)), c.reshape(-1, 2)) if ok else None
+
+    run_acquisition(cell.robot, cell.cameras, cell.trajectory, tmp_path / "ds", cell.target, detector=detector,
+                    progress=False)
+    out = export_mchec(tmp_path / "ds", tmp_path / "mc")
+    images = sorted((out / "camera1" / "image").iterdir())
+    bad = images[len(images) // 2]
+    bad.write_bytes(bad.read_bytes()[:200])
+    proc = subprocess.run([sys.executable, "-m", "calibgraph", "solve", str(out), "--out", str(tmp_path / "r.json"),
+                           "--quiet"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "camera1/image/" + bad.name in proc.stderr and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert (tmp_path / "r.json").is_file()

@@ -1,89 +1,207 @@
-"""A camera bumped during capture (issue 16): named, with the captures between which it moved and
-by how much, and calibrated from the views after the move; the other cameras are not dragged."""
+"""A camera knocked during capture (issue 26 part 1): named on one line, solved as two poses (the
+one after the move reported as the camera's, the one before with its covariance in ``moved``), and
+the other cameras and the shared parameters not dragged; no move reported on still cells, with FK
+noise and with corner noise correlated within each view.
+
+Tolerances: an estimate is "at" a pose when every axis of its translation error is within 3 of its
+reported 1-sigma (and its rotation error within 3 of the 1-sigma norm); the untouched cameras must
+also stay where the solve of the same cell without the knock puts them, within a third of its
+1-sigma or 0.3 mm (the knock must not drag them), and the knock must add no note about the robot's
+accuracy or the board's print scale to what the solve of the still cell says."""
+
+import dataclasses
+import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from calibgraph.sim.synth import bump_camera
 
-from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.transforms import pose_error
-from calibgraph.sim.synth import make_scene
-from calibgraph.solver.batch import _solve_once as solver_once
+from calibgraph.sim.synthetic_corners import bump_camera, correlate_corner_noise, make_scene, ring_cameras
 from calibgraph.solver.batch import solve
+from calibgraph.solver.batch import solve_once
+from calibgraph.solver.moved import find_moves_live
 
-K_SIGMA = 4.0  # an estimate is "at" a pose when within 4 of its reported 1-sigma (norms of the 3 axes)
-
-
-def _within(cam, T_true):
-    e_m, e_deg = pose_error(cam.T_ref_cam, T_true)
-    return (1e3 * e_m <= K_SIGMA * np.linalg.norm(cam.sigma_translation_mm)
-            and e_deg <= K_SIGMA * np.linalg.norm(cam.sigma_rotation_deg)), 1e3 * e_m
+FK = dict(fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01))  # 0.1 mm, 0.01 deg
 
 
-@pytest.mark.parametrize("case", ["5mm_at_10_of_20", "20mm_half_way", "20mm_near_the_end"])
-def test_bumped_camera_is_named_and_calibrated_from_its_final_pose(case):
-    n, shift, seed = {"5mm_at_10_of_20": (20, 0.005, 1), "20mm_half_way": (20, 0.020, 2),
-                      "20mm_near_the_end": (30, 0.020, 3)}[case]
-    scene = make_scene(n_poses=n, seed=seed)
-    caps = sorted(d.capture for d in scene.problem.detections if d.camera == "cam0")
-    at = 10 if n == 20 else caps[-3]  # near the end: the camera's last 3 views are after the move
-    prob, T_after = bump_camera(scene, "cam0", at, shift, rot_deg=0.2, seed=seed)
-    clean = solve(scene.problem)
-    res = solve(prob)
-    notes = [x for x in res.notes if "moved during capture" in x]
-    assert len(notes) == 1 and notes[0].startswith("camera cam0 moved")
-    before = max(c for c in caps if c < at)
-    after = min(c for c in caps if c >= at)
+def _at(cam, T_true, k=3.0):
+    err = np.abs(1e3 * (cam.T_ref_cam[:3, 3] - T_true[:3, 3]))
+    _, e_deg = pose_error(cam.T_ref_cam, T_true)
+    return bool(np.all(err <= k * cam.sigma_translation_mm) and e_deg <= k * np.linalg.norm(cam.sigma_rotation_deg))
+
+
+def _moved_notes(res):
+    return [x for x in res.notes if "moved" in x]
+
+
+def _check_knock(scene, prob, res, victim, T_after, at, clean=None):
+    caps = sorted(d.capture for d in scene.problem.detections if d.camera == victim)
+    notes = _moved_notes(res)
+    assert len(notes) == 1 and notes[0].startswith(f"camera {victim} moved"), res.notes
+    before, after = max(c for c in caps if c < at), min(c for c in caps if c >= at)
     assert f"between captures {before} and {after}" in notes[0]
-    shown_mm = float(notes[0].split(" mm and")[0].split("by ")[-1])
-    true_mm = 1e3 * shift
-    sigma_mm = np.linalg.norm(res.cameras["cam0"].sigma_translation_mm)
-    assert abs(shown_mm - true_mm) <= K_SIGMA * sigma_mm + 0.5, (shown_mm, true_mm, sigma_mm)
-    # the estimate is the final pose (within its own 1-sigma), and far (in sigmas) from the old one
-    ok, err_mm = _within(res.cameras["cam0"], T_after)
-    assert ok, (err_mm, sigma_mm)
-    assert res.cameras["cam0"].views_used == len([c for c in caps if c >= at])
-    assert sum("set aside" in rv.reason for rv in res.cameras["cam0"].views_rejected) == len([c for c in caps if c < at])
-    # the other cameras are not dragged: at the truth within their 1-sigma, and where the clean solve puts them
-    for name in ("cam1", "cam2"):
-        ok, _ = _within(res.cameras[name], scene.truth.T_ref_cam[name])
-        assert ok
-        d_m, _ = pose_error(res.cameras[name].T_ref_cam, clean.cameras[name].T_ref_cam)
-        assert 1e3 * d_m <= 0.5 * np.linalg.norm(clean.cameras[name].sigma_translation_mm)
+    def shared_notes(r):  # what the solve says about the robot and the board
+        return [x.split(":")[0] for x in r.notes if x.startswith("robot:") or "printed at" in x]
+
+    assert shared_notes(res) == (shared_notes(clean) if clean is not None else []), res.notes
+    cam = res.cameras[victim]
+    assert cam.moved["capture"] == after and cam.moved["last_capture_before"] == before
+    n_after = sum(1 for c in caps if c >= after)
+    if n_after < prob.options.min_views_per_camera:  # too few to solve it as it now stands: said, not guessed
+        assert not cam.calibrated and f"only {n_after} of its views are from after the move" in cam.why
+    else:
+        assert _at(cam, T_after), pose_error(cam.T_ref_cam, T_after)
+        assert cam.views_used == n_after
+    if cam.moved["T_before"] is not None:  # the pose before the move, with its own 1-sigma
+        from calibgraph.solver.result import CameraResult
+
+        before_cam = CameraResult(victim, cam.ref_frame, cam.moved["T_before"], cam.moved["covariance_before"], 0, 0, 0)
+        assert _at(before_cam, scene.truth.T_ref_cam[victim])
+    for name in scene.truth.T_ref_cam:
+        if name == victim:
+            continue
+        assert _at(res.cameras[name], scene.truth.T_ref_cam[name]), name
+        if clean is not None:
+            d_m, _ = pose_error(res.cameras[name].T_ref_cam, clean.cameras[name].T_ref_cam)
+            limit_mm = max(0.3, np.linalg.norm(clean.cameras[name].sigma_translation_mm) / 3)
+            assert 1e3 * d_m <= limit_mm, (name, 1e3 * d_m)
 
 
-def test_too_few_views_after_the_move_are_said_not_averaged():
-    scene = make_scene(n_poses=20, seed=1)
-    caps = sorted(d.capture for d in scene.problem.detections if d.camera == "cam0")
-    prob, _ = bump_camera(scene, "cam0", caps[-2], 0.02, seed=1)
-    with pytest.raises(ObservabilityError, match=f"camera cam0 moved during capture, between captures {caps[-3]} "
-                                                 f"and {caps[-2]}.*too few"):
-        solve(prob)
+@pytest.mark.parametrize("knock", ["5 mm", "0.2 deg"])
+def test_knocked_after_capture_18_of_36_is_named_and_split(knock):
+    """The issue's target: 3 cameras, 36 poses, one camera moved after capture 18."""
+    scene = make_scene(n_poses=36, seed=0, **FK)
+    shift, rot = (0.005, 0.0) if knock == "5 mm" else (0.0, 0.2)
+    prob, T_after = bump_camera(scene, "cam0", 18, shift, rot_deg=rot, seed=0)
+    res = solve(prob)
+    _check_knock(scene, prob, res, "cam0", T_after, 18, clean=solve(scene.problem))
+    m = res.cameras["cam0"].moved
+    true_mm = 1e3 * np.linalg.norm(T_after[:3, 3] - scene.truth.T_ref_cam["cam0"][:3, 3])
+    assert abs(m["displacement_mm"] - true_mm) <= 3 * m["sigma_displacement_mm"] + 0.3, (m["displacement_mm"], true_mm)
+
+
+@pytest.mark.parametrize("victim", ["cam0", "cam1", "cam2"])
+def test_the_knocked_camera_is_named_when_every_camera_sees_every_pose(victim):
+    """With every view shared, the other cameras see the robot poses the knocked camera pulls on;
+    the test must still name the camera that moved (was: the wrong one in 3 of 6 seeds)."""
+    scene = make_scene(cameras=ring_cameras([1.5, 2.0, 2.5], spread_deg=60), tilt_deg=20, n_poses=36, seed=3, **FK)
+    assert all(sum(d.capture == k for d in scene.problem.detections) == 3 for k in range(36))
+    prob, T_after = bump_camera(scene, victim, 18, 0.005, seed=3)
+    _check_knock(scene, prob, solve(prob), victim, T_after, 18)
+
+
+@pytest.mark.parametrize("case", ["20 mm half-way", "20 mm at 20 %", "1 deg at 80 %"])
+def test_large_knocks_are_named_not_rejected(case):
+    """A 20 mm knock used to end in 'all views rejected ... check its intrinsics'."""
+    shift, rot, at = {"20 mm half-way": (0.02, 0.0, 18), "20 mm at 20 %": (0.02, 0.0, 7),
+                      "1 deg at 80 %": (0.0, 1.0, 29)}[case]
+    scene = make_scene(n_poses=36, seed=4, **FK)
+    prob, T_after = bump_camera(scene, "cam1", at, shift, rot_deg=rot, seed=4)
+    _check_knock(scene, prob, solve(prob), "cam1", T_after, at, clean=solve(scene.problem))
+
+
+def test_knock_with_correlated_corner_noise_is_named():
+    scene = make_scene(n_poses=36, seed=5, **FK)
+    prob, T_after = bump_camera(scene, "cam0", 18, 0.005, seed=5)
+    prob = correlate_corner_noise(prob, 5.0, seed=5)
+    res = solve(prob)
+    notes = _moved_notes(res)
+    assert len(notes) == 1 and notes[0].startswith("camera cam0 moved"), res.notes
+    assert _at(res.cameras["cam0"], T_after)
 
 
 @pytest.mark.parametrize("seed", range(4))
 def test_no_move_reported_on_a_still_cell(seed):
-    """Clean cells, also with forward-kinematics noise (1 mm, 0.03 deg): nothing is said, nothing set aside."""
-    scene = make_scene(n_poses=24, seed=seed, fk_sigma_translation_m=1e-3 * (seed % 2),
-                       fk_sigma_rotation_rad=5e-4 * (seed % 2))
-    res = solve(scene.problem)
-    assert not [x for x in res.notes if "moved" in x]
-    assert not [rv for rv in res.rejected_views if "set aside" in rv.reason]
-
-
-def test_a_move_that_gets_every_view_rejected_is_still_named():
-    """20 mm half-way on this seed: the joint solve rejects all of cam0's views as inconsistent; the
-    move, not "inconsistent views", is the answer, and the camera is calibrated from after it."""
-    scene = make_scene(n_poses=20, seed=101)
-    caps = sorted(d.capture for d in scene.problem.detections if d.camera == "cam0")
-    at = caps[len(caps) // 2]
-    prob, T_after = bump_camera(scene, "cam0", at, 0.020, rot_deg=0.2, seed=101)
-    with pytest.raises(ObservabilityError, match="cam0.*rejected"):
-        solver_once(prob)
+    """FK noise 0.1 mm / 0.01 deg (seeds 0, 1) or 1 mm / 0.03 deg stated as such (2), and corner noise
+    correlated within each view at 10x the corner variance (1, 3): nothing is said, nothing set aside."""
+    fk = dict(fk_sigma_translation_m=1e-3, fk_sigma_rotation_rad=5e-4) if seed == 2 else FK
+    scene = make_scene(n_poses=36, seed=20 + seed, **fk)
+    prob = correlate_corner_noise(scene.problem, 10.0, seed) if seed % 2 else scene.problem
     res = solve(prob)
-    notes = [x for x in res.notes if "moved during capture" in x]
-    assert len(notes) == 1 and f"between captures {max(c for c in caps if c < at)} and {at}" in notes[0]
-    ok, err_mm = _within(res.cameras["cam0"], T_after)
-    assert ok, err_mm
+    assert not _moved_notes(res), res.notes
+    assert all(c.moved is None for c in res.cameras.values())
+    assert not [rv for rv in res.rejected_views if "move" in rv.reason]
+
+
+def test_too_few_views_after_the_move_leave_the_camera_not_calibrated_and_say_why():
+    scene = make_scene(n_poses=30, seed=1, **FK)
+    caps = sorted(d.capture for d in scene.problem.detections if d.camera == "cam0")
+    prob, _ = bump_camera(scene, "cam0", caps[-2], 0.02, seed=1)
+    res = solve(prob)
+    cam = res.cameras["cam0"]
+    assert not cam.calibrated and "moved during capture" in cam.why and "only 2 of its views" in cam.why
+    assert cam.moved["views_after"] == 2 and cam.moved["T_before"] is not None
+    assert _at(type(cam)("cam0", "base", cam.moved["T_before"], cam.moved["covariance_before"], 0, 0, 0),
+               scene.truth.T_ref_cam["cam0"])
+    notes = _moved_notes(res)
+    assert len(notes) == 1 and notes[0].startswith("camera cam0 moved") and "cannot be calibrated" in notes[0]
     for name in ("cam1", "cam2"):
-        assert _within(res.cameras[name], scene.truth.T_ref_cam[name])[0]
+        assert _at(res.cameras[name], scene.truth.T_ref_cam[name])
+
+
+def test_moved_in_result_json(tmp_path):
+    scene = make_scene(n_poses=36, seed=0, **FK)
+    prob, _ = bump_camera(scene, "cam0", 18, 0.005, seed=0)
+    res = solve(prob)
+    d = json.loads(res.save(tmp_path / "r.json").read_text())
+    m = d["cameras"]["cam0"]["moved"]
+    assert m["capture"] == res.cameras["cam0"].moved["capture"]
+    assert np.asarray(m["T_base_cam_before"]).shape == (4, 4) and np.asarray(m["covariance_before"]).shape == (6, 6)
+    assert set(d["cameras"]) == {"cam0", "cam1", "cam2"} and all("before" not in k for k in d["camera_pairs"])
+    assert "moved" not in d["cameras"]["cam1"]
+    import yaml
+
+    moved = res.to_dict()["cameras"]["cam0"]["moved"]  # plain types: result.yaml can hold it
+    assert yaml.safe_load(yaml.safe_dump(moved))["capture"] == m["capture"]
+
+
+def test_solve_once_does_not_look_for_moves():
+    """The test runs in ``solve`` only; ``solve_once`` is the plain solve."""
+    scene = make_scene(n_poses=36, seed=0, **FK)
+    prob, _ = bump_camera(scene, "cam0", 18, 0.005, seed=0)
+    assert not _moved_notes(solve_once(prob))
+
+
+def test_live_test_against_a_stored_result():
+    """``find_moves_live``: the fresh views of a cell judged against its calibration (verify, capture)."""
+    scene = make_scene(n_poses=36, seed=6, **FK)
+    stored = solve(scene.problem)
+    prob, _ = bump_camera(scene, "cam2", 18, 0.005, seed=6)
+    moves = find_moves_live(prob, stored)
+    assert [m.camera for m in moves] == ["cam2"] and moves[0].first_after >= 18 > moves[0].last_before
+    assert find_moves_live(scene.problem, stored) == []
+    # a live estimate (what IncrementalSolver.add_capture returns): poses and mount, no pixel sigma
+    live = SimpleNamespace(cameras={n: SimpleNamespace(T_ref_cam=c.T_ref_cam) for n, c in stored.cameras.items()},
+                           T_mount_board=stored.T_mount_board)
+    assert [m.camera for m in find_moves_live(prob, live)] == ["cam2"]
+    assert find_moves_live(scene.problem, live) == []
+    stored_json = json.loads(json.dumps(stored.to_dict()))  # result.json, as verify reads it
+    assert [m.camera for m in find_moves_live(prob, stored_json)] == ["cam2"]
+    assert find_moves_live(scene.problem, stored_json) == []
+
+
+def test_absurd_intrinsics_do_not_crash_the_test():
+    """fx = fy = 1e9 gave a cv2.error traceback from the old moved-camera test."""
+    scene = make_scene(n_poses=24, seed=0, **FK)
+    cams = {}
+    for n, c in scene.problem.cameras.items():
+        K = c.K.copy()
+        K[0, 0] = K[1, 1] = 1e9
+        cams[n] = dataclasses.replace(c, K=K)
+    prob = scene.problem.with_(cameras=cams)
+    stored = solve(scene.problem)
+    assert find_moves_live(prob, stored) == []
+    try:
+        solve(prob)
+    except CalibgraphError as e:
+        assert "\n" not in str(e).strip() or len(str(e)) < 2000
+
+
+def test_an_initial_guess_without_the_pose_before_the_move():
+    """``solve(..., initial=...)`` names the cameras of the dataset; the split adds one it cannot name."""
+    scene = make_scene(n_poses=36, seed=0, **FK)
+    prob, T_after = bump_camera(scene, "cam0", 18, 0.005, seed=0)
+    res = solve(prob, initial={"T_ref_cam": dict(scene.truth.T_ref_cam), "T_mount_board": scene.truth.T_mount_board})
+    assert [x.split()[1] for x in _moved_notes(res)] == ["cam0"] and _at(res.cameras["cam0"], T_after)

@@ -18,10 +18,9 @@ from calibgraph.io.layouts import load_dataset
 from calibgraph.report.html import (
     compute_residuals,
     load_tolerances,
-    residuals_section,
     write_report,
 )
-from calibgraph.solver.result import load_result_dict
+from calibgraph.solver.result import load_result
 
 
 class _Spans(html.parser.HTMLParser):
@@ -64,12 +63,11 @@ class _Spans(html.parser.HTMLParser):
 
 
 def test_report_numbers_equal_result_json(tmp_path):
-    d, scene, prob, res = make_sim_result()
-    res_path = tmp_path / "result.json"
-    res_path.write_text(json.dumps(d))
-    d = load_result_dict(res_path)
-    out = write_report(d, tmp_path / "report.html", result_path=res_path)
+    r, scene, prob, res = make_sim_result()
+    res_path = r.save(tmp_path / "result.json")
+    out = write_report(load_result(res_path), tmp_path / "report.html", result_path=res_path)
     text = out.read_text()
+    d = json.loads(res_path.read_text())
     p = _Spans()
     p.feed(text)
     # the embedded copy of the result is the result
@@ -100,8 +98,8 @@ def test_report_numbers_equal_result_json(tmp_path):
 
 def test_pass_fail_follows_tolerances(tmp_path):
     d, *_ = make_sim_result()
-    names = list(d["cameras"])
-    worst_t = {n: max(c["sigma_translation_mm"]) for n, c in d["cameras"].items()}
+    names = list(d.cameras)
+    worst_t = {n: max(c.sigma_translation_mm) for n, c in d.cameras.items()}
     # cam limits straddle the values: the first camera passes the translation check, the last fails it
     lo, hi = min(worst_t.values()), max(worst_t.values())
     cfg = {"defaults": {"max_sigma_translation_mm": (lo + hi) / 2, "max_sigma_rotation_deg": None,
@@ -130,13 +128,15 @@ def test_report_from_file_alone_and_with_dataset(tmp_path):
     text = write_report(d, tmp_path / "bare.html").read_text()
     assert "No per-corner residuals" in text and "no detections available" in text
     ds = write_sim_dataset(tmp_path / "ds", prob)
-    # recomputed residuals agree with the solver's own (same chain, same sign convention)
+    # recomputed residuals agree with the solver's own (same chain, same sign convention, same rejections)
     rec = compute_residuals(d, load_dataset(ds))
-    sol = residuals_section(res)
-    for n in sol:
-        for k, v in sol[n].items():
+    for n, c in res.cameras.items():
+        # views the solver set aside before solving (no PnP) have no residuals of its own
+        assert all(rec[n][k]["rejected"] for k in rec[n].keys() - c.residuals_px.keys())
+        for k, v in c.residuals_px.items():
             assert np.allclose(rec[n][k]["residual_px"], v["residual_px"], atol=1e-6)
             assert rec[n][k]["rejected"] == v["rejected"]
+            assert np.array_equal(rec[n][k]["weight"] == 0, v["weight"] == 0)
     text = write_report(d, tmp_path / "ds.html", dataset=ds).read_text()
     assert "recomputed from the dataset" in text and "image coverage (" in text
 
@@ -151,7 +151,7 @@ def test_cli_report(tmp_path):
     from calibgraph.cli.main import main
 
     d, *_ = make_sim_result()
-    (tmp_path / "result.json").write_text(json.dumps(d))
+    d.save(tmp_path / "result.json")
     assert main(["report", str(tmp_path / "result.json"), "--out", str(tmp_path / "x.html")]) == 0
     assert (tmp_path / "x.html").stat().st_size > 10000
     assert main(["report", str(tmp_path / "missing.json")]) == 2
@@ -197,18 +197,47 @@ def test_report_renders_in_headless_chromium(tmp_path):
     # the DOM the browser built contains the report, not an error page
     dom = run_chromium(["--dump-dom", out.resolve().as_uri()]).stdout
     assert "calibgraph commissioning report" in dom and "ERR_" not in dom
-    for n, c in d["cameras"].items():
+    for n, c in d.cameras.items():
         assert f'data-camera="{n}"' in dom
-        assert f">{c['reprojection_rms_px']:.3f}<" in dom
-    assert dom.count("<svg") >= 3 * len(d["cameras"])
+        assert f">{c.reprojection_rms_px:.3f}<" in dom
+    assert dom.count("<svg") >= 3 * len(d.cameras)
 
 
 def test_recomputed_residuals_match_solver_eye_in_hand():
     d, scene, prob, res = make_sim_result(mode="eye_in_hand", residuals=False)
     rec = compute_residuals(d, prob)
-    sol = residuals_section(res)
-    assert sol and all(sol.values())
-    for n in sol:
-        assert rec[n].keys() == sol[n].keys()
-        for k, v in sol[n].items():
+    assert all(c.residuals_px for c in res.cameras.values())
+    for n, c in res.cameras.items():
+        assert rec[n].keys() == c.residuals_px.keys()
+        for k, v in c.residuals_px.items():
             assert np.allclose(rec[n][k]["residual_px"], v["residual_px"], atol=1e-6)
+
+
+def test_ticks_of_a_constant_map_are_few():
+    """A workspace map that is constant within rounding (a degenerate covariance) once made the tick
+    loop step by less than the values' precision and never end."""
+    from calibgraph.report.svgplot import heatmap, nice_ticks
+
+    lo = 0.552268050859363
+    hi = np.nextafter(lo, 1.0)
+    assert 1 <= len(nice_ticks(lo, hi, 4)) <= 10
+    assert len(nice_ticks(0.0, 0.0)) <= 10 and nice_ticks(1.0, np.inf) == []
+    assert "<svg" in heatmap(np.full((3, 3), lo) + np.eye(3) * (hi - lo), np.arange(4.0), np.arange(4.0))
+
+
+def test_a_dataset_that_is_not_the_results_is_named(tmp_path):
+    from dataclasses import replace
+
+    from calibgraph.core.errors import InputError
+    from calibgraph.report.html import dataset_mismatch
+
+    d, scene, prob, res = make_sim_result()
+    ds = load_dataset(write_sim_dataset(tmp_path / "ds", prob))
+    assert dataset_mismatch(d, ds) == []  # its own dataset
+    fewer = replace(d, cameras={n: c for n, c in d.cameras.items() if n != "cam2"})
+    assert any("cam2 are not in the result" in s for s in dataset_mismatch(fewer, ds))
+    more = replace(d, T_base_flange_est={**d.T_base_flange_est, 999: np.eye(4)})
+    assert any("captures are not in it" in s and "999" in s for s in dataset_mismatch(more, ds))
+    with pytest.raises(InputError, match="not the dataset this result was solved from"):
+        write_report(more, tmp_path / "r.html", dataset=ds)
+    assert not (tmp_path / "r.html").exists()

@@ -44,7 +44,8 @@ def _series(chunks, entity):
 def test_rrd_from_result_and_problem_verifies_and_holds_the_residuals(tmp_path):
     from calibgraph.report.rerun_view import write_rrd
 
-    d, scene, prob, res = make_sim_result()
+    r, scene, prob, res = make_sim_result()
+    d = r.to_dict()
     path = write_rrd(res, prob, tmp_path / "cal.rrd")  # what `calibgraph solve --rrd` calls
     _verify(path)
     from rerun.chunk import RrdReader
@@ -78,7 +79,8 @@ def test_rrd_from_result_file_and_dataset_with_images(tmp_path):
 
     from calibgraph.cli.main import main
 
-    d, scene, prob, res = make_sim_result(residuals=False)
+    r, scene, prob, res = make_sim_result(residuals=False)
+    d = r.to_dict()
     ds = write_sim_dataset(tmp_path / "ds", prob)
     # give three views an image file (grey frames; the point is that they are logged)
     caps = sorted(json.loads(p.read_text())["index"] for p in (ds / "captures").glob("*.json"))[:3]
@@ -91,7 +93,7 @@ def test_rrd_from_result_file_and_dataset_with_images(tmp_path):
             cv2.imwrite(str(ds / rel), np.full((1080 // 4, 1920 // 4), 128, np.uint8))
             c["views"][cam]["image"] = rel
         f.write_text(json.dumps(c))
-    (tmp_path / "result.json").write_text(json.dumps(d))
+    r.save(tmp_path / "result.json")
     out = tmp_path / "view.rrd"
     assert main(["view", str(tmp_path / "result.json"), "--dataset", str(ds), "--rrd", str(out)]) == 0
     _verify(out)
@@ -107,8 +109,9 @@ def test_rrd_from_result_file_and_dataset_with_images(tmp_path):
 def test_eye_in_hand_rrd(tmp_path):
     from calibgraph.report.rerun_view import write_rrd
 
-    d, scene, prob, res = make_sim_result(mode="eye_in_hand")
-    path = write_rrd(d, prob, tmp_path / "eih.rrd")
+    r, scene, prob, res = make_sim_result(mode="eye_in_hand")
+    d = r.to_dict()
+    path = write_rrd(r, prob, tmp_path / "eih.rrd")
     _verify(path)
     ch = _chunks(path)
     n = next(iter(d["cameras"]))
@@ -127,16 +130,17 @@ def test_report_and_rrd_from_the_real_rct_dataset(shared_dir, tmp_path):
     from calibgraph.cli.main import main
     from calibgraph.report.html import write_report
     from calibgraph.report.rerun_view import write_rrd
-    from calibgraph.solver.result import load_result_dict
+    from calibgraph.solver.result import load_result
 
     ds = shared_dir / "datasets" / "rct_static_camera_charuco"
     res = tmp_path / "result.json"
     assert main(["solve", str(ds), "--out", str(res), "--quiet"]) == 0
-    d = load_result_dict(res)
-    text = write_report(d, tmp_path / "report.html", dataset=ds, result_path=res).read_text()
+    r = load_result(res)
+    d = r.to_dict()
+    text = write_report(r, tmp_path / "report.html", dataset=ds, result_path=res).read_text()
     assert "1600×1200 px" in text and "image coverage (" in text
     assert f">{d['cameras']['camera']['reprojection_rms_px']:.3f}<" in text
-    path = write_rrd(d, ds, tmp_path / "rct.rrd")
+    path = write_rrd(r, ds, tmp_path / "rct.rrd")
     _verify(path)
     ch = _chunks(path)
     imgs = [c for c in ch["/world/cameras/camera/image"] if not c.is_static]
@@ -147,7 +151,8 @@ def test_rrd_shows_the_plan_of_an_autonomous_run(tmp_path):
     """Per step of plan_log.json: candidates coloured by score, the chosen pose, the 1-sigma series."""
     from calibgraph.report.rerun_view import plan_points, write_rrd
 
-    d, scene, prob, res = make_sim_result()
+    r, scene, prob, res = make_sim_result()
+    d = r.to_dict()
     rng = np.random.default_rng(3)
     steps = [{"step": 0, "phase": "survey round 0", "label": "sweep", "why": "survey", "status": "captured",
               "board_centre_m": [0.5, 0.0, 0.4], "seen_by": ["cam0"], "achieved": {}}]

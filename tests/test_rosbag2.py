@@ -1,7 +1,7 @@
 """calibgraph import rosbag2: a simulated capture written as a rosbag2 (sqlite3 and MCAP) with
 ``rosbags``, imported, and solved to the same result as the capture read directly.
 
-The capture: two 640x480 cameras 1.2 m from the workspace (calibgraph.sim.synth geometry), board
+The capture: two 640x480 cameras 1.2 m from the workspace (calibgraph.sim.synthetic_corners geometry), board
 images rendered by calibgraph.sim.board_image (exact area coverage, blur 0.6 px, noise 2 grey
 levels). The bag carries what a ROS 2 cell publishes: ``/camN/color/image_raw`` (``sensor_msgs/Image``
 mono8) or ``/camN/color/image_raw/compressed`` (PNG ``CompressedImage``), ``/camN/color/camera_info``,
@@ -24,7 +24,7 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Capture
 from calibgraph.core.targets import a4_board_54
-from calibgraph.core.transforms import exp_so3, inv, look_at, make_T
+from calibgraph.core.transforms import exp_so3, inv, log_so3, look_at, make_T
 from calibgraph.io.dataset import image_relpath, write_capture, write_header
 from calibgraph.io.layouts import load_dataset
 from calibgraph.solver.batch import solve
@@ -41,7 +41,7 @@ INTR = Intrinsics(K=np.array([[600.0, 0, 320.5], [0, 600.0, 240.5], [0, 0, 1]]),
 
 
 def _cameras():
-    from calibgraph.sim.synth import WORKSPACE_CENTRE_M
+    from calibgraph.sim.synthetic_corners import WORKSPACE_CENTRE_M
 
     c = WORKSPACE_CENTRE_M
     return {"cam0": (look_at(c + [1.2, 0.1, 0.5], c), INTR), "cam1": (look_at(c + [0.1, 1.2, 0.4], c), INTR)}
@@ -51,7 +51,7 @@ def _cameras():
 def _capture():
     """(captures [(T_base_flange reported, q_rad)], {camera: [image per capture]}) of a synthetic cell."""
     from calibgraph.sim.board_image import board_texture, render_view
-    from calibgraph.sim.synth import make_scene
+    from calibgraph.sim.synthetic_corners import make_scene
 
     cams = _cameras()
     scene = make_scene(cams, n_poses=10, seed=3, shared_fraction=0.5, tilt_deg=30, fk_sigma_translation_m=5e-5,
@@ -68,18 +68,21 @@ def _capture():
     return [c.T_base_flange for c in scene.problem.captures], images
 
 
-def _write_direct(root):
-    poses, images = _capture()
+def _write_direct(root, poses=None, images=None):
+    """The capture as a calibgraph dataset (``images[camera][k]`` None: no view there)."""
+    import cv2
+
+    if poses is None:
+        poses, images = _capture()
     write_header(root, a4_board_54(), {n: INTR for n in images})
     for k, T in enumerate(poses):
         views = {}
         for n, ims in images.items():
-            rel = image_relpath(n, k)
-            (root / rel).parent.mkdir(parents=True, exist_ok=True)
-            import cv2
-
-            cv2.imwrite(str(root / rel), ims[k])
-            views[n] = {"image": rel, "stamp_s": 10.0 + 2.0 * k}
+            if ims[k] is not None:
+                rel = image_relpath(n, k)
+                (root / rel).parent.mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(root / rel), ims[k])
+                views[n] = {"image": rel, "stamp_s": 10.0 + 2.0 * k}
         write_capture(root, Capture(index=k, T_base_flange=T, stamp_s=10.0 + 2.0 * k), views)
     return root
 
@@ -114,9 +117,12 @@ def _camera_info(t_ns, intr, frame):
 
 
 def write_bag(path, storage="sqlite3", compressed=("cam1",), tf=True, joints=None, info=("cam0", "cam1"),
-              rest_s=1.0, poses=None, images=None):
+              rest_s=1.0, poses=None, images=None, moving_only=(), silent=()):
     """A rosbag2 of the capture (module docstring). ``joints``: q_rad per capture to publish
-    /joint_states (the poses then follow from franka_fk); ``info``: cameras that get a CameraInfo."""
+    /joint_states (the poses then follow from franka_fk); ``info``: cameras that get a CameraInfo;
+    ``images[camera][k]`` None: that camera has no frame while the robot rests at pose k;
+    ``moving_only``: cameras whose frames all come while the robot moves; ``silent``: image topics
+    (``/NAME/color/image_raw``) declared in the bag with no message."""
     import cv2
 
     if poses is None:
@@ -158,7 +164,11 @@ def write_bag(path, storage="sqlite3", compressed=("cam1",), tf=True, joints=Non
                     position=np.append(joints[k], 0.04), velocity=np.zeros(8), effort=np.zeros(8))))
         for n, ims in images.items():
             # one frame while moving (a grey field: the board is elsewhere), one at rest
-            for ti, img in ((t + 500_000_000, np.full_like(ims[k], 90)), (t_move + int(rest_s * 5e8), ims[k])):
+            shape = next(im for im in ims if im is not None).shape
+            frames = [(t + 500_000_000, np.full(shape, 90, np.uint8))]
+            if ims[k] is not None and n not in moving_only:
+                frames.append((t_move + int(rest_s * 5e8), ims[k]))
+            for ti, img in frames:
                 if n in compressed:
                     ok, buf = cv2.imencode(".png", img)
                     msg = m["sensor_msgs/msg/CompressedImage"](header=_header(ti, f"{n}_optical"), format="png",
@@ -171,7 +181,8 @@ def write_bag(path, storage="sqlite3", compressed=("cam1",), tf=True, joints=Non
                     msgs.append((ti, f"/{n}/color/image_raw", "sensor_msgs/msg/Image", msg))
         t = t_move + int(rest_s * 1e9) + 50_000_000
     with Writer(path, version=9, storage_plugin=plugin) as w:
-        conns = {}
+        conns = {f"/{n}/color/image_raw": w.add_connection(f"/{n}/color/image_raw", "sensor_msgs/msg/Image", typestore=TS)
+                 for n in silent}
         for ti, topic, typ, msg in sorted(msgs, key=lambda r: r[0]):
             if topic not in conns:
                 conns[topic] = w.add_connection(topic, typ, typestore=TS)
@@ -281,3 +292,106 @@ def test_camera_name_of_topic():
     from calibgraph.io.rosbag2 import camera_name_of
 
     assert camera_name_of("/cam0/color/image_raw") == "cam0" and camera_name_of("/image") == "image"
+
+
+# -- stills as robots record them: each camera has frames only where it saw the board -----------------
+@lru_cache(maxsize=1)
+def _partial_capture():
+    """12 captures of three cameras, each image rendered only for the cameras that see the board
+    at that pose (the others have no frame there): (poses, {camera: [image or None]}, cameras)."""
+    from calibgraph.sim.board_image import board_texture, render_view
+    from calibgraph.sim.synth import WORKSPACE_CENTRE_M, make_scene
+
+    c = WORKSPACE_CENTRE_M
+    cams = {**_cameras(), "cam2": (look_at(c + [0.3, -1.2, 0.45], c), INTR)}
+    scene = make_scene(cams, n_poses=12, seed=5, shared_fraction=0.4, tilt_deg=30, fk_sigma_translation_m=5e-5,
+                       fk_sigma_rotation_rad=np.radians(0.005))
+    seen = {(d.capture, d.camera) for d in scene.problem.detections}
+    tgt = a4_board_54()
+    tex = board_texture(tgt, 40.0 / tgt.pitch_m)
+    images = {n: [] for n in cams}
+    for cap in scene.problem.captures:
+        T_bb = scene.truth.T_base_flange_true[cap.index] @ scene.truth.T_mount_board
+        for n, (T_bc, intr) in cams.items():
+            images[n].append(render_view(tgt, intr, inv(T_bc) @ T_bb, blur_sigma_px=0.6, noise_sigma=2.0,
+                                         seed=cap.index, texture=tex).image if (cap.index, n) in seen else None)
+    return [cap.T_base_flange for cap in scene.problem.captures], images, cams
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_stills_with_some_cameras_solve_to_the_direct_result(tmp_path, storage, capsys):
+    """Stills carry only the cameras that saw the board; a camera publishing only while the robot
+    moves and a topic with no message are left out with a warning; a still with no frame at all is
+    skipped with its reason. The imported dataset solves to the source dataset's result."""
+    poses, images, cams = _partial_capture()
+    per_cam = {n: sum(im is not None for im in ims) for n, ims in images.items()}
+    assert all(3 <= v < 12 for v in per_cam.values()), per_cam  # every camera misses some stills
+    # a 13th still in which no camera has a frame; cam3 publishes only while moving; cam4 never
+    blank = np.full((480, 640), 200, np.uint8)
+    bag_images = {n: ims + [None] for n, ims in images.items()}
+    bag_images["cam3"] = [blank] * 13
+    bag = write_bag(tmp_path / f"bag_{storage}", storage, compressed=("cam1",), info=("cam0", "cam1", "cam2", "cam3"),
+                    poses=poses + [poses[0] @ make_T(np.eye(3), [0.0, 0.0, 0.1])], images=bag_images,
+                    moving_only=("cam3",), silent=("cam4",))
+    out = tmp_path / "imported"
+    assert main(["import", "rosbag2", str(bag), "--out", str(out)]) == 0
+    cap = capsys.readouterr()
+    assert "12 captures from 13 still moments" in cap.out
+    for n, v in per_cam.items():
+        assert f"{n} <- /{n}/color/image_raw{'/compressed' if n == 'cam1' else ''} (in {v} stills)" in cap.out
+    assert "1 moments skipped: no frame from any camera while still (at t = " in cap.out
+    warn = cap.err.strip().splitlines()
+    assert warn == ["warning: camera cam3 (/cam3/color/image_raw): none of its 13 frames is inside a still moment; "
+                    "it is left out of the dataset.",
+                    "warning: camera cam4 (/cam4/color/image_raw): no frame in the bag; it is left out of the dataset."]
+    ds = load_dataset(out)
+    assert sorted(ds.cameras) == ["cam0", "cam1", "cam2"] and len(ds.captures) == 12
+    assert {(v.capture, v.camera) for v in ds.views} == {(k, n) for n, ims in images.items()
+                                                         for k, im in enumerate(ims) if im is not None}
+    res = solve(build_problem(ds, progress=False)[0])
+    ref = solve(build_problem(load_dataset(_write_direct(tmp_path / "direct", poses, images)), progress=False)[0])
+    for n in cams:
+        a, b = res.cameras[n].T_ref_cam, ref.cameras[n].T_ref_cam
+        assert np.linalg.norm(a[:3, 3] - b[:3, 3]) * 1e3 < 0.05
+        assert np.degrees(np.linalg.norm(log_so3(a[:3, :3] @ b[:3, :3].T))) < 0.005
+    # and the capture is sound: the truth within the solve's own 3 sigma per axis
+    for n, (T, _) in cams.items():
+        e_mm = np.abs(res.cameras[n].T_ref_cam[:3, 3] - T[:3, 3]) * 1e3
+        assert np.all(e_mm < 3 * np.asarray(res.cameras[n].sigma_translation_mm) + 1e-3), (n, e_mm)
+
+
+def test_no_camera_frame_in_any_still_names_the_topics(tmp_path, capsys):
+    poses, images = _capture()
+    bag = write_bag(tmp_path / "bag", poses=poses[:3], images={n: v[:3] for n, v in images.items()},
+                    moving_only=("cam0", "cam1"))
+    out = tmp_path / "out"
+    assert main(["import", "rosbag2", str(bag), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no camera has a frame in any of the 3 still moments" in err[0], err
+    assert "/cam0/color/image_raw (3 frames)" in err[0] and "/cam1/color/image_raw/compressed (3 frames)" in err[0]
+    assert not out.exists()  # a refused import leaves no folder behind
+
+
+def test_out_is_checked_like_every_out(tmp_path, capsys):
+    """--out at a device, an existing file, a path under a file, a folder holding a dataset or
+    another run's captures: one line, exit 2, nothing touched."""
+    poses, images = _capture()
+    bag = write_bag(tmp_path / "bag", poses=poses[:2], images={n: v[:2] for n, v in images.items()})
+    f = tmp_path / "file.txt"
+    f.write_text("keep me")
+    done = tmp_path / "done"
+    assert main(["import", "rosbag2", str(bag), "--out", str(done), "--quiet"]) == 0
+    other = tmp_path / "other"
+    (other / "captures").mkdir(parents=True)
+    cases = [("/dev/null", "/dev/null: is a device, pipe or socket, not a folder"),
+             (str(f), "file.txt: is a file, not a folder"),
+             (str(f / "sub"), "a parent of this path is a file, not a folder"),
+             (str(done), "a dataset already exists here"),
+             (str(other), "holds captures/ of another run")]
+    before = {p: p.stat().st_mtime_ns for p in done.rglob("*")}
+    for o, msg in cases:
+        assert main(["import", "rosbag2", str(bag), "--out", o]) == 2, o
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("calibgraph import: error:") and msg in err[0], (o, err)
+    assert f.read_text() == "keep me" and not any(other.joinpath("captures").iterdir())
+    assert {p: p.stat().st_mtime_ns for p in done.rglob("*")} == before

@@ -47,15 +47,26 @@ def test_cli_sim_writes_dataset_with_ground_truth(tmp_path):
         e_m, e_deg = pose_error(cap.T_base_flange, T_true)
         assert 0 < e_m < 5e-4 and e_deg < 0.05
         assert np.allclose(T_true, traj.poses[cap.index].T_base_flange, atol=1e-9)
-    # stored detections agree with the board points projected through the ground truth
+    # stored detections agree with the board points projected through the ground truth (the images are
+    # rendered with the true intrinsics, not the ones the cameras report)
     pts = ds.target.points_board_m
     for v in ds.views:
         T_cb = inv(gt["T_base_cam"][v.camera]) @ gt["T_base_flange_true"][v.capture] @ gt["T_flange_board"]
-        uv = ds.cameras[v.camera].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+        uv = gt["intrinsics_true"][v.camera].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
         assert np.abs(v.uv_px - uv[v.ids]).max() < 1.0
     raw = json.loads((out / "ground_truth.json").read_text())
     assert raw["format"] == "calibgraph-ground-truth/1" and "frame_convention" in raw
     assert raw["cameras"]["left"]["intrinsics"]["width_px"] == 1280
+    # the cameras report factory-class intrinsics (the workcell's default): dataset.yaml holds them with
+    # source 'factory', ground_truth.json holds both; 0.6 % focal, 3 px principal point, 0.01 k1/k2
+    for name, intr in ds.cameras.items():
+        true = gt["intrinsics_true"][name]
+        assert intr.source == "factory" and raw["cameras"][name]["intrinsics_reported"] == intr.to_dict()
+        assert np.allclose(raw["cameras"][name]["intrinsics_true"]["K"], true.K) and "source" not in raw["cameras"][name]["intrinsics_true"]
+        f_rel = intr.K[[0, 1], [0, 1]] / true.K[[0, 1], [0, 1]] - 1
+        assert 1e-5 < abs(f_rel[0]) < 5 * 0.006 and abs(f_rel[0] - f_rel[1]) < 5 * 0.0005  # fx, fy: one common error
+        assert 0 < np.abs(intr.K[:2, 2] - true.K[:2, 2]).max() < 5 * 3.0
+        assert 0 < np.abs(intr.dist[:2] - true.dist[:2]).max() < 5 * 0.01 and np.allclose(intr.dist[2:], true.dist[2:])
     # replaying the saved trajectory into a new folder gives the same captures
     out2 = tmp_path / "ds2"
     assert main(["sim", "--workcell", str(cell), "--trajectory", str(out / "planned_trajectory.yaml"),
@@ -102,7 +113,7 @@ def test_cli_sim_with_joint_offsets_reports_what_a_real_arm_does(tmp_path):
     pts = ds.target.points_board_m
     for v in ds.views:
         T_cb = inv(gt["T_base_cam"][v.camera]) @ gt["T_base_flange_true"][v.capture] @ gt["T_flange_board"]
-        uv = ds.cameras[v.camera].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+        uv = gt["intrinsics_true"][v.camera].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
         assert np.abs(v.uv_px - uv[v.ids]).max() < 1.0
     bad = tmp_path / "bad.yaml"
     bad.write_text(CELL.replace("fk_sigma_rotation_deg: 0.005}", "fk_sigma_rotation_deg: 0.005, joint_offsets_rad: [0, 1]}"))

@@ -1,6 +1,7 @@
 """calibgraph verify: the chi-square test of a camera's pose against a stored calibration.
 
-Synthetic cells (sim.synth, 0.3 px corner noise): three cameras at 3 m calibrated from 40 poses
+Synthetic cells (sim.synthetic_corners, 0.3 px corner noise), the oracle's (true intrinsics held: the
+1-sigma below is conditional on them): three cameras at 3 m calibrated from 40 poses
 (stored 1-sigma 0.6-1.1 mm, 0.010-0.019 deg per axis), verified from 6 fresh poses. Unmoved
 cameras give m2 of a few (chi-square 6 dof: mean 6), a 2 mm bump gives m2 > 100 (measured), so
 the thresholds below (alpha 0.001: m2 > 22.5) leave a wide margin on both sides.
@@ -16,8 +17,9 @@ import pytest
 
 from calibgraph.cli.main import main
 from calibgraph.core.transforms import exp_so3, make_T
-from calibgraph.sim.synth import make_scene, ring_cameras
+from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 from calibgraph.solver.batch import solve
+from calibgraph.solver.result import Result
 from calibgraph.solver.verify import chi2_isf_6, chi2_sf_6, verify
 from helpers import write_sim_dataset
 
@@ -25,12 +27,12 @@ from helpers import write_sim_dataset
 @lru_cache(maxsize=1)
 def _calibrated():
     cams = ring_cameras([3.0, 3.0, 3.0], spread_deg=200)
-    res = solve(make_scene(cams, n_poses=40, seed=1).problem)
-    return cams, json.loads(json.dumps(res.to_dict()))
+    res = solve(make_scene(cams, n_poses=40, seed=1, reported_intrinsics="exact").problem)
+    return cams, Result.from_dict(json.loads(json.dumps(res.to_dict())))  # as read back from result.json
 
 
 def _verify_scene(cams, seed=7, **kw):
-    return make_scene(cams, n_poses=6, seed=seed, shared_fraction=0.6, **kw)
+    return make_scene(cams, n_poses=6, seed=seed, shared_fraction=0.6, reported_intrinsics="exact", **kw)
 
 
 def _bumped(cams, name, dt_m=(0, 0, 0), drot_rad=(0, 0, 0)):
@@ -72,7 +74,7 @@ def test_rotated_camera_is_named():
 
 def test_moved_board_mount_is_not_blamed_on_the_cameras():
     cams, stored = _calibrated()
-    T_fb = np.asarray(stored["T_flange_board"])
+    T_fb = stored.T_flange_board
     moved_mount = make_T(exp_so3(np.radians([0.5, 0, 0])) @ T_fb[:3, :3], T_fb[:3, 3] + [0.004, 0, 0])
     vr = verify(_verify_scene(cams, T_flange_board=moved_mount).problem, stored)
     assert vr.verdict == "mount_or_robot_moved", vr.cameras
@@ -81,7 +83,7 @@ def test_moved_board_mount_is_not_blamed_on_the_cameras():
 
 def test_cli_exit_codes_and_verdict(tmp_path, capsys):
     cams, stored = _calibrated()
-    (tmp_path / "result.json").write_text(json.dumps(stored))
+    stored.save(tmp_path / "result.json")
     still = write_sim_dataset(tmp_path / "still", _verify_scene(cams).problem)
     bumped = write_sim_dataset(tmp_path / "bumped", _verify_scene(_bumped(cams, "cam0", dt_m=(0.002, 0, 0))).problem)
     assert main(["verify", "--result", str(tmp_path / "result.json"), str(still)]) == 0
@@ -97,7 +99,7 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
     cams, stored = _calibrated()
     ds = write_sim_dataset(tmp_path / "ds", _verify_scene(cams).problem)
     assert main(["verify", "--result", str(tmp_path / "missing.json"), str(ds)]) == 2
-    (tmp_path / "r.json").write_text(json.dumps({**stored, "mode": "eye_in_hand"}))
+    (tmp_path / "r.json").write_text(json.dumps({**stored.to_dict(), "mode": "eye_in_hand"}))
     assert main(["verify", "--result", str(tmp_path / "r.json"), str(ds)]) == 2
     assert main(["verify", "--result", str(tmp_path / "r.json"), str(tmp_path / "nope")]) == 2
     err = capsys.readouterr().err

@@ -1,7 +1,8 @@
 """capture --verify: poses planned from a stored result, captured on the simulated cell, verified.
 
-The stored calibration comes from a 30-pose capture of the default cell (three L515 at 3 m) with
-cameras that deliver projected corners (:mod:`calibgraph.sim.synthetic`, 0.05 px: what the batch
+The stored calibration comes from a 30-pose capture of the default cell (three L515 at 3 m), the
+oracle's (its cameras report their true intrinsics, held: the 1-sigma is conditional on them), with
+cameras that deliver projected corners (:mod:`calibgraph.sim.corner_devices`, 0.05 px: what the batch
 solver estimates on rendered L515 frames at 3 m; stored 1-sigma about 0.5-0.7 mm / 0.01-0.02 deg
 per camera). A 2 mm bump then gives m2 of several hundred from 5 verify poses (measured 683), an
 unmoved camera a few (chi-square 6 dof, mean 6; the threshold at alpha 0.001 is 22.5). The
@@ -19,29 +20,31 @@ import yaml
 
 from calibgraph.cli.main import main
 from calibgraph.io.files import read_yaml
+from calibgraph.solver.result import Result
 from tests.helpers import REPO, require_sim
 
 DEFAULT = REPO / "datasets" / "workcells" / "default.yaml"
 
 
 def _stored(tmp_root: str):
-    """(result dict, Workcell) of the default cell calibrated from 30 poses of projected corners."""
+    """(Result as read back from result.json, Workcell) of the default cell calibrated from 30 poses of
+    projected corners."""
     from calibgraph.acquire.run import run_acquisition
     from calibgraph.io.layouts import load_dataset
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.synthetic import corner_devices
+    from calibgraph.sim.corner_devices import corner_devices
     from calibgraph.sim.workcell import workcell_from_dict
     from calibgraph.solver.batch import solve
     from calibgraph.solver.build import build_problem
 
-    wc = workcell_from_dict(read_yaml(DEFAULT, "world"), "world")
+    wc = workcell_from_dict(read_yaml(DEFAULT, "world"), "world").with_reported_intrinsics("exact")
     sim = SimWorld(wc)
     robot, cams, oracle = corner_devices(sim, 0.05, 0)
     out = f"{tmp_root}/calibration"
     run_acquisition(robot, cams, plan_trajectory(sim, 30, seed=0), out, wc.target, detector=oracle, progress=False)
     res = solve(build_problem(load_dataset(out), progress=False)[0])
-    return json.loads(json.dumps(res.to_dict())), wc
+    return Result.from_dict(json.loads(json.dumps(res.to_dict()))), wc
 
 
 @pytest.fixture(scope="module")
@@ -60,9 +63,9 @@ def _bumped(wc, name, dt_m=(0, 0, 0)):
 def _verify_run(stored, wc, out, n_poses=5, seed=1):
     from calibgraph.acquire.verify import run_verify_capture
     from calibgraph.plan.cell import cell_from_world_dict
-    from calibgraph.sim.planning import planning_world
+    from calibgraph.sim.planning_world import planning_world
     from calibgraph.sim.render import SimWorld
-    from calibgraph.sim.synthetic import corner_devices
+    from calibgraph.sim.corner_devices import corner_devices
 
     cell = cell_from_world_dict(read_yaml(DEFAULT, "world"), "world")
     robot, cams, oracle = corner_devices(SimWorld(wc), 0.05, seed)
@@ -91,11 +94,15 @@ def test_a_camera_bumped_2mm_is_named_from_5_poses(stored, tmp_path):
 
 
 def test_cli_capture_verify_renders_and_passes_an_unmoved_cell(stored, tmp_path, capsys):
-    result, _ = stored
-    (tmp_path / "result.json").write_text(json.dumps(result))
+    from calibgraph.sim.workcell import workcell_to_dict
+
+    result, wc = stored
+    result.save(tmp_path / "result.json")
+    world = tmp_path / "world.yaml"  # the default cell with the stored calibration's (oracle's) intrinsics
+    world.write_text(yaml.safe_dump(workcell_to_dict(wc)))
     out = tmp_path / "verify"
     rc = main(["capture", "--verify", "--result", str(tmp_path / "result.json"), "--robot", "sim", "--sim-world",
-               str(DEFAULT), "--out", str(out), "--quiet"])
+               str(world), "--out", str(out), "--quiet"])
     text = capsys.readouterr().out
     assert rc == 0, text
     v = json.loads((out / "verify.json").read_text())
@@ -109,7 +116,7 @@ def test_cli_sim_capture_of_a_bumped_cell_is_verified_as_moved(stored, tmp_path,
     from calibgraph.sim.workcell import workcell_to_dict
 
     result, wc = stored
-    (tmp_path / "result.json").write_text(json.dumps(result))
+    result.save(tmp_path / "result.json")
     world = tmp_path / "bumped.yaml"
     world.write_text(yaml.safe_dump(workcell_to_dict(_bumped(wc, "cam2", np.array([0.002, 0.0, 0.0])))))
     out = tmp_path / "sim"

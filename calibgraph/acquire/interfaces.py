@@ -1,7 +1,8 @@
 """The hardware edge as seen by the engine: a Robot and a Camera.
 
-Real drivers (``drivers/``) and the simulated workcell (``calibgraph.sim``) implement these, so the
-acquisition pipeline that runs in simulation is the one that runs on hardware. Implementations
+Real drivers (the ``drivers/`` folder, installed as ``calibgraph_drivers``; opened by
+:mod:`calibgraph.acquire.devices`) and the simulated workcell (``calibgraph.sim``) implement these, so
+the acquisition pipeline that runs in simulation is the one that runs on hardware. Implementations
 raise :class:`DeviceError` when the device fails or disconnects, and
 :class:`UnreachableError` for a target the robot cannot or may not reach.
 """

@@ -31,8 +31,8 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from calibgraph.report.exports import export
-    from calibgraph.solver.result import load_result_dict
+    from calibgraph.report.exports import export, renamed
+    from calibgraph.solver.result import load_result
 
     if "mchec" in args.fmt:
         from calibgraph.core.errors import InputError
@@ -45,8 +45,12 @@ def run(args) -> int:
         export_mchec(args.result, args.out)
         print(f"wrote {args.out} (Multi-Camera-Hand-Eye-Calibration layout)")
         return 0
-    d = load_result_dict(args.result)
+    result = load_result(args.result)
+    for name, why in result.not_calibrated.items():
+        print(f"note: camera {name!r} is not exported: it was not calibrated ({why})")
+    for name, ident in renamed(result).items():
+        print(f"note: camera {name!r} is exported as {ident} (its sanitised name is shared with another camera)")
     for fmt in args.fmt:
-        for p in export(d, fmt, args.out, dataset=args.dataset, parent=args.parent):
+        for p in export(result, fmt, args.out, dataset=args.dataset, parent=args.parent):
             print(f"wrote {p}")
     return 0

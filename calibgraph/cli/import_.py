@@ -17,11 +17,11 @@ def add_parser(sub):
     p = sub.add_parser("import", help="import a recording (rosbag2: sqlite3 or MCAP) as a dataset",
                        description="Write a calibgraph dataset from a rosbag2 recording (sqlite3 or MCAP): camera "
                                    "images + CameraInfo, the robot pose from /tf + /tf_static (base -> flange) or "
-                                   "/joint_states (Franka model), at the moments the robot is still and every camera "
-                                   "has a frame.")
+                                   "/joint_states (Franka model): a capture at each moment the robot is still, with "
+                                   "the cameras that have a frame in it.")
     p.add_argument("format", choices=("rosbag2",), help="recording format")
     p.add_argument("bag", type=Path, help="the bag folder (with metadata.yaml) or its .db3 / .mcap file")
-    p.add_argument("--out", type=Path, required=True, help="new dataset folder")
+    p.add_argument("--out", type=Path, required=True, help="new dataset folder (created; not one holding a dataset)")
     p.add_argument("--base-frame", default=None, help="TF base frame (default fr3_link0 / panda_link0)")
     p.add_argument("--flange-frame", default=None, help="TF flange frame (default fr3_link8 / panda_link8)")
     p.add_argument("--camera", action="append", default=[], metavar="NAME=IMAGE_TOPIC",
@@ -37,6 +37,8 @@ def add_parser(sub):
 
 
 def run(args) -> int:
+    import sys
+
     from calibgraph.acquire.safety import franka_fk
     from calibgraph.core.errors import InputError
     from calibgraph.io.rosbag2 import import_rosbag2
@@ -52,6 +54,8 @@ def run(args) -> int:
                          target=load_target(args.target) if args.target else None,
                          fk=franka_fk, still_mm=args.still_mm, still_deg=args.still_deg, min_still_s=args.min_still_s,
                          robot_pose=args.robot_pose)
+    for w in rep.warnings:
+        print(f"warning: {w}", file=sys.stderr)
     if not args.quiet:
         print(rep.summary())
         print(f"wrote {rep.out}; next: calibgraph solve {rep.out}")

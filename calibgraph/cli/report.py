@@ -15,22 +15,37 @@ def add_parser(sub):
     p.add_argument("--config", type=Path, default=None,
                    help="tolerances YAML (default: datasets/tolerances/default.yaml)")
     p.add_argument("--dataset", type=Path, default=None,
-                   help="dataset folder: adds intrinsics, image coverage and residuals the result lacks "
-                        "(default: the dataset named in RESULT, if it exists)")
+                   help="the dataset RESULT was solved from: adds intrinsics, image coverage and residuals the result "
+                        "lacks (default: the dataset named in RESULT, if it exists); another dataset is refused")
     return p
 
 
 def run(args) -> int:
-    from calibgraph.report.html import write_report
-    from calibgraph.solver.result import load_result_dict
+    import sys
 
     from calibgraph.io.files import output_file
+    from calibgraph.io.layouts import load_dataset
+    from calibgraph.report.html import dataset_mismatch, report_verdicts, write_report
+    from calibgraph.solver.result import load_result
 
-    d = load_result_dict(args.result)
+    result = load_result(args.result)
     out = output_file(args.out or args.result.with_name("report.html"), "report file", "report.html")
-    dataset = args.dataset
-    if dataset is None and d.get("dataset") and Path(d["dataset"]).is_dir():
-        dataset = Path(d["dataset"])  # the dataset the result names, when it is still there
-    path = write_report(d, out, config=args.config, dataset=dataset, result_path=args.result)
+    dataset = load_dataset(args.dataset) if args.dataset is not None else None
+    if dataset is None and result.dataset and Path(result.dataset).is_dir():
+        named = load_dataset(result.dataset)  # the dataset the result names, when it is still there and still its own
+        differ = dataset_mismatch(result, named)
+        if differ:
+            print(f"warning: {result.dataset} (named in {args.result}) no longer holds the data of this result "
+                  f"({differ[0]}); reporting from the result alone", file=sys.stderr)
+        else:
+            dataset = named
+    path = write_report(result, out, config=args.config, dataset=dataset, result_path=args.result)
+    verdicts = report_verdicts(result, config=args.config, dataset=dataset)
+    failing = {n: v["reasons"] for n, v in verdicts.items() if not v["pass"]}
+    if failing or not result.converged:
+        why = ["the solver did not converge"] if not result.converged else []
+        print("verdict: FAIL (" + "; ".join(why + [f"{n}: {', '.join(r)}" for n, r in failing.items()]) + ")")
+    else:
+        print("verdict: PASS")
     print(f"wrote {path}")
     return 0

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from calibgraph.core.problem import mode_frames
+from calibgraph.core.problem import mode_frames, option_flags
 from calibgraph.solver.build import build_problem
+
+
+EXIT_NOT_CALIBRATED = 3  # the result is written, but a camera could not be calibrated from its views
 
 
 def add_parser(sub):
@@ -18,72 +22,83 @@ def add_parser(sub):
     p.add_argument("--out", type=Path, default=None, help="result file (.json or .yaml); default DATASET/result.json")
     p.add_argument("--method", choices=("joint", "single"), default="joint",
                    help="joint: one shared board mount (default); single: each camera alone")
-    p.add_argument("--loss", choices=("huber", "cauchy", "none"), default=None, help="corner-level robust loss")
-    p.add_argument("--pixel-sigma", type=float, default=None, help="corner noise in px (default: estimated)")
-    p.add_argument("--fk-sigma-mm", type=float, default=None, help="forward-kinematics translation 1-sigma, mm")
-    p.add_argument("--fk-sigma-deg", type=float, default=None, help="forward-kinematics rotation 1-sigma, deg")
-    p.add_argument("--refine-intrinsics", action="store_true",
-                   help="estimate fx, fy, cx, cy, k1, k2 of every camera under a fixed prior (5 px, 0.1) around the given values")
-    p.add_argument("--fixed-intrinsics", action="store_true",
-                   help="take the given intrinsics as exact (the 1-sigma is then conditional on them)")
-    p.add_argument("--intrinsics-source", choices=("calibration", "factory", "exact"), default=None,
-                   help="where the given intrinsics come from when dataset.yaml does not say: their prior "
-                        "(calibration: f 0.3 %%, factory: f 2 %%; default calibration)")
-    p.add_argument("--fixed-board-scale", action="store_true",
-                   help="take the target's declared size as exact (default: estimate a printer scale factor)")
-    p.add_argument("--estimate-kinematics", choices=("none", "joint-offsets"), default=None,
-                   help="joint-offsets: estimate the arm's joint zero offsets in the same graph (needs q_rad in every "
-                        "capture; eye-to-hand, method joint); result.json gains a 'robot' section")
-    p.add_argument("--kinematic-model", default=None,
-                   help="the arm's kinematic model for --estimate-kinematics: franka (Panda / FR3, default) or a URDF path")
-    p.add_argument("--kinematics-staging", choices=("joint", "staged"), default=None,
-                   help="joint: all variables at once (default, see scripts/results/bench_kinematics.md); staged: "
-                        "cameras with an inflated FK prior, then the offsets, then everything")
+    add_solver_flags(p)
+    p.add_argument("--intrinsics", action="append", default=[], metavar="NAME=CAM.yaml",
+                   help="camera NAME's intrinsics from a camera file (calibgraph intrinsics): its values and "
+                        "covariance become the camera's prior (repeatable)")
     p.add_argument("--rrd", type=Path, default=None, help="also write a rerun recording")
     p.add_argument("--quiet", action="store_true")
     return p
 
 
-def solver_options(args, dataset):
-    """SolverOptions from dataset.yaml's solver section overridden by command-line flags."""
-    import numpy as np
+def add_solver_flags(parser) -> None:
+    """Add a flag for every :class:`~calibgraph.core.problem.SolverOptions` field that declares one
+    (its ``CliFlag``); :func:`solver_options` turns them back into options."""
+    g = parser.add_argument_group("solver options", "dataset.yaml's solver section sets any option by its "
+                                                    "SolverOptions name (SI units); these flags win over it")
+    for flag in option_flags().values():
+        help_text = flag.help.replace("%", "%%")
+        if flag.type is None:
+            g.add_argument(flag.name, action="store_true", help=help_text)
+        else:
+            g.add_argument(flag.name, type=flag.type, choices=flag.choices or None, default=None, help=help_text)
 
+
+def _flag_value(args, flag):
+    """The value given for ``flag`` in ``args``, or None when it was not given."""
+    v = getattr(args, flag.name.lstrip("-").replace("-", "_"), None)
+    return (True if v else None) if flag.type is None else v
+
+
+def solver_options(args, dataset):
+    """SolverOptions from dataset.yaml's solver section overridden by the command-line flags.
+
+    A flag's value reaches the options or the command is refused: a non-positive sigma is not taken
+    for "unset", and two settings that contradict each other are named."""
     from calibgraph.core.errors import InputError
     from calibgraph.core.problem import SolverOptions
 
     d = dict(dataset.solver)
-    if args.loss:
-        d["loss"] = args.loss
-    if args.pixel_sigma:
-        d["pixel_sigma_px"] = args.pixel_sigma
-    if args.fk_sigma_mm:
-        d["fk_sigma_translation_m"] = args.fk_sigma_mm * 1e-3
-    if args.fk_sigma_deg:
-        d["fk_sigma_rotation_rad"] = float(np.radians(args.fk_sigma_deg))
-    if getattr(args, "refine_intrinsics", False) and getattr(args, "fixed_intrinsics", False):
-        raise InputError("--refine-intrinsics and --fixed-intrinsics contradict each other; give one.")
-    if getattr(args, "refine_intrinsics", False):
-        d["refine_intrinsics"] = True
-    if getattr(args, "fixed_intrinsics", False):
-        d["intrinsics"] = "fixed"
-    if getattr(args, "intrinsics_source", None):
-        d["intrinsics_source"] = args.intrinsics_source
-    if getattr(args, "fixed_board_scale", False):
-        d["board_scale"] = False
-    if getattr(args, "estimate_kinematics", None):
-        d["kinematics"] = args.estimate_kinematics
-    if getattr(args, "kinematic_model", None):
-        d["kinematics_model"] = args.kinematic_model
-    if getattr(args, "kinematics_staging", None):
-        d["kinematics_staging"] = args.kinematics_staging
+    given = {}
+    for name, flag in option_flags().items():
+        v = _flag_value(args, flag)
+        if v is None:
+            continue
+        if flag.positive and not (np.isfinite(v) and v > 0):
+            raise InputError(f"{flag.name} {v:g}: must be a positive number; leave the flag out to use dataset.yaml's "
+                             f"solver section or the default ({name}).")
+        d[name] = given[name] = flag.option_value(v)
     try:
-        return SolverOptions(**d)
+        opts = SolverOptions(**d)
     except TypeError as e:
         raise InputError(f"solver settings: {e}") from None
+    flags = option_flags()
+    for name, want in given.items():
+        if getattr(opts, name) != want:
+            others = [flags[n].name for n in given if n != name]
+            what = " and ".join([flags[name].name, *others]) if others else f"{flags[name].name} and dataset.yaml's solver section"
+            raise InputError(f"{what} contradict each other ({name} would be {getattr(opts, name)!r}, not {want!r}); give one.")
+    return opts
+
+
+ORACLE = "true intrinsics held: oracle"
+
+
+def oracle_label(result) -> str:
+    """'' or ' (true intrinsics held: oracle)' (naming the cameras when not all): a result whose
+    cameras' intrinsics were a simulation's true ones ('exact') and held, not estimated, is an
+    oracle's, and every figure shown from it must say so."""
+    default = (getattr(result, "settings", None) or {}).get("intrinsics_source")
+    held = [n for n, c in result.cameras.items() if not (c.intrinsics or {}).get("estimated")
+            and ((c.intrinsics or {}).get("source") or default) == "exact"]
+    if not held:
+        return ""
+    return f" ({ORACLE})" if len(held) == len(result.cameras) else f" ({', '.join(held)}: {ORACLE})"
 
 
 def format_summary(result, truth=None) -> str:
-    """A per-camera table: pose, 1-sigma, reprojection, views (and error vs truth when given)."""
+    """A per-camera table: pose, 1-sigma, reprojection, views (and error vs truth when given, with
+    error / 1σ: norms of the translation error and of its 1σ)."""
     import numpy as np
 
     from calibgraph.core.transforms import log_so3, pose_error
@@ -91,12 +106,15 @@ def format_summary(result, truth=None) -> str:
     frames = mode_frames(result.mode)
     ref = frames.camera_key
     lines = [f"mode {result.mode}, method {result.method}, pixel sigma {result.pixel_sigma_px:.3f} px, "
-             f"solved in {result.solve_time_s:.2f} s"]
+             f"solved in {result.solve_time_s:.2f} s{oracle_label(result)}"]
     hdr = f"{'camera':10s} {'x [m]':>8s} {'y [m]':>8s} {'z [m]':>8s} {'1σ t [mm]':>16s} {'1σ r [deg]':>20s} {'rms px':>7s} {'views':>9s}"
     if truth is not None:
-        hdr += f" {'err mm':>7s} {'err deg':>8s}"
+        hdr += f" {'err mm':>7s} {'err deg':>8s} {'err/1σ':>7s}"
     lines += [f"{ref} per camera:", hdr]
     for n, c in result.cameras.items():
+        if not c.calibrated:
+            lines.append(f"{n:10s} NOT CALIBRATED: {c.why}")
+            continue
         t = c.T_ref_cam[:3, 3]
         st = "/".join(f"{v:.2f}" for v in c.sigma_translation_mm)
         sr = "/".join(f"{v:.3f}" for v in c.sigma_rotation_deg)
@@ -104,7 +122,7 @@ def format_summary(result, truth=None) -> str:
                f"{c.views_used:4d}/{c.views_used + len(c.views_rejected):<4d}")
         if truth is not None and n in truth:
             e_m, e_deg = pose_error(c.T_ref_cam, truth[n])
-            row += f" {e_m * 1e3:7.3f} {e_deg:8.4f}"
+            row += f" {e_m * 1e3:7.3f} {e_deg:8.4f} {e_m * 1e3 / np.linalg.norm(c.sigma_translation_mm):7.2f}"
         lines.append(row)
     if result.T_mount_board is not None:
         key = frames.board_key
@@ -124,6 +142,10 @@ def format_summary(result, truth=None) -> str:
         lines.append(f"rejected corners: {len(result.rejected_corners)} (listed in the result file)")
     if result.board_scale_sigma is not None:
         lines.append(f"board scale (printed / declared size): {result.board_scale:.5f} ± {result.board_scale_sigma:.5f}")
+    advice = [c.error_budget["advice"] for c in result.cameras.values() if c.calibrated and c.error_budget]
+    if advice:
+        lines.append("what the 1σ is made of (error_budget in the result file):")
+        lines += [f"  {a}" for a in advice]
     lines += robot_lines(result.robot)
     lines += [f"note: {n}" for n in result.notes]
     return "\n".join(lines)
@@ -167,12 +189,16 @@ def print_problems(problems, per_kind: int = 3) -> None:
 
 
 def run(args) -> int:
+    from calibgraph.io.camera_file import apply_camera_files, read_camera_file_args
     from calibgraph.io.files import output_file
     from calibgraph.io.layouts import load_dataset
     from calibgraph.solver.batch import solve
 
     out = args.out or (args.dataset / "result.json")
+    files = read_camera_file_args(args.intrinsics)
     ds = load_dataset(args.dataset)
+    if files:
+        ds = replace(ds, cameras=apply_camera_files(ds.cameras, files, f"dataset {args.dataset}"))
     output_file(out, "result file")  # said now, not after solving; the previous result stays until the new one is whole
     if args.rrd:
         output_file(args.rrd, "rerun recording", "calibgraph.rrd")
@@ -193,13 +219,11 @@ def run(args) -> int:
         for note in getattr(detector, "notes", []) or []:
             print(note)
     result = solve(problem)
-    from dataclasses import replace
-
-    result = replace(result, dataset=str(args.dataset))
+    result = replace(result, dataset=str(args.dataset), target=ds.target.to_dict())
     result.save(out)
     if not args.quiet:
         print(format_summary(result))
-        rms_px = max((c.reprojection_rms_px / np.sqrt(2.0) for c in result.cameras.values()), default=0.0)
+        rms_px = max((c.reprojection_rms_px / np.sqrt(2.0) for c in result.calibrated.values()), default=0.0)
         if rms_px > 1.0 and opts.intrinsics == "fixed":
             print(f"hint: residuals of {rms_px:.2f} px per axis are large for a sub-pixel detector; "
                   "if the intrinsics come without (or with wrong) distortion, drop --fixed-intrinsics")
@@ -213,4 +237,6 @@ def run(args) -> int:
             write_rrd(result, problem, args.rrd, plan_log=plan_log_path(args.dataset))
             if not args.quiet:
                 print(f"wrote {args.rrd}")
-    return 0
+    for name, why in result.not_calibrated.items():
+        print(f"calibgraph solve: camera {name} is NOT calibrated: {why}", file=sys.stderr)
+    return EXIT_NOT_CALIBRATED if result.not_calibrated else 0

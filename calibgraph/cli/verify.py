@@ -48,7 +48,8 @@ def format_verdict(vr) -> str:
     elif vr.verdict == "cameras_moved":
         lines.append(f"verdict: moved: {', '.join(vr.moved)}")
     else:
-        lines.append("verdict: nothing moved")
+        unseen = [n for n, c in vr.cameras.items() if c.status == "not_seen"]
+        lines.append("verdict: nothing moved" + (f" (not seen, so not verified: {', '.join(unseen)})" if unseen else ""))
     return "\n".join(lines)
 
 
@@ -59,15 +60,17 @@ def run(args) -> int:
     from calibgraph.io.files import atomic_write_text
     from calibgraph.io.layouts import load_dataset
     from calibgraph.solver.build import build_problem
-    from calibgraph.solver.result import load_result_dict
-    from calibgraph.solver.verify import DEFAULT_ALPHA, verify
+    from calibgraph.solver.result import load_result
+    from calibgraph.solver.verify import DEFAULT_ALPHA, check_fresh_data, verify
 
-    stored = load_result_dict(args.result)
+    stored = load_result(args.result)
     dataset = load_dataset(args.dataset)
     if not dataset.captures:
         raise InputError(f"{args.dataset}: no captures to verify with.")
+    check_fresh_data(stored, dataset.cameras, dataset.target, str(args.result))  # before detecting anything
     problem, _ = build_problem(dataset, progress=not args.quiet)
-    vr = verify(problem, stored, alpha=DEFAULT_ALPHA if args.alpha is None else args.alpha, where=str(args.result))
+    vr = verify(problem, stored, alpha=DEFAULT_ALPHA if args.alpha is None else args.alpha, where=str(args.result),
+                target=dataset.target)
     out = args.verdict or (Path(args.dataset) / "verify.json")
     d = vr.to_dict()
     d.update({"result": str(args.result), "dataset": str(args.dataset)})

@@ -21,17 +21,16 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from calibgraph.report.rerun_view import rerun_cli, write_rrd
-    from calibgraph.solver.result import load_result_dict
-
-    d = load_result_dict(args.result)
-    dataset = args.dataset
-    if dataset is None and d.get("dataset") and Path(d["dataset"]).is_dir():
-        dataset = Path(d["dataset"])
     from calibgraph.io.files import output_file
+    from calibgraph.report.rerun_view import rerun_cli, write_rrd
+    from calibgraph.solver.result import load_result
 
+    result = load_result(args.result)
+    dataset = args.dataset
+    if dataset is None and result.dataset and Path(result.dataset).is_dir():
+        dataset = Path(result.dataset)
     path = output_file(args.rrd or args.result.with_suffix(".rrd"), "recording file", "calibgraph.rrd")
-    write_rrd(d, dataset, path)
+    write_rrd(result, dataset, path)
     print(f"wrote {path}")
     if args.rrd is None:
         if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):

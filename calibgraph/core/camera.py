@@ -13,7 +13,11 @@ import numpy as np
 from calibgraph.core.errors import InputError
 
 _ALLOWED_DIST = (0, 4, 5, 8)
-INTRINSICS_SOURCES = ("", "exact", "factory", "calibration")
+# 'unknown': no values given (only the image size); the solver initialises them from the views
+INTRINSICS_SOURCES = ("", "exact", "factory", "calibration", "unknown")
+# the solver's intrinsics vector: what a prior (and ``Intrinsics.covariance``) is over
+INTRINSICS_VECTOR = ("fx", "fy", "cx", "cy", "k1", "k2")
+DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 
 
 @dataclass(frozen=True)
@@ -26,7 +30,10 @@ class Intrinsics:
         width_px, height_px: image size.
         source: where these values come from, which sets how far the solver trusts them
             (``SolverOptions.intrinsics``): 'exact' (a simulation's own camera: held fixed),
-            'factory', 'calibration', or '' (not said: the solver's default source).
+            'factory', 'calibration', 'unknown' (only the image size is known: K is a placeholder
+            the solver replaces with values from the views), or '' (not said: the solver's default).
+        covariance: (6, 6) covariance of [fx, fy, cx, cy, k1, k2] (``INTRINSICS_VECTOR``) when the
+            values come with one (a ``calibgraph intrinsics`` file): the solver's prior then.
     """
 
     K: np.ndarray
@@ -34,6 +41,7 @@ class Intrinsics:
     width_px: int = 0
     height_px: int = 0
     source: str = ""
+    covariance: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         K = np.asarray(self.K, dtype=float)
@@ -53,6 +61,18 @@ class Intrinsics:
             raise InputError("intrinsics: image size must be non-negative.")
         if self.source not in INTRINSICS_SOURCES:
             raise InputError(f"intrinsics: source must be one of {INTRINSICS_SOURCES[1:]}, got {self.source!r}.")
+        if self.covariance is not None:
+            cov = np.asarray(self.covariance, float)
+            if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
+                raise InputError(f"intrinsics: covariance must be a finite 6x6 matrix over {list(INTRINSICS_VECTOR)}, "
+                                 f"got shape {cov.shape}.")
+            cov = 0.5 * (cov + cov.T)
+            if np.linalg.eigvalsh(cov).min() <= 0:
+                raise InputError("intrinsics: covariance is not positive definite; give a covariance from a "
+                                 "calibration (calibgraph intrinsics writes one) or none.")
+            object.__setattr__(self, "covariance", cov)
+        if self.source == "unknown" and (self.width_px <= 0 or self.height_px <= 0):
+            raise InputError("intrinsics: unknown intrinsics need the image size (width_px, height_px).")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist)
         object.__setattr__(self, "width_px", int(self.width_px))
@@ -66,6 +86,43 @@ class Intrinsics:
         f = (width_px / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
         K = np.array([[f, 0.0, (width_px - 1) / 2.0], [0.0, f, (height_px - 1) / 2.0], [0.0, 0.0, 1.0]])
         return cls(K=K, dist=np.zeros(5) if dist is None else np.asarray(dist, float), width_px=width_px, height_px=height_px)
+
+    @classmethod
+    def unknown(cls, width_px: int, height_px: int) -> "Intrinsics":
+        """A camera of which only the image size is known: a placeholder K (a 60 deg horizontal
+        field of view, principal point at the centre, no distortion) that the solver replaces with
+        values from the views before it uses them."""
+        f = (width_px / 2.0) / np.tan(np.radians(30.0))
+        K = np.array([[f, 0.0, (width_px - 1) / 2.0], [0.0, f, (height_px - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return cls(K=K, dist=np.zeros(5), width_px=width_px, height_px=height_px, source="unknown")
+
+    def with_pinhole(self, k6) -> "Intrinsics":
+        """A copy with [fx, fy, cx, cy] and, when given, [k1, k2] replaced by ``k6`` (4 or 6 values),
+        built without validation: the solver calls this for every view at every iteration with
+        values of its own graph (validating them cost a quarter of the optimiser's time)."""
+        K = self.K.copy()
+        K[0, 0], K[1, 1], K[0, 2], K[1, 2] = k6[:4]
+        dist = self.dist8 if self.dist.size < 5 else self.dist.copy()
+        if len(k6) > 4:
+            dist = dist.copy()
+            dist[:2] = k6[4:6]
+        out = object.__new__(Intrinsics)
+        for name, value in (("K", K), ("dist", dist), ("width_px", self.width_px), ("height_px", self.height_px),
+                            ("source", self.source), ("covariance", None)):
+            object.__setattr__(out, name, value)
+        return out
+
+    @property
+    def known(self) -> bool:
+        """False when only the image size is known (``source == 'unknown'``)."""
+        return self.source != "unknown"
+
+    @property
+    def sigma(self) -> dict | None:
+        """1-sigma of [fx, fy, cx, cy, k1, k2] from ``covariance`` (None without one)."""
+        if self.covariance is None:
+            return None
+        return dict(zip(INTRINSICS_VECTOR, np.sqrt(np.diag(self.covariance)).tolist()))
 
     @property
     def dist8(self) -> np.ndarray:
@@ -83,20 +140,37 @@ class Intrinsics:
         }
         if self.source:
             d["source"] = self.source
+        if self.covariance is not None:
+            d["covariance"] = self.covariance.tolist()
+            d["covariance_order"] = list(INTRINSICS_VECTOR)
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "Intrinsics":
+        """From K (3x3) or fx, fy, cx, cy; ``dist`` or ``distortion`` (a list, or a mapping with
+        ``coefficients``); ``width_px``/``height_px``; ``source``; and an optional ``covariance``
+        whose rows follow ``covariance_order`` (default fx, fy, cx, cy, then the distortion
+        coefficients in order). A mapping with only the image size is a camera of unknown intrinsics."""
+        width, height = int(d.get("width_px", d.get("width", 0)) or 0), int(d.get("height_px", d.get("height", 0)) or 0)
         if "K" in d:
             K = np.asarray(d["K"], float).reshape(3, 3)
+        elif not any(k in d for k in ("fx", "fy", "cx", "cy")) and width > 0 and height > 0 \
+                and str(d.get("source") or "unknown") == "unknown":
+            return cls.unknown(width, height)
         else:
             try:
                 K = np.array([[d["fx"], d.get("s", 0.0), d["cx"]], [0, d["fy"], d["cy"]], [0, 0, 1]], float)
             except KeyError as e:
-                raise InputError(f"intrinsics: missing key {e}; give K (3x3) or fx, fy, cx, cy.") from None
+                raise InputError(f"intrinsics: missing key {e}; give K (3x3) or fx, fy, cx, cy (or only width_px "
+                                 "and height_px for a camera whose intrinsics the solver should find).") from None
         dist = d.get("dist", d.get("distortion", [0.0] * 5))
-        return cls(K=K, dist=np.asarray(dist, float), width_px=int(d.get("width_px", d.get("width", 0))),
-                   height_px=int(d.get("height_px", d.get("height", 0))), source=str(d.get("source") or ""))
+        if isinstance(dist, dict):
+            dist = dist.get("coefficients", [0.0] * 5)
+        dist = np.asarray(dist, float).reshape(-1)
+        cov = d.get("covariance")
+        if cov is not None:
+            cov = _intrinsics_block(np.asarray(cov, float), d.get("covariance_order"), dist.size)
+        return cls(K=K, dist=dist, width_px=width, height_px=height, source=str(d.get("source") or ""), covariance=cov)
 
     # -- model ----------------------------------------------------------------------------------
     def project(self, p_cam_m: np.ndarray, with_jacobian: bool = False):
@@ -108,45 +182,9 @@ class Intrinsics:
         Returns:
             uv_px (N, 2) [, J (N, 2, 3)]. Points with z <= 0 project to NaN.
         """
-        P = np.asarray(p_cam_m, float).reshape(-1, 3)
-        Z = P[:, 2]
-        valid = Z > 1e-9
-        Zs = np.where(valid, Z, np.nan)
-        x = P[:, 0] / Zs
-        y = P[:, 1] / Zs
-        k1, k2, p1, p2, k3, k4, k5, k6 = self.dist8
-        r2 = x * x + y * y
-        a = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-        rad = a / b
-        xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        fx, s, cx = self.K[0]
-        fy, cy = self.K[1, 1], self.K[1, 2]
-        uv = np.column_stack([fx * xd + s * yd + cx, fy * yd + cy])
-        if not with_jacobian:
-            return uv
-        da = k1 + r2 * (2 * k2 + 3 * k3 * r2)
-        db = k4 + r2 * (2 * k5 + 3 * k6 * r2)
-        drad = (da * b - a * db) / (b * b)
-        dxd_dx = rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
-        dxd_dy = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-        dyd_dx = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-        dyd_dy = rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
-        # d(uv)/d(xd, yd)
-        du_dx = fx * dxd_dx + s * dyd_dx
-        du_dy = fx * dxd_dy + s * dyd_dy
-        dv_dx = fy * dyd_dx
-        dv_dy = fy * dyd_dy
-        iz = 1.0 / Zs
-        J = np.empty((P.shape[0], 2, 3))
-        J[:, 0, 0] = du_dx * iz
-        J[:, 0, 1] = du_dy * iz
-        J[:, 0, 2] = -(du_dx * x + du_dy * y) * iz
-        J[:, 1, 0] = dv_dx * iz
-        J[:, 1, 1] = dv_dy * iz
-        J[:, 1, 2] = -(dv_dx * x + dv_dy * y) * iz
-        return uv, J
+        uv, J, _ = project_points(p_cam_m, self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2], self.K[0, 1],
+                                  self.dist8, with_jacobian)
+        return (uv, J) if with_jacobian else uv
 
     def in_image(self, uv_px: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
         """Boolean mask of pixels inside the image (needs width/height)."""
@@ -158,6 +196,64 @@ class Intrinsics:
             & (uv[:, 0] <= self.width_px - 0.5 - margin_px)
             & (uv[:, 1] <= self.height_px - 0.5 - margin_px)
         )
+
+
+def project_points(p_cam_m, fx, fy, cx, cy, s, dist8, with_jacobian: bool = False):
+    """The OpenCV camera model, with parameters that are scalars (one camera) or (N,) arrays (one
+    per point: many cameras' points projected in one pass). ``dist8``: (8,) or (8, N).
+
+    Returns (uv_px (N, 2), d uv / d p_cam (N, 2, 3) or None, normalised coordinates
+    (x, y, x_d, y_d, r2, b) for the intrinsics' Jacobian or None). Points with z <= 0 give NaN.
+    """
+    P = np.asarray(p_cam_m, float).reshape(-1, 3)
+    Zs = np.where(P[:, 2] > 1e-9, P[:, 2], np.nan)
+    x = P[:, 0] / Zs
+    y = P[:, 1] / Zs
+    k1, k2, p1, p2, k3, k4, k5, k6 = dist8
+    r2 = x * x + y * y
+    a = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    rad = a / b
+    xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    uv = np.column_stack([fx * xd + s * yd + cx, fy * yd + cy])
+    if not with_jacobian:
+        return uv, None, None
+    da = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+    db = k4 + r2 * (2 * k5 + 3 * k6 * r2)
+    drad = (da * b - a * db) / (b * b)
+    dxd_dx = rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
+    dxd_dy = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
+    dyd_dx = dxd_dy
+    dyd_dy = rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
+    # d(uv)/d(xd, yd)
+    du_dx = fx * dxd_dx + s * dyd_dx
+    du_dy = fx * dxd_dy + s * dyd_dy
+    dv_dx = fy * dyd_dx
+    dv_dy = fy * dyd_dy
+    iz = 1.0 / Zs
+    J = np.empty((P.shape[0], 2, 3))
+    J[:, 0, 0] = du_dx * iz
+    J[:, 0, 1] = du_dy * iz
+    J[:, 0, 2] = -(du_dx * x + du_dy * y) * iz
+    J[:, 1, 0] = dv_dx * iz
+    J[:, 1, 1] = dv_dy * iz
+    J[:, 1, 2] = -(dv_dx * x + dv_dy * y) * iz
+    return uv, J, (x, y, xd, yd, r2, b)
+
+
+def _intrinsics_block(cov: np.ndarray, order, n_dist: int) -> np.ndarray:
+    """The (6, 6) block of a covariance over [fx, fy, cx, cy, k1, k2] (the marginal covariance of
+    those parameters) from one whose rows follow ``order`` (default fx, fy, cx, cy, then the
+    distortion coefficients)."""
+    order = list(order) if order is not None else ["fx", "fy", "cx", "cy", *DIST_NAMES[:n_dist]]
+    if cov.ndim != 2 or cov.shape[0] != cov.shape[1] or cov.shape[0] != len(order):
+        raise InputError(f"intrinsics: covariance of shape {cov.shape} does not match covariance_order {order}.")
+    missing = [n for n in INTRINSICS_VECTOR if n not in order]
+    if missing:
+        raise InputError(f"intrinsics: covariance has no rows for {missing}; it must cover {list(INTRINSICS_VECTOR)}.")
+    idx = [order.index(n) for n in INTRINSICS_VECTOR]
+    return cov[np.ix_(idx, idx)]
 
 
 # Presets used by the simulator and the benchmarks (colour streams).

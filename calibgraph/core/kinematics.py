@@ -15,14 +15,10 @@ Jacobians follow GTSAM's right perturbation with rotation first: ``J`` (6, n) is
 ``T(q + dq) = T(q) @ Exp(J @ dq)``, the twist expressed at the flange. A joint zero offset ``o``
 (the physical angle is ``q_reported + o``) has the same Jacobian as ``q``.
 
-Why numpy and not pinocchio (``pin`` 4.1, measured by ``scripts/bench_kinematics.py --fk``, results
-in ``scripts/results/bench_kinematics.md``): both give the same pose and flange Jacobian (to 1e-9,
-the 10 digits of the URDF the chain writes for pinocchio). Pinocchio is faster: about 3 us per
-configuration even from a Python loop, against 6-11 us per configuration for this chain batched
-over 60-1000 captures and about 0.2 ms for one configuration at a time, which is how the solver's
-kinematic factors call it. In a solve the offsets add 0.2-0.3 s to 0.75-3.2 s (30-110 captures,
-``time_s`` in ``scripts/results/bench_kinematics.json``), and the FK calls are at most that: not
-worth a compiled dependency (and a URDF round trip for the built-in arm) today. This chain is one
+Why numpy and not pinocchio: both give the same pose and flange Jacobian, and although pinocchio
+computes a configuration faster, the FK calls are a small part of a solve with joint offsets: not
+worth a compiled dependency (and a URDF round trip for the built-in arm). ``scripts/bench_kinematics.py
+--fk`` compares the two (``scripts/results/bench_kinematics.md``). This chain is one
 tested numpy file and the solver keeps it; pinocchio, or a one-configuration fast path, is the
 lever if solves with kinematics grow long.
 """

@@ -17,7 +17,7 @@ Methods:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Mapping
 
 import numpy as np
@@ -67,7 +67,8 @@ INTRINSICS_MODES = ("auto", "estimate", "fixed")
 # width; k1 and k2). Factory values of RGB-D cameras are often 1-2 % off in focal length; a proper
 # calibration file is good to a few tenths of a percent.
 INTRINSICS_PRIORS = {"factory": (0.02, 0.01, 0.05), "calibration": (0.003, 0.002, 0.01)}
-# the prior of intrinsics found inadequate by their residuals: wide, only keeping the problem well posed
+# the prior of intrinsics found inadequate by their residuals, or of a camera whose intrinsics are
+# unknown (around the values found from its views): wide, only keeping the problem well posed
 WIDE_INTRINSICS_PRIOR = (0.10, 0.05, 0.5)
 
 
@@ -77,16 +78,31 @@ def intrinsics_source(intr: Intrinsics, options: "SolverOptions") -> str:
 
 
 def intrinsics_estimated(intr: Intrinsics, options: "SolverOptions") -> bool:
-    """True when the solver treats this camera's intrinsics as unknowns (with a prior)."""
+    """True when the solver treats this camera's intrinsics as unknowns (with a prior); always for
+    a camera whose intrinsics are unknown."""
+    if not intr.known:
+        return True
     if options.intrinsics == "fixed":
         return False
     return options.intrinsics == "estimate" or intrinsics_source(intr, options) != "exact"
 
 
+def intrinsics_prior_covariance(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
+    """(6, 6) covariance of the prior on [fx, fy, cx, cy, k1, k2] of a camera: the covariance its
+    intrinsics came with (a calibration file's), else the diagonal width of its source."""
+    if intr.covariance is not None and not wide and intr.known and options.intrinsics == "auto":
+        return intr.covariance
+    return np.diag(intrinsics_prior_sigmas(intr, options, wide) ** 2)
+
+
 def intrinsics_prior_sigmas(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
-    """1-sigma of the prior on [fx, fy, cx, cy, k1, k2] of a camera (see ``SolverOptions.intrinsics``)."""
-    if options.intrinsics == "estimate":
+    """1-sigma of the prior on [fx, fy, cx, cy, k1, k2] of a camera (see ``SolverOptions.intrinsics``),
+    without the correlations of a calibration file's covariance (:func:`intrinsics_prior_covariance`)."""
+    if intr.covariance is not None and not wide and intr.known and options.intrinsics == "auto":
+        return np.sqrt(np.diag(intr.covariance))
+    if options.intrinsics == "estimate" and intr.known:
         return np.array([options.intrinsics_sigma_px] * 4 + [options.distortion_sigma] * 2)
+    wide = wide or not intr.known
     f_rel, c_frac, k = WIDE_INTRINSICS_PRIOR if wide else INTRINSICS_PRIORS[intrinsics_source(intr, options)]
     fx, fy = intr.K[0, 0], intr.K[1, 1]
     c = c_frac * max(intr.width_px, 1)
@@ -159,6 +175,47 @@ class Detection:
 
 
 @dataclass(frozen=True)
+class CliFlag:
+    """The command-line flag of a :class:`SolverOptions` field, declared on the field (its
+    ``metadata["flag"]``) so that the flags of ``calibgraph solve`` are generated from the options
+    and cannot drift from them. Fields without one are set in dataset.yaml's ``solver`` section.
+
+    Attributes:
+        name: the flag, e.g. ``'--fk-sigma-mm'``.
+        help: its help text.
+        type: the type of the flag's value (float, str); None for a switch (given or not).
+        choices: the values allowed, when there is a fixed set.
+        scale: option = flag value * scale (the flag's unit to SI: mm -> m 1e-3, deg -> rad pi/180).
+        positive: only values > 0 are meaningful (a zero sigma is refused, not taken for "unset").
+        const: the option's value when a switch is given.
+    """
+
+    name: str
+    help: str
+    type: type | None = None
+    choices: tuple = ()
+    scale: float = 1.0
+    positive: bool = False
+    const: object = None
+
+    def option_value(self, value):
+        """The option's value for the flag's (parsed) ``value``."""
+        if self.type is None:
+            return self.const
+        return value * self.scale if self.scale != 1.0 else value
+
+
+def _flag(default, flag: CliFlag | None = None):
+    """A SolverOptions field with its command-line flag (None: dataset.yaml's solver section only)."""
+    return field(default=default, metadata={"flag": flag})
+
+
+def option_flags() -> dict:
+    """SolverOptions field name -> its :class:`CliFlag`, for the fields that have one, in field order."""
+    return {f.name: f.metadata["flag"] for f in fields(SolverOptions) if f.metadata.get("flag") is not None}
+
+
+@dataclass(frozen=True)
 class SolverOptions:
     """Knobs of the solver; defaults suit a Panda-class arm and factory intrinsics.
 
@@ -187,7 +244,7 @@ class SolverOptions:
             principal point 1 % of the width, k1, k2 0.05), 'calibration' (the default; a camera
             calibration file: f 0.3 %, principal point 0.2 % of the width, k1, k2 0.01), 'exact'
             (held fixed, as a simulation's own cameras are).
-        refine_intrinsics: the former switch for ``intrinsics='estimate'`` (kept: True means that).
+        refine_intrinsics: True means ``intrinsics='estimate'`` (the ``--refine-intrinsics`` flag sets it).
         board_scale: estimate a scale factor of the printed board (printer scaling) under a prior of
             ``board_scale_sigma``, shared by all views; False takes the declared pitch as exact.
         formulation: 'view' (one vectorised CustomFactor per view, any OpenCV distortion),
@@ -202,37 +259,58 @@ class SolverOptions:
         kinematics_staging: 'staged' (cameras with an inflated FK prior, then offsets, then all
             jointly) or 'joint' (all at once).
         view_noise_modes: model corner errors that are correlated within a view (see
-            :func:`calibgraph.solver.batch.mode_variance_ratios`): per camera, the variance of each
+            :func:`calibgraph.solver.noise_model.mode_variance_ratios`): per camera, the variance of each
             view's low-order image modes (shift, rotation, scale, shear of the board) is estimated
             against the rest of the residuals and, where larger, weighted and propagated as such
             (view formulation). False treats every corner as independent.
         fk_variance: compare the fitted robot poses with the FK prior (see
-            :func:`calibgraph.solver.batch.fk_variance_ratio`) and, when they depart from it more
+            :func:`calibgraph.solver.fk_check.fk_variance_ratio`) and, when they depart from it more
             than the stated FK sigmas allow (p < 0.05), solve with the sigmas the fit implies and say so.
+
+    Every field can be set in dataset.yaml's ``solver`` section (by its name, SI units); those with a
+    :class:`CliFlag` in their metadata also by that flag, which wins (see :func:`option_flags`).
     """
 
-    fk_sigma_translation_m: float = 1e-4
-    fk_sigma_rotation_rad: float = float(np.radians(0.01))
-    pixel_sigma_px: float | None = None
-    loss: str = "huber"
-    loss_scale: float = 2.45
-    outlier_sigmas: float = 5.0
-    min_views_per_camera: int = 3
-    max_iterations: int = 100
-    intrinsics: str = "auto"
-    intrinsics_source: str = "calibration"
-    refine_intrinsics: bool = False
-    intrinsics_sigma_px: float = 5.0
-    distortion_sigma: float = 0.1
-    board_scale: bool = True
-    board_scale_sigma: float = 0.02
-    formulation: str = "auto"
-    kinematics: str = "none"
-    kinematics_model: str = "franka"
-    joint_offset_prior_rad: float = 0.01
-    kinematics_staging: str = "joint"
-    view_noise_modes: bool = True
-    fk_variance: bool = True
+    fk_sigma_translation_m: float = _flag(1e-4, CliFlag(
+        "--fk-sigma-mm", "forward-kinematics translation 1-sigma, mm", float, scale=1e-3, positive=True))
+    fk_sigma_rotation_rad: float = _flag(float(np.radians(0.01)), CliFlag(
+        "--fk-sigma-deg", "forward-kinematics rotation 1-sigma, deg", float, scale=np.pi / 180.0, positive=True))
+    pixel_sigma_px: float | None = _flag(None, CliFlag(
+        "--pixel-sigma", "corner noise in px (default: estimated)", float, positive=True))
+    loss: str = _flag("huber", CliFlag("--loss", "corner-level robust loss", str, choices=LOSSES))
+    loss_scale: float = _flag(2.45)
+    outlier_sigmas: float = _flag(5.0)
+    min_views_per_camera: int = _flag(3)
+    max_iterations: int = _flag(100)
+    intrinsics: str = _flag("auto", CliFlag(
+        "--fixed-intrinsics", "take the given intrinsics as exact (the 1-sigma is then conditional on them)",
+        const="fixed"))
+    intrinsics_source: str = _flag("calibration", CliFlag(
+        "--intrinsics-source", "where the given intrinsics come from when dataset.yaml does not say: their prior "
+        "(calibration: f 0.3 %, factory: f 2 %; default calibration)", str, choices=("calibration", "factory", "exact")))
+    refine_intrinsics: bool = _flag(False, CliFlag(
+        "--refine-intrinsics", "estimate fx, fy, cx, cy, k1, k2 of every camera under a fixed prior (5 px, 0.1) around "
+        "the given values", const=True))
+    intrinsics_sigma_px: float = _flag(5.0)
+    distortion_sigma: float = _flag(0.1)
+    board_scale: bool = _flag(True, CliFlag(
+        "--fixed-board-scale", "take the target's declared size as exact (default: estimate a printer scale factor)",
+        const=False))
+    board_scale_sigma: float = _flag(0.02)
+    formulation: str = _flag("auto")
+    kinematics: str = _flag("none", CliFlag(
+        "--estimate-kinematics", "joint-offsets: estimate the arm's joint zero offsets in the same graph (needs q_rad "
+        "in every capture; eye-to-hand, method joint); result.json gains a 'robot' section", str,
+        choices=("none", "joint-offsets")))
+    kinematics_model: str = _flag("franka", CliFlag(
+        "--kinematic-model", "the arm's kinematic model for --estimate-kinematics: franka (Panda / FR3, default) or a "
+        "URDF path", str))
+    joint_offset_prior_rad: float = _flag(0.01)
+    kinematics_staging: str = _flag("joint", CliFlag(
+        "--kinematics-staging", "joint: all variables at once (default, see scripts/results/bench_kinematics.md); "
+        "staged: cameras with an inflated FK prior, then the offsets, then everything", str, choices=("joint", "staged")))
+    view_noise_modes: bool = _flag(True)
+    fk_variance: bool = _flag(True)
 
     def __post_init__(self):
         if self.loss not in LOSSES:
@@ -274,6 +352,8 @@ class Problem:
         mode: 'eye_to_hand' or 'eye_in_hand'.
         method: 'joint' or 'single'.
         options: :class:`SolverOptions`.
+        target: the :class:`~calibgraph.core.targets.Target` the points come from, when known (the
+            error budget's advice then predicts a close-range session with that board).
     """
 
     points_board_m: np.ndarray
@@ -283,6 +363,7 @@ class Problem:
     mode: str = "eye_to_hand"
     method: str = "joint"
     options: SolverOptions = field(default_factory=SolverOptions)
+    target: object = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         pts = np.asarray(self.points_board_m, float)

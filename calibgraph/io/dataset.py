@@ -97,7 +97,7 @@ class Dataset:
                 raise InputError(f"{self.root / 'dataset.yaml'}: solver settings: {e}") from None
         return Problem(points_board_m=self.target.points_board_m, cameras=dict(self.cameras),
                        captures=self.captures, detections=tuple(dets), mode=self.mode, method=method,
-                       options=options)
+                       options=options, target=self.target)
 
 
 def write_header(root, target: Target, cameras: dict, mode: str = "eye_to_hand", solver: dict | None = None,

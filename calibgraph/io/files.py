@@ -20,8 +20,8 @@ def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
 
     p = Path(path)
     try:
-        d = yaml.safe_load(p.read_text())
-    except (OSError, UnicodeDecodeError) as e:
+        d = yaml.safe_load(read_input_bytes(p, what).decode("utf-8"))
+    except UnicodeDecodeError as e:
         raise InputError(f"{p}: cannot read {what}: {e}") from None
     except yaml.YAMLError as e:
         raise InputError(f"{p}: cannot read {what}: {yaml_error_line(e)}") from None
@@ -30,6 +30,34 @@ def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
     if mapping and not isinstance(d, dict):
         raise InputError(f"{p}: {what} must be a YAML mapping.")
     return d
+
+
+def read_input_bytes(path, what: str) -> bytes:
+    """The content of the input file ``path``. Only a regular file is read: a folder, a pipe (FIFO),
+    a device or a socket is refused with one :class:`InputError`, never waited on (the file is
+    opened non-blocking and checked before anything is read)."""
+    p = Path(path)
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as e:
+        raise InputError(f"{p}: cannot read {what}: {e}") from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise InputError(f"{p}: cannot read {what}: it is a folder, not a file.")
+        if not stat.S_ISREG(st.st_mode):
+            raise InputError(f"{p}: cannot read {what}: not a regular file (a pipe, a device or a socket); give the "
+                             f"{what} as a file.")
+        chunks = []
+        while True:
+            b = os.read(fd, 1 << 20)
+            if not b:
+                return b"".join(chunks)
+            chunks.append(b)
+    except OSError as e:
+        raise InputError(f"{p}: cannot read {what}: {e}") from None
+    finally:
+        os.close(fd)
 
 
 def yaml_error_line(e) -> str:
@@ -94,7 +122,8 @@ def output_folder(path, what: str = "output folder", empty: bool = False) -> Pat
     if str(path) == "":
         raise InputError(f"an empty {what} was given; name a folder.")
     if p.exists() and not p.is_dir():
-        raise InputError(f"{path}: is a file, not a folder; the {what} must be a folder "
+        kind = "a file" if p.is_file() else "a device, pipe or socket"
+        raise InputError(f"{path}: is {kind}, not a folder; the {what} must be a folder "
                          f"(e.g. {p.with_suffix('')}_out); nothing was written.")
     try:
         p.mkdir(parents=True, exist_ok=True)

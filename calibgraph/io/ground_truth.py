@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.io.files import atomic_write_text
 
@@ -24,7 +25,9 @@ _CONVENTION = ("T_a_b maps points from frame b to frame a: p_a = T_a_b @ p_b (4x
 def load_ground_truth(dataset_dir) -> dict:
     """Read ``ground_truth.json`` with poses as numpy arrays:
     ``{"T_flange_board", "T_base_cam": {cam: 4x4}, "T_base_flange_true": {capture: 4x4},
-    "joint_offsets_rad": (7,) (zeros when the file has none), "raw": dict}``."""
+    "joint_offsets_rad": (7,) (zeros when the file has none), "intrinsics_true": {cam: Intrinsics}
+    (the ones the images were rendered with; from ``intrinsics`` in files that predate
+    ``intrinsics_true``), "raw": dict}``."""
     p = Path(dataset_dir) / GT_NAME
     try:
         d = json.loads(p.read_text())
@@ -35,11 +38,13 @@ def load_ground_truth(dataset_dir) -> dict:
         "T_base_cam": {c: np.asarray(v["T_base_cam"], float) for c, v in d["cameras"].items()},
         "T_base_flange_true": {int(k): np.asarray(v["T_base_flange_true"], float) for k, v in d["captures"].items()},
         "joint_offsets_rad": np.asarray((d.get("robot") or {}).get("joint_offsets_rad") or np.zeros(7), float),
+        "intrinsics_true": {c: Intrinsics.from_dict(v.get("intrinsics_true") or v["intrinsics"])
+                            for c, v in d["cameras"].items() if v.get("intrinsics_true") or v.get("intrinsics")},
         "raw": d,
     }
 
 
 def write_ground_truth_file(dataset_dir, gt: dict) -> Path:
-    """Write ``gt`` (a ``calibgraph-ground-truth/1`` dict, see :mod:`calibgraph.sim.simulate`) beside the dataset."""
+    """Write ``gt`` (a ``calibgraph-ground-truth/1`` dict, see :mod:`calibgraph.sim.rendered_dataset`) beside the dataset."""
     return atomic_write_text(Path(dataset_dir) / GT_NAME, json.dumps({"format": GT_FORMAT, "frame_convention": _CONVENTION,
                                                                       **gt}, indent=1))

@@ -15,19 +15,25 @@ What is read:
   exist the capture stores ``q_rad`` (the sample nearest the capture moment, within the still
   moment);
 
-Moments: the robot pose samples are split into *still* segments (every sample within
-``still_mm`` / ``still_deg`` of the segment's first, lasting at least ``min_still_s``); a segment
-becomes a capture when every camera has a frame stamped inside it (the one nearest its middle;
-the pose is the sample nearest that middle). Stamps are the messages' header stamps (bag time when
-zero). Intrinsics come from CameraInfo with source 'calibration'.
+Stills: the robot pose samples are split into *still* spans (every sample within ``still_mm`` /
+``still_deg`` of the span's first, lasting at least ``min_still_s``). Each camera contributes the
+frame it has stamped inside a still (the one nearest the still's middle, when it has several), and a
+still with a frame from any camera becomes a capture with those views (the pose is the sample
+nearest the middle): cameras that publish at a lower rate, or only when they see the board, cost
+nothing but their own missing views. A camera with no frame in any still is left out with a
+warning; a still with no frame from any camera is skipped, and the report says why. Stamps are the
+messages' header stamps (bag time when zero). Intrinsics come from CameraInfo with source
+'calibration'. A frame that cannot be decoded costs its view, with a warning.
 
-Errors name what is missing: a CameraInfo for a topic, a TF path between the frames, a still moment.
+Errors name what is missing: a CameraInfo for a camera with frames, a TF path between the frames, a
+still moment, any camera frame in any still (with the image topics seen). The output folder is
+checked before the bag is read, as every ``--out`` is (:func:`calibgraph.io.files.output_folder`).
 """
 
 from __future__ import annotations
 
 import posixpath
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +44,7 @@ from calibgraph.core.problem import Capture
 from calibgraph.core.targets import a4_board_54
 from calibgraph.core.transforms import inv, log_so3, make_T, quat_xyzw_to_R
 from calibgraph.io.dataset import image_relpath, write_capture, write_header
-from calibgraph.io.files import atomic_write_png
+from calibgraph.io.files import atomic_write_png, output_folder
 
 __all__ = ["import_rosbag2", "ImportReport", "BASE_FRAMES", "FLANGE_FRAMES", "camera_name_of"]
 
@@ -53,7 +59,12 @@ JOINTS = "sensor_msgs/msg/JointState"
 
 @dataclass(frozen=True)
 class ImportReport:
-    """What the import found and wrote."""
+    """What the import found and wrote.
+
+    ``cameras``: the dataset's cameras (camera -> image topic); ``stills_per_camera``: how many
+    captures each appears in; ``left_out``: camera -> (topic, why) of cameras with no frame in any
+    still; ``skipped``: (still start s, reason) of stills that became no capture; ``warnings``:
+    lines for the user (cameras left out, frames that could not be decoded)."""
 
     out: Path
     cameras: dict  # camera -> image topic
@@ -61,11 +72,25 @@ class ImportReport:
     still_segments: int
     captures: int
     skipped: tuple  # (segment start s, reason)
+    stills_per_camera: dict = field(default_factory=dict)
+    left_out: dict = field(default_factory=dict)
+    warnings: tuple = ()
 
     def summary(self) -> str:
-        cams = ", ".join(f"{n} <- {t}" for n, t in self.cameras.items())
-        return (f"{self.captures} captures from {self.still_segments} still moments (robot from {self.robot_source}); "
-                f"cameras: {cams}" + (f"; {len(self.skipped)} moments skipped" if self.skipped else ""))
+        cams = ", ".join(f"{n} <- {t}" + (f" (in {self.stills_per_camera[n]} stills)" if n in self.stills_per_camera else "")
+                         for n, t in self.cameras.items())
+        text = (f"{self.captures} captures from {self.still_segments} still moments (robot from {self.robot_source}); "
+                f"cameras: {cams}")
+        if self.left_out:
+            text += "; left out: " + ", ".join(f"{n} <- {t} ({why})" for n, (t, why) in self.left_out.items())
+        if self.skipped:
+            reasons = {}
+            for t0, why in self.skipped:
+                reasons.setdefault(why, []).append(t0)
+            text += f"; {len(self.skipped)} moments skipped: " + "; ".join(
+                f"{why} (at t = {', '.join(f'{t:.1f}' for t in ts[:4])}{', ...' if len(ts) > 4 else ''} s)"
+                for why, ts in reasons.items())
+        return text
 
 
 def camera_name_of(topic: str) -> str:
@@ -241,7 +266,7 @@ def import_rosbag2(bag, out, base_frame: str | None = None, flange_frame: str | 
     A4 54-corner board); ``fk(q_rad) -> T_base_flange``: the robot model for /joint_states;
     ``joint_names``: the 7 joint names in order (default ``fr3_joint1..7`` or ``panda_joint1..7``,
     whichever the messages carry); ``robot_pose``: 'auto' (TF chain when the bag has one, else
-    joint states), 'tf' or 'joint_states'."""
+    joint states), 'tf' or 'joint_states'; ``progress``: a callable receiving progress lines."""
     if robot_pose not in ("auto", "tf", "joint_states"):
         raise InputError(f"robot_pose must be auto, tf or joint_states, got {robot_pose!r}.")
     try:
@@ -258,84 +283,149 @@ def import_rosbag2(bag, out, base_frame: str | None = None, flange_frame: str | 
         bag = bag.parent
     if not (bag / "metadata.yaml").is_file():
         raise InputError(f"{bag}: not a rosbag2 folder (no metadata.yaml).")
-    if (out / "dataset.yaml").exists():
+    if out.is_dir() and (out / "dataset.yaml").exists():
         raise InputError(f"{out}: a dataset already exists here; choose a new --out.")
-    say = progress or (lambda s: None)
+    if out.is_dir() and (out / "captures").exists():
+        raise InputError(f"{out}: holds captures/ of another run; choose a new --out.")
+    created = not out.exists()
+    output_folder(out, "dataset folder (--out)")
     try:
         reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except Exception as e:  # noqa: BLE001 - rosbags raises several types for unreadable bags
+        _remove_if_empty(out, created)
         raise InputError(f"{bag}: not a readable rosbag2 ({str(e).splitlines()[0] if str(e) else type(e).__name__}).") from None
     try:
-        topics = {c.topic: c.msgtype for c in reader.connections}
-        cams = _pick_cameras(topics, cameras or {})
-        info_topics = {n: _info_topic(t, topics) for n, (t, _) in cams.items()}
-        has_joints = any(m == JOINTS for m in topics.values())
-        if robot_pose == "joint_states" and not has_joints:
-            raise InputError(f"{bag}: no sensor_msgs/JointState topic, so no joint states to take the robot pose from.")
-        tf = _TfTree()
-        intr, frames, joint_samples = {}, {n: [] for n in cams}, []
-        wanted = {t for t, _ in cams.values()} | set(info_topics.values())
-        wanted |= {t for t, m in topics.items() if m in (JOINTS, TF)}
-        conns = [c for c in reader.connections if c.topic in wanted]
-        topic_cam = {t: n for n, (t, _) in cams.items()}
-        info_cam = {t: n for n, t in info_topics.items()}
-        for conn, t_ns, raw in reader.messages(connections=conns):
-            if conn.topic in topic_cam:
-                # decode later: keep the raw message (a bag may hold thousands of frames)
-                frames[topic_cam[conn.topic]].append((t_ns, conn, raw))
-                continue
-            msg = reader.deserialize(raw, conn.msgtype)
-            if conn.topic in info_cam:
-                intr.setdefault(info_cam[conn.topic], _intrinsics(msg, conn.topic))
-            elif conn.msgtype == TF:
-                tf.add(msg, conn.topic.endswith("tf_static"), t_ns)
-            elif conn.msgtype == JOINTS:
-                joint_samples.append((_stamp(msg, t_ns), list(msg.name), np.asarray(msg.position, float)))
-        for n, t in info_topics.items():
-            if n not in intr:
-                raise InputError(f"no CameraInfo message on {t} for camera {n} ({cams[n][0]}).")
-        times, poses, source = _robot_track(tf, joint_samples, fk, joint_names, base_frame, flange_frame, robot_pose)
-        jt, jq = _joint_track(joint_samples, joint_names) if joint_samples else (None, None)
-        segs = _still_segments(times, poses, still_mm, still_deg, min_still_s)
-        if not segs:
-            raise InputError(f"no still moment: the robot ({source}) never stays within {still_mm:g} mm / {still_deg:g} deg "
-                             f"for {min_still_s:g} s in {bag}.")
-        stamps = {n: np.asarray([_stamp(reader.deserialize(raw, conn.msgtype), t_ns) for t_ns, conn, raw in frames[n]])
-                  for n in cams}
-        out.mkdir(parents=True, exist_ok=True)
-        write_header(out, target or a4_board_54(), intr, extra={"source": {"rosbag2": str(bag), "robot": source}})
-        written, skipped = 0, []
-        for t0, t1, mid in segs:
-            mid_t = times[mid]
-            pick = {}
-            for n in cams:
-                inside = np.flatnonzero((stamps[n] >= t0) & (stamps[n] <= t1))
-                if inside.size:
-                    pick[n] = int(inside[np.argmin(np.abs(stamps[n][inside] - mid_t))])
-            if len(pick) < len(cams):
-                skipped.append((float(t0), f"no frame from {', '.join(sorted(set(cams) - set(pick)))} while still"))
-                continue
-            views = {}
-            for n, i in pick.items():
-                t_ns, conn, raw = frames[n][i]
-                img = _decode(reader.deserialize(raw, conn.msgtype), conn.msgtype, conn.topic)
-                rel = image_relpath(n, written)
-                atomic_write_png(out / rel, img)
-                views[n] = {"image": rel, "stamp_s": float(stamps[n][i])}
-            q = None
-            if jt is not None and jt.size:
-                j = int(np.argmin(np.abs(jt - mid_t)))
-                q = jq[j] if t0 - 1e-6 <= jt[j] <= t1 + 1e-6 else None
-            write_capture(out, Capture(index=written, T_base_flange=poses[mid], q_rad=q, stamp_s=float(mid_t)), views)
-            written += 1
-            say(f"capture {written}: t = {mid_t:.2f} s")
-        if not written:
-            raise InputError(f"no still moment with a frame from every camera ({', '.join(cams)}); "
-                             f"{len(segs)} still moments, e.g. {skipped[0][1]}.")
+        return _import(reader, bag, out, base_frame, flange_frame, cameras or {}, target, fk, joint_names, still_mm,
+                       still_deg, min_still_s, robot_pose, progress or (lambda s: None))
+    except BaseException:
+        _remove_if_empty(out, created)
+        raise
     finally:
         reader.close()
-    return ImportReport(out, {n: t for n, (t, _) in cams.items()}, source, len(segs), written, tuple(skipped))
+
+
+def _remove_if_empty(out: Path, created: bool) -> None:
+    """A refused import leaves no empty folder behind where there was none."""
+    if created:
+        try:
+            out.rmdir()
+        except OSError:
+            pass
+
+
+def _import(reader, bag, out, base_frame, flange_frame, named, target, fk, joint_names, still_mm, still_deg, min_still_s,
+            robot_pose, say) -> ImportReport:
+    topics = {c.topic: c.msgtype for c in reader.connections}
+    cams = _pick_cameras(topics, named)
+    info_topics, info_missing = {}, {}
+    for n, (t, _) in cams.items():
+        try:
+            info_topics[n] = _info_topic(t, topics)
+        except InputError as e:  # an error only if this camera has frames to import
+            info_missing[n] = str(e)
+    has_joints = any(m == JOINTS for m in topics.values())
+    if robot_pose == "joint_states" and not has_joints:
+        raise InputError(f"{bag}: no sensor_msgs/JointState topic, so no joint states to take the robot pose from.")
+    tf = _TfTree()
+    intr, frames, joint_samples = {}, {n: [] for n in cams}, []
+    wanted = {t for t, _ in cams.values()} | set(info_topics.values())
+    wanted |= {t for t, m in topics.items() if m in (JOINTS, TF)}
+    conns = [c for c in reader.connections if c.topic in wanted]
+    topic_cam = {t: n for n, (t, _) in cams.items()}
+    info_cam = {t: n for n, t in info_topics.items()}
+    for conn, t_ns, raw in reader.messages(connections=conns):
+        if conn.topic in topic_cam:
+            # decode later: keep the raw message (a bag may hold thousands of frames)
+            frames[topic_cam[conn.topic]].append((t_ns, conn, raw))
+            continue
+        msg = reader.deserialize(raw, conn.msgtype)
+        if conn.topic in info_cam:
+            intr.setdefault(info_cam[conn.topic], _intrinsics(msg, conn.topic))
+        elif conn.msgtype == TF:
+            tf.add(msg, conn.topic.endswith("tf_static"), t_ns)
+        elif conn.msgtype == JOINTS:
+            joint_samples.append((_stamp(msg, t_ns), list(msg.name), np.asarray(msg.position, float)))
+    times, poses, source = _robot_track(tf, joint_samples, fk, joint_names, base_frame, flange_frame, robot_pose)
+    jt, jq = _joint_track(joint_samples, joint_names) if joint_samples else (None, None)
+    segs = _still_segments(times, poses, still_mm, still_deg, min_still_s)
+    if not segs:
+        raise InputError(f"no still moment: the robot ({source}) never stays within {still_mm:g} mm / {still_deg:g} deg "
+                         f"for {min_still_s:g} s in {bag}.")
+    stamps = {n: np.asarray([_stamp(reader.deserialize(raw, conn.msgtype), t_ns) for t_ns, conn, raw in frames[n]])
+              for n in cams}
+    picks = [_frames_in_still(stamps, t0, t1, times[mid]) for t0, t1, mid in segs]
+    in_stills = {n: sum(n in p for p in picks) for n in cams}
+    if not any(in_stills.values()):
+        seen = ", ".join(f"{t} ({len(frames[n])} frames)" for n, (t, _) in cams.items())
+        others = sorted(t for t, m in topics.items() if m in (IMAGE, COMPRESSED) and t not in topic_cam)
+        raise InputError(f"no camera has a frame in any of the {len(segs)} still moments of {bag} (the robot from "
+                         f"{source}); image topics seen: {seen}" + (f"; not read: {', '.join(others)}" if others else "")
+                         + "; check that the cameras publish while the robot rests (header stamps).")
+    for n in cams:
+        if in_stills[n]:
+            if n in info_missing:
+                raise InputError(info_missing[n])
+            if n not in intr:
+                raise InputError(f"no CameraInfo message on {info_topics[n]} for camera {n} ({cams[n][0]}).")
+    warnings, skipped, per_cam = [], [], {n: 0 for n in cams}
+    written = 0
+    for (t0, t1, mid), pick in zip(segs, picks):
+        if not pick:
+            skipped.append((float(t0), "no frame from any camera while still"))
+            continue
+        mid_t = times[mid]
+        views = {}
+        for n, i in pick.items():
+            t_ns, conn, raw = frames[n][i]
+            try:
+                img = _decode(reader.deserialize(raw, conn.msgtype), conn.msgtype, conn.topic)
+            except InputError as e:
+                warnings.append(f"{e} (t = {stamps[n][i]:.3f} s): that view is left out.")
+                continue
+            rel = image_relpath(n, written)
+            atomic_write_png(out / rel, img)
+            views[n] = {"image": rel, "stamp_s": float(stamps[n][i])}
+        if not views:
+            skipped.append((float(t0), "no frame of it could be decoded"))
+            continue
+        q = None
+        if jt is not None and jt.size:
+            j = int(np.argmin(np.abs(jt - mid_t)))
+            q = jq[j] if t0 - 1e-6 <= jt[j] <= t1 + 1e-6 else None
+        write_capture(out, Capture(index=written, T_base_flange=poses[mid], q_rad=q, stamp_s=float(mid_t)), views)
+        for n in views:
+            per_cam[n] += 1
+        written += 1
+        say(f"capture {written}: t = {mid_t:.2f} s, {', '.join(views)}")
+    left_out = {}
+    for n, (t, _) in cams.items():
+        if per_cam[n]:
+            continue
+        why = ("no frame in the bag" if not frames[n] else
+               f"none of its {len(frames[n])} frames is inside a still moment" if not in_stills[n] else
+               f"none of its frames in {in_stills[n]} still moments could be decoded")
+        left_out[n] = (t, why)
+        warnings.append(f"camera {n} ({t}): {why}; it is left out of the dataset.")
+    if not written:
+        raise InputError(f"no capture: no frame in the {len(segs)} still moments of {bag} could be decoded "
+                         f"({'; '.join(warnings[:2])}).")
+    used = {n: cams[n][0] for n in cams if per_cam[n]}
+    # the header last: a folder without dataset.yaml is an import that did not finish
+    write_header(out, target or a4_board_54(), {n: intr[n] for n in used},
+                 extra={"source": {"rosbag2": str(bag), "robot": source}})
+    return ImportReport(out, used, source, len(segs), written, tuple(skipped), stills_per_camera={n: per_cam[n] for n in used},
+                        left_out=left_out, warnings=tuple(warnings))
+
+
+def _frames_in_still(stamps: dict, t0: float, t1: float, mid_t: float) -> dict:
+    """camera -> index of its frame stamped inside [t0, t1] nearest ``mid_t`` (cameras with none left out)."""
+    pick = {}
+    for n, st in stamps.items():
+        inside = np.flatnonzero((st >= t0) & (st <= t1))
+        if inside.size:
+            pick[n] = int(inside[np.argmin(np.abs(st[inside] - mid_t))])
+    return pick
 
 
 def _joint_track(joint_samples: list, joint_names):

@@ -13,7 +13,7 @@ see one capture share it:
     Sigma = (priors + sum over the captures so far of I_k)^-1,  Sigma' = (Sigma^-1 + I_candidate)^-1
 
 This is the solver's graph at the current estimate (``tests/test_auto.py`` checks it against
-:func:`calibgraph.solver.batch.crlb`); what it leaves out (intrinsics, robust weights) is carried
+:func:`calibgraph.solver.covariance.crlb`); what it leaves out (intrinsics, robust weights) is carried
 by applying its *ratio* to the batch 1-sigma: predicted sigma_c = batch sigma_c x model sigma'_c /
 model sigma_c. It matters for far cameras: their depth is tied to the board scale and their
 lateral position to their rotation, and only views at several depths and sides, or other
@@ -440,7 +440,7 @@ class ActivePlanner:
                                       T_flange_board, *self.fk_sigmas)
         return out
 
-    def _model(self, scored: dict, history, T_flange_board, pixel_sigma_px):
+    def graph_information(self, scored: dict, history, T_flange_board, pixel_sigma_px):
         """The linearised graph of the captures so far: (names, [(intrinsics, T_base_cam)], information
         (P, P)) over the ``scored`` cameras, the mount and the board scale (see :func:`joint_information`),
         with the solver's weak priors (1 rad / 10 m on cameras and mount) and the board-scale prior."""
@@ -467,7 +467,7 @@ class ActivePlanner:
         intrinsics and the robust weights, the ratio carries what it does capture (shared flange,
         mount, board scale). gain = sum over the cameras short of tolerance of
         max(rho, 1)^2 - max(rho', 1)^2."""
-        names, cams, J0 = self._model(scored, history, T_flange_board, pixel_sigma_px)
+        names, cams, J0 = self.graph_information(scored, history, T_flange_board, pixel_sigma_px)
         K = len(names)
         sig0 = _block_sigmas(np.linalg.inv(J0), K)  # (K, 2) model 1-sigma now
         ref = np.array([sigma_norms(scored[n].covariance) for n in names])  # (K, 2) reference 1-sigma now

@@ -38,7 +38,8 @@ from calibgraph.core.transforms import check_pose, exp_so3, make_T
 from calibgraph.io.files import read_yaml
 
 __all__ = ["Box", "CameraHint", "CellCamera", "CellDescription", "board_by_name", "default_T_flange_board",
-           "pose_from_spec", "boxes_from_list", "cell_from_dict", "cell_from_world_dict", "load_cell"]
+           "pose_from_spec", "boxes_from_list", "cell_from_dict", "cell_from_world_dict", "load_cell",
+           "PLACEMENT_KEYS", "has_placements"]
 
 
 def board_by_name(spec) -> Target:
@@ -219,7 +220,16 @@ class CellDescription:
         return {c.name: c.hint for c in self.cameras if c.hint is not None}
 
 
-_PLACEMENT_KEYS = {"position_m", "look_at_m", "T_base_cam"}
+PLACEMENT_KEYS = {"position_m", "look_at_m", "T_base_cam"}  # what places a camera in a simulator workcell
+
+
+def has_placements(d: dict) -> bool:
+    """True when a workcell mapping places its cameras (a ``ring:`` or a camera with a placement key)."""
+    if not isinstance(d, dict):
+        return False
+    cams = d.get("cameras") or {}
+    entries = cams.values() if isinstance(cams, dict) else ()
+    return bool(d.get("ring")) or any(isinstance(c, dict) and bool(PLACEMENT_KEYS & set(c)) for c in entries)
 
 
 def boxes_from_list(items, where: str, keep_out: bool) -> list:
@@ -247,7 +257,7 @@ def cell_from_dict(d: dict, where: str = "cell") -> CellDescription:
         raise InputError(f"{where}: cameras must be a mapping name -> settings.")
     for name, c in entries.items():
         c = dict(c or {})
-        placed = _PLACEMENT_KEYS & set(c)
+        placed = PLACEMENT_KEYS & set(c)
         if placed:
             raise InputError(f"{where}: camera {name!r} gives its placement ({sorted(placed)}); the autonomous loop "
                              "finds placements itself: remove them or give a rough hint instead.")
@@ -281,7 +291,7 @@ def cell_from_world_dict(d: dict, where: str = "world") -> CellDescription:
         for i in range(len(ring.get("distances_m", []))):
             cams[f"cam{i}"] = {"preset": presets[i % len(presets)]}
     for name, c in (d.get("cameras") or {}).items():
-        cams[str(name)] = {k: v for k, v in (c or {}).items() if k not in _PLACEMENT_KEYS}
+        cams[str(name)] = {k: v for k, v in (c or {}).items() if k not in PLACEMENT_KEYS}
     out = {k: d[k] for k in ("name", "board", "mount", "floor_z_m", "obstacles", "keep_out") if k in d}
     out["cameras"] = cams
     return cell_from_dict(out, where)

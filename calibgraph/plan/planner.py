@@ -103,10 +103,8 @@ def plan_trajectory(world, n_poses: int = 60, seed: int = 0, shared_fraction: fl
         roll_deg: maximum in-plane rotation of the board.
         radius_m, height_m: where the board centre is placed (distance from the base z axis,
             height in the base frame). The defaults use most of the FR3's reach: spreading the
-            board over depth and height decouples each camera's position from its rotation.
-            Measured on synthetic corners (0.06 px, 110 poses, 3 cameras), against the former
-            compact volume (0.38-0.62 m, 0.25-0.70 m, tilt 35 deg): 1-sigma norm of T_base_cam
-            0.32 -> 0.25 mm (L515, 3 m), 0.53 -> 0.39 mm (D455, 3 m), 0.18 -> 0.11 mm (Kinect, 1.5 m).
+            board over depth and height decouples each camera's position from its rotation
+            (figures: ``scripts/results/design_figures.md``).
         max_attempts: pose samples allowed in all (default 60 per pose).
         progress: optional callable(n_done, n_total).
         q_start: (7,) joint angles the robot starts from (default

@@ -11,9 +11,8 @@ follows whatever the hint says, so a wrong hint costs a few stops, never the run
 A camera that has seen the board gets *refinement* stops: the board facing the camera position
 that its views' PnP suggest, tilted in several directions. A planar view has two PnP solutions
 whose camera centres are mirror images about the board normal: close together for a view seen
-head-on, metres apart for one seen obliquely (the default cell's second camera, first seen at
-70 deg, had its two candidates 4.6 m apart, and the refinement stops aimed at their mean went
-unseen three times). :func:`camera_position_hypothesis` keeps the candidate that most views
+head-on, metres apart for one seen obliquely, so stops aimed at their mean can miss the camera
+altogether. :func:`camera_position_hypothesis` keeps the candidate that most views
 agree on; while two remain in a tie, the next stop faces one of them squarely, and a stop the
 camera does not see refutes it. Those views give the rotation diversity the solver's consensus
 initialiser needs (:class:`calibgraph.solver.incremental.IncrementalSolver`): it resolves the
@@ -46,9 +45,8 @@ SURVEY_ROUNDS = (
 N_AZIMUTHS = 6
 BASE_SEED_Q = np.array([0.0, 0.1, 0.0, -2.0, 0.0, 2.0, 0.785])  # arm reaching forward at joint-1 angle 0
 # IK starts in the arm's vertical plane (joints 3 and 5 at 0): shoulder, elbow, wrist pitch and
-# flange roll over a small grid. From the single seed above, a board held facing outwards at
-# 0.55 m is found by IK in ~1 of 6 tries; from this family in 5-24 of 24 (measured on the FR3
-# model, board elevations 15-60 deg).
+# flange roll over a small grid. From the single seed above, IK seldom finds a board held facing
+# outwards at survey distance; from this family it mostly does (scripts/results/design_figures.md).
 SEED_FAMILY = tuple(np.array([0.0, q2, 0.0, q4, 0.0, q6, q7]) for q4 in (-2.4, -1.7) for q6 in (2.2, 3.2)
                     for q2 in (-0.3, 0.3, 0.8) for q7 in (0.785, -0.785))
 

@@ -39,16 +39,10 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import InputError
-from calibgraph.core.problem import mode_frames
 from calibgraph.io.files import atomic_write_via
-from calibgraph.report.exports import camera_intrinsics, camera_pose, ref_frame
+from calibgraph.report.residuals import observations, report_residuals
 from calibgraph.report.svgplot import colormap
-from calibgraph.report.html import (
-    compute_residuals,
-    corner_rejected_mask,
-    observations,
-    residuals_section,
-)
+from calibgraph.solver.result import as_result
 
 GREEN = (40, 200, 60)
 MAGENTA = (230, 40, 230)
@@ -67,16 +61,6 @@ def _import_rerun():
     return rr
 
 
-def _result_dict(result) -> dict:
-    if isinstance(result, dict):
-        return result
-
-    d = result.to_dict()
-    if "residuals" not in d:
-        d["residuals"] = residuals_section(result)
-    return d
-
-
 def _axes(rr, length_m: float):
     return rr.Arrows3D(vectors=np.eye(3) * length_m, colors=[(230, 0, 0), (0, 200, 0), (0, 80, 255)])
 
@@ -87,22 +71,20 @@ def _pose(rr, T):
 
 
 def log_result(rec, result, source=None) -> None:
-    """Log a result (dict or :class:`Result`) and optionally its Problem/Dataset into a rerun
-    RecordingStream ``rec``."""
+    """Log a :class:`~calibgraph.solver.result.Result` and optionally its Problem/Dataset into a
+    rerun RecordingStream ``rec``."""
     rr = _import_rerun()
-
-    R = _result_dict(result)
+    result = as_result(result, "view")
     obs = observations(source) if source is not None else None
-    ref = ref_frame(R)
-    eih = R.get("mode") == "eye_in_hand"
-    mk = mode_frames(R.get("mode")).board_key
-    names = list(R["cameras"])
+    ref = result.ref_frame
+    eih = result.mode == "eye_in_hand"
+    names = list(result.calibrated)
 
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log("world/robot_base", _axes(rr, 0.2), static=True)
 
     # flange poses: refined ones from the result, else the recorded ones
-    flange = {int(k): np.asarray(v, float) for k, v in (R.get("robot_flange_poses_refined") or {}).items()}
+    flange = dict(result.T_base_flange_est)
     if not flange and obs is not None:
         flange = dict(obs["T_base_flange"])
     if flange:
@@ -111,9 +93,9 @@ def log_result(rec, result, source=None) -> None:
         rec.log("world/flange", _axes(rr, 0.08), static=True)
 
     pts = obs["points_board_m"] if obs is not None else None
-    T_mount = R.get(mk)
+    T_mount = result.T_mount_board
     if T_mount is None:  # 'single' method: every camera has its own; show the first
-        T_mount = next((c[mk] for c in R["cameras"].values() if mk in c), None)
+        T_mount = next((c.T_mount_board for c in result.cameras.values() if c.T_mount_board is not None), None)
     board_path = "world/board" if eih else "world/flange/board"
     if T_mount is not None:
         rec.log(board_path, _pose(rr, T_mount), static=True)
@@ -123,31 +105,27 @@ def log_result(rec, result, source=None) -> None:
 
     cam_root = "world/flange" if eih else "world/cameras"
     intr = {}
-    for n in names:
-        T = camera_pose(R, n)
+    for n, c in result.calibrated.items():
+        T = c.T_ref_cam
         rec.log(f"{cam_root}/{n}", _pose(rr, T), static=True)
         rec.log(f"{cam_root}/{n}/axes", _axes(rr, 0.1), static=True)
-        K = camera_intrinsics(R, n, None) or (obs["cameras"].get(n) if obs is not None else None)
+        K = c.solved_intrinsics or (obs["cameras"].get(n) if obs is not None else None)
         intr[n] = K
         if K is not None:
             rec.log(f"{cam_root}/{n}/image", rr.Pinhole(image_from_camera=K.K, resolution=[K.width_px, K.height_px],
                                                          camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.3),
                     static=True)
-        c = R["cameras"][n]
         rec.log(f"{cam_root}/{n}/label", rr.TextDocument(
-            f"{n}: T_{ref}_cam t = {np.round(T[:3, 3], 4).tolist()} m; 1σ {np.round(c.get('sigma_translation_mm', []), 3).tolist()} mm, "
-            f"{np.round(c.get('sigma_rotation_deg', []), 4).tolist()} deg; RMS {c.get('reprojection_rms_px', float('nan')):.3f} px"),
+            f"{n}: T_{ref}_cam t = {np.round(T[:3, 3], 4).tolist()} m; 1σ {np.round(c.sigma_translation_mm, 3).tolist()} mm, "
+            f"{np.round(c.sigma_rotation_deg, 4).tolist()} deg; RMS {c.reprojection_rms_px:.3f} px"),
             static=True)
 
-    residuals = R.get("residuals") or (compute_residuals(R, source) if source is not None else {})
-    rejected_corners = {}
-    for rc in R.get("rejected_corners") or []:
-        rejected_corners.setdefault((rc["camera"], int(rc["capture"])), set()).add(int(rc["id"]))
+    residuals, _ = report_residuals(result, source)
     images = {}
     if obs is not None:
         images = {(cam, k): img for cam, k, _ids, _uv, img in obs["views"] if img}
 
-    caps = sorted(set(flange) | {int(k) for r in residuals.values() for k in r})
+    caps = sorted(set(flange) | {k for r in residuals.values() for k in r})
     for i, n in enumerate(names):
         col = PALETTE[i % len(PALETTE)]
         light = tuple(int(c + 0.55 * (255 - c)) for c in col)  # max: a paler tint of the camera's colour
@@ -160,55 +138,56 @@ def log_result(rec, result, source=None) -> None:
         if k in flange:
             rec.log("world/flange", _pose(rr, flange[k]))
         for n in names:
-            base = f"{cam_root}/{n}/image"
-            img = images.get((n, k))
-            if img and Path(img).is_file() and intr.get(n) is not None:
-                rec.log(base, rr.EncodedImage(path=img))
-            v = (residuals.get(n) or {}).get(str(k))
-            if v is None:
-                # nothing seen at this capture: clear the overlays from the previous one
-                for sub in ("detected", "reprojected", "residual_x20", "outliers"):
-                    rec.log(f"{base}/{sub}", rr.Clear(recursive=False))
-                continue
-            ids = np.asarray(v["ids"], int)
-            r = np.asarray(v["residual_px"], float).reshape(-1, 2)
-            uv = v.get("uv_detected_px")
-            norm = np.linalg.norm(r, axis=1)
-            bad = np.array([i in rejected_corners.get((n, k), set()) for i in ids], bool)
-            bad |= corner_rejected_mask(v, len(ids))
-            view_rejected = bool(v.get("rejected"))
-            good = ~bad & (not view_rejected)
-            if good.any():
-                rec.log(f"residuals/{n}/rms_px", rr.Scalars(float(np.sqrt(np.mean(norm[good] ** 2)))))
-                rec.log(f"residuals/{n}/max_px", rr.Scalars(float(norm[good].max())))
-            if view_rejected:
-                rec.log(f"residuals/{n}/rejected", rr.Scalars(float(np.sqrt(np.mean(norm ** 2)))))
-            if uv is None or intr.get(n) is None:
-                continue
-            uv = np.asarray(uv, float).reshape(-1, 2)
-            pred = uv + r  # residual = reprojected - detected
-            rec.log(f"{base}/detected", rr.Points2D(uv, radii=rr.Radius.ui_points(3.0), colors=GREEN))
-            rec.log(f"{base}/reprojected", rr.Points2D(pred, radii=rr.Radius.ui_points(2.0), colors=MAGENTA))
-            strips = np.stack([uv, uv + RESIDUAL_GAIN * r], axis=1)
-            rec.log(f"{base}/residual_x20", rr.LineStrips2D(strips, colors=MAGENTA, radii=rr.Radius.ui_points(1.0)))
-            if view_rejected:
-                rec.log(f"{base}/outliers", rr.Points2D(uv, radii=rr.Radius.ui_points(5.0), colors=ORANGE,
-                                                        labels=["view rejected"] * len(ids)))
-            elif bad.any():
-                rec.log(f"{base}/outliers", rr.Points2D(uv[bad], radii=rr.Radius.ui_points(7.0), colors=RED,
-                                                        labels=[f"corner {i}: {e:.1f} px" for i, e in zip(ids[bad], norm[bad])]))
-            else:
-                rec.log(f"{base}/outliers", rr.Clear(recursive=False))
+            _log_view(rec, rr, f"{cam_root}/{n}/image", n, k, (residuals.get(n) or {}).get(k), images.get((n, k)),
+                      intr.get(n))
 
-    lines = [f"# calibgraph result ({R.get('mode')}, {R.get('method')})", "",
+    lines = [f"# calibgraph result ({result.mode}, {result.method})", "",
              "| camera | t (m) | 1σ t (mm) | 1σ r (deg) | RMS px | views |", "|---|---|---|---|---|---|"]
-    for n in names:
-        c = R["cameras"][n]
-        lines.append(f"| {n} | {np.round(camera_pose(R, n)[:3, 3], 4).tolist()} | "
-                     f"{np.round(c.get('sigma_translation_mm', []), 3).tolist()} | "
-                     f"{np.round(c.get('sigma_rotation_deg', []), 4).tolist()} | {c.get('reprojection_rms_px', float('nan')):.3f} | "
-                     f"{c.get('views_used', '?')} used, {len(c.get('views_rejected', []))} rejected |")
+    for n, c in result.calibrated.items():
+        lines.append(f"| {n} | {np.round(c.T_ref_cam[:3, 3], 4).tolist()} | "
+                     f"{np.round(c.sigma_translation_mm, 3).tolist()} | "
+                     f"{np.round(c.sigma_rotation_deg, 4).tolist()} | {c.reprojection_rms_px:.3f} | "
+                     f"{c.views_used} used, {len(c.views_rejected)} rejected |")
+    lines += [f"| {n} | not calibrated: {why} | | | | |" for n, why in result.not_calibrated.items()]
     rec.log("summary", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+def _log_view(rec, rr, base: str, n: str, k: int, v: dict | None, img, intr) -> None:
+    """One camera at one capture: its image, detected and reprojected corners, residuals, outliers."""
+    if img and Path(img).is_file() and intr is not None:
+        rec.log(base, rr.EncodedImage(path=img))
+    if v is None:
+        # nothing seen at this capture: clear the overlays from the previous one
+        for sub in ("detected", "reprojected", "residual_x20", "outliers"):
+            rec.log(f"{base}/{sub}", rr.Clear(recursive=False))
+        return
+    ids = np.asarray(v["ids"], int)
+    r = np.asarray(v["residual_px"], float).reshape(-1, 2)
+    norm = np.linalg.norm(r, axis=1)
+    bad = np.asarray(v["weight"]) == 0
+    view_rejected = bool(v["rejected"])
+    good = ~bad & (not view_rejected)
+    if good.any():
+        rec.log(f"residuals/{n}/rms_px", rr.Scalars(float(np.sqrt(np.mean(norm[good] ** 2)))))
+        rec.log(f"residuals/{n}/max_px", rr.Scalars(float(norm[good].max())))
+    if view_rejected:
+        rec.log(f"residuals/{n}/rejected", rr.Scalars(float(np.sqrt(np.mean(norm ** 2)))))
+    if intr is None:
+        return
+    uv = np.asarray(v["uv_detected_px"], float).reshape(-1, 2)
+    pred = uv + r  # residual = reprojected - detected
+    rec.log(f"{base}/detected", rr.Points2D(uv, radii=rr.Radius.ui_points(3.0), colors=GREEN))
+    rec.log(f"{base}/reprojected", rr.Points2D(pred, radii=rr.Radius.ui_points(2.0), colors=MAGENTA))
+    strips = np.stack([uv, uv + RESIDUAL_GAIN * r], axis=1)
+    rec.log(f"{base}/residual_x20", rr.LineStrips2D(strips, colors=MAGENTA, radii=rr.Radius.ui_points(1.0)))
+    if view_rejected:
+        rec.log(f"{base}/outliers", rr.Points2D(uv, radii=rr.Radius.ui_points(5.0), colors=ORANGE,
+                                                labels=["view rejected"] * len(ids)))
+    elif bad.any():
+        rec.log(f"{base}/outliers", rr.Points2D(uv[bad], radii=rr.Radius.ui_points(7.0), colors=RED,
+                                                labels=[f"corner {i}: {e:.1f} px" for i, e in zip(ids[bad], norm[bad])]))
+    else:
+        rec.log(f"{base}/outliers", rr.Clear(recursive=False))
 
 
 def plan_log_path(source):
@@ -289,17 +268,17 @@ def log_plan(rec, plan_log) -> int:
     return len(steps)
 
 
-def default_blueprint(result: dict, plan: bool = False):
+def default_blueprint(result, plan: bool = False):
     """Viewer layout: the 3D cell on the left; each camera's image with detected/reprojected corners
     and the residual time series on the right; with ``plan`` the autonomous run's 1-sigma series
     and step log too."""
     import rerun.blueprint as rrb
 
-    cam_root = "world/flange" if result.get("mode") == "eye_in_hand" else "world/cameras"
+    cam_root = "world/flange" if result.mode == "eye_in_hand" else "world/cameras"
 
     images = []
-    for n in result["cameras"]:
-        intr = camera_intrinsics(result, n, None)
+    for n, c in result.calibrated.items():
+        intr = c.solved_intrinsics
         # show the whole image, so where the corners fall in the frame is visible even without images
         bounds = (rrb.VisualBounds2D(x_range=[-0.5, intr.width_px - 0.5], y_range=[-0.5, intr.height_px - 0.5])
                   if intr is not None and intr.width_px > 0 else None)
@@ -322,7 +301,7 @@ def default_blueprint(result: dict, plan: bool = False):
 
 
 def write_rrd(result, problem_or_dataset=None, path="calibgraph.rrd", plan_log=None) -> Path:
-    """Save a rerun recording of ``result`` (a :class:`Result` or result dict) to ``path``.
+    """Save a rerun recording of ``result`` (a :class:`~calibgraph.solver.result.Result`) to ``path``.
 
     ``problem_or_dataset`` (a Problem, a Dataset or a dataset folder) adds the images, the
     detections (when the result has no ``residuals`` section) and the recorded flange poses.
@@ -331,7 +310,7 @@ def write_rrd(result, problem_or_dataset=None, path="calibgraph.rrd", plan_log=N
     The file is written without a viewer; open it with ``rerun path``.
     """
     rr = _import_rerun()
-    R = _result_dict(result)
+    R = as_result(result, "view")
     plan = _load_plan_log(plan_log if plan_log is not None else plan_log_path(problem_or_dataset))
 
     def write(tmp: Path) -> None:

@@ -39,7 +39,7 @@ def nice_ticks(lo: float, hi: float, n: int = 5) -> list:
     """About n round tick values covering [lo, hi]."""
     if not (np.isfinite(lo) and np.isfinite(hi)):
         return []
-    if hi <= lo:
+    if hi - lo <= 1e-9 * max(abs(lo), abs(hi)):  # empty or within rounding: a step that small never advances
         hi = lo + (abs(lo) if lo else 1.0)
     raw = (hi - lo) / max(n, 1)
     mag = 10 ** math.floor(math.log10(raw))
@@ -228,7 +228,7 @@ def heatmap(values, x_edges, y_edges, title: str = "", xlabel: str = "", ylabel:
     fin = np.isfinite(V)
     lo = float(np.nanmin(V)) if vmin is None and fin.any() else (vmin if vmin is not None else 0.0)
     hi = float(np.nanmax(V)) if vmax is None and fin.any() else (vmax if vmax is not None else 1.0)
-    if hi <= lo:
+    if hi - lo <= 1e-9 * max(abs(lo), abs(hi)):  # a constant map (within rounding)
         hi = lo + (abs(lo) * 0.1 or 1.0)
     cbw = 90
     plot_w = width - cbw

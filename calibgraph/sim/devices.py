@@ -143,10 +143,12 @@ def board_plainly_hidden(world, camera: str) -> bool:
 class SimCamera:
     """A fixed camera of the simulated cell (implements :class:`calibgraph.acquire.interfaces.Camera`).
 
-    ``grab`` renders the world at its current state and degrades the image as the workcell's
-    realism settings say; frames are grey (H, W) uint8.
+    ``grab`` renders the world at its current state (with the camera's true intrinsics) and degrades
+    the image as the workcell's realism settings say; frames are grey (H, W) uint8. ``intrinsics``
+    reports what a real device would: the true ones off by the workcell's
+    ``realism.reported_intrinsics`` (:meth:`calibgraph.sim.workcell.Workcell.reported_intrinsics`).
 
-    With ``world.skip_hidden_renders`` set (what :func:`calibgraph.sim.simulate.simulate_dataset`
+    With ``world.skip_hidden_renders`` set (what :func:`calibgraph.sim.rendered_dataset.simulate_dataset`
     does with its detection gate on), a camera for which :func:`board_plainly_hidden` holds returns
     a blank frame instead of rendering: the gated detector rejects such frames anyway, and the
     acquisition writes no image for rejected views, so the dataset is unchanged and the run is
@@ -157,11 +159,13 @@ class SimCamera:
         self.world = world
         self.name = name
         self.spec = world.cell.camera(name)
+        self._reported = world.cell.reported_intrinsics(name)
         self._closed = False
         self._index = world.cell.camera_names.index(name)
 
     def intrinsics(self) -> Intrinsics:
-        return self.spec.intrinsics
+        """The intrinsics the camera reports (not the true ones it renders with, unless 'exact')."""
+        return self._reported
 
     def grab(self) -> Frame:
         if self._closed:

@@ -4,7 +4,7 @@ No simulator, no SDK: the fake robot is a "Cartesian" arm whose six joints are t
 itself (``q_rad = [x, y, z, rx, ry, rz]``: translation in metres and a rotation vector in radians,
 ``T_base_flange = make_T(exp_so3(r), t)``), so any flange pose is one joint vector away and the
 forward kinematics is exact. The board sits on the flange through ``T_flange_board``; fake cameras
-are fixed in the base frame (eye-to-hand, the geometry of :func:`calibgraph.sim.synth.make_scene`) and
+are fixed in the base frame (eye-to-hand, the geometry of :func:`calibgraph.sim.synthetic_corners.make_scene`) and
 project the board corners through the true chain.
 
 Images: ``render=True`` paints a real checkerboard with a homography (small images, OpenCV can
@@ -32,7 +32,7 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.targets import Target, a4_board_54
 from calibgraph.core.transforms import exp_so3, inv, log_so3, look_at, make_T
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
-from calibgraph.sim.synth import (
+from calibgraph.sim.synthetic_corners import (
     DEFAULT_T_FLANGE_BOARD,
     WORKSPACE_CENTRE_M,
     random_board_facing,

@@ -3,21 +3,32 @@
 :class:`SimWorld` owns the MuJoCo model, its state and an offscreen renderer; the simulated robot
 and cameras (:mod:`calibgraph.sim.devices`) share one world. :func:`degrade` turns the ideal
 render into a sensor image: exposure, distortion, defocus and motion blur, read and shot noise.
+
+Renderers: MuJoCo's (OpenGL through ``MUJOCO_GL``, EGL by default) or calibgraph's built-in one
+(:mod:`calibgraph.sim.raster`, no system library). ``renderer='auto'`` (the default, or the
+``CALIBGRAPH_RENDERER`` environment variable: auto | mujoco | raster) uses MuJoCo's when an OpenGL
+context opens and otherwise falls back, saying so in one line on stderr. Both feed the same
+:func:`degrade`, so noise, blur, exposure and distortion do not depend on the renderer.
 """
 
 from __future__ import annotations
+
+import os
+import sys
 
 import numpy as np
 
 from calibgraph.core.camera import undistort_normalised
 from calibgraph.core.errors import InputError
 from calibgraph.sim import ik
+from calibgraph.sim.raster import Rasteriser
 from calibgraph.sim.scene import (
     ARM_JOINTS,
     GL_INSTALL,
     SimulatorError,
     build_model,
     import_mujoco,
+    no_gl_reason,
 )
 from calibgraph.sim.workcell import Realism, Workcell
 
@@ -28,9 +39,18 @@ class SimWorld:
     Attributes:
         cell: the :class:`Workcell`.
         model, data: MuJoCo model and state (qpos holds the 7 arm joints).
+        renderer: 'auto', 'mujoco' or 'raster' (argument, else ``CALIBGRAPH_RENDERER``, else
+            'auto'); 'auto' becomes 'mujoco' or 'raster' at the first render (module docstring).
     """
 
-    def __init__(self, cell: Workcell):
+    RENDERERS = ("auto", "mujoco", "raster")
+
+    def __init__(self, cell: Workcell, renderer: str | None = None):
+        renderer = (renderer or os.environ.get("CALIBGRAPH_RENDERER") or "auto").strip().lower()
+        if renderer not in self.RENDERERS:
+            raise InputError(f"renderer {renderer!r} (CALIBGRAPH_RENDERER): expected one of {', '.join(self.RENDERERS)}.")
+        self.renderer = renderer  # resolved to 'mujoco' or 'raster' at the first render
+        self._raster = None
         self.mujoco = import_mujoco()
         self.cell = cell
         self.model = build_model(cell)
@@ -72,6 +92,14 @@ class SimWorld:
         T[:3, 3] = self.data.xpos[self.board_body]
         return T
 
+    def board_truth_px(self, camera: str) -> np.ndarray:
+        """(N, 2) exact pixels of the board's points in ``camera`` at the current state: the
+        board pose through the camera's true intrinsics (the ones it renders with, distortion
+        included)."""
+        spec = self.cell.camera(camera)
+        T_cam_board = np.linalg.solve(spec.T_base_cam, self.T_base_board())
+        return spec.intrinsics.project(self.cell.target.points_board_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3])
+
     # -- the planner's robot model (calibgraph.plan.planner.RobotWorld) ---------------------------
     limit_margin_rad = ik.LIMIT_MARGIN_RAD
 
@@ -110,20 +138,42 @@ class SimWorld:
         key = (w, h)
         if key not in self._renderers:
             try:
+                if no_gl_reason():
+                    raise SimulatorError(no_gl_reason())
                 self._renderers[key] = self.mujoco.Renderer(self.model, height=h, width=w)
             except Exception as e:
+                why = str(e) if isinstance(e, SimulatorError) else f"{type(e).__name__}: {e}"
                 raise SimulatorError(
-                    f"cannot open a headless OpenGL context ({type(e).__name__}: {e}); for MUJOCO_GL=egl: "
+                    f"cannot open a headless OpenGL context ({why}); for MUJOCO_GL=egl: "
                     f"{GL_INSTALL['egl']}, for MUJOCO_GL=osmesa: {GL_INSTALL['osmesa']}."
                 ) from None
         return self._renderers[key]
 
+    def _use_raster(self, w: int, h: int) -> bool:
+        """Which renderer draws: fixed at the first call ('auto' tries MuJoCo's, then falls back)."""
+        if self.renderer == "auto":
+            why = no_gl_reason()
+            if why is None:
+                try:
+                    self._renderers[(w, h)] = self.mujoco.Renderer(self.model, height=h, width=w)
+                except Exception as e:  # a library that loads but no context: no display, no driver
+                    why = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
+            self.renderer = "mujoco" if why is None else "raster"
+            if why is not None:
+                _say_once(f"no GL backend ({why}): rendering with calibgraph's built-in rasteriser")
+        if self.renderer == "raster" and self._raster is None:
+            self._raster = Rasteriser(self)
+        return self.renderer == "raster"
+
     def check_rendering(self) -> None:
         """Open every camera's renderer now (they are kept for the renders), so that a machine whose
-        OpenGL cannot render fails at once with :class:`SimulatorError`, not after the planning."""
+        OpenGL cannot render fails at once with :class:`SimulatorError` (renderer 'mujoco') or says
+        now that it falls back (renderer 'auto'), not after the planning."""
         s = self.cell.realism.supersample
         for c in self.cell.cameras:
-            self._renderer(c.intrinsics.width_px * s, c.intrinsics.height_px * s)
+            w, h = c.intrinsics.width_px * s, c.intrinsics.height_px * s
+            if not self._use_raster(w, h):
+                self._renderer(w, h)
 
     def render_ideal(self, camera: str) -> np.ndarray:
         """Noise-free RGB render (H, W, 3) uint8 of ``camera`` at the current state, pinhole, no
@@ -131,6 +181,8 @@ class SimWorld:
         spec = self.cell.camera(camera)
         s = self.cell.realism.supersample
         w, h = spec.intrinsics.width_px, spec.intrinsics.height_px
+        if self._use_raster(w * s, h * s):
+            return self._raster.render(camera, w, h, s)
         r = self._renderer(w * s, h * s)
         r.update_scene(self.data, camera=camera)
         img = r.render()
@@ -163,6 +215,16 @@ class SimWorld:
             except Exception:
                 pass
         self._renderers.clear()
+
+
+_SAID = set()
+
+
+def _say_once(line: str) -> None:
+    """A line on stderr, once per process (every world of a run falls back for the same reason)."""
+    if line not in _SAID:
+        _SAID.add(line)
+        print(line, file=sys.stderr, flush=True)
 
 
 def distortion_maps(intr, iterations: int = 30):

@@ -76,28 +76,42 @@ GL_INSTALL = {
 
 
 def gl_backend_problem() -> str | None:
-    """Why MuJoCo's headless backend (``MUJOCO_GL``) cannot load here, in one sentence; None when
-    its system library loads (or the backend is not one of the headless ones checked here)."""
+    """Why MuJoCo's headless backend (``MUJOCO_GL``) cannot load here, in a phrase naming the
+    package that fixes it; None when its system library loads (or the backend is not one of the
+    headless ones checked here)."""
     import ctypes
 
     backend = os.environ.get("MUJOCO_GL", "").lower()
     if backend not in _GL_LIBRARIES:
         return None
-    errors = []
     for name in _GL_LIBRARIES[backend]:
         try:
             ctypes.CDLL(name)
             return None
-        except OSError as e:
-            errors.append(str(e))
-    other = "osmesa" if backend == "egl" else "egl"
-    return (f"MuJoCo's headless rendering (MUJOCO_GL={backend}) needs {_GL_LIBRARIES[backend][0]}, which is not "
-            f"installed ({errors[0]}): {GL_INSTALL[backend]} (or MUJOCO_GL={other} after {GL_INSTALL[other]}).")
+        except OSError:
+            pass
+    return (f"MUJOCO_GL={backend} needs {_GL_LIBRARIES[backend][0]}, which is not installed; "
+            f"{GL_INSTALL[backend]} renders with MuJoCo")
+
+
+# Why MuJoCo was imported without OpenGL (None when its GL backend loaded): the simulator then
+# renders with calibgraph.sim.raster.
+_NO_GL = {"reason": None}
+
+
+def no_gl_reason() -> str | None:
+    """Why MuJoCo's renderer is unavailable in this process (its headless backend's system library
+    is missing, so MuJoCo was imported with ``MUJOCO_GL=disable``), or None."""
+    return _NO_GL["reason"]
 
 
 def import_mujoco():
-    """Import MuJoCo lazily with a headless GL backend; clear error when it or its system OpenGL
-    library is missing (without libEGL, ``import mujoco`` itself fails under MUJOCO_GL=egl)."""
+    """Import MuJoCo lazily with a headless GL backend; clear error when it is missing.
+
+    When the backend's system library (libEGL, libOSMesa) is absent, MuJoCo is imported with
+    ``MUJOCO_GL=disable``: models still load, move and cast rays, and :func:`no_gl_reason` says
+    why it cannot render (``SimWorld`` then renders with :mod:`calibgraph.sim.raster`). Without
+    this, ``import mujoco`` itself fails under ``MUJOCO_GL=egl`` and no libEGL."""
     import importlib.util
     import sys
 
@@ -110,14 +124,26 @@ def import_mujoco():
         installed = False
     if not installed:
         raise SimulatorError("the simulator needs MuJoCo (pip install 'calibgraph[sim]').")
+    backend = os.environ["MUJOCO_GL"]
     problem = gl_backend_problem()
-    if problem:
-        raise SimulatorError(problem)
+    if problem is None:
+        try:
+            import mujoco
+
+            return mujoco
+        except Exception as e:  # PyOpenGL raises AttributeError when its platform library is missing
+            problem = f"MUJOCO_GL={backend}: {type(e).__name__}: {e}"
+            for name in [m for m in sys.modules if m == "mujoco" or m.startswith("mujoco.")]:
+                del sys.modules[name]
+    os.environ["MUJOCO_GL"] = "disable"
     try:
         import mujoco
-    except Exception as e:  # PyOpenGL raises AttributeError when its platform library is missing
-        raise SimulatorError(f"MuJoCo is installed but cannot be imported (MUJOCO_GL={os.environ['MUJOCO_GL']}): "
-                             f"{type(e).__name__}: {e}") from None
+    except Exception as e:
+        raise SimulatorError(f"MuJoCo is installed but cannot be imported ({problem}; without OpenGL: "
+                             f"{type(e).__name__}: {e})") from None
+    finally:
+        os.environ["MUJOCO_GL"] = backend
+    _NO_GL["reason"] = problem
     return mujoco
 
 

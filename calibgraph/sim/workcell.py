@@ -15,7 +15,9 @@ YAML::
             joint_offsets_rad: [0, 0.001, 0, 0, 0, 0, 0]}   # optional: the arm's joint zero offsets
     mount: {translation_m: [0.01, -0.015, 0.06], rotvec_rad: [0.0, 3.14159, 0.0]}   # T_flange_board (optional)
     realism: {noise_sigma_dn: 2.0, blur_sigma_px: 0.6, exposure: 1.0, motion_blur_px: 0.0,
-              distortion: false}
+              distortion: false,
+              reported_intrinsics: {focal_rel_sigma: 0.006, principal_point_sigma_px: 3.0,
+                                    k1_sigma: 0.01, k2_sigma: 0.01, seed: 11}}   # or: exact
     ring: {distances_m: [3.0, 3.0, 3.0], height_above_floor_m: 1.6, spread_deg: 360, start_deg: 0,
            presets: [l515]}     # cameras on a ring around the robot base ...
     cameras:                    # ... and/or explicit ones
@@ -25,6 +27,11 @@ YAML::
 arm's joint zero offsets make: it reports ``q_rad`` = true angles - offsets and ``T_base_flange`` =
 the nominal forward kinematics of the reported angles, while the world (images, ground truth)
 follows the true angles.
+
+``realism.reported_intrinsics`` says how far the intrinsics each simulated camera reports (the
+ones written into the dataset) are from the true ones it renders with
+(:mod:`calibgraph.sim.reported_intrinsics`; default: the factory-class values above). ``exact``
+makes the cameras report their true intrinsics: an oracle, for tests that need one.
 
 ``ring.spread_deg: 360`` spreads cameras evenly around the robot; a smaller spread puts them on
 one side (the thesis's one-side layout), centred on ``start_deg`` (0 = in front of the robot,
@@ -45,9 +52,10 @@ from calibgraph.core.transforms import check_pose, look_at
 from calibgraph.io.files import read_yaml
 from calibgraph.plan.cell import board_by_name, boxes_from_list, default_T_flange_board
 from calibgraph.plan.cell import pose_from_spec as _pose_from_spec
+from calibgraph.sim.reported_intrinsics import FACTORY, parse_reported, reported_intrinsics, reported_to_yaml
 
 __all__ = ["Realism", "SimCameraSpec", "Workcell", "board_by_name", "default_T_flange_board", "load_workcell",
-           "ring_workcell", "ring_cameras", "workcell_from_dict", "workcell_to_dict"]
+           "realism_to_dict", "ring_workcell", "ring_cameras", "workcell_from_dict", "workcell_to_dict"]
 
 # Where the robot presents the board, relative to a camera's azimuth: radius from the base z axis
 # and height in the base frame. Cameras aim here, so the board lands near their image centre.
@@ -57,7 +65,8 @@ PRESENT_HEIGHT_M = 0.45
 
 @dataclass(frozen=True)
 class Realism:
-    """Image degradations applied to every rendered frame.
+    """How the simulated sensors differ from ideal ones: degradations of every rendered frame, and
+    the intrinsics the cameras report.
 
     Attributes:
         noise_sigma_dn: Gaussian read noise, in 8-bit digital numbers.
@@ -69,6 +78,10 @@ class Realism:
             ``distortion_coeffs``); the intrinsics reported by the camera include them.
         distortion_coeffs: (k1, k2, p1, p2, k3) used when ``distortion`` is on.
         supersample: render at this integer factor and area-average down (anti-aliasing).
+        reported_intrinsics: how far the intrinsics the cameras report are from the true ones the
+            images are rendered with: a :class:`~calibgraph.sim.reported_intrinsics.ReportedIntrinsics`
+            (default: factory-class errors; YAML: a mapping of its fields, or ``factory``) or
+            ``'exact'`` (the true ones: an oracle).
     """
 
     noise_sigma_dn: float = 2.0
@@ -79,8 +92,11 @@ class Realism:
     distortion: bool = False
     distortion_coeffs: tuple = (0.08, -0.12, 0.0005, -0.0004, 0.03)
     supersample: int = 1
+    reported_intrinsics: object = FACTORY
 
     def __post_init__(self):
+        object.__setattr__(self, "reported_intrinsics",
+                           parse_reported(self.reported_intrinsics, "workcell realism: reported_intrinsics"))
         for name in ("noise_sigma_dn", "blur_sigma_px", "motion_blur_px"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise InputError(f"workcell realism: {name} must be >= 0, got {getattr(self, name)}.")
@@ -101,7 +117,8 @@ class SimCameraSpec:
     Attributes:
         name: camera name (dataset key).
         T_base_cam: (4, 4) OpenCV optical frame in the robot base frame.
-        intrinsics: ideal pinhole intrinsics (plus distortion when the realism asks for it).
+        intrinsics: the true intrinsics the camera renders with (pinhole, plus distortion when the
+            realism asks for it); what it reports is :meth:`Workcell.reported_intrinsics`.
         preset: preset name it came from ('' when explicit).
     """
 
@@ -174,18 +191,37 @@ class Workcell:
                 return c
         raise InputError(f"workcell {self.name!r}: no camera {name!r}; cameras are {self.camera_names}.")
 
+    def reported_intrinsics(self, name: str) -> Intrinsics:
+        """The intrinsics camera ``name`` reports (and the dataset holds): its true ones with the
+        error ``realism.reported_intrinsics`` draws, ``source='factory'``; the true ones,
+        ``source='exact'``, when that is ``'exact'``."""
+        return reported_intrinsics(self.camera(name).intrinsics, name, self.realism.reported_intrinsics)
+
     def intrinsics(self) -> dict:
-        """name -> Intrinsics the cameras report (distortion included when rendered with it)."""
+        """name -> Intrinsics the cameras report (see :meth:`reported_intrinsics`)."""
+        return {c.name: self.reported_intrinsics(c.name) for c in self.cameras}
+
+    def true_intrinsics(self) -> dict:
+        """name -> the true Intrinsics the images are rendered with."""
         return {c.name: c.intrinsics for c in self.cameras}
+
+    @property
+    def oracle_intrinsics(self) -> bool:
+        """True when the cameras report their true intrinsics (``reported_intrinsics: exact``)."""
+        return self.realism.reported_intrinsics == "exact"
 
     def with_(self, **changes) -> "Workcell":
         return replace(self, **changes)
 
+    def with_reported_intrinsics(self, reported) -> "Workcell":
+        """The same cell whose cameras report ``reported`` ('exact', 'factory', or a
+        :class:`~calibgraph.sim.reported_intrinsics.ReportedIntrinsics` or mapping of its fields)."""
+        return replace(self, realism=replace(self.realism, reported_intrinsics=reported))
+
 
 
 def _camera_intrinsics(preset_name: str, realism: Realism) -> Intrinsics:
-    """The simulated camera's intrinsics; 'exact': the renderer uses these very values, so the
-    solver holds them fixed (a dataset made to test intrinsics errors edits them and their source)."""
+    """The simulated camera's true intrinsics, the very values the renderer uses ('exact')."""
     intr = preset(preset_name)
     dist = np.asarray(realism.distortion_coeffs) if realism.distortion else intr.dist
     return Intrinsics(K=intr.K, dist=dist, width_px=intr.width_px, height_px=intr.height_px, source="exact")
@@ -298,14 +334,12 @@ def load_workcell(path) -> Workcell:
 def workcell_to_dict(cell: Workcell) -> dict:
     """Explicit (camera poses spelled out) YAML mapping of a workcell; round-trips through
     :func:`workcell_from_dict`."""
-    from dataclasses import asdict
-
     return {
         "name": cell.name,
         "board": cell.target.to_dict(),
         "floor_z_m": cell.floor_z_m,
         "mount": {"T": np.asarray(cell.T_flange_board).tolist()},
-        "realism": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cell.realism).items()},
+        "realism": realism_to_dict(cell.realism),
         "cameras": {c.name: {"preset": c.preset or "l515", "T_base_cam": np.asarray(c.T_base_cam).tolist()}
                     for c in cell.cameras},
         "seed": cell.seed,
@@ -313,6 +347,13 @@ def workcell_to_dict(cell: Workcell) -> dict:
                   "joint_offsets_rad": list(cell.joint_offsets_rad)},
         **_boxes_to_dict(cell.obstacles),
     }
+
+
+def realism_to_dict(realism: Realism) -> dict:
+    """The YAML mapping of a :class:`Realism` (round-trips through ``Realism(**mapping)``)."""
+    d = {f: getattr(realism, f) for f in realism.__dataclass_fields__}
+    d["reported_intrinsics"] = reported_to_yaml(realism.reported_intrinsics)
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
 
 
 def _boxes_to_dict(boxes) -> dict:

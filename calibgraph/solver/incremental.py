@@ -1,6 +1,6 @@
 """Incremental calibration on iSAM2: ``add_capture`` -> updated estimate (and 1-sigma) while capturing.
 
-The graph is the batch graph (:mod:`calibgraph.solver.batch`) grown one capture at a time. Until the
+The graph is the batch graph (:mod:`calibgraph.solver.graph`) grown one capture at a time. Until the
 board mount can be initialised (views from several board orientations), captures are buffered;
 then the robust initialiser runs once on the buffer, and every later view either joins the graph
 (its camera is initialised) or waits in its camera's buffer until that camera has enough views
@@ -22,14 +22,8 @@ import numpy as np
 from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Capture, SolverOptions
 from calibgraph.core.transforms import inv
-from calibgraph.solver.batch import (
-    MIN_CORNERS_PER_VIEW,
-    View,
-    best_initial_guess,
-    fk_noise,
-    to_ref_axes,
-)
-from calibgraph.solver.factors import make_view_factor, project_chain
+from calibgraph.solver.covariance import to_ref_axes
+from calibgraph.solver.factors import fk_noise, make_view_factor, project_chain
 from calibgraph.solver.initialise import (
     ViewCandidates,
     camera_from_mount,
@@ -38,6 +32,8 @@ from calibgraph.solver.initialise import (
 )
 from calibgraph.solver.keys import B, C, F
 from calibgraph.solver.result import sigmas_from_cov
+from calibgraph.solver.start import best_initial_guess
+from calibgraph.solver.views import MIN_CORNERS_PER_VIEW, View
 
 WEAK_PRIOR = gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 1.0, 1.0, 10.0, 10.0, 10.0]))
 

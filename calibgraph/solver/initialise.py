@@ -1,7 +1,7 @@
 """Initial guesses that never fall into the planar-pose ambiguity.
 
-A small planar board seen from far has two near-equal PnP poses (IPPE returns both); single-view
-PnP picks the mirrored one in ~20% of views at 3 m. Every closed-form AX = ZB method fed with those
+A small planar board seen from far has two near-equal PnP poses (IPPE returns both), and single-view
+PnP often picks the mirrored one. Every closed-form AX = ZB method fed with those
 poses inherits the error. Here each view keeps *both* IPPE candidates and the choice is made by
 consensus across views:
 

@@ -1,6 +1,7 @@
 """Has a camera moved since it was calibrated? A chi-square test against the stored covariance.
 
-Given a stored calibration (``result.json``) and a short fresh capture, every camera that sees the
+Given a stored calibration (a :class:`~calibgraph.solver.result.Result`, ``calibgraph.load_result``)
+and a short fresh capture of the same cameras and target, every camera that sees the
 board is re-estimated from the new views alone, with everything else held at the stored estimate:
 the board mount ``T_flange_board``, the camera's intrinsics and the board scale. The robot poses
 ``F(k)`` keep their forward-kinematics prior (they are variables, as in the calibration)::
@@ -34,15 +35,19 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Problem
+from calibgraph.core.targets import Target
 from calibgraph.core.transforms import log_so3
-from calibgraph.solver.batch import MIN_CORNERS_PER_VIEW, fk_noise, to_ref_axes
+from calibgraph.solver.covariance import to_ref_axes
+from calibgraph.solver.factors import fk_noise
+from calibgraph.solver.views import MIN_CORNERS_PER_VIEW
 from calibgraph.solver.factors import make_calibration_factor, view_residual
 from calibgraph.solver.keys import B, C, F, S
+from calibgraph.solver.result import Result, as_result, solved_target, target_differences
 
-__all__ = ["CameraCheck", "VerifyResult", "verify", "chi2_sf_6", "chi2_isf_6", "stored_model", "StoredModel"]
+__all__ = ["CameraCheck", "VerifyResult", "verify", "chi2_sf_6", "chi2_isf_6", "stored_model", "StoredModel",
+           "check_fresh_data"]
 
 DEFAULT_ALPHA = 1e-3
 OUTLIER_SIGMAS = 5.0
@@ -80,27 +85,55 @@ class StoredModel:
     board_scale_sigma: float
 
 
-def stored_model(result: dict, where: str = "result") -> StoredModel:
-    """:class:`StoredModel` of a result dict (:func:`calibgraph.solver.result.load_result_dict`)."""
-    if result.get("mode") != "eye_to_hand" or "T_flange_board" not in result:
+def stored_model(result: Result, where: str = "result") -> StoredModel:
+    """:class:`StoredModel` of a stored :class:`~calibgraph.solver.result.Result` (a result dict is
+    converted)."""
+    result = as_result(result, where)
+    if result.mode != "eye_to_hand" or result.T_mount_board is None:
         raise InputError(f"{where}: verify needs an eye-to-hand result with one board mount (method 'joint'); "
-                         f"this one is mode={result.get('mode')!r}, method={result.get('method')!r}.")
-    T, cov, intr = {}, {}, {}
-    for name, c in result["cameras"].items():
-        try:
-            T[name] = np.asarray(c["T_base_cam"], float).reshape(4, 4)
-            cov[name] = np.asarray(c["covariance"], float).reshape(6, 6)
-            intr[name] = Intrinsics.from_dict(c["intrinsics"])
-        except (KeyError, ValueError, TypeError) as e:
-            raise InputError(f"{where}: camera {name!r} lacks a pose, covariance or intrinsics ({e}).") from None
-    bs = result.get("board_scale") or {}
-    scale, scale_sigma = float(bs.get("scale") or 1.0), float(bs.get("sigma") or 0.0)
-    mount_cov = np.asarray((result.get("board_mount") or {}).get("covariance", np.diag([1e-16] * 6)), float).reshape(6, 6)
-    sigma = float((result.get("solver") or {}).get("pixel_sigma_px") or 0.0)
-    if not sigma > 0:
+                         f"this one is mode={result.mode!r}, method={result.method!r}.")
+    intr = {}
+    for name, c in result.calibrated.items():
+        intr[name] = c.solved_intrinsics
+        if intr[name] is None:
+            raise InputError(f"{where}: camera {name!r} has no intrinsics (a result written by an older calibgraph); "
+                             "solve the calibration again with this calibgraph.")
+    if not result.pixel_sigma_px > 0:
         raise InputError(f"{where}: no pixel sigma in 'solver'; re-solve the calibration with this calibgraph.")
-    return StoredModel(T, cov, intr, np.asarray(result["T_flange_board"], float).reshape(4, 4), scale, sigma, mount_cov,
-                       scale_sigma)
+    mount_cov = result.mount_covariance if result.mount_covariance is not None else np.diag([1e-16] * 6)
+    return StoredModel({n: c.T_ref_cam for n, c in result.calibrated.items()},
+                       {n: c.covariance for n, c in result.calibrated.items()}, intr, result.T_mount_board,
+                       result.board_scale, result.pixel_sigma_px, mount_cov, result.board_scale_sigma or 0.0)
+
+
+def check_fresh_data(result: Result, cameras, target: Target | None = None, where: str = "result") -> list:
+    """Refuse fresh data that does not belong to the stored ``result``: a camera it does not know
+    (a renamed one would otherwise be ignored and the rest called unchanged) or a target spec
+    other than the one the result was solved with (which would make every camera look moved).
+    Returns notes on what could not be checked."""
+    result = as_result(result, where)
+    stored, fresh = set(result.cameras), set(cameras)
+    unknown, absent = sorted(fresh - stored), sorted(stored - fresh)
+    if unknown:
+        raise InputError(f"verify: camera(s) {', '.join(unknown)} of the fresh data are not in the stored result {where} "
+                         f"(its cameras: {', '.join(sorted(stored))})"
+                         + (f"; {', '.join(absent)} of the result are not in the fresh data: was a camera renamed?"
+                            if absent else "")
+                         + " Use the camera names of the calibration (or remove the new camera from dataset.yaml).")
+    notes = [f"{n} was not calibrated in the stored result ({result.cameras[n].why}): not verified"
+             for n in sorted(fresh & set(result.not_calibrated))]
+    if target is None:
+        return notes
+    solved = solved_target(result)
+    if solved is None:
+        return notes + ["the target the result was solved with is unknown (it does not record it and its dataset is "
+                        "gone): make sure the fresh data declares the same board"]
+    differ = target_differences(solved, target)
+    if differ:
+        raise InputError(f"verify: the fresh data's target differs from the one {where} was solved with: "
+                         f"{'; '.join(differ)}. Declare the calibration's target (a different board makes every camera "
+                         "look moved), or calibrate again with the new one.")
+    return notes
 
 
 @dataclass(frozen=True)
@@ -284,16 +317,17 @@ def _check(name, views, vals, marg, slots, model, T_fb, alpha) -> CameraCheck:
         rms_px=float(np.sqrt(np.mean(r ** 2))) if r.size else float("nan"), T_base_cam_new=T_new)
 
 
-def verify(problem: Problem, result: dict, alpha: float = DEFAULT_ALPHA, where: str = "result") -> VerifyResult:
-    """Test every camera of the stored ``result`` (a result dict) against the views of ``problem``
-    (the fresh capture). Cameras of the result that the capture does not show are 'not_seen'."""
+def verify(problem: Problem, result: Result, alpha: float = DEFAULT_ALPHA, where: str = "result",
+           target: Target | None = None) -> VerifyResult:
+    """Test every camera of the stored ``result`` against the views of ``problem`` (the fresh
+    capture). Cameras of the result that the capture does not show are 'not_seen'; a camera of the
+    capture that the result does not know, or a ``target`` (the fresh data's declared board) other
+    than the result's, is refused (:func:`check_fresh_data`)."""
     if not 0 < alpha < 1:
         raise InputError(f"alpha must be in (0, 1), got {alpha}.")
+    result = as_result(result, where)
     model = stored_model(result, where)
-    unknown = sorted(set(problem.cameras) - set(model.T_base_cam))
-    notes = []
-    if unknown:
-        notes.append(f"cameras not in the stored result, ignored: {', '.join(unknown)}")
+    notes = check_fresh_data(result, problem.cameras, target, where)
     views = []
     for det in problem.detections:
         if det.camera in model.T_base_cam and len(det.ids) >= MIN_CORNERS_PER_VIEW:

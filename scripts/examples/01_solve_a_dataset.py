@@ -32,7 +32,8 @@ def main(argv=None) -> int:
               f"{cam.sigma_rotation_deg.round(4).tolist()} deg, reprojection {cam.reprojection_rms_px:.3f} px, "
               f"{cam.views_used} views")
     if args.out:
-        result.save(args.out)
+        result.save(args.out)                                # .json or .yaml
+        assert cg.load_result(args.out) == result            # reads back equal, every number
         print(f"wrote {args.out}")
     return 0
 

@@ -4,6 +4,8 @@
 
 A seeded synthetic cell (three cameras at 1.5, 3 and 5 m, the A4 54-corner board on the flange,
 0.3 px corner noise): exact corners without rendering, so it runs in seconds with no simulator.
+The cameras report factory-class intrinsics, as real ones do; the solver estimates them, and the
+1σ is marginal over them (``make_scene(..., reported_intrinsics="exact")`` gives the oracle's figures).
 The error divided by the reported 1σ is the number to watch: around 1 when the 1σ is honest.
 (``calibgraph demo`` does the same through rendered MuJoCo images and the real detector.)
 """
@@ -14,7 +16,7 @@ import numpy as np
 
 import calibgraph as cg
 from calibgraph.core.transforms import inv, log_so3
-from calibgraph.sim.synth import make_scene
+from calibgraph.sim.synthetic_corners import make_scene
 
 
 def main(argv=None) -> int:

@@ -12,7 +12,7 @@ import argparse
 import numpy as np
 
 import calibgraph as cg
-from calibgraph.sim.synth import make_scene
+from calibgraph.sim.synthetic_corners import make_scene
 from calibgraph.solver.uncertainty import (
     visible_mask,
     weakest_directions,

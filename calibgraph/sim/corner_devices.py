@@ -1,14 +1,16 @@
-"""Simulated cameras that deliver projected corners instead of rendered images.
+"""Simulated cameras of a world that deliver projected corners instead of rendered images.
 
 For tests and planning benchmarks, where what matters is which poses are chosen, not how the
-corners were found: a camera "grabs" a tiny placeholder frame, and :meth:`CornerOracle.detect`
+corners were found: a camera "grabs" a tiny placeholder frame, and :class:`CornerOracle` (the detector)
 returns the true corners (through the true chain of the world, at the robot's true joints) plus
 seeded Gaussian pixel noise, when the board is fully visible, large enough and unoccluded in the
 true camera (:func:`calibgraph.plan.visibility.board_visibility`), else None. With ``partial``
 the oracle acts like a ChArUco detector on a board cut by the image border: the corners inside the
 image (2 px margin) of a board in front of the camera, facing it within 70 deg, squares >= 4 px and
 no geometry on the rays to (up to 12 of) those corners. The robot is the kinematic
-:class:`~calibgraph.sim.devices.SimRobot` of the same world.
+:class:`~calibgraph.sim.devices.SimRobot` of the same world. Corners come from the true intrinsics;
+a camera reports the workcell's reported ones (``realism.reported_intrinsics``), as
+:class:`~calibgraph.sim.devices.SimCamera` does.
 """
 
 from __future__ import annotations
@@ -73,10 +75,12 @@ class CornerCamera:
     def __init__(self, world, name: str, oracle: CornerOracle):
         self.world, self.name, self.oracle = world, name, oracle
         self.spec = world.cell.camera(name)
+        self._reported = world.cell.reported_intrinsics(name)
         self._closed = False
 
     def intrinsics(self):
-        return self.spec.intrinsics
+        """The intrinsics the camera reports (see the module docstring)."""
+        return self._reported
 
     def grab(self) -> Frame:
         if self._closed:

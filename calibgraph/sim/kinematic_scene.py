@@ -1,12 +1,13 @@
-"""Synthetic scenes with joint angles and joint zero offsets, for tests and the kinematics benchmark.
+"""Synthetic-corner scenes of an arm with joint zero offsets, for tests and the kinematics benchmark.
 
-:func:`make_kinematic_scene` takes the geometry of :func:`calibgraph.sim.synth.make_scene` (cameras on
+:func:`make_kinematic_scene` takes the geometry of :func:`calibgraph.sim.synthetic_corners.make_scene` (cameras on
 a ring, the board presented with varied tilts), solves the arm's inverse kinematics for each flange
 pose (the built-in Franka FR3 chain within the FR3's joint limits; poses it cannot reach are
 dropped), and then makes the data a real arm gives: the robot reports ``q_rad`` = true angles -
 offsets and ``T_base_flange`` = nominal FK of the reported angles; the true flange pose is
 ``FK(q_true)`` times a small per-pose error (repeatability, the FK sigmas), and the corners are
-projected from it with Gaussian pixel noise.
+projected from it (with the true intrinsics) with Gaussian pixel noise. The problem holds the
+intrinsics the cameras report (``reported_intrinsics``, as in ``make_scene``).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from calibgraph.acquire.safety import FRANKA_LIMITS
 from calibgraph.core.kinematics import franka_chain
 from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
 from calibgraph.core.transforms import exp_so3, inv, make_T
-from calibgraph.sim.synth import Scene, Truth, make_scene
+from calibgraph.sim.synthetic_corners import Scene, Truth, make_scene
 
 # a comfortable FR3 configuration ("ready" pose) and the IK's other starts around it
 READY_Q_RAD = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
@@ -57,7 +58,8 @@ def make_kinematic_scene(joint_offsets_rad=None, n_poses: int = 60, pixel_sigma_
                          cameras: dict | None = None, options: SolverOptions | None = None, seed: int = 0,
                          **scene_kw) -> tuple[Scene, KinematicTruth]:
     """A seeded eye-to-hand scene whose captures carry joint angles of an FR3 with ``joint_offsets_rad``
-    (7,) (default none). ``options`` default to the FK sigmas given. Returns (Scene, KinematicTruth)."""
+    (7,) (default none). ``options`` default to the FK sigmas given; ``scene_kw`` go to ``make_scene``
+    (``reported_intrinsics`` among them). Returns (Scene, KinematicTruth)."""
     rng = np.random.default_rng(seed + 7919)
     o = np.zeros(7) if joint_offsets_rad is None else np.asarray(joint_offsets_rad, float).reshape(7)
     chain = franka_chain()
@@ -89,13 +91,13 @@ def make_kinematic_scene(joint_offsets_rad=None, n_poses: int = 60, pixel_sigma_
         flange_true[k], q_true[k] = T_true, q
         for name in by_cap[c.index]:
             T_cb = inv(truth.T_ref_cam[name]) @ T_true @ T_fb
-            uv = prob.cameras[name].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+            uv = truth.intrinsics[name].project(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
             dets.append(Detection(camera=name, capture=k, ids=np.arange(len(pts)),
                                   uv_px=uv + rng.normal(scale=pixel_sigma_px, size=uv.shape)))
     opts = options or SolverOptions(fk_sigma_translation_m=fk_sigma_translation_m,
                                     fk_sigma_rotation_rad=fk_sigma_rotation_rad)
     problem = replace(prob, captures=tuple(captures), detections=tuple(dets), options=opts)
-    return (Scene(problem, Truth(truth.T_ref_cam, T_fb, flange_true)),
+    return (Scene(problem, Truth(truth.T_ref_cam, T_fb, flange_true, truth.intrinsics)),
             KinematicTruth(o, q_true))
 
 
@@ -109,8 +111,9 @@ def kinematic_scene_from_trajectory(cell, trajectory, joint_offsets_rad=None, pi
     cameras that see the board). As :class:`calibgraph.sim.devices.SimRobot` does, the arm turns to
     ``q_rad + offsets``, reports ``q_rad`` and the nominal FK of it; the true flange pose carries the
     cell's per-pose repeatability error; every board point is projected through the true chain
-    with Gaussian pixel noise (views leaving the image are dropped). ``options`` default to the
-    cell's FK sigmas.
+    and the true intrinsics, with Gaussian pixel noise (views leaving the image are dropped); the
+    problem holds the intrinsics the cell's cameras report (its ``realism.reported_intrinsics``).
+    ``options`` default to the cell's FK sigmas.
     """
     rng = np.random.default_rng(seed + 104729)
     o = np.zeros(7) if joint_offsets_rad is None else np.asarray(joint_offsets_rad, float).reshape(7)
@@ -141,7 +144,8 @@ def kinematic_scene_from_trajectory(cell, trajectory, joint_offsets_rad=None, pi
         dets += views
         flange_true[k], q_true[k] = T_true, q
     opts = options or SolverOptions(fk_sigma_translation_m=fk_t, fk_sigma_rotation_rad=fk_r)
-    problem = Problem(points_board_m=pts, cameras={n: c.intrinsics for n, c in cams.items()}, captures=tuple(captures),
+    problem = Problem(points_board_m=pts, cameras=cell.intrinsics(), captures=tuple(captures),
                       detections=tuple(dets), options=opts)
-    truth = Truth({n: c.T_base_cam for n, c in cams.items()}, np.asarray(cell.T_flange_board), flange_true)
+    truth = Truth({n: c.T_base_cam for n, c in cams.items()}, np.asarray(cell.T_flange_board), flange_true,
+                  cell.true_intrinsics())
     return Scene(problem, truth), KinematicTruth(o, q_true)

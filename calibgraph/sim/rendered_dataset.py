@@ -1,4 +1,4 @@
-"""Write a simulated dataset: run the real acquisition state machine on the simulated cell.
+"""Write a rendered simulated dataset: run the real acquisition state machine on the simulated cell.
 
 :func:`simulate_dataset` builds the world, wraps it in :class:`SimRobot`/:class:`SimCamera`, and
 hands them to :func:`calibgraph.acquire.run.run_acquisition` — the same capture pipeline that runs
@@ -9,14 +9,19 @@ on hardware (detection on the spot, atomic capture files, journal). It then writ
      "frame_convention": "...",
      "mode": "eye_to_hand",
      "T_flange_board": 4x4,
-     "cameras": {"cam0": {"T_base_cam": 4x4, "intrinsics": {K, dist, width_px, height_px}, "preset": "l515"}},
+     "cameras": {"cam0": {"T_base_cam": 4x4, "intrinsics_true": {K, dist, width_px, height_px},
+                          "intrinsics_reported": {K, dist, width_px, height_px, source},
+                          "intrinsics": (= intrinsics_true), "preset": "l515"}},
      "captures": {"0": {"T_base_flange_true": 4x4, "T_base_flange_reported": 4x4, "q_rad": [...],
                         "q_rad_true": [...]}},
      "robot": {"fk_sigma_translation_m": ..., "fk_sigma_rotation_deg": ..., "joint_offsets_rad": [7 values]},
      "realism": {...}, "workcell": {...explicit workcell mapping...}}
 
 ``T_base_flange_true`` is the noise-free flange pose at the true joint angles (``q_rad_true`` =
-reported ``q_rad`` + ``robot.joint_offsets_rad``); the capture files hold the reported one.
+reported ``q_rad`` + ``robot.joint_offsets_rad``); the capture files hold the reported one. Likewise
+the images are rendered with ``intrinsics_true`` while ``dataset.yaml`` holds what the cameras
+report (``intrinsics_reported``: factory-class errors, ``source: factory``, unless the workcell's
+``realism.reported_intrinsics`` is ``exact``).
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from calibgraph.io.ground_truth import write_ground_truth_file
 from calibgraph.plan.trajectory import load_trajectory
 from calibgraph.sim.devices import board_plainly_hidden, make_devices
 from calibgraph.sim.render import SimWorld
-from calibgraph.sim.workcell import Workcell, workcell_to_dict
+from calibgraph.sim.workcell import Workcell, realism_to_dict, workcell_to_dict
 
 
 def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
@@ -41,11 +46,8 @@ def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
     True flange poses come from the joint angles stored in each capture file plus the cell's joint
     offsets (exact in the simulation) through the MuJoCo model's kinematics.
     """
-    from dataclasses import asdict
-
     out = Path(out_dir)
     if world is None:
-
         world = SimWorld(cell)
     caps = {}
     offsets = np.asarray(cell.joint_offsets_rad, float)
@@ -63,15 +65,23 @@ def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
     gt = {
         "mode": "eye_to_hand",
         "T_flange_board": np.asarray(cell.T_flange_board).tolist(),
-        "cameras": {c.name: {"T_base_cam": np.asarray(c.T_base_cam).tolist(), "intrinsics": c.intrinsics.to_dict(),
-                             "preset": c.preset} for c in cell.cameras},
+        "cameras": {c.name: {"T_base_cam": np.asarray(c.T_base_cam).tolist(), "intrinsics_true": _true(c.intrinsics),
+                             "intrinsics_reported": cell.reported_intrinsics(c.name).to_dict(),
+                             "intrinsics": _true(c.intrinsics), "preset": c.preset} for c in cell.cameras},
         "captures": caps,
         "robot": {"model": "franka_fr3 (franky-sim MJCF)", "fk_sigma_translation_m": cell.fk_sigma_translation_m,
                   "fk_sigma_rotation_deg": cell.fk_sigma_rotation_deg, "joint_offsets_rad": offsets.tolist()},
-        "realism": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cell.realism).items()},
+        "realism": realism_to_dict(cell.realism),
         "workcell": workcell_to_dict(cell),
     }
     return write_ground_truth_file(out, gt)
+
+
+def _true(intr) -> dict:
+    """K, dist and image size of true intrinsics (no source: they are what the renderer used)."""
+    d = intr.to_dict()
+    d.pop("source", None)
+    return d
 
 
 class VisibilityGatedDetector:

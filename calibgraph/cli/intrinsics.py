@@ -1,0 +1,90 @@
+"""``calibgraph intrinsics IMAGES_DIR --target TARGET.yaml --out CAM.yaml``: calibrate one camera
+from hand-held images of a board (no robot) and write its intrinsics with their covariance."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
+
+
+def add_parser(sub):
+    from calibgraph.solver.intrinsics_model import DEFAULT_MODEL, DISTORTION_MODELS
+
+    p = sub.add_parser("intrinsics", help="calibrate one camera's intrinsics from close-range images of a board",
+                       description="Close-range intrinsics calibration: detect the board in every image of "
+                                   "IMAGES_DIR, fit the camera (fx, fy, cx, cy, distortion) with every view's pose, "
+                                   "reject bad views with the reason, and write CAM.yaml with the full covariance "
+                                   "(use it with solve --intrinsics NAME=CAM.yaml). Take 20-30 images at 0.3-0.8 m, "
+                                   "the board tilted by 20-45 degrees and moved over the whole image, into its "
+                                   "corners.")
+    p.add_argument("images", type=Path, metavar="IMAGES_DIR", help="folder of the camera's images (png, jpg, ...)")
+    p.add_argument("--target", type=Path, default=None,
+                   help="target spec YAML (target: {kind, rows, cols, pitch_m}; rows/cols count inner corners); "
+                        "default: target.yaml in IMAGES_DIR or its parent")
+    p.add_argument("--out", type=Path, required=True, help="camera file to write (YAML)")
+    p.add_argument("--model", choices=tuple(DISTORTION_MODELS), default=DEFAULT_MODEL,
+                   help=f"distortion coefficients to estimate (default {DEFAULT_MODEL})")
+    p.add_argument("--quiet", action="store_true", help="print only the result line")
+    return p
+
+
+def _images(folder: Path) -> list:
+    from calibgraph.core.errors import InputError
+
+    if not folder.exists():
+        raise InputError(f"{folder}: no such folder; give the folder that holds the camera's images.")
+    if not folder.is_dir():
+        raise InputError(f"{folder}: is a file; give the folder that holds the camera's images.")
+    paths = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
+                   and not p.name.startswith("."))
+    if not paths:
+        raise InputError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in this folder.")
+    return paths
+
+
+def _target_path(args) -> Path:
+    from calibgraph.core.errors import InputError
+
+    if args.target is not None:
+        return args.target
+    for cand in (args.images / "target.yaml", args.images.parent / "target.yaml"):
+        if cand.is_file():
+            return cand
+    raise InputError(f"no --target given and no target.yaml in {args.images} or its parent; give the board's spec "
+                     "(target: {kind, rows, cols, pitch_m}, rows/cols counting inner corners).")
+
+
+def run(args) -> int:
+    from calibgraph.io.camera_file import write_camera_file
+    from calibgraph.io.files import output_file
+    from calibgraph.io.specs import load_target
+    from calibgraph.solver.intrinsics_session import calibrate_images
+
+    out = output_file(args.out, "camera file", "camera.yaml")
+    paths = _images(args.images)
+    target = load_target(_target_path(args))
+    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    say(f"detecting the {target.kind} ({target.rows}x{target.cols} points of {target.pitch_m * 1e3:g} mm) in "
+        f"{len(paths)} images of {args.images}")
+
+    def progress(done, total):
+        if not args.quiet and (done == total or done % 10 == 0):
+            print(f"  {done}/{total} images", file=sys.stderr, flush=True)
+
+    r = calibrate_images(paths, target, model=args.model, progress=progress)
+    write_camera_file(out, r.to_dict(target))
+    intr, s = r.intrinsics, r.sigma
+    if not args.quiet:
+        for name, why in r.rejected:
+            print(f"  rejected {name}: {why}")
+        print(f"  fx {intr.K[0, 0]:.2f} ± {s['fx']:.2f}  fy {intr.K[1, 1]:.2f} ± {s['fy']:.2f}  "
+              f"cx {intr.K[0, 2]:.2f} ± {s['cx']:.2f}  cy {intr.K[1, 2]:.2f} ± {s['cy']:.2f} px (1-sigma)")
+        dist = ", ".join(f"{n} {r.values[n]:+.5f} ± {s[n]:.5f}" for n in r.parameter_names[4:])
+        print(f"  distortion ({r.model}): {dist}")
+        for w in r.warnings:
+            print(f"  warning: {w}")
+    print(f"wrote {out}: {len(r.views_used)} of {len(paths)} images used, RMS {r.rms_px:.3f} px, "
+          f"fx 1-sigma {s['fx']:.2f} px ({100 * s['fx'] / intr.K[0, 0]:.3f} %)")
+    return 0

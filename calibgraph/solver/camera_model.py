@@ -1,0 +1,170 @@
+"""The camera model and the target against the data: intrinsics the data reject, the board's scale.
+
+Given intrinsics are estimated under a prior as wide as their source says. When the estimate moves
+further than that prior allows (chi-square, 6 dof, p < 0.001), or the residuals stay large and
+radial (a lens file without its distortion), the camera is solved again with a wide prior and a
+note says so. The board's printed scale is estimated with the cameras; a scale more than 3 sigma
+from 1 is named with the pitch it implies.
+"""
+
+from __future__ import annotations
+
+
+import numpy as np
+
+from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.problem import Problem, intrinsics_source
+from calibgraph.solver.factors import intrinsics_vector, project_chain
+from calibgraph.solver.graph import Estimate, estimates_intrinsics, intrinsics_prior
+from calibgraph.solver.keys import K, S
+from calibgraph.solver.optimise import Group, solve_from_start
+
+INTRINSICS_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2")
+# A camera whose kept corners miss by more than this (px RMS), mostly along the radial direction,
+# has intrinsics the prior of their source cannot fix (sub-pixel detectors on sharp boards leave
+# 0.05-0.3 px).
+INADEQUATE_RMS_PX = 0.5
+INADEQUATE_RADIAL_FRACTION = 0.25
+CHI2_6_999 = 22.46  # chi-square, 6 dof, 0.999 quantile
+
+
+def radial_structure(est: Estimate, views: list, name: str, cameras: dict) -> tuple[float, float]:
+    """(RMS px of the kept corners' residuals, fraction of their energy along a radial distortion
+    pattern about the principal point) of camera ``name``."""
+    intr = est.camera_model(name, cameras)
+    d_all, b_all = [], []
+    for v in views:
+        if v.camera != name or not v.active:
+            continue
+        keep = v.kept
+        uv_hat = project_chain(est.T_ref_cam[name], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
+                               est.board_scale * v.p_board_m[keep], intr)
+        d_all.append(uv_hat - v.uv_px[keep])
+        x = (v.uv_px[keep] - intr.K[:2, 2]) / np.array([intr.K[0, 0], intr.K[1, 1]])
+        b_all.append(x * np.sum(x * x, axis=1, keepdims=True) * np.array([intr.K[0, 0], intr.K[1, 1]]))
+    if not d_all:
+        return 0.0, 0.0
+    d, b = np.concatenate(d_all), np.concatenate(b_all)
+    e_d = float(np.sum(d * d))
+    if e_d <= 0 or float(np.sum(b * b)) <= 0:
+        return 0.0, 0.0
+    alpha = float(np.sum(d * b) / np.sum(b * b))
+    return float(np.sqrt(e_d / len(d))), alpha ** 2 * float(np.sum(b * b)) / e_d
+
+
+def intrinsics_disagreement(problem: Problem, est: Estimate, name: str) -> float:
+    """Squared Mahalanobis distance (6 dof) between the estimated and the given intrinsics of a
+    camera, against the covariance of that difference (prior minus posterior): large when the data
+    disagree with the given values more than their source's prior allows."""
+    if est.marginals is None or not estimates_intrinsics(problem, name, est):
+        return 0.0
+    given = problem.cameras[name]
+    delta = intrinsics_vector(est.camera_model(name, problem.cameras)) - intrinsics_vector(given)
+    P_prior = intrinsics_prior(problem, name, est)
+    P_post = est.marginals.marginalCovariance(K(est.slots[name]))
+    w, V = np.linalg.eigh(0.5 * (P_prior - P_post + (P_prior - P_post).T))
+    keep = w > 1e-9 * max(float(w.max()), 1e-30)
+    z = V[:, keep].T @ delta
+    return float(np.sum(z * z / w[keep]))
+
+
+def widen_inadequate_intrinsics(problem: Problem, group: Group, timings: dict | None = None) -> tuple[Group, list]:
+    """(group, notes): the group re-solved with a wide intrinsics prior for the cameras whose data
+    reject their given intrinsics, or the group as it was when none does (or the re-solve fails)."""
+    est, views = group.est, group.views
+    bad = {}
+    for n in group.names:
+        if not estimates_intrinsics(problem, n, est) or n in est.wide_intrinsics:
+            continue
+        d2 = intrinsics_disagreement(problem, est, n)
+        rms, radial = radial_structure(est, views, n, problem.cameras)
+        if d2 > CHI2_6_999 or (rms > INADEQUATE_RMS_PX and radial > INADEQUATE_RADIAL_FRACTION):
+            bad[n] = (d2, rms)
+    if not bad:
+        return group, []
+    start = Estimate(T_ref_cam=est.T_ref_cam, T_mount_board=est.T_mount_board, T_ref_mount={},
+                     wide_intrinsics=est.wide_intrinsics | frozenset(bad), free_intrinsics=est.free_intrinsics,
+                     joint_offsets=est.joint_offsets)
+    try:
+        g2 = solve_from_start(problem, group.names, views, start, timings)
+    except ObservabilityError:
+        return group, [f"camera {n}: the data disagree with its given intrinsics (chi-square {d2:.0f} on 6 dof), and "
+                       "they cannot be estimated from these views; check the intrinsics" for n, (d2, _) in bad.items()]
+    notes = []
+    for n, (d2, rms) in bad.items():
+        given = intrinsics_vector(problem.cameras[n])
+        new = intrinsics_vector(g2.est.camera_model(n, problem.cameras))
+        rms2 = radial_structure(g2.est, g2.views, n, problem.cameras)[0]
+        src = intrinsics_source(problem.cameras[n], problem.options)
+        notes.append(f"camera {n}: the data disagree with its given ({src}) intrinsics (chi-square {d2:.0f} on 6 dof; "
+                     f"residual {rms:.2f} -> {rms2:.2f} px): estimated with a wide prior, fx {100 * (new[0] / given[0] - 1):+.2f} %, "
+                     f"fy {100 * (new[1] / given[1] - 1):+.2f} %, cx {new[2] - given[2]:+.1f} px, cy {new[3] - given[3]:+.1f} px, "
+                     f"k1 {new[4] - given[4]:+.3f}, k2 {new[5] - given[5]:+.3f} (1-sigma in the result; "
+                     "--fixed-intrinsics keeps the given ones)")
+    return g2, notes
+
+
+def board_scale(problem: Problem, groups: list, robot_suspect: bool = False) -> tuple[float, float | None, list]:
+    """(estimated board scale, its 1-sigma, notes) of the joint graph — (1, None, []) when not
+    estimated — with a note when the board's printed size differs from the declared one by more
+    than 3 sigma. ``robot_suspect``: the robot poses depart from forward kinematics, and a scale
+    departure is then as likely the arm's kinematics as the print (the note says so, and blames
+    neither)."""
+    est = groups[0].est
+    if not problem.options.board_scale or len(groups) != 1 or est.marginals is None or not est.marginals.has(S(0)):
+        return 1.0, None, []
+    s = est.board_scale
+    sigma = float(np.sqrt(max(est.marginals.marginalCovariance(S(0))[0, 0], 0.0)))
+    if abs(s - 1.0) <= 3 * sigma:
+        return s, sigma, []
+    pts = problem.points_board_m
+    d = np.linalg.norm(pts[1:] - pts[:1], axis=1)
+    pitch = float(d[d > 1e-9].min()) if np.any(d > 1e-9) else 0.0
+    if robot_suspect:
+        return s, sigma, [f"the board's fitted scale is {100 * (s - 1):+.2f} % (± {100 * sigma:.2f} %) off its spec, but "
+                          "the robot poses also depart from forward kinematics (below): kinematic errors such as joint "
+                          "zero offsets scale the board's apparent size too, so this is not taken for a misprint; "
+                          "measure the board with a ruler, and try --estimate-kinematics joint-offsets"]
+    return s, sigma, [f"the board is {100 * (s - 1):+.2f} % (± {100 * sigma:.2f} %) the size the target spec declares: "
+                      f"printed at {100 * s:.1f} %" + (f" (pitch {1e3 * pitch * s:.2f} mm, not {1e3 * pitch:.2f} mm)"
+                                                       if pitch else "")
+                      + "; the calibration accounts for it — check the print with a ruler and fix the target spec"]
+
+
+def intrinsics_record(problem: Problem, name: str, est: Estimate) -> dict:
+    """The camera's intrinsics as result.json records them: the model solved with and, when
+    estimated, ``estimated``, ``prior`` (its source, or 'wide'), ``sigma`` and ``given``."""
+    d = est.camera_model(name, problem.cameras).to_dict()
+    if est.marginals is None or not estimates_intrinsics(problem, name, est):
+        return d
+    sig = np.sqrt(np.clip(np.diag(est.marginals.marginalCovariance(K(est.slots[name]))), 0, None))
+    wide = name in est.wide_intrinsics or name in est.free_intrinsics
+    d["estimated"] = True
+    d["prior"] = "wide" if wide else intrinsics_source(problem.cameras[name], problem.options)
+    d["sigma"] = dict(zip(INTRINSICS_NAMES, sig.tolist()))
+    d["given"] = dict(zip(INTRINSICS_NAMES, intrinsics_vector(problem.cameras[name]).tolist()))
+    return d
+
+
+def intrinsics_notes(cameras: dict) -> list:
+    """A note per camera whose estimated focal length or principal point is more than 3 sigma and
+    0.2 % (focal) / 2 px (principal point) away from the given values (``cameras``: name ->
+    CameraResult)."""
+    out = []
+    for n, c in cameras.items():
+        d = c.intrinsics or {}
+        if not d.get("estimated") or d.get("prior") in ("wide", "unknown"):
+            continue
+        given, sig = d["given"], d["sigma"]
+        Km = np.asarray(d["K"], float)
+        est = {"fx": Km[0, 0], "fy": Km[1, 1], "cx": Km[0, 2], "cy": Km[1, 2]}
+        f_rel = [(est[k] - given[k]) / given[k] for k in ("fx", "fy")]
+        f_sig = [sig[k] / given[k] for k in ("fx", "fy")]
+        if all(abs(r) > max(3 * s, 0.002) for r, s in zip(f_rel, f_sig)):
+            out.append(f"camera {n}: focal length estimated {100 * np.mean(f_rel):+.2f} % (± {100 * np.mean(f_sig):.2f} %) "
+                       "from the given intrinsics; the poses and 1-sigma account for it")
+        for k in ("cx", "cy"):
+            if abs(est[k] - given[k]) > max(3 * sig[k], 2.0):
+                out.append(f"camera {n}: principal point {k} estimated {est[k] - given[k]:+.1f} px (± {sig[k]:.1f}) "
+                           "from the given value")
+    return out

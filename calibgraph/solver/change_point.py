@@ -1,0 +1,284 @@
+"""Did a camera move during capture? A change point in time of the pose its views imply.
+
+Each view of a camera, with every other parameter held, implies a pose of that camera. The test is
+built so that nothing the camera shares with the others can hide or fake a move:
+
+- the robot pose of each capture is taken from its forward-kinematics prior and the *other*
+  cameras' views of that capture (the tested camera's own pull on it is removed, linearly, from
+  the estimate it was solved in), with that uncertainty propagated into the view's pose;
+- the estimate comes from the robust rounds, before the FK prior, the corner-noise model, the
+  board scale's note or a claimed camera model could be widened to explain one camera's misfit;
+- each view's corners are re-weighted against the view's own best fit, not against the joint
+  one, so the views after a knock are not down-weighted for disagreeing with the views before it.
+
+Linearised at one pose ``T_lin`` of the camera, view ``v`` implies a tangent ``zeta_v`` with
+information ``Lambda_v`` (corners and the robot pose's uncertainty). For every split of the views
+in capture order, two means against one give the likelihood-ratio statistic ``glr``; judged as an F
+statistic against the scatter the two means leave, ``F = (glr / 6) / (rss_two / (6 n - 12))``,
+which is what keeps the test honest under correlated corner noise and FK noise: both scale the
+views' scatter about their mean exactly as they scale the split (a view's six pose directions are
+its six low-order image modes). The split is a move when ``F`` passes ``F_LIMIT``, each side is
+consistent on its own (no side a mixture of its own) and the two poses leave the camera's corners at
+about the solve's pixel noise (a model error that is not a move is not explained by a cut in time).
+Linear algebra on 6x6 blocks with prefix sums: all splits of all cameras cost about one
+linearisation of the views, not a solve per camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from calibgraph.core.transforms import pose_error
+from calibgraph.solver import kinematics as kin
+from calibgraph.solver.factors import fk_noise, view_residual
+from calibgraph.solver.robust import loss_weights
+
+MIN_GROUP_VIEWS = 2     # a side of a split needs this many views (one view is a single outlier, not a pose)
+F_LIMIT = 15.0          # two poses must explain the views this much better than one (F, 6 and 6n-12 dof:
+                        # p < 1e-9 for pure noise at 10 views; a still cell whose robot is 10x less accurate
+                        # than stated, whose noise is then far from the stated shape, reaches F ~ 9)
+SELF_CONSISTENT = 2.0   # each side's scatter within this factor (RMS) of the pooled scatter of the split
+AT_NOISE = 2.0          # the two poses leave the camera's corners within this factor (RMS) of the solve's
+                        # pixel sigma: a camera whose views do not fit even on their own (a wrong lens model,
+                        # another target) has an error no cut in time explains
+LINEARISE_AGAIN = 1e-3  # re-linearise a camera when the views' mean is this far (rad, m) from T_lin
+
+
+@dataclass(frozen=True)
+class ViewPoses:
+    """One camera's views in capture order, each as the pose of the camera it implies: the tangent
+    ``zeta`` (n, 6) at ``T_lin`` (GTSAM order, rotation first, right perturbation) and its
+    information ``info`` (n, 6, 6)."""
+
+    camera: str
+    captures: np.ndarray
+    zeta: np.ndarray
+    info: np.ndarray
+    T_lin: np.ndarray
+    own_rss: np.ndarray  # (n,) each view's weighted squared residual (in sigmas) at its own best pose
+    n_obs: np.ndarray  # (n,) its residual count (2 per kept corner)
+
+
+@dataclass(frozen=True)
+class Split:
+    """The best split of one camera's views: ``k`` views before the change, the F statistic, the
+    two poses (``T_before`` / ``T_after``, ref frame) with their covariances (6x6, GTSAM tangent at
+    each pose), and the camera-centre displacement between them."""
+
+    camera: str
+    k: int
+    captures_before: tuple
+    captures_after: tuple
+    f_stat: float
+    glr: float
+    scatter: tuple  # per-dof scatter of (one pose, before, after, the two pooled)
+    T_before: np.ndarray
+    T_after: np.ndarray
+    cov_before: np.ndarray
+    cov_after: np.ndarray
+    displacement_mm: float
+    rotation_deg: float
+    sigma_displacement_mm: float
+    rms_two_sigma: float  # RMS of the camera's corner residuals with the two poses, in pixel sigmas
+
+    @property
+    def consistent(self) -> bool:
+        """Each side on its own is about as consistent as the two pooled."""
+        _, a, b, pooled = self.scatter
+        return max(a, b) <= SELF_CONSISTENT ** 2 * max(pooled, 1e-12)
+
+    @property
+    def is_move(self) -> bool:
+        return self.f_stat >= F_LIMIT and self.consistent and self.rms_two_sigma <= AT_NOISE
+
+
+def _pose(T) -> gtsam.Pose3:
+    return gtsam.Pose3(np.asarray(T, float))
+
+
+def _prior_centres(problem, est, captures) -> tuple[dict, object]:
+    """(capture -> where the FK prior puts the robot pose, the prior's noise model builder)."""
+    ks = kin.setup(problem)
+    caps = problem.capture_by_index
+    if ks is None:
+        ref = {k: (caps[k].T_base_flange if problem.mode == "eye_to_hand" else np.linalg.inv(caps[k].T_base_flange))
+               for k in captures}
+        return ref, lambda T: fk_noise(problem.options, problem.mode, T)
+    o = ks.full(est.joint_offsets if est.joint_offsets is not None else np.zeros(len(ks.free)))
+    return ({k: ks.chain.fk_jacobian(np.asarray(ks.q_rad[k], float) + o)[0] for k in captures},
+            lambda T: fk_noise(problem.options))
+
+
+def _robot_pose_terms(problem, views, est, sigma_px: float) -> tuple[dict, dict]:
+    """The linearised information on every capture's robot pose F(k), at ``est``:
+    (capture -> [prior information + views' information (6, 6), gradient (6,)],
+     (camera, capture) -> (that view's information (6, 6), its gradient (6,))) for the active views."""
+    captures = sorted({v.capture for v in views if v.active})
+    centre, noise = _prior_centres(problem, est, captures)
+    per_capture, per_view = {}, {}
+    for k in captures:
+        T_est = est.T_ref_mount.get(k, centre[k])
+        R = np.asarray(noise(centre[k]).R())
+        rho = np.asarray(gtsam.Pose3.Logmap(_pose(centre[k]).between(_pose(T_est))))
+        per_capture[k] = [R.T @ R, R.T @ R @ rho]
+    for v in views:
+        if not v.active or v.camera not in est.T_ref_cam:
+            continue
+        keep = v.kept
+        e, (_, J_f, _) = view_residual(est.T_ref_cam[v.camera], est.T_ref_mount.get(v.capture, v.T_ref_mount),
+                                       est.T_mount_board, est.board_scale * v.p_board_m[keep], v.uv_px[keep],
+                                       est.camera_model(v.camera, problem.cameras), np.sqrt(v.w[keep]) / sigma_px)
+        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J_f))):
+            continue
+        H, g = J_f.T @ J_f, J_f.T @ e
+        per_capture[v.capture][0] = per_capture[v.capture][0] + H
+        per_capture[v.capture][1] = per_capture[v.capture][1] + g
+        per_view[(v.camera, v.capture)] = (H, g)
+    return per_capture, per_view
+
+
+def _view_tangent(v, T_lin, T_F, est, intr, sigma_px, A, d, opts, passes: int = 3):
+    """(zeta (6,), information (6, 6), weighted squared residual in sigmas, residual count) of the
+    camera pose view ``v`` implies at ``T_lin``, the robot pose at ``T_F`` + ``d`` with information
+    ``A`` (prior and the other cameras), the corners re-weighted against the view's own best fit;
+    None when the view is degenerate."""
+    w = np.ones(len(v.ids))
+    p = est.board_scale * v.p_board_m
+    for _ in range(passes):
+        keep = w > 0
+        if keep.sum() < 4:
+            return None
+        sw = np.sqrt(w[keep]) / sigma_px
+        e, (J_c, J_f, _) = view_residual(T_lin, T_F, est.T_mount_board, p[keep], v.uv_px[keep], intr, sw)
+        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J_c)) and np.all(np.isfinite(J_f))):
+            return None
+        e = e + J_f @ d
+        M = J_f.T @ J_f + A
+        Mi_FtC = np.linalg.solve(M, J_f.T @ J_c)
+        Mi_Fte = np.linalg.solve(M, J_f.T @ e)
+        info = J_c.T @ J_c - (J_c.T @ J_f) @ Mi_FtC
+        grad = J_c.T @ e - (J_c.T @ J_f) @ Mi_Fte
+        zeta = -np.linalg.solve(info, grad)
+        eps = -(Mi_Fte + Mi_FtC @ zeta)
+        r = (e + J_c @ zeta + J_f @ eps).reshape(-1, 2)
+        norms = np.zeros(len(w))
+        norms[keep] = np.linalg.norm(r, axis=1) / (np.sqrt(w[keep]) + 1e-12)  # in sigmas, unweighted
+        w_new = np.where(keep, loss_weights(norms, opts.loss, opts.loss_scale), 0.0)
+        w_new[norms > opts.outlier_sigmas] = 0.0
+        if np.allclose(w_new, w, atol=0.05):
+            break
+        w = w_new
+    if not (np.all(np.isfinite(zeta)) and np.all(np.isfinite(info))):
+        return None
+    return zeta, 0.5 * (info + info.T), float(np.sum(r * r)), 2 * int(keep.sum())
+
+
+def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per_capture: dict,
+               per_view: dict) -> ViewPoses | None:
+    """Camera ``name``'s ``views`` (all of them, whatever the robust rounds made of them) as the poses
+    they imply, each against the robot pose its capture gets from the FK prior and the other
+    cameras' views (``per_capture`` less this camera's own term in ``per_view``)."""
+    intr = est.camera_model(name, problem.cameras)
+    centre, noise = _prior_centres(problem, est, sorted({v.capture for v in views}))
+    mine = sorted(views, key=lambda v: v.capture)
+    for _ in range(3):
+        caps, zs, infos, own = [], [], [], []
+        for v in mine:
+            T_F = est.T_ref_mount.get(v.capture, centre[v.capture])
+            if v.capture in per_capture:
+                A, g = per_capture[v.capture]
+                H_c, g_c = per_view.get((name, v.capture), (0.0, 0.0))
+                A, g = A - H_c, g - g_c
+            else:  # a capture no active view is in: the FK prior alone
+                R = np.asarray(noise(centre[v.capture]).R())
+                rho = np.asarray(gtsam.Pose3.Logmap(_pose(centre[v.capture]).between(_pose(T_F))))
+                A, g = R.T @ R, R.T @ R @ rho
+            d = -np.linalg.solve(A, g)
+            out = _view_tangent(v, T_lin, T_F, est, intr, sigma_px, A, d, problem.options)
+            if out is None:
+                continue
+            caps.append(v.capture)
+            zs.append(out[0])
+            infos.append(out[1])
+            own.append(out[2:])
+        if len(zs) < 2 * MIN_GROUP_VIEWS:
+            return None
+        zeta, info = np.array(zs), np.array(infos)
+        mean = np.linalg.solve(info.sum(axis=0), np.einsum("nij,nj->i", info, zeta))
+        if np.max(np.abs(mean)) < LINEARISE_AGAIN:
+            break
+        T_lin = (_pose(T_lin) * gtsam.Pose3.Expmap(mean)).matrix()  # the views' mean: linearise there
+    own = np.array(own, float).reshape(-1, 2)
+    return ViewPoses(name, np.array(caps), zeta, info, np.asarray(T_lin), own[:, 0], own[:, 1])
+
+
+def best_split(vp: ViewPoses, min_side: int = MIN_GROUP_VIEWS) -> Split | None:
+    """The split of ``vp``'s views in capture order that two poses explain best (None when there
+    are too few views for two sides)."""
+    n = len(vp.captures)
+    if n < 2 * min_side:
+        return None
+    L, z = vp.info, vp.zeta
+    eta = np.einsum("nij,nj->ni", L, z)
+    s = np.einsum("ni,ni->n", z, eta)
+    cL = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(L, axis=0)])
+    ce = np.concatenate([np.zeros((1, 6)), np.cumsum(eta, axis=0)])
+    cs = np.concatenate([np.zeros(1), np.cumsum(s)])
+
+    def fit(Lk, ek, sk):
+        m = np.linalg.solve(Lk, ek)
+        return m, float(sk - ek @ m)
+
+    _, rss_one = fit(cL[-1], ce[-1], cs[-1])
+    best = None
+    for k in range(min_side, n - min_side + 1):
+        ma, ra = fit(cL[k], ce[k], cs[k])
+        mb, rb = fit(cL[-1] - cL[k], ce[-1] - ce[k], cs[-1] - cs[k])
+        glr = rss_one - ra - rb
+        if best is None or glr > best[1]:
+            best = (k, glr, ma, mb, ra, rb)
+    k, glr, ma, mb, ra, rb = best
+    dof_two = 6 * n - 12
+    pooled = (ra + rb) / dof_two
+    f = (glr / 6.0) / max(pooled, 1e-300)
+    cov_a, cov_b = np.linalg.inv(cL[k]), np.linalg.inv(cL[-1] - cL[k])
+    T_a = (_pose(vp.T_lin) * gtsam.Pose3.Expmap(ma)).matrix()
+    T_b = (_pose(vp.T_lin) * gtsam.Pose3.Expmap(mb)).matrix()
+    d_m, d_deg = pose_error(T_a, T_b)
+    # the camera centre's displacement and its 1-sigma along it (tangent translation is in camera axes)
+    R = vp.T_lin[:3, :3]
+    c_ab = R @ (mb[3:] - ma[3:])
+    u = c_ab / max(np.linalg.norm(c_ab), 1e-12)
+    var = float(u @ R @ (cov_a[3:, 3:] + cov_b[3:, 3:]) @ R.T @ u) * max(pooled, 1.0)
+    return Split(vp.camera, k, tuple(int(c) for c in vp.captures[:k]), tuple(int(c) for c in vp.captures[k:]),
+                 float(f), float(glr),
+                 (rss_one / (6 * n - 6), ra / max(6 * k - 6, 1), rb / max(6 * (n - k) - 6, 1), pooled),
+                 T_a, T_b, cov_a, cov_b, 1e3 * d_m, d_deg, 1e3 * np.sqrt(max(var, 0.0)),
+                 float(np.sqrt((vp.own_rss.sum() + ra + rb) / max(vp.n_obs.sum(), 1))))
+
+
+def camera_splits(problem, views: list, est, sigma_px: float, names, start: dict | None = None) -> dict:
+    """camera -> its best :class:`Split` for every camera of ``names`` with enough views.
+
+    ``views``: every view of the solve (active or not; the active ones of the other cameras hold
+    the robot poses); ``est``: the estimate to judge against (the robust rounds'), ``start``:
+    camera -> pose to linearise a camera at that ``est`` lacks (one left out of the graph)."""
+    per_capture, per_view = _robot_pose_terms(problem, views, est, sigma_px)
+    out = {}
+    for name in names:
+        T_lin = est.T_ref_cam.get(name, (start or {}).get(name))
+        mine = [v for v in views if v.camera == name]
+        if T_lin is None or len(mine) < 2 * MIN_GROUP_VIEWS:
+            continue
+        try:
+            with np.errstate(all="ignore"):
+                vp = view_poses(problem, name, mine, est, T_lin, sigma_px, per_capture, per_view)
+                split = best_split(vp) if vp is not None else None
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+            continue  # a degenerate camera (absurd intrinsics, views behind it): nothing to say about a move
+        if split is not None and np.isfinite(split.f_stat):
+            out[name] = split
+    return out

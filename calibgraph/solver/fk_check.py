@@ -1,0 +1,84 @@
+"""The robot's forward kinematics against its stated accuracy, judged from the fit.
+
+A robot less accurate than stated pulls the cameras without showing in the corners' scatter. Each
+capture's estimated robot pose F(k) departs from its FK prior by ``d_k`` (whitened by the prior);
+under the stated FK sigmas ``sum |d_k|^2`` is about the prior's redundancy
+``sum 6 - tr(Lambda_p Sigma_k)``, with ``Sigma_k = (Lambda_p + J_k)^-1`` the covariance of F(k)
+given the rest (J_k: the information of capture k's views). Their ratio says by how much the
+stated accuracy is off; when it is above 1 at the 0.05 level, the final graph uses the FK sigmas
+the fit implies and a note says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import gtsam
+import numpy as np
+
+from calibgraph.core.problem import Problem
+from calibgraph.solver.linearise import Linearised, linearise
+from calibgraph.solver.noise_model import APPLY_Z, NOTE_Z
+
+
+@dataclass(frozen=True)
+class FkRatio:
+    """``ratio`` ~1 when the stated FK accuracy holds; ``applied``: the factor on the FK prior's
+    variance the final graph uses (the ratio when above 1 at the 0.05 level, else 1); ``dof``: the
+    prior residuals' redundancy; ``significant``: p < 0.001."""
+
+    ratio: float
+    applied: float
+    dof: float
+    significant: bool
+
+    def to_dict(self, opts) -> dict:
+        s = float(np.sqrt(self.applied))
+        t, r = float(opts.fk_sigma_translation_m), float(opts.fk_sigma_rotation_rad)
+        return {"variance_ratio": self.ratio, "applied": self.applied, "dof": self.dof, "significant": self.significant,
+                "stated_sigma_translation_m": t, "stated_sigma_rotation_rad": r,
+                "used_sigma_translation_m": t * s, "used_sigma_rotation_rad": r * s}
+
+
+def fk_variance_ratio(problem: Problem, views, est, sigma_px: float, lin: Linearised | None = None) -> FkRatio | None:
+    """The :class:`FkRatio` of the fit at ``est`` (None when there is too little to tell, or with
+    kinematics='joint-offsets', whose poses follow the joint angles). ``lin``: :func:`linearise`
+    of the same arguments, when already computed."""
+    if problem.options.kinematics != "none":
+        return None
+    lin = lin or linearise(problem, views, est, sigma_px)
+    prior_at = {v.capture: v.T_ref_mount for v in views}
+    energy = red = 0.0
+    for k, (prior, views_info, R) in lin.captures.items():
+        T_est = est.T_ref_mount.get(k)
+        if T_est is None:
+            continue
+        xi = np.asarray(gtsam.Pose3.Logmap(gtsam.Pose3(prior_at[k]).between(gtsam.Pose3(T_est))))
+        d = R @ xi
+        energy += float(d @ d)
+        red += 6.0 - float(np.trace(prior @ np.linalg.pinv(prior + views_info)))
+    if red < 5.0 or energy <= 0:
+        return None
+    ratio = energy / red
+    z = np.log(ratio) / np.sqrt(2.0 / red)
+    return FkRatio(float(ratio), float(ratio) if z > APPLY_Z else 1.0, float(red), bool(z > NOTE_Z))
+
+
+def widened(options, ratio: FkRatio):
+    """``options`` with the FK sigmas the fit implies (``ratio.applied`` times the variance)."""
+    s = float(np.sqrt(ratio.applied))
+    return replace(options, fk_sigma_translation_m=options.fk_sigma_translation_m * s,
+                   fk_sigma_rotation_rad=options.fk_sigma_rotation_rad * s)
+
+
+def fk_note(options, ratio: FkRatio | None) -> list:
+    """One line when the robot poses disagree with the stated FK accuracy and the prior was widened."""
+    if ratio is None or ratio.applied <= 1.0:
+        return []
+    o, s = options, float(np.sqrt(ratio.applied))
+    test = "" if ratio.significant else ", p < 0.05 but not < 0.001"
+    return [f"robot: the fitted flange poses depart from forward kinematics {s:.1f}x as far as the stated FK "
+            f"accuracy ({1e3 * o.fk_sigma_translation_m:.2f} mm, {np.degrees(o.fk_sigma_rotation_rad):.3f} deg) "
+            f"allows{test}; solved with {1e3 * o.fk_sigma_translation_m * s:.2f} mm, "
+            f"{np.degrees(o.fk_sigma_rotation_rad) * s:.3f} deg and the 1-sigma widened for it (state the arm's "
+            f"accuracy with --fk-sigma-mm/--fk-sigma-deg; joint zero offsets: --estimate-kinematics joint-offsets)"]

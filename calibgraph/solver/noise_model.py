@@ -1,0 +1,135 @@
+"""Corner noise: within-view correlated errors, and the pixel sigma the covariances are scaled with.
+
+A corner's sub-pixel position is fitted to the pixels around it, and on small squares neighbouring
+corners share most of those pixels (and the blur, lighting and print between them), so their errors
+are positively correlated. The correlated part moves the whole board's image (a shift, rotation,
+scale or shear), exactly the modes a camera's pose is estimated from, while the point-to-point
+scatter, which sets the a posteriori pixel sigma, is smaller. Treating the corners as independent
+then makes a far camera's 1-sigma too small.
+
+Per camera, the variance of each view's low-order image modes is estimated against the rest of the
+residuals (two variance components, Helmert's estimator in its simplest form) and, where larger,
+the views are weighted and their covariance propagated accordingly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calibgraph.core.problem import Problem
+from calibgraph.solver.linearise import Linearised, linearise
+
+# Views with fewer kept corners leave too few residuals beside the 6 modes to compare them with.
+MODE_MIN_CORNERS = 6
+N_MODES = 6
+# One-sided test levels on log(ratio) (its sd is sqrt(2 / dof_a + 2 / dof_b)): a variance factor is
+# applied above z = 1.645 (p < 0.05) and called significant above z = 3.09 (p < 0.001).
+APPLY_Z = 1.645
+NOTE_Z = 3.09
+
+
+@dataclass(frozen=True)
+class ModeRatio:
+    """Low-order to remaining residual variance of one camera's views.
+
+    ``ratio``: the estimate; ``applied``: what the final graph uses (the ratio when it is above 1 at
+    the 0.05 level, else 1); ``dof_modes`` / ``dof_rest``: the residual counts behind it;
+    ``significant``: above 1 at the 0.001 level; ``energy_modes_px2``: weighted squared residuals
+    in the modes, summed over the views.
+    """
+
+    ratio: float
+    applied: float
+    dof_modes: int
+    dof_rest: int
+    significant: bool
+    energy_modes_px2: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {"low_order_variance_ratio": self.ratio, "applied": self.applied, "dof_modes": self.dof_modes,
+                "dof_rest": self.dof_rest, "significant": self.significant}
+
+
+def view_mode_basis(uv_px: np.ndarray) -> np.ndarray:
+    """(2n, 6) orthonormal basis of one view's low-order image modes at its corners ``uv_px`` (n, 2):
+    a shift in u and v and the four linear maps about the corners' centroid (rotation, scale, the
+    two shears), i.e. an affine change of the board's image; rows interleave u, v per corner as the
+    view factor's residual does."""
+    c = uv_px - uv_px.mean(axis=0)
+    c = c / max(float(np.sqrt(np.mean(np.sum(c * c, axis=1)))), 1e-9)
+    n = len(uv_px)
+    A = np.zeros((2 * n, N_MODES))
+    A[0::2, 0] = 1.0
+    A[1::2, 1] = 1.0
+    A[0::2, 2], A[0::2, 3] = c[:, 0], c[:, 1]
+    A[1::2, 4], A[1::2, 5] = c[:, 0], c[:, 1]
+    return np.linalg.qr(A)[0]
+
+
+def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Linearised | None = None) -> dict:
+    """camera -> :class:`ModeRatio`: how much more the residuals vary in each view's low-order image
+    modes than in the rest.
+
+    The estimator: the mean squared residual in the modes over their redundancy, divided by the same
+    for the rest. The redundancy of a view is what the fit leaves of it: the view's robot pose F(k)
+    is fitted to the views of capture k within its FK prior and absorbs much of the shift, so each
+    view's share is ``tr(Q^T (I - M) Q)`` with ``M = J_F Sigma_k J_F^T`` (J_F the view's whitened
+    Jacobian on F(k), Sigma_k the covariance of F(k) given the rest of the graph); the camera pose,
+    mount, scale and intrinsics are shared by many views and absorb a negligible share of each.
+    ~1 with independent corners (F-distributed). ``lin``: :func:`linearise` of the same arguments.
+    """
+    lin = lin or linearise(problem, views, est, sigma_px)
+    per_view = [(v, e, H_f, view_mode_basis(v.uv_px[keep])) for v, keep, e, H_f in lin.views
+                if keep.sum() >= MODE_MIN_CORNERS]
+    cov = lin.robot_pose_covariances()
+    acc = {}
+    for v, e, H_f, Q in per_view:
+        M = H_f @ cov[v.capture] @ H_f.T
+        qe = Q.T @ e
+        low, total = float(qe @ qe), float(e @ e)
+        t_low = float(np.trace(Q.T @ M @ Q))
+        a = acc.setdefault(v.camera, np.zeros(5))
+        a += [low, max(total - low, 0.0), N_MODES - t_low, len(e) - N_MODES - (float(np.trace(M)) - t_low),
+              low * sigma_px ** 2]
+    out = {}
+    for cam, (low, rest, r_low, r_rest, low_px2) in acc.items():
+        n_views = sum(1 for v, *_ in per_view if v.camera == cam)
+        if n_views < 5 or rest <= 0 or r_low < 1.0 or r_rest < 1.0:
+            continue  # fewer than 5 views: too little to estimate a variance factor from
+        ratio = (low / r_low) / (rest / r_rest)
+        z = np.log(max(ratio, 1e-12)) / np.sqrt(2.0 / r_low + 2.0 / r_rest)
+        out[cam] = ModeRatio(float(ratio), float(ratio) if z > APPLY_Z else 1.0, int(round(r_low)),
+                             int(round(r_rest)), bool(z > NOTE_Z), float(low_px2))
+    return out
+
+
+def robust_pixel_sigma(views: list, norms: list) -> float:
+    """A robust pixel sigma from the kept corners' residual norms (``norms``: (N,) per view): the
+    median of a 2-D Gaussian residual norm is sqrt(2 ln 2) = 1.1774 per-axis sigmas."""
+    kept = np.concatenate([r[v.kept] for v, r in zip(views, norms)])
+    return max(float(np.median(kept)) / 1.1774, 1e-3)
+
+
+def a_posteriori_sigma(views: list, norms: list, n_parameters: int, mode_ratios: dict) -> float:
+    """The a posteriori pixel sigma: weighted squared residuals over the redundancy, a view's
+    low-order modes counted at 1 / their variance factor (the whitened residual). ``views``: the
+    active views, ``norms`` their residual norms (px); ``n_parameters``: the graph's unknowns."""
+    n_obs = 2 * sum(int(v.kept.sum()) for v in views)
+    wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(views, norms))
+    wr2 -= sum(m.energy_modes_px2 * (1.0 - 1.0 / m.applied) for m in mode_ratios.values())
+    return max(float(np.sqrt(max(wr2, 0.0) / max(n_obs - n_parameters, 1))), 1e-4)
+
+
+def corner_noise_notes(mode_ratios: dict) -> list:
+    """One line per camera whose views' low-order modes were found to vary more than the rest."""
+    out = []
+    for name, m in mode_ratios.items():
+        if m.applied > 1.0:
+            test = "" if m.significant else ", p < 0.05 but not < 0.001"
+            out.append(f"camera {name}: its residuals move whole boards (each view's shift, rotation, scale and "
+                       f"shear in the image vary {m.ratio:.2f}x what the other residuals imply{test}: corners of "
+                       f"small squares share pixels, or an unmodelled camera or robot error); its views are "
+                       f"weighted and its 1-sigma widened for it")
+    return out

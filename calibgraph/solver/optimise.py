@@ -1,0 +1,238 @@
+"""One graph optimised from a start: robust rounds, the final weighted graph, its marginals.
+
+:func:`solve_from_start` is the path every solve takes: the robust rounds
+(:mod:`calibgraph.solver.robust`), then the final graph, judged on what the fit says about the
+forward kinematics (:mod:`calibgraph.solver.fk_check`) and about correlated corner noise
+(:mod:`calibgraph.solver.noise_model`), solved at the a posteriori pixel sigma, and its marginals.
+:func:`solve_joint` tries every start it is given and keeps the lowest cost.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.problem import Problem
+from calibgraph.solver import factors_ppp
+from calibgraph.solver import kinematics as kin
+from calibgraph.solver.claims import contradicted
+from calibgraph.solver.factors import intrinsics_vector
+from calibgraph.solver.fk_check import fk_variance_ratio, widened
+from calibgraph.solver.graph import (
+    Estimate,
+    build_graph,
+    estimates_intrinsics,
+    extract,
+    formulation,
+    levenberg_marquardt,
+    marginals,
+)
+from calibgraph.solver.initialise import pnp_candidates
+from calibgraph.solver.keys import B
+from calibgraph.solver.linearise import linearise
+from calibgraph.solver.moved import check_after_rounds
+from calibgraph.solver.noise_model import a_posteriori_sigma, mode_variance_ratios
+from calibgraph.solver.robust import Rounds, robust_rounds
+from calibgraph.solver.timing import timed
+
+
+@dataclass(frozen=True)
+class Group:
+    """One solved graph: its cameras, its estimate, its views (one group in 'joint', one per
+    camera in 'single') and what the solve noticed on the way."""
+
+    names: list
+    est: Estimate
+    views: list
+    notes: tuple = ()
+    dropped: dict = field(default_factory=dict)  # camera -> why it is not calibrated (its views left the graph)
+
+
+def solve_from_start(problem: Problem, names: list, views: list, est0: Estimate,
+                     timings: dict | None = None) -> Group:
+    """Robust rounds, final graph and marginals for one graph (all cameras in 'joint', one camera
+    in 'single') from the values of ``est0`` (its T_ref_cam, T_mount_board, joint offsets, and which
+    cameras' intrinsics get the wide prior). The corner formulation, when it fails numerically,
+    falls back to the per-view graph."""
+    form = formulation(problem, names, len(views), est0)
+    try:
+        return _solve(problem, names, views, est0, form, timings)
+    except ObservabilityError:
+        if form != "corner" or problem.options.formulation == "corner":
+            raise
+        return _solve(problem, names, views, est0, "view", timings)
+
+
+def _rounds_keeping_enough_views(problem: Problem, names: list, views: list, est: Estimate, form: str,
+                                 timings: dict | None):
+    """The robust rounds, with every camera left with fewer usable views than it needs (after
+    rejection) taken out of the graph and the rest solved again: (names, views, rounds, dropped)
+    with ``dropped`` camera -> why. A camera alone in its graph is refused as before."""
+    dropped, need = {}, problem.options.min_views_per_camera
+    for n in list(names) if len(names) > 1 else []:
+        behind = seen_from_behind(problem, [v for v in views if v.camera == n], [v for v in views if v.camera != n])
+        if behind:  # no camera model explains a board seen from its back; freeing the intrinsics only hides it
+            dropped[n] = (f"the images look mirrored: the board appears from behind in {behind[0]} of its {behind[1]} "
+                          "views while the other cameras see its front; check the camera's flip/mirror setting")
+            names = [m for m in names if m != n]
+            views = [v for v in views if v.camera != n]
+    while True:
+        slots = {n: i for i, n in enumerate(names)}
+        try:
+            rounds = robust_rounds(problem, views, slots, est, form, timings)
+        except ObservabilityError as e:
+            if e.camera not in names or len(names) < 2:
+                raise
+            dropped[e.camera] = not_calibrated_why(problem, e.camera, [v for v in views if v.camera == e.camera],
+                                                   views, need, str(e))
+            names = [n for n in names if n != e.camera]
+            views = [v for v in views if v.camera != e.camera]
+            continue
+        short = [n for n in names if sum(v.active for v in rounds.views if v.camera == n) < need]
+        if not short or len(short) == len(names):
+            return names, views, rounds, dropped
+        for n in short:
+            dropped[n] = not_calibrated_why(problem, n, [v for v in rounds.views if v.camera == n], views, need)
+        names = [n for n in names if n not in short]
+        views = [v for v in views if v.camera not in short]
+        est = replace(est, T_ref_cam={n: T for n, T in rounds.est.T_ref_cam.items() if n in names})
+
+
+def not_calibrated_why(problem: Problem, name: str, mine: list, views: list, need: int, error: str = "") -> str:
+    """Why camera ``name`` cannot be calibrated from what is left of its views ``mine`` (``error``:
+    the solver's refusal when every view was rejected)."""
+    if error:
+        why = f"all {len(mine)} of its views were rejected as inconsistent with the other cameras'"
+    else:
+        used = [v for v in mine if v.active]
+        reasons = sorted({v.reason for v in mine if not v.active and v.reason})[:2]
+        why = (f"{len(mine) - len(used)} of {len(mine)} views rejected" + (f" ({'; '.join(reasons)})" if reasons else "")
+               + f": {len(used)} left, at least {need} needed")
+    mirrored = seen_from_behind(problem, mine, [v for v in views if v.camera != name])
+    if mirrored:
+        why += f"; the images look mirrored (the board appears from behind in {mirrored[0]} of {mirrored[1]} views)"
+    return why
+
+
+def seen_from_behind(problem: Problem, mine: list, others: list) -> tuple | None:
+    """(views of ``mine`` whose board appears from behind, len(mine)) when most of them do, judged
+    against the side the other cameras' views show; None otherwise. A mirrored image shows a planar
+    board from its other side."""
+    def side(v):
+        R, _, _ = pnp_candidates(v.p_board_m, v.uv_px, problem.cameras[v.camera])
+        return np.sign(R[0][2, 2]) if len(R) else 0.0
+
+    ref = np.sign(sum(side(v) for v in others[:50])) if others else 1.0
+    flipped = sum(side(v) == -ref for v in mine)
+    return (int(flipped), len(mine)) if mine and ref != 0 and flipped >= max(2, 0.7 * len(mine)) else None
+
+
+def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str, timings: dict | None) -> Group:
+    est = Estimate(T_ref_cam=dict(est0.T_ref_cam), T_mount_board=est0.T_mount_board, T_ref_mount={},
+                   intrinsics=dict(est0.intrinsics), wide_intrinsics=est0.wide_intrinsics,
+                   free_intrinsics=est0.free_intrinsics, joint_offsets=est0.joint_offsets)
+    given = views
+    names, views, rounds, dropped = _rounds_keeping_enough_views(problem, names, views, est, form, timings)
+    check_after_rounds(problem, given, est, rounds)  # a camera that moved during capture is split first (solver.moved)
+    slots = {n: i for i, n in enumerate(names)}
+    notes = []
+    # A claim the data contradict is named and dropped before anything shared is judged on the misfit;
+    # one camera at a time, the worst first, since one wrong camera drags the others' fit.
+    while wrong := contradicted(problem, rounds.views, slots, rounds.est, rounds.sigma_px):
+        worst = max(wrong, key=lambda c: c.chi2)
+        notes.append(worst.note(intrinsics_vector(problem.cameras[worst.camera])))
+        est = replace(est, free_intrinsics=est.free_intrinsics | {worst.camera})
+        form = formulation(problem, names, len(views), est)
+        rounds = robust_rounds(problem, views, slots, est, form, timings)
+    est = final_graph(problem, names, rounds, slots, form, timings)
+    return Group(names, est, rounds.views, tuple(notes), dropped)
+
+
+def _n_parameters(problem: Problem, names: list, est: Estimate) -> int:
+    n_intr = sum(estimates_intrinsics(problem, n, est) for n in names)
+    n = 6 * (len(names) + 1) + 6 * n_intr + int(problem.options.board_scale)
+    return n + (0 if est.joint_offsets is None else len(est.joint_offsets))
+
+
+def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form: str,
+                timings: dict | None) -> Estimate:
+    """The final weighted graph at the a posteriori pixel sigma (re-solved when that sigma, a wider
+    FK prior or correlated corner noise moves the optimum), its cost, convergence and marginals."""
+    opts = problem.options
+    est, views, sigma, iterations = rounds.est, rounds.views, rounds.sigma_px, rounds.iterations
+    converged = rounds.settled
+    check_modes = form == "view" and opts.view_noise_modes and not opts.pixel_sigma_px
+    lin = linearise(problem, views, est, sigma) if opts.fk_variance or check_modes else None
+    fk_ratio = fk_variance_ratio(problem, views, est, sigma, lin) if opts.fk_variance else None
+    if fk_ratio is not None and fk_ratio.applied > 1.0:
+        # the robot is less accurate than stated: the final graph uses the FK sigmas the fit implies,
+        # and the corner-noise modes are judged on the residuals of that graph
+        problem = problem.with_(options=widened(opts, fk_ratio))
+        with timed(timings, "lm"):
+            graph, values = build_graph(views, slots, problem, est, sigma, form)
+            run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        iterations += run.iterations
+        converged = converged and run.converged
+        est = extract(run.values, slots, views, est, problem.cameras, form)
+        lin = None
+    mode_ratios = mode_variance_ratios(problem, views, est, sigma, lin) if check_modes else {}
+    factors = {c: m.applied for c, m in mode_ratios.items() if m.applied > 1.0}
+    if opts.pixel_sigma_px:
+        sigma_post = opts.pixel_sigma_px
+    else:
+        active = [v for v in views if v.active]
+        sigma_post = a_posteriori_sigma(active, est.residual_norms(active, problem.cameras),
+                                        _n_parameters(problem, names, est), mode_ratios)
+    with timed(timings, "build_graph"):
+        graph, values = build_graph(views, slots, problem, est, sigma_post, form, factors)
+    if abs(sigma_post - sigma) > 0.05 * sigma or any(f > 1.05 for f in factors.values()):
+        # the pixel/FK balance moved enough to shift the optimum: re-solve before the marginals
+        with timed(timings, "lm"):
+            run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        iterations += run.iterations
+        converged = converged and run.converged
+        values = run.values
+        est = extract(values, slots, views, est, problem.cameras, form)
+    marg = marginals(graph, values, form, timings)
+    mount_cov = factors_ppp.mount_cov_body(marg, values) if form == "corner" else marg.marginalCovariance(B(0))
+    return replace(est, iterations=iterations, converged=converged, cost=graph.error(values), sigma_px=sigma_post,
+                   slots=slots, formulation=form, marginals=marg, mount_cov_body=mount_cov, mode_ratios=mode_ratios,
+                   fk_ratio=fk_ratio, graph=graph, values=values)
+
+
+def solve_joint(problem: Problem, names: list, views: list, starts: list, timings: dict | None = None) -> Group:
+    """All cameras in one graph from each Estimate in ``starts``: the lowest final cost wins. Raises
+    the last ObservabilityError when no start can be solved."""
+    best, error = None, None
+    for est0 in starts:
+        try:
+            g = solve_from_start(problem, names, views, est0, timings)
+        except ObservabilityError as e:
+            error = e
+            continue
+        if best is None or g.est.cost < best.est.cost:
+            best = g
+    if best is None:
+        raise error
+    return best
+
+
+def solve_single(problem: Problem, name: str, views: list, est0: Estimate, timings: dict | None = None) -> Group:
+    """One camera in its own graph, with its own board mount."""
+    return solve_from_start(problem, [name], [v for v in views if v.camera == name], est0, timings)
+
+
+def kinematics_start(problem: Problem, names: list, views: list, starts: list, ks, timings: dict | None) -> Estimate:
+    """The start of a joint solve with kinematics_staging='staged': the cameras solved with the FK
+    prior inflated (and no offsets), then the joint offsets that best explain the flange poses that
+    solve found."""
+    o = problem.options
+    loose = replace(o, kinematics="none", fk_sigma_rotation_rad=o.fk_sigma_rotation_rad * kin.STAGE1_FK_INFLATION,
+                    fk_sigma_translation_m=o.fk_sigma_translation_m * kin.STAGE1_FK_INFLATION)
+    g1 = solve_joint(problem.with_(options=loose), names, views, starts, timings)
+    fk_sigmas = np.array([o.fk_sigma_rotation_rad] * 3 + [o.fk_sigma_translation_m] * 3)
+    offsets = kin.offsets_from_poses(ks, g1.est.T_ref_mount, o.joint_offset_prior_rad, fk_sigmas)
+    return Estimate(T_ref_cam=g1.est.T_ref_cam, T_mount_board=g1.est.T_mount_board, T_ref_mount={},
+                    joint_offsets=offsets)

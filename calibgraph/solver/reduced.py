@@ -1,0 +1,150 @@
+"""A solved graph linearised and reduced to its few global variables.
+
+The per-capture robot poses (``f``; ``h`` in the corner formulation) are many and each couples only
+to the global variables its factors touch (cameras, intrinsics, mount, scale, offsets), so they are
+eliminated first (Schur complement). What remains is a small dense system from which any column of
+the full covariance, and the Gauss-Newton step of any subset of the global variables, follows. The
+error budget (:mod:`calibgraph.solver.budget`) and the test of exact intrinsics claims
+(:mod:`calibgraph.solver.claims`) read it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+LOCAL = {"f", "h"}  # per-capture variables (robot poses), eliminated first
+
+
+def _chars(keys) -> set:
+    return {chr(gtsam.Symbol(k).chr()) for k in keys}
+
+
+def _source(keys) -> str:
+    c = _chars(keys)
+    if "c" in c:
+        return "corners"
+    if c == {"k"}:
+        return "intrinsics"
+    if c <= {"s", "p"}:
+        return "board"
+    return "robot_fk"  # F(k) priors, kinematic factors, the joint-offset prior, the corner form's between factors
+
+
+TRANSLATION = slice(3, 6)  # GTSAM Pose3 tangent: rotation first
+SOURCES = ("corners", "intrinsics", "robot_fk", "board")
+
+
+@dataclass(frozen=True)
+class Linear:
+    """A graph linearised at its values and reduced to its global variables."""
+
+    factors: list  # (source, keys, {key: whitened Jacobian block A_key})
+    index: dict  # global key -> slice in the global vector
+    locals_: dict  # local key -> (H_ll^-1 (d, d), {global key: H_lg block})
+    S: np.ndarray  # Schur complement: the information of the global variables, the locals eliminated
+    g: np.ndarray  # the cost's gradient on the global variables with the locals at their optimum
+    prior_K: dict  # K key -> its prior's information (6, 6)
+
+    def step_gain(self, free: list) -> float:
+        """Decrease of the linearised cost by the Gauss-Newton step of the global variables ``free``
+        (keys) with the locals re-fitted and every other global variable held."""
+        idx = np.concatenate([np.arange(self.index[k].start, self.index[k].stop) for k in free])
+        g = self.g[idx]
+        return 0.5 * float(g @ np.linalg.solve(self.S[np.ix_(idx, idx)], g))
+
+    def step(self, free: list) -> dict:
+        """The Gauss-Newton step of the global variables ``free`` (others held): key -> (d,)."""
+        idx = np.concatenate([np.arange(self.index[k].start, self.index[k].stop) for k in free])
+        d = -np.linalg.solve(self.S[np.ix_(idx, idx)], self.g[idx])
+        out, n = {}, 0
+        for k in free:
+            m = self.index[k].stop - self.index[k].start
+            out[k] = d[n:n + m]
+            n += m
+        return out
+
+
+def linearise_graph(graph, values) -> Linear:
+    """The Schur-reduced information of a solved graph (see the module docstring)."""
+    lin = graph.linearize(values)
+    zero = values.zeroVectors()
+    dims = {k: zero.at(k).shape[0] for k in values.keys()}
+    glob = [k for k in values.keys() if chr(gtsam.Symbol(k).chr()) not in LOCAL]
+    index, n = {}, 0
+    for k in glob:
+        index[k] = slice(n, n + dims[k])
+        n += dims[k]
+    H = np.zeros((n, n))
+    grad = np.zeros(n)
+    H_ll, H_lg, g_l = {}, {}, {}
+    factors, prior_K = [], {}
+    for i in range(lin.size()):
+        f = lin.at(i)
+        if f is None:
+            continue
+        keys = list(f.keys())
+        A, b = f.jacobian()
+        blocks, col = {}, 0
+        for k in keys:
+            blocks[k] = A[:, col:col + dims[k]]
+            col += dims[k]
+        src = _source(keys)
+        factors.append((src, keys, blocks))
+        if src == "intrinsics":
+            prior_K[keys[0]] = blocks[keys[0]].T @ blocks[keys[0]]
+        loc = [k for k in keys if k not in index]
+        gl = [k for k in keys if k in index]
+        for a in gl:
+            grad[index[a]] -= blocks[a].T @ b
+            for c in gl:
+                H[index[a], index[c]] += blocks[a].T @ blocks[c]
+        for l in loc:  # at most one local variable per factor
+            H_ll[l] = H_ll.get(l, 0) + blocks[l].T @ blocks[l]
+            g_l[l] = g_l.get(l, 0) - blocks[l].T @ b
+            lg = H_lg.setdefault(l, {})
+            for g in gl:
+                lg[g] = lg.get(g, 0) + blocks[l].T @ blocks[g]
+    locals_ = {}
+    for l, Hll in H_ll.items():
+        inv = np.linalg.inv(Hll)
+        locals_[l] = (inv, H_lg.get(l, {}))
+        for a, Ba in H_lg.get(l, {}).items():
+            grad[index[a]] -= Ba.T @ inv @ g_l[l]
+            for c, Bc in H_lg[l].items():
+                H[index[a], index[c]] -= Ba.T @ inv @ Bc
+    return Linear(factors, index, locals_, 0.5 * (H + H.T), grad, prior_K)
+
+
+def columns(L: Linear, S: np.ndarray, wanted: list) -> dict:
+    """Columns of the full covariance (from the global information ``S``): ``wanted`` is a list of
+    (key, slice of its rows); returns variable -> (d, m), the m columns in the order asked."""
+    m = sum(r.stop - r.start for _, r in wanted)
+    e = np.zeros((S.shape[0], m))
+    j = 0
+    for key, rows in wanted:
+        start = L.index[key].start
+        n = rows.stop - rows.start
+        e[start + rows.start: start + rows.stop, j:j + n] = np.eye(n)
+        j += n
+    Xg = np.linalg.solve(S, e)
+    X = {k: Xg[s] for k, s in L.index.items()}
+    for loc, (inv, lg) in L.locals_.items():
+        X[loc] = -inv @ sum(B @ X[g] for g, B in lg.items()) if lg else np.zeros((inv.shape[0], m))
+    return X
+
+
+def sigma_with(L: Linear, cam_key, S: np.ndarray | None = None, add_info: dict | None = None) -> float:
+    """sqrt(trace) of the translation covariance (mm) of the camera pose ``cam_key``, from the
+    information ``S`` (default: the graph's) with ``add_info`` (key -> information to add) added.
+    Only the global system is solved: the camera is a global variable."""
+    S = (L.S if S is None else S).copy()
+    for k, dH in (add_info or {}).items():
+        S[L.index[k], L.index[k]] += dH
+    rows = np.arange(L.index[cam_key].start, L.index[cam_key].stop)[TRANSLATION]
+    e = np.zeros((S.shape[0], len(rows)))
+    e[rows, np.arange(len(rows))] = 1.0
+    X = np.linalg.solve(S, e)
+    return 1e3 * float(np.sqrt(max(np.trace(X[rows]), 0.0)))

@@ -1,0 +1,131 @@
+"""Robustness at corner level: iteratively re-weighted least squares and view rejection.
+
+Each LM run holds the corners' weights fixed (so the cost LM sees is consistent); in between, the
+weights follow a Huber (or Cauchy) loss on each corner's residual norm in pixel sigmas, corners
+beyond ``outlier_sigmas`` get weight 0 and are listed, and views that lose most of their corners
+leave the graph with a reason (and come back when they fit again). Every function here returns new
+views; none edits the ones it is given.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from calibgraph.core.problem import Problem
+from calibgraph.solver.graph import Estimate, build_graph, extract, levenberg_marquardt
+from calibgraph.solver.noise_model import robust_pixel_sigma
+from calibgraph.solver.timing import timed
+from calibgraph.solver.views import MIN_CORNERS_PER_VIEW
+
+MAX_WEIGHT_ROUNDS = 6  # LM runs with re-weighting in between, per view-level round
+MAX_VIEW_ROUNDS = 4  # rounds of view rejection / re-admission
+
+
+@dataclass(frozen=True)
+class Rounds:
+    """What the robust rounds leave: the estimate, the views with their weights, the pixel sigma."""
+
+    est: Estimate
+    views: list
+    sigma_px: float
+    iterations: int
+    settled: bool  # the weights, the pixel sigma and the set of views stopped changing, and the last LM run converged
+    norms: list = None  # residual norms (px) of ``views`` at ``est``
+
+
+def loss_weights(r_sigma: np.ndarray, loss: str, scale: float) -> np.ndarray:
+    """IRLS weights for residual norms expressed in sigmas."""
+    if loss == "none":
+        return np.ones_like(r_sigma)
+    if loss == "huber":
+        return np.where(r_sigma <= scale, 1.0, scale / np.maximum(r_sigma, 1e-12))
+    return 1.0 / (1.0 + (r_sigma / scale) ** 2)
+
+
+def screen_at_start(problem: Problem, views: list, est: Estimate) -> tuple[list, float]:
+    """(views, starting pixel sigma): every view at full weight, the views grossly off at the start
+    set aside (so that a few corrupted views cannot drag the first solve)."""
+    fresh = [replace(v, w=np.ones(len(v.ids)), active=True, reason="") for v in views]
+    init_rms = np.array([np.sqrt(np.mean(r ** 2)) for r in est.residual_norms(fresh, problem.cameras)])
+    thr0 = max(10.0 * np.median(init_rms), 15.0)
+    out = [v if r <= thr0 else replace(v, active=False,
+                                       reason=f"inconsistent with the other views at initialisation (rms {r:.1f} px)")
+           for v, r in zip(fresh, init_rms)]
+    sigma = problem.options.pixel_sigma_px or max(float(np.median(init_rms[init_rms <= thr0])), 0.5)
+    return out, sigma
+
+
+def reweight(views: list, norms: list, sigma_px: float, opts) -> tuple[list, float]:
+    """(views with new robust weights for the active ones (0 beyond outlier_sigmas), the largest change)."""
+    out, change = [], 0.0
+    for v, r in zip(views, norms):
+        if not v.active:
+            out.append(v)
+            continue
+        r = r / sigma_px
+        w = loss_weights(r, opts.loss, opts.loss_scale)
+        w[r > opts.outlier_sigmas] = 0.0
+        change = max(change, float(np.abs(w - v.w).max()))
+        out.append(replace(v, w=w))
+    return out, change
+
+
+def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
+                    timings: dict | None) -> Rounds:
+    """LM runs with fixed corner weights, re-weighted in between, until the weights and the pixel
+    sigma settle (at most MAX_WEIGHT_ROUNDS runs)."""
+    opts = problem.options
+    iterations, settled, norms = 0, False, None
+    for _ in range(MAX_WEIGHT_ROUNDS):
+        with timed(timings, "build_graph"):
+            graph, values = build_graph(views, slots, problem, est, sigma, form)
+        with timed(timings, "lm"):
+            run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        iterations += run.iterations
+        est = extract(run.values, slots, views, est, problem.cameras, form)
+        norms = est.residual_norms(views, problem.cameras)
+        active = [(v, r) for v, r in zip(views, norms) if v.active]
+        sigma_new = opts.pixel_sigma_px or robust_pixel_sigma(*zip(*active))
+        views, change = reweight(views, norms, sigma_new, opts)
+        weights_settled = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05
+        settled = weights_settled and run.converged
+        sigma = sigma_new
+        if weights_settled:
+            break
+    return Rounds(est, views, sigma, iterations, settled, norms)
+
+
+def readmit_or_reject(views: list, norms: list, sigma_px: float, opts) -> tuple[list, bool]:
+    """View level: (views with those that lost most of their corners set aside and the set-aside ones
+    that fit now re-admitted, True when any view changed)."""
+    out, changed = [], False
+    for v, res in zip(views, norms):
+        r = res / sigma_px
+        kept = r <= opts.outlier_sigmas
+        ok = kept.mean() >= 0.5 and kept.sum() >= MIN_CORNERS_PER_VIEW
+        if v.active and not ok:
+            v = replace(v, active=False, reason=f"{(~kept).sum()} of {len(kept)} corners beyond {opts.outlier_sigmas:g} "
+                                                f"sigma (median residual {np.median(res):.2f} px)")
+            changed = True
+        elif not v.active and ok:
+            v = replace(v, active=True, reason="", w=np.where(kept, loss_weights(r, opts.loss, opts.loss_scale), 0.0))
+            changed = True
+        out.append(v)
+    return out, changed
+
+
+def robust_rounds(problem: Problem, views: list, slots: dict, est: Estimate, form: str,
+                  timings: dict | None) -> Rounds:
+    """Screening, then weighted solves and view-level rejection until the set of views settles."""
+    views, sigma = screen_at_start(problem, views, est)
+    iterations = 0
+    for _ in range(MAX_VIEW_ROUNDS):
+        rounds = weighted_solves(problem, views, slots, est, sigma, form, timings)
+        iterations += rounds.iterations
+        est, sigma = rounds.est, rounds.sigma_px
+        views, changed = readmit_or_reject(rounds.views, rounds.norms, sigma, problem.options)
+        if not changed:
+            return Rounds(est, views, sigma, iterations, rounds.settled, rounds.norms)
+    return Rounds(est, views, sigma, iterations, False, est.residual_norms(views, problem.cameras))

@@ -1,0 +1,124 @@
+"""The views of a solve: one camera's corners in one capture, with the robot pose of the capture.
+
+A :class:`View` is what the graph turns into a projection factor. It is frozen: the robust rounds
+(:mod:`calibgraph.solver.robust`) return new views with new corner weights rather than editing
+them, so every stage can be read as values in, values out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibgraph.core.problem import Problem
+from calibgraph.core.transforms import inv
+from calibgraph.solver.initialise import ViewCandidates, pnp_candidates
+from calibgraph.solver.result import RejectedView
+
+MIN_CORNERS_PER_VIEW = 4
+
+
+@dataclass(frozen=True)
+class View:
+    """One camera's detections in one capture, as the solver uses them.
+
+    ``w`` (N,) are the corners' robust weights in [0, 1] (0: rejected corner); ``active`` says
+    whether the view is in the graph, ``reason`` why not.
+    """
+
+    camera: str
+    capture: int
+    ids: np.ndarray  # (N,) corner ids
+    p_board_m: np.ndarray  # (N, 3) corners in the board frame
+    uv_px: np.ndarray  # (N, 2) detected corners
+    T_ref_mount: np.ndarray  # (4, 4) robot pose of the capture from forward kinematics (the prior)
+    w: np.ndarray = field(default=None, repr=False)  # (N,) robust weights; None: all 1
+    active: bool = True
+    reason: str = ""
+
+    def __post_init__(self):
+        if self.w is None:
+            object.__setattr__(self, "w", np.ones(len(self.ids)))
+
+    @property
+    def kept(self) -> np.ndarray:
+        """(N,) True for the corners with a non-zero weight."""
+        return self.w > 0
+
+
+def robot_prior_poses(problem: Problem) -> dict:
+    """capture -> T_ref_mount as forward kinematics reports it (the prior of F(k))."""
+    if problem.mode == "eye_to_hand":
+        return {c.index: c.T_base_flange for c in problem.captures}
+    return {c.index: inv(c.T_base_flange) for c in problem.captures}
+
+
+def prepare_views(problem: Problem) -> tuple[list, list]:
+    """(views, rejected): the problem's detections as :class:`View` s, and those with fewer than
+    MIN_CORNERS_PER_VIEW corners as :class:`RejectedView` s."""
+    robot_poses = robot_prior_poses(problem)
+    views, rejected = [], []
+    for d in problem.detections:
+        if len(d.ids) < MIN_CORNERS_PER_VIEW:
+            rejected.append(RejectedView(d.camera, d.capture, f"only {len(d.ids)} corners (need {MIN_CORNERS_PER_VIEW})"))
+            continue
+        views.append(View(camera=d.camera, capture=d.capture, ids=d.ids, p_board_m=problem.points_board_m[d.ids],
+                          uv_px=d.uv_px, T_ref_mount=robot_poses[d.capture]))
+    return views, rejected
+
+
+def view_candidates(problem: Problem, views: list) -> tuple[dict, list]:
+    """(camera -> [ViewCandidates], views without a valid PnP solution): both IPPE poses of every view."""
+    out, bad = {}, []
+    for v in views:
+        R, t, rms = pnp_candidates(v.p_board_m, v.uv_px, problem.cameras[v.camera])
+        if len(R) == 0:
+            bad.append(v)
+            continue
+        out.setdefault(v.camera, []).append(ViewCandidates(v.camera, v.capture, v.T_ref_mount, R, t, rms))
+    return out, bad
+
+
+def usable_views(problem: Problem) -> tuple[list, dict, list]:
+    """(views, their PnP candidates by camera, refused views): views need enough corners and a PnP solution."""
+    views, rejected = prepare_views(problem)
+    cands, bad = view_candidates(problem, views)
+    for v in bad:
+        rejected.append(RejectedView(v.camera, v.capture, "no valid PnP solution (corners degenerate or ids wrong)"))
+    bad_ids = {id(v) for v in bad}
+    return [v for v in views if id(v) not in bad_ids], cands, rejected
+
+
+def captures_by_camera(views: list) -> dict:
+    """camera -> captures of its views (what the observability check counts)."""
+    out = {}
+    for v in views:
+        out.setdefault(v.camera, []).append(v.capture)
+    return out
+
+
+def residual_norms(views: list, T_ref_cam: dict, T_mount_board: np.ndarray, T_ref_mount: dict, cameras: dict,
+                   board_scale: float = 1.0) -> list:
+    """Residual norms (px, (N,) per view) of ``views`` at the given values, batched per camera: one
+    projection call per camera instead of one per view. ``T_ref_mount``: capture -> robot pose (a
+    capture missing there is taken at its FK pose); ``cameras``: name -> Intrinsics to project with."""
+    out = [None] * len(views)
+    by_cam = {}
+    for i, v in enumerate(views):
+        by_cam.setdefault(v.camera, []).append(i)
+    for cam, idx in by_cam.items():
+        T_cs = inv(T_ref_cam[cam])
+        pts, uvs, counts = [], [], []
+        for i in idx:
+            v = views[i]
+            T = T_cs @ T_ref_mount.get(v.capture, v.T_ref_mount) @ T_mount_board
+            pts.append((board_scale * v.p_board_m) @ T[:3, :3].T + T[:3, 3])
+            uvs.append(v.uv_px)
+            counts.append(len(v.ids))
+        uv_hat = cameras[cam].project(np.concatenate(pts))
+        r = np.linalg.norm(uv_hat - np.concatenate(uvs), axis=1)
+        r = np.where(np.isfinite(r), r, 1e6)
+        for i, part in zip(idx, np.split(r, np.cumsum(counts)[:-1])):
+            out[i] = part
+    return out
