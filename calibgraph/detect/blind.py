@@ -12,6 +12,12 @@ grid of squares it sees, and while the spec is in doubt that time is better spen
 next frames. The dataset driver searches deferred frames in full once the spec is settled, so a
 right spec loses no view. The size seen goes into the detection's ``other_grid``; a declared grid
 found that continues past its border is refused as part of a larger board.
+
+With ``gate`` the probe also stands in front of the search when the spec is settled: a frame in
+which it sees no chessboard, or one of fewer than half the declared corners well inside the
+frame, is a miss at the cost of the probe (~0.1-0.7 s on 1080p instead of seconds). That is for first looks whose misses are looked at again (the survey of guided
+detection, :mod:`calibgraph.solver.build`): the probe misses boards of very small squares, which
+the up-scaled search finds.
 """
 
 from __future__ import annotations
@@ -32,9 +38,11 @@ PROBE_REDUCE_FROM_PX = 720   # ... when their shorter side has at least this man
 
 
 def look_blind(frame: Frame, target: Target, intrinsics: Intrinsics | None = None, check_spec: bool = False,
-               **options) -> ImageDetection:
+               gate: bool = False, **options) -> ImageDetection:
     """Detect ``target`` in the whole of ``frame`` (module docstring); ``options`` go to
-    :func:`detect_image`. Never raises for a bad image: ``ok=False`` and ``reason`` say why."""
+    :func:`detect_image`. ``gate``: a checkerboard frame in which the probe sees no chessboard is
+    a miss without a search (for a first look whose misses get a second one anyway: the survey of
+    guided detection). Never raises for a bad image: ``ok=False`` and ``reason`` say why."""
     import time
 
     t0 = time.perf_counter()
@@ -42,12 +50,12 @@ def look_blind(frame: Frame, target: Target, intrinsics: Intrinsics | None = Non
         grey = frame.grey()
     except DetectionError as e:
         return failed_detection(str(e), target, frame.name, t0)
-    det = _look(frame, grey, target, intrinsics, check_spec, options)
+    det = _look(frame, grey, target, intrinsics, check_spec, gate, options)
     return replace(det, time_s=time.perf_counter() - t0)  # the decoding included
 
 
-def _look(frame, grey, target, intrinsics, check_spec, options) -> ImageDetection:
-    if not (check_spec and target.kind == "checkerboard"):
+def _look(frame, grey, target, intrinsics, check_spec, gate, options) -> ImageDetection:
+    if not ((check_spec or gate) and target.kind == "checkerboard"):
         return detect_image(grey, target, intrinsics, source=frame.name, **options)
     declared = tuple(sorted((target.rows, target.cols)))
     k = PROBE_REDUCTION if min(grey.shape) >= PROBE_REDUCE_FROM_PX else 1  # small squares vanish in small frames
@@ -55,9 +63,13 @@ def _look(frame, grey, target, intrinsics, check_spec, options) -> ImageDetectio
     if seen is None:
         seen = chessboard_seen(grey)
     if seen is None:
-        return failed_detection("no chessboard seen by the quick probe; searched once the board spec is settled",
-                                target, frame.name, deferred=True)
-    if not seen.touches_border and seen.size != declared:
+        return failed_detection("no chessboard seen by the quick probe" + ("; searched once the board spec is settled"
+                                                                           if check_spec else ""),
+                                target, frame.name, deferred=check_spec)
+    if gate and not check_spec and not seen.touches_border and 2 * seen.rows * seen.cols < target.n_points:
+        # a few squares of something else (the arm's bands, a partial board well inside the frame)
+        return failed_detection(f"the quick probe sees only a {seen.rows}x{seen.cols} chessboard", target, frame.name)
+    if check_spec and not seen.touches_border and seen.size != declared:
         bigger = "larger" if seen.size[0] >= declared[0] and seen.size[1] >= declared[1] else "other"
         return failed_detection(f"the image shows a chessboard of {seen.rows}x{seen.cols} inner corners, {bigger} "
                                 f"than the target's {target.rows}x{target.cols}; searched once the board spec is "

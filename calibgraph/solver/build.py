@@ -9,7 +9,8 @@ through one worker pool (:class:`~calibgraph.detect.stream.OrderedPool`), both c
 the first frame to the last, in this order of priority:
 
 1. a *survey*: the views of ``SURVEY_CAPTURES`` captures spread over the run are detected blind,
-   without up-scaling (an empty frame then costs little more than its decoding). These first
+   without up-scaling, and only where a quick probe sees a chessboard (an empty frame then costs
+   little more than its decoding; every survey miss gets a second look, guided or deep). These first
    frames of every camera also decide whether the board spec is wrong
    (:mod:`calibgraph.detect.spec_check`): then the run stops with one line naming the likely cause;
 2. as soon as a camera has ``PLACE_VIEWS`` survey detections, a coarse solve of the survey so far
@@ -53,7 +54,7 @@ GUIDED_MIN_VIEWS = 48   # fewer undetected views than this: a blind pass costs l
 SURVEY_CAPTURES = 24    # captures detected blind to place the cameras
 PLACE_VIEWS = 6         # survey detections of a camera at which a coarse solve places it
 SPOT_CHECK_EVERY = 8    # of the frames predicted far out of view, those of every n-th capture are read
-GUIDED_CACHE_TAG = "guided-2"
+GUIDED_CACHE_TAG = "guided-3"
 _PRIORITY = ("survey", "deep", "guided", "blind")
 
 
@@ -203,7 +204,7 @@ class _GuidedRun:
                 self.unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
                 return unreadable
             return look_blind(frame, ds.target, intr, check_spec=check_spec,
-                              **({"upscale": 1} if kind == "survey" else {"bounded": True}))
+                              **({"upscale": 1, "gate": True} if kind == "survey" else {"bounded": True}))
         except (cv2.error, ValueError, MemoryError) as e:
             return unusable(ds.target, path, e)
 
