@@ -149,7 +149,7 @@ class _GuidedRun:
         self.counts = Counter()
         self.unreadable = set()
         self.deferred = set()      # survey frames the spec check put off
-        self.full_search = set()   # frames to search without the spec check's probe
+        self.sampled = set()       # frames the spec check wants searched in full, without the probe
         self.cache = DetectionCache(ds, owner.cache, {"guided": GUIDED_CACHE_TAG})
         self.cache_problems = []
         self.check = BoardSpecCheck(ds.target, {c: sum(v.camera == c for v in survey) for c in ds.cameras}) \
@@ -186,11 +186,11 @@ class _GuidedRun:
             if hit is not None:
                 pool.put(job + (True,), hit)
             else:
-                check_spec = (kind in ("survey", "deep") and self.check is not None and self.check.searching
-                              and (v.camera, v.capture) not in self.full_search)
-                pool.submit(job + (False,), self._work, kind, v, hint, check_spec)
+                sampled = (v.camera, v.capture) in self.sampled
+                check_spec = kind in ("survey", "deep") and self.check is not None and self.check.searching and not sampled
+                pool.submit(job + (False,), self._work, kind, v, hint, check_spec, not sampled)
 
-    def _work(self, kind, v, hint, check_spec):
+    def _work(self, kind, v, hint, check_spec, gate):
         import cv2
 
         ds = self.ds
@@ -204,7 +204,7 @@ class _GuidedRun:
                 self.unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
                 return unreadable
             return look_blind(frame, ds.target, intr, check_spec=check_spec,
-                              **({"upscale": 1, "gate": True} if kind == "survey" else {"bounded": True}))
+                              **({"upscale": 1, "gate": gate} if kind == "survey" else {"bounded": True}))
         except (cv2.error, ValueError, MemoryError) as e:
             return unusable(ds.target, path, e)
 
@@ -257,7 +257,7 @@ class _GuidedRun:
         redo = sample if sample else (set(self.deferred) if self.check.settled else set())
         if not redo:
             return
-        self.full_search |= redo
+        self.sampled |= sample  # searched in full, without the probe, before the spec is judged
         self.deferred -= redo
         self.queues["survey"].extend(("survey", self.views[k], None) for k in sorted(redo))
         if self.bar is not None:
