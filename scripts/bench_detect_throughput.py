@@ -237,15 +237,18 @@ json.dump({f"{c}|{k}": [d.ids.tolist(), d.uv_px.tolist()] for (c, k), d in det.r
 
 def detections_of(root: Path, tree: Path, out: Path) -> dict:
     """The views ``calibgraph solve`` detects in ``root`` with the code of ``tree`` (cache cleared):
-    (camera, capture) -> (ids, uv_px), and the wall time it took."""
+    (camera, capture) -> (ids, uv_px), and the wall and CPU time it took."""
     shutil.rmtree(root / ".calibgraph_cache", ignore_errors=True)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-c", _DETECT_SNIPPET, str(root), str(out)], check=True,
                    env=dict(os.environ, PYTHONPATH=str(tree)))
     wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     raw = json.loads(out.read_text())
     return {(k.split("|")[0], int(k.split("|")[1])): (np.asarray(i, int), np.asarray(u, float).reshape(-1, 2))
-            for k, (i, u) in raw.items()}, wall
+            for k, (i, u) in raw.items()}, (wall, cpu)
 
 
 def scale_errors(root: Path, dets: dict) -> dict:
@@ -284,7 +287,7 @@ def compare(root: Path, work: Path, other_tree: Path) -> dict:
     return {"other_tree": str(other_tree), "found_this": len(mine), "found_other": len(other), "both": len(both),
             "same_ids": len(diffs), "max_abs_diff_px": max(diffs) if diffs else None,
             "median_abs_diff_px": float(np.median(diffs)) if diffs else None,
-            "wall_this_s": t_mine, "wall_other_s": t_other,
+            "wall_this_s": t_mine[0], "wall_other_s": t_other[0], "cpu_this_s": t_mine[1], "cpu_other_s": t_other[1],
             "scale_this": _scale_summary(scale_errors(root, mine)),
             "scale_other": _scale_summary(scale_errors(root, other)),
             "scale_this_on_both": _scale_summary(scale_errors(root, {k: mine[k] for k in both})),
@@ -362,7 +365,8 @@ def report(out: dict) -> str:
                   f"{cmp['found_this']} here / {cmp['found_other']} there ({cmp['both']} both, {cmp['same_ids']} with the "
                   f"same ids; corner difference median {cmp['median_abs_diff_px']:.2g} px, max "
                   f"{cmp['max_abs_diff_px']:.2g} px); detection wall {cmp['wall_this_s']:.1f} s here / "
-                  f"{cmp['wall_other_s']:.1f} s there.", "",
+                  f"{cmp['wall_other_s']:.1f} s there, CPU {cmp.get('cpu_this_s', float('nan')):.1f} s here / "
+                  f"{cmp.get('cpu_other_s', float('nan')):.1f} s there.", "",
                   "| radial scale error vs exact truth (views both found) | views | mean ± s.e. | median corner RMS px |",
                   "|---|---|---|---|",
                   f"| this tree | {a['views']} | {a['scale_mean']:+.1e} ± {a['scale_se']:.1e} | {a['rms_px_median']:.3f} |",
