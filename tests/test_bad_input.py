@@ -189,6 +189,14 @@ def _arg_cases(base):
          "not a rosbag2 folder"),
         ("capture --verify: no --result", ["capture", "--verify", "--workcell", spec, "--out", base / "c"], 2,
          "needs --result"),
+        ("solve: --pixel-sigma 0", ["solve", ds, "--pixel-sigma", "0", "--out", base / "x.json"], 2,
+         "must be a positive number"),
+        ("solve: --fk-sigma-mm 0", ["solve", ds, "--fk-sigma-mm", "0", "--out", base / "x.json"], 2,
+         "must be a positive number"),
+        ("solve: --intrinsics without NAME=", ["solve", ds, "--intrinsics", spec, "--out", base / "x.json"], 2,
+         "expected NAME=CAM.yaml"),
+        ("solve: --intrinsics given a file that is not a camera file",
+         ["solve", ds, "--intrinsics", f"cam0={spec}", "--out", base / "x.json"], 2, ["spec.yaml", "missing key 'fx'"]),
     ]
 
 

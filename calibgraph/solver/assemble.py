@@ -9,7 +9,7 @@ from calibgraph.core.errors import CalibgraphError, ObservabilityError
 from calibgraph.core.problem import Problem
 from calibgraph.core.transforms import inv
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.budget import advice, budgets
+from calibgraph.solver.budget import advice, budgets, doubled_information
 from calibgraph.solver.reduced import Linear
 from calibgraph.solver.session_plan import predict_session_covariance
 from calibgraph.solver.camera_model import intrinsics_record
@@ -46,9 +46,10 @@ def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
     """name -> ``CameraResult.error_budget`` of the group's cameras (see :mod:`calibgraph.solver.budget`)."""
     est = group.est
     keys = {n: (C(est.slots[n]), K(est.slots[n]) if est.values.exists(K(est.slots[n])) else None) for n in group.names}
-    out = {}
+    out, doubled = {}, doubled_information(lin)
     for n, b in budgets(lin, keys).items():
-        out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=_session_information(problem, est, n)))
+        out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=_session_information(problem, est, n),
+                                  doubled=doubled))
     return out
 
 

@@ -63,25 +63,28 @@ def budgets(L: Linear, cameras: dict) -> dict:
     return out
 
 
-def _doubled_data(L: Linear) -> dict:
-    """The change of the global information were every capture's data (corners, FK) doubled: the
-    Schur complement of the data doubles, the global priors (intrinsics, scale, offsets) stay."""
+def doubled_information(L: Linear) -> np.ndarray:
+    """The global information were every capture's data (corners, FK) doubled: the Schur complement
+    of the data doubles, the global priors (intrinsics, scale, offsets) stay."""
     P = np.zeros_like(L.S)
     for src, keys, blocks in L.factors:
         if len(keys) == 1 and keys[0] in L.index and src != "corners":
             k = keys[0]
             P[L.index[k], L.index[k]] += blocks[k].T @ blocks[k]
-    return L.S - P  # add this once more: 2 (S - P) + P
+    return 2.0 * L.S - P  # 2 (S - P) + P
 
 
-def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_info=None) -> str:
+def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_info=None,
+           doubled: np.ndarray | None = None) -> str:
     """One line with numbers: what would shrink camera ``name``'s 1-sigma most, judged by what the
     camera's 1-sigma would become after each remedy: a close-range intrinsics session, twice the
     poses, the board's scale measured.
 
     ``session_info``: the (6, 6) information on the camera's [fx, fy, cx, cy, k1, k2] that a
     close-range session of 25 images gives (or a callable returning it, called only when a session
-    could be the best remedy); without it, the intrinsics known exactly, the best any session can do."""
+    could be the best remedy); without it, the intrinsics known exactly, the best any session can do.
+    ``doubled``: :func:`doubled_information` of ``L`` (computed here when not given; one per graph
+    serves every camera)."""
     top = max(b.shares, key=b.shares.get)
     head = f"{name}: {100 * b.shares[top]:.0f} % of its {b.sigma_mm:.2f} mm 1σ is " + {
         "corners": "corner noise", "intrinsics": "the intrinsics' prior" if b.own_intrinsics < 0.5 * b.shares["intrinsics"]
@@ -91,7 +94,7 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
     has_K = own_K_key is not None and own_K_key in L.prior_K
     if has_K:  # the bound first: intrinsics known exactly
         options["session"] = sigma_with(L, cam_key, add_info={own_K_key: np.eye(6) * 1e12 - L.prior_K[own_K_key]})
-    options["poses"] = sigma_with(L, cam_key, S=L.S + _doubled_data(L))
+    options["poses"] = sigma_with(L, cam_key, S=doubled if doubled is not None else doubled_information(L))
     s_keys = [k for k in L.index if chr(gtsam.Symbol(k).chr()) == "s"]
     if s_keys and b.shares["board"] > 0.05:
         options["board"] = sigma_with(L, cam_key, add_info={k: np.eye(1) * 1e12 for k in s_keys})
