@@ -35,7 +35,7 @@ intrinsics): per view the radial scale error (least-squares scale of the error a
 centroid), the RMS, the tails, and how far from the image centre they reach. Board scale: the
 estimate against the printed truth (1).
 
-    MUJOCO_GL=egl python scripts/bench_rendered_sigma.py run --seeds 0-29
+    MUJOCO_GL=egl python scripts/bench_rendered_sigma.py run --seeds 0-39
     python scripts/bench_rendered_sigma.py solve --cases iid,iid_view,signflip,factory_plain
     python scripts/bench_rendered_sigma.py report
 
@@ -533,7 +533,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("stage", choices=("run", "render", "solve", "report"))
     ap.add_argument("--cell", default="l515_3m", choices=sorted(CELLS))
-    ap.add_argument("--seeds", default="0-29")
+    ap.add_argument("--seeds", default="0-39")
     ap.add_argument("--poses", type=int, default=None, help="poses per seed (default: the cell's)")
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK, help="cache of rendered seeds and solves")
     ap.add_argument("--cases", default="factory,oracle", help=f"comma-separated, of {', '.join(CASES)}")
