@@ -75,6 +75,7 @@ CASES = {
     "factory": "the intrinsics the cameras report (factory-class errors, source: factory), default flags: the "
                "realistic case",
     "oracle": "the true intrinsics held (source: exact): an oracle's figure",
+    "plain": "the true intrinsics in a plain file (no source stated: the solver's default prior), default flags",
     "iid": "control: the same views, corners replaced by true projections + i.i.d. Gaussian noise of the camera's "
            "detector RMS; factory intrinsics, default flags",
     "iid_view": "control: as iid, with each view's noise at that view's own detector RMS (heteroscedastic across "
@@ -220,6 +221,8 @@ def solve_case(root: Path, case: str, seed: int) -> dict:
     ds = load_dataset(root)
     if case.startswith("oracle"):
         ds = replace(ds, cameras={n: replace(gt["intrinsics_true"][n], source="exact") for n in ds.cameras})
+    elif case == "plain":
+        ds = replace(ds, cameras={n: replace(gt["intrinsics_true"][n], source="") for n in ds.cameras})
     opts = dict(ds.solver)
     if case.endswith("_fk"):
         robot = gt["raw"]["robot"]
