@@ -88,6 +88,38 @@ def view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr:
     return e, (H_c, H_f, H_b)
 
 
+def _cross_last(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """cross(a[..., r, :], p[...]) for a (..., 2, 3) and p (..., 3)."""
+    px, py, pz = p[..., None, 0], p[..., None, 1], p[..., None, 2]
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    return np.stack([ay * pz - az * py, az * px - ax * pz, ax * py - ay * px], axis=-1)
+
+
+def padded_view_residuals(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w):
+    """:func:`view_residual` of V views of one camera at once, their corners padded to N.
+
+    ``T_ref_cam`` (4, 4) or (V, 4, 4), ``T_ref_mount`` (V, 4, 4), ``p_board_m`` (V, N, 3), ``uv_px``
+    (V, N, 2), ``sqrt_w`` (V, N) including 1 / sigma_px, 0 on padding (whose points must be finite
+    ones of the view). Returns e (V, 2N) and the Jacobians on the camera and the robot pose
+    (V, 2N, 6), rows ordered as :func:`view_residual` orders them."""
+    V, N = sqrt_w.shape
+    T_rc = np.broadcast_to(T_ref_cam, (V, 4, 4))
+    R_rc, t_rc = T_rc[:, :3, :3], T_rc[:, :3, 3]
+    R_rm, t_rm = T_ref_mount[:, :3, :3], T_ref_mount[:, :3, 3]
+    p_m = p_board_m @ T_mount_board[:3, :3].T + T_mount_board[:3, 3]
+    p_r = p_m @ R_rm.transpose(0, 2, 1) + t_rm[:, None]
+    p_c = (p_r - t_rc[:, None]) @ R_rc
+    p_c_safe = p_c.copy()
+    p_c_safe[..., 2] = np.maximum(p_c_safe[..., 2], _MIN_DEPTH_M)
+    uv, Jp = intr.project(p_c_safe.reshape(-1, 3), with_jacobian=True)
+    e = ((uv.reshape(V, N, 2) - uv_px) * sqrt_w[..., None]).reshape(V, 2 * N)
+    Jp = Jp.reshape(V, N, 2, 3) * sqrt_w[..., None, None]
+    H_c = np.concatenate([_cross_last(Jp, p_c), -Jp], axis=-1)
+    JF = Jp @ (R_rc.transpose(0, 2, 1) @ R_rm)[:, None]
+    H_f = np.concatenate([-_cross_last(JF, p_m), JF], axis=-1)
+    return e, H_c.reshape(V, 2 * N, 6), H_f.reshape(V, 2 * N, 6)
+
+
 def make_view_factor(key_cam, key_robot, key_mount, p_board_m: np.ndarray, uv_px: np.ndarray, intr: Intrinsics,
                      sqrt_w: np.ndarray, noise=None) -> gtsam.CustomFactor:
     """A CustomFactor for one view (keys: camera pose, robot pose, board mount). ``noise``: the
