@@ -47,9 +47,10 @@ def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
     est = group.est
     keys = {n: (C(est.slots[n]), K(est.slots[n]) if est.values.exists(K(est.slots[n])) else None) for n in group.names}
     out, doubled = {}, doubled_information(lin)
+    doubled_cov = np.linalg.inv(doubled)  # one inverse for every camera's "twice the poses"
     for n, b in budgets(lin, keys).items():
         out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=_session_information(problem, est, n),
-                                  doubled=doubled))
+                                  doubled=doubled, doubled_cov=doubled_cov))
     return out
 
 
