@@ -26,14 +26,14 @@ linearisation of the views, not a solve per camera.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
 from calibgraph.core.transforms import pose_error
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.factors import fk_noise, padded_view_residuals, view_residual
+from calibgraph.solver.factors import fk_noise, pad_views, padded_view_residuals
 from calibgraph.solver.robust import loss_weights
 
 MIN_GROUP_VIEWS = 2     # a side of a split needs this many views (one view is a single outlier, not a pose)
@@ -127,8 +127,8 @@ def _robot_pose_terms(problem, views, est, sigma_px: float) -> tuple[dict, dict]
     active = [v for v in views if v.active and v.camera in est.T_ref_cam]
     for name in dict.fromkeys(v.camera for v in active):  # one camera's views at once
         mine = [v for v in active if v.camera == name]
-        P, UV, valid = _padded([_kept(v) for v in mine], est.board_scale)
-        sw = np.sqrt(_padded_weights(mine, valid.shape[1])) / sigma_px
+        P, UV, _, W = pad_views(mine, est.board_scale, kept_only=True)
+        sw = np.sqrt(W) / sigma_px
         T_F = np.array([est.T_ref_mount.get(v.capture, v.T_ref_mount) for v in mine])
         e, _, J_f = padded_view_residuals(est.T_ref_cam[name], T_F, est.T_mount_board, P, UV,
                                           est.camera_model(name, problem.cameras), sw)
@@ -142,34 +142,8 @@ def _robot_pose_terms(problem, views, est, sigma_px: float) -> tuple[dict, dict]
     return per_capture, per_view
 
 
-def _padded(views: list, scale: float) -> tuple:
-    """The views' corners padded to the largest view: (points (V, N, 3), pixels (V, N, 2), valid
-    (V, N)); a padding slot repeats the view's first corner (finite) and is never valid."""
-    N = max(1, max(len(v.ids) for v in views))
-    P, UV, valid = np.empty((len(views), N, 3)), np.empty((len(views), N, 2)), np.zeros((len(views), N), bool)
-    for i, v in enumerate(views):
-        n = len(v.ids)
-        P[i, :n], UV[i, :n], valid[i, :n] = scale * v.p_board_m, v.uv_px, True
-        P[i, n:], UV[i, n:] = (P[i, 0], UV[i, 0]) if n else (0.0, 0.0)
-    return P, UV, valid
-
-
-def _kept(v):
-    """View ``v`` with its kept corners only (weights as ``w``)."""
-    keep = v.kept
-    return replace(v, ids=v.ids[keep], p_board_m=v.p_board_m[keep], uv_px=v.uv_px[keep], w=v.w[keep])
-
-
-def _padded_weights(views: list, N: int) -> np.ndarray:
-    """(V, N) the views' corner weights, 0 on padding."""
-    W = np.zeros((len(views), N))
-    for i, v in enumerate(views):
-        W[i, :len(v.ids)] = v.w
-    return W
-
-
 def _view_tangents(padded: tuple, T_lin, T_F, est, intr, sigma_px, A, d, opts, passes: int = 3):
-    """Every view of one camera at once (``padded``: :func:`_padded`; ``T_F`` (V, 4, 4), ``A`` (V, 6, 6),
+    """Every view of one camera at once (``padded``: (points, pixels, valid) of :func:`pad_views`; ``T_F`` (V, 4, 4), ``A`` (V, 6, 6),
     ``d`` (V, 6)): (ok (V,) bool, zeta (V, 6), information (V, 6, 6), weighted squared residual in sigmas
     (V,), residual count (V,)) of the camera pose each view implies at ``T_lin``, the robot pose at
     ``T_F`` + ``d`` with information ``A`` (prior and the other cameras), each view's corners
@@ -237,7 +211,7 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
             rho = np.asarray(gtsam.Pose3.Logmap(_pose(centre[v.capture]).between(_pose(T_F[i]))))
             A[i], g[i] = R.T @ R, R.T @ R @ rho
     d = -np.linalg.solve(A, g[..., None])[..., 0]
-    padded = _padded(mine, est.board_scale)
+    padded = pad_views(mine, est.board_scale)[:3]
     for _ in range(3):
         ok, zeta, info, rss, n_obs = _view_tangents(padded, T_lin, T_F, est, intr, sigma_px, A, d, problem.options)
         if ok.sum() < 2 * MIN_GROUP_VIEWS:

@@ -95,6 +95,23 @@ def _cross_last(a: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.stack([ay * pz - az * py, az * px - ax * pz, ax * py - ay * px], axis=-1)
 
 
+def pad_views(views: list, scale: float = 1.0, kept_only: bool = False) -> tuple:
+    """Views' corners padded to the largest view, for :func:`padded_view_residuals`: (points
+    ``scale * p_board_m`` (V, N, 3), pixels (V, N, 2), valid (V, N), the corners' weights ``w`` (V, N),
+    0 on padding). ``kept_only``: each view's kept corners only (non-zero weight), in order. A
+    padding slot repeats the view's first corner (finite)."""
+    sel = [v.kept if kept_only else np.ones(len(v.ids), bool) for v in views]
+    N = max([1] + [int(m.sum()) for m in sel])
+    V = len(views)
+    P, UV, valid, W = np.zeros((V, N, 3)), np.zeros((V, N, 2)), np.zeros((V, N), bool), np.zeros((V, N))
+    for i, (v, m) in enumerate(zip(views, sel)):
+        n = int(m.sum())
+        P[i, :n], UV[i, :n], valid[i, :n], W[i, :n] = scale * v.p_board_m[m], v.uv_px[m], True, v.w[m]
+        if n:
+            P[i, n:], UV[i, n:] = P[i, 0], UV[i, 0]
+    return P, UV, valid, W
+
+
 def padded_view_residuals(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w):
     """:func:`view_residual` of V views of one camera at once, their corners padded to N.
 
