@@ -34,6 +34,7 @@ from calibgraph.solver import kinematics as kin
 from calibgraph.solver.factors import ViewTerm, fk_noise, intrinsics_vector, make_capture_factor, with_pinhole
 from calibgraph.solver.keys import B, C, F, K, O, S
 from calibgraph.solver.noise_model import MODE_MIN_CORNERS, view_mode_basis
+from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.timing import timed
 from calibgraph.solver.views import residual_norms
 
@@ -67,6 +68,7 @@ class Estimate:
     fk_ratio: object | None = None  # fk_check.FkRatio of the final graph
     graph: object | None = field(default=None, repr=False)  # the final graph and its values (error budget)
     values: object | None = field(default=None, repr=False)
+    linear: object | None = field(default=None, repr=False)  # reduced.Linear of the final graph, when formed
 
     def camera_model(self, name: str, cameras: dict) -> Intrinsics:
         """The intrinsics camera ``name`` is projected with: estimated, else given (``cameras``)."""
@@ -242,6 +244,20 @@ def marginals(graph, values, form: str, timings: dict | None = None) -> Marginal
             f"covariance could not be computed ({str(e).splitlines()[0][:120]}): the views leave a parameter "
             "undetermined; add poses with the board tilted about different axes."
         ) from None
+
+
+def reduced_marginals(graph, values, timings: dict | None = None):
+    """(the Schur-reduced linearisation of a solved view graph (:mod:`calibgraph.solver.reduced`,
+    which the error budget reads too), its marginals): one linearisation, and only the few global
+    variables' covariance formed. A graph whose reduced information is not positive definite goes
+    to :func:`marginals` (which refuses a singular one with advice): (None, its marginals)."""
+    with timed(timings, "marginals"):
+        try:
+            L = linearise_graph(graph, values)
+            return L, L.marginals(values.keys())
+        except np.linalg.LinAlgError:
+            pass
+    return None, marginals(graph, values, "view", timings)
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,11 @@ class Linear:
         """``S^-1``: the joint covariance of the global variables (computed once)."""
         return _inverse(self.S)
 
+    def marginals(self, keys) -> "ReducedMarginals":
+        """Marginal covariances of the graph's variables (``keys``: all of them) from this reduction;
+        raises LinAlgError when the information is not positive definite."""
+        return ReducedMarginals(self, set(keys))
+
     def step_gain(self, free: list) -> float:
         """Decrease of the linearised cost by the Gauss-Newton step of the global variables ``free``
         (keys) with the locals re-fitted and every other global variable held."""
@@ -172,3 +177,37 @@ def _inverse(S: np.ndarray) -> np.ndarray:
     """The covariance of an information matrix (symmetrised)."""
     C = np.linalg.inv(S)
     return 0.5 * (C + C.T)
+
+
+class ReducedMarginals:
+    """The marginals a :class:`~calibgraph.solver.graph.Marginals` gives, from a :class:`Linear`:
+    the global variables' joint covariance is ``S^-1``; a local variable's adds what it does not
+    share, ``H_ll^-1 + H_ll^-1 H_lg Sigma_gg H_gl H_ll^-1``."""
+
+    def __init__(self, L: Linear, keys: set):
+        np.linalg.cholesky(L.S)  # LinAlgError when the graph leaves a direction undetermined
+        self._L, self._keys = L, keys
+
+    def _rows(self, keys) -> np.ndarray:
+        return np.concatenate([np.arange(self._L.index[k].start, self._L.index[k].stop) for k in keys])
+
+    def marginalCovariance(self, key) -> np.ndarray:  # noqa: N802 - mirrors gtsam.Marginals
+        L = self._L
+        if key in L.index:
+            r = self._rows([key])
+            return L.covariance[np.ix_(r, r)]
+        inv, lg = L.locals_[key]
+        if not lg:
+            return inv
+        B = np.hstack([lg[g] for g in lg])
+        r = self._rows(list(lg))
+        return inv + inv @ B @ L.covariance[np.ix_(r, r)] @ B.T @ inv
+
+    def has(self, key) -> bool:
+        """True when ``key`` is a variable of the graph."""
+        return key in self._keys
+
+    def joint(self, keys) -> np.ndarray:
+        """Joint covariance of the global variables ``keys``, in the order given."""
+        r = self._rows(list(keys))
+        return self._L.covariance[np.ix_(r, r)]
