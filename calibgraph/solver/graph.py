@@ -31,7 +31,7 @@ from calibgraph.core.errors import InputError, ObservabilityError
 from calibgraph.core.problem import Problem, intrinsics_estimated, intrinsics_prior_covariance
 from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.factors import ViewTerm, fk_noise, intrinsics_vector, make_capture_factor, with_pinhole
+from calibgraph.solver.factors import ViewTerm, fk_noise, intrinsics_vector, make_capture_factors, with_pinhole
 from calibgraph.solver.keys import B, C, F, K, O, S
 from calibgraph.solver.noise_model import MODE_MIN_CORNERS, view_mode_basis
 from calibgraph.solver.reduced import linearise_graph
@@ -191,7 +191,8 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
             terms.append(ViewTerm(C(slots[v.camera]), K(slots[v.camera]) if v.camera in refine else None,
                                   problem.cameras[v.camera], v.p_board_m[keep], v.uv_px[keep],
                                   np.sqrt(v.w[keep]) / sigma_px, modes, f))
-        graph.add(make_capture_factor(F(k), B(0), S(0) if o.board_scale else None, terms))
+        for f in make_capture_factors(F(k), B(0), S(0) if o.board_scale else None, terms):
+            graph.add(f)
     return graph, values
 
 
@@ -275,35 +276,66 @@ class LMRun:
 # the estimate is then within sqrt(2 * 1e-4) ~ 0.014 sigma (Mahalanobis, all variables together) of
 # the optimum, and the iteration that would only confirm it is not run.
 PREDICTED_DECREASE_TOL = 1e-4
+# GTSAM's LevenbergMarquardtParams defaults, which the loop below follows
+LAMBDA_INITIAL, LAMBDA_FACTOR, LAMBDA_MAX, MIN_MODEL_FIDELITY = 1e-5, 10.0, 1e5, 1e-3
+REL_ERROR_TOL, ABS_ERROR_TOL = 1e-9, 1e-12
+
+
+def _damping(values, lam: float) -> gtsam.GaussianFactorGraph:
+    """LM's damping: a prior sqrt(lambda) I on every variable's tangent (GTSAM's, without diagonal damping)."""
+    out = gtsam.GaussianFactorGraph()
+    zero = values.zeroVectors()
+    for k in values.keys():
+        d = zero.at(k).shape[0]
+        out.push_back(gtsam.JacobianFactor(k, np.eye(d), np.zeros(d), gtsam.noiseModel.Isotropic.Sigma(d, 1.0 / np.sqrt(lam))))
+    return out
 
 
 def levenberg_marquardt(graph, values, max_iterations, form: str = "view") -> LMRun:
-    """One LM run with the solver's elimination ordering, stopped on GTSAM's error tolerances or on
-    :data:`PREDICTED_DECREASE_TOL`. A singular system raises ObservabilityError."""
-    params = gtsam.LevenbergMarquardtParams()
-    params.setOrdering(ordering(values, form))
-    params.setMaxIterations(max_iterations)
-    rel_tol, abs_tol = 1e-9, 1e-12
-    params.setRelativeErrorTol(rel_tol)
-    params.setAbsoluteErrorTol(abs_tol)
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    error, last, stop = opt.error(), None, False
-    try:
-        while opt.iterations() < max_iterations and not stop and np.isfinite(error):
-            opt.iterate()
-            new = opt.error()
-            drop = error - new
-            stop = drop <= abs_tol or drop <= rel_tol * error or (
-                last is not None and drop < 0.1 * last and drop * drop / last < PREDICTED_DECREASE_TOL)
-            error, last = new, drop
-    except RuntimeError as e:  # gtsam's IndeterminantLinearSystemException surfaces as RuntimeError
-        raise ObservabilityError(
-            f"the calibration graph is singular ({str(e).splitlines()[0][:120]}); some parameter is not "
-            "determined by the views: add poses with the board tilted about different axes."
-        ) from None
-    out = opt.values()
-    error = graph.error(out)
-    return LMRun(out, opt.iterations(), error, bool(np.isfinite(error) and opt.iterations() < max_iterations))
+    """One LM run with the solver's elimination ordering: GTSAM's Levenberg-Marquardt (its lambda
+    policy, model-fidelity test and error tolerances), stopped too on :data:`PREDICTED_DECREASE_TOL`.
+
+    The loop is run here, on GTSAM's linearisation and linear solver, rather than by
+    ``gtsam.LevenbergMarquardtOptimizer``: inside that optimizer every Python factor's call receives a
+    copy of all the values, which on a large cell costs more than the solve. A singular system
+    raises ObservabilityError."""
+    order = ordering(values, form)
+    error, lam, iterations, last, stop = graph.error(values), LAMBDA_INITIAL, 0, None, False
+    while iterations < max_iterations and not stop and np.isfinite(error):
+        lin = graph.linearize(values)
+        accepted, solved = None, False
+        while accepted is None and lam < LAMBDA_MAX:
+            damped = gtsam.GaussianFactorGraph()
+            damped.push_back(lin)
+            damped.push_back(_damping(values, lam))
+            try:
+                delta = damped.optimize(order)
+                solved = True
+            except RuntimeError:  # indeterminant even with this damping: damp more
+                lam *= LAMBDA_FACTOR
+                continue
+            lin_drop = error - lin.error(delta)
+            if lin_drop >= 0:
+                new_values = values.retract(delta)
+                new_error = graph.error(new_values)
+                if lin_drop <= np.finfo(float).eps * error or (error - new_error) / lin_drop > MIN_MODEL_FIDELITY:
+                    accepted = (new_values, new_error)
+                    lam = lam / LAMBDA_FACTOR
+                    break
+            lam *= LAMBDA_FACTOR
+        iterations += 1
+        if accepted is None:  # no lambda decreases the error: at the optimum (or the system is singular)
+            if not solved:
+                raise ObservabilityError(
+                    "the calibration graph is singular: some parameter is not determined by the views: add poses "
+                    "with the board tilted about different axes.")
+            break
+        drop = error - accepted[1]
+        values, error = accepted
+        stop = drop <= ABS_ERROR_TOL or drop <= REL_ERROR_TOL * (error + drop) or (
+            last is not None and drop < 0.1 * last and drop * drop / last < PREDICTED_DECREASE_TOL)
+        last = drop
+    return LMRun(values, iterations, error, bool(np.isfinite(error) and iterations < max_iterations))
 
 
 def extract(values, slots, views, est: Estimate, cameras: dict, form: str = "view") -> Estimate:
