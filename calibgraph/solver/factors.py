@@ -288,7 +288,7 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
     vi = np.repeat(np.arange(n_views), counts)  # view of each corner
     static = np.array([[t.intr.K[0, 1], *t.intr.dist8] for t in terms])  # skew, k1..k6 as given
     estimated = np.array([t.key_intr is not None for t in terms])
-    cache = {"inputs": None, "jacobians": False, "e": None, "H": None}
+    cache = {"inputs": None, "jacobians": False, "e": None, "H": None}  # inputs: each view's fingerprint
 
     def shared_inputs(values):
         T_rm = values.atPose3(key_robot).matrix()
@@ -298,6 +298,10 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
 
     def own_inputs(values, t):
         return values.atPose3(t.key_cam).matrix(), (values.atVector(t.key_intr) if t.key_intr is not None else None)
+
+    def fingerprint(shared, own) -> bytes:  # exact: the inputs' bytes
+        return b"".join(a.tobytes() for a in (*shared[:2], np.float64(shared[2]), own[0])) + (
+            b"" if own[1] is None else np.asarray(own[1], float).tobytes())
 
     def compute(values, shared, want_jacobians: bool):
         T_rm, T_mb, scale = shared
@@ -351,15 +355,7 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
                 es[v] = es[v] - c * (Q @ (Q.T @ es[v]))
                 if H is not None:
                     H[v] = [A - c * (Q @ (Q.T @ A)) for A in H[v]]
-        cache.update(inputs=(shared, own), jacobians=want_jacobians, e=es, H=H)
-
-    def valid_for(v: int, shared, mine, want_jacobians: bool) -> bool:
-        if cache["inputs"] is None or (want_jacobians and not cache["jacobians"]):
-            return False
-        (T_rm, T_mb, scale), own = cache["inputs"]
-        T_rc, k6 = own[v]
-        return (scale == shared[2] and np.array_equal(T_rm, shared[0]) and np.array_equal(T_mb, shared[1])
-                and np.array_equal(T_rc, mine[0]) and (k6 is None or np.array_equal(k6, mine[1])))
+        cache.update(inputs=[fingerprint(shared, o) for o in own], jacobians=want_jacobians, e=es, H=H)
 
     def factor(v: int, t) -> gtsam.CustomFactor:
         keys = [key_robot, key_mount] + ([key_scale] if key_scale is not None else []) + [t.key_cam]
@@ -367,7 +363,8 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
 
         def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
             shared = shared_inputs(values)
-            if not valid_for(v, shared, own_inputs(values, t), H is not None):
+            if (cache["inputs"] is None or (H is not None and not cache["jacobians"])
+                    or cache["inputs"][v] != fingerprint(shared, own_inputs(values, t))):
                 compute(values, shared, H is not None)
             if H is not None:
                 for i, A in enumerate(cache["H"][v]):
