@@ -14,12 +14,12 @@ from calibgraph.solver.reduced import Linear
 from calibgraph.solver.session_plan import predict_session_covariance
 from calibgraph.solver.camera_model import intrinsics_record
 from calibgraph.solver.covariance import pair_covariance, to_ref_axes
-from calibgraph.solver.factors import project_chain
 from calibgraph.solver.graph import Estimate
 from calibgraph.solver.keys import B, C, K, O, S
 from calibgraph.solver.observability import check_after_solve
 from calibgraph.solver.optimise import Group
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView
+from calibgraph.solver.views import reprojections
 
 
 def view_residuals(name: str, est: Estimate, views: list, cameras: dict) -> tuple[dict, np.ndarray, list]:
@@ -28,9 +28,8 @@ def view_residuals(name: str, est: Estimate, views: list, cameras: dict) -> tupl
     (camera, capture, corner id, residual px))."""
     intr = est.camera_model(name, cameras)
     residuals, kept, rejected_corners = {}, [], []
-    for v in views:
-        uv_hat = project_chain(est.T_ref_cam[name], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
-                               est.board_scale * v.p_board_m, intr)
+    uv_hats = reprojections(views, est.T_ref_cam, est.T_mount_board, est.T_ref_mount, {name: intr}, est.board_scale)
+    for v, uv_hat in zip(views, uv_hats):
         d = uv_hat - v.uv_px
         residuals[v.capture] = {"ids": v.ids, "uv_detected_px": v.uv_px, "residual_px": d,
                                 "weight": v.w.copy(), "rejected": not v.active}

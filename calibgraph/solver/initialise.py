@@ -363,7 +363,7 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_ref_cam: dict, 
     slot = {n: i for i, n in enumerate(names)}
     nu = 3 * (len(names) + 1)
     RY = T_mount_board[:3, :3]
-    blocks = []  # (rows on [t_Z of its camera, t_Y] (m, 6), b (m,), those columns of the unknowns)
+    blocks = []  # (rows on [t_Z of its camera, t_Y] (m, 6), b (m,), its camera's slot)
     for n in names:
         RZ = T_ref_cam[n][:3, :3]
         intr = intr_by_cam[n]
@@ -385,27 +385,39 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_ref_cam: dict, 
                 rows.append(np.hstack([xn[:, None] * MZ[2] - MZ[c], xn[:, None] * MY[2] - MY[c]]))
                 rhs.append(-coef_q)
             G = np.vstack(rows)
-            cols = np.r_[3 * slot[n]: 3 * slot[n] + 3, 3 * len(names): nu]
-            blocks.append((G, np.concatenate(rhs), cols))
+            blocks.append((G, np.concatenate(rhs), slot[n]))
     if len(blocks) < 3:
         return T_ref_cam, T_mount_board
-    use = list(range(len(blocks)))
-    AtA = [blk[0].T @ blk[0] for blk in blocks]
-    Atb = [blk[0].T @ blk[1] for blk in blocks]
+    nb, ns = len(blocks), len(names)
+    slots = np.array([blk[2] for blk in blocks])
+    AtA = np.array([blk[0].T @ blk[0] for blk in blocks])
+    Atb = np.array([blk[0].T @ blk[1] for blk in blocks])
+    G_all = np.concatenate([blk[0] for blk in blocks])
+    b_all = np.concatenate([blk[1] for blk in blocks])
+    owner = np.repeat(np.arange(nb), [len(blk[1]) for blk in blocks])
+    use = np.ones(nb, bool)
     # A weak pull towards the current translations keeps directions the kept views do not determine
     # (a camera whose views all fell out, a mount seen edge-on) where they were instead of singular.
     x0 = np.concatenate([T_ref_cam[n][:3, 3] for n in names] + [T_mount_board[:3, 3]])
+    Y = slice(3 * ns, nu)
     for _ in range(2):
+        N_zz, N_zy = np.zeros((ns, 3, 3)), np.zeros((ns, 3, 3))
+        r_z = np.zeros((ns, 3))
+        np.add.at(N_zz, slots[use], AtA[use, :3, :3])
+        np.add.at(N_zy, slots[use], AtA[use, :3, 3:])
+        np.add.at(r_z, slots[use], Atb[use, :3])
         N, r = np.zeros((nu, nu)), np.zeros(nu)
-        for i in use:
-            cols = blocks[i][2]
-            N[np.ix_(cols, cols)] += AtA[i]
-            r[cols] += Atb[i]
+        for i in range(ns):
+            Z = slice(3 * i, 3 * i + 3)
+            N[Z, Z], N[Z, Y], N[Y, Z], r[Z] = N_zz[i], N_zy[i], N_zy[i].T, r_z[i]
+        N[Y, Y], r[Y] = AtA[use, 3:, 3:].sum(axis=0), Atb[use, 3:].sum(axis=0)
         lam = 1e-9 * max(np.trace(N) / len(N), 1e-12)
         x = np.linalg.solve(N + lam * np.eye(len(N)), r + lam * x0)
-        res = np.array([np.sqrt(np.mean((G @ x[cols] - b) ** 2)) for G, b, cols in blocks])
-        keep = [i for i in range(len(blocks)) if res[i] <= 4.0 * np.median(res) + 1e-9]
-        if keep == use or len(keep) < 3:
+        xb = np.hstack([x[:3 * ns].reshape(ns, 3)[slots], np.broadcast_to(x[Y], (nb, 3))])  # each view's unknowns
+        e = np.einsum("rj,rj->r", G_all, xb[owner]) - b_all
+        res = np.sqrt(np.bincount(owner, e * e, nb) / np.bincount(owner, minlength=nb))
+        keep = res <= 4.0 * np.median(res) + 1e-9
+        if np.array_equal(keep, use) or keep.sum() < 3:
             break
         use = keep
     out = {n: make_T(T_ref_cam[n][:3, :3], x[3 * slot[n]: 3 * slot[n] + 3]) if n in slot else T_ref_cam[n] for n in T_ref_cam}
