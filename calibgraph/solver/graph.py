@@ -276,6 +276,10 @@ class LMRun:
 # the estimate is then within sqrt(2 * 1e-4) ~ 0.014 sigma (Mahalanobis, all variables together) of
 # the optimum, and the iteration that would only confirm it is not run.
 PREDICTED_DECREASE_TOL = 1e-4
+# ... or once an undamped step (lambda at most GN_LAMBDA) decreased the error as its linearisation
+# predicted to within PREDICTED_DECREASE_TOL: the quadratic model holds there, and its minimum, where
+# the step went, is the optimum's to that accuracy.
+GN_LAMBDA = 1e-4
 # GTSAM's LevenbergMarquardtParams defaults, which the loop below follows
 LAMBDA_INITIAL, LAMBDA_FACTOR, LAMBDA_MAX, MIN_MODEL_FIDELITY = 1e-5, 10.0, 1e5, 1e-3
 REL_ERROR_TOL, ABS_ERROR_TOL = 1e-9, 1e-12
@@ -319,7 +323,7 @@ def levenberg_marquardt(graph, values, max_iterations, form: str = "view") -> LM
                 new_values = values.retract(delta)
                 new_error = graph.error(new_values)
                 if lin_drop <= np.finfo(float).eps * error or (error - new_error) / lin_drop > MIN_MODEL_FIDELITY:
-                    accepted = (new_values, new_error)
+                    accepted = (new_values, new_error, lin_drop, lam)
                     lam = lam / LAMBDA_FACTOR
                     break
             lam *= LAMBDA_FACTOR
@@ -330,10 +334,12 @@ def levenberg_marquardt(graph, values, max_iterations, form: str = "view") -> LM
                     "the calibration graph is singular: some parameter is not determined by the views: add poses "
                     "with the board tilted about different axes.")
             break
-        drop = error - accepted[1]
-        values, error = accepted
+        values, new_error, lin_drop, lam_used = accepted
+        drop = error - new_error
+        error = new_error
         stop = drop <= ABS_ERROR_TOL or drop <= REL_ERROR_TOL * (error + drop) or (
-            last is not None and drop < 0.1 * last and drop * drop / last < PREDICTED_DECREASE_TOL)
+            last is not None and drop < 0.1 * last and drop * drop / last < PREDICTED_DECREASE_TOL) or (
+            lam_used <= GN_LAMBDA and abs(drop - lin_drop) < PREDICTED_DECREASE_TOL)
         last = drop
     return LMRun(values, iterations, error, bool(np.isfinite(error) and iterations < max_iterations))
 
