@@ -288,7 +288,8 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
     vi = np.repeat(np.arange(n_views), counts)  # view of each corner
     static = np.array([[t.intr.K[0, 1], *t.intr.dist8] for t in terms])  # skew, k1..k6 as given
     estimated = np.array([t.key_intr is not None for t in terms])
-    cache = {"inputs": None, "jacobians": False, "e": None, "H": None}  # inputs: each view's fingerprint
+    # the last pass: the bytes of the shared keys' values and of each view's own, its residuals and Jacobians
+    cache = {"shared": None, "own": None, "jacobians": False, "e": None, "H": None}
 
     def shared_inputs(values):
         T_rm = values.atPose3(key_robot).matrix()
@@ -299,11 +300,13 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
     def own_inputs(values, t):
         return values.atPose3(t.key_cam).matrix(), (values.atVector(t.key_intr) if t.key_intr is not None else None)
 
-    def fingerprint(shared, own) -> bytes:  # exact: the inputs' bytes
-        return b"".join(a.tobytes() for a in (*shared[:2], np.float64(shared[2]), own[0])) + (
-            b"" if own[1] is None else np.asarray(own[1], float).tobytes())
+    def shared_key(shared) -> bytes:  # exact: the inputs' bytes
+        return shared[0].tobytes() + shared[1].tobytes() + np.float64(shared[2]).tobytes()
 
-    def compute(values, shared, want_jacobians: bool):
+    def own_key(own) -> bytes:
+        return own[0].tobytes() if own[1] is None else own[0].tobytes() + np.asarray(own[1], float).tobytes()
+
+    def compute(values, shared, key: bytes, want_jacobians: bool):
         T_rm, T_mb, scale = shared
         own = [own_inputs(values, t) for t in terms]
         R_rc = np.array([T[:3, :3] for T, _ in own])
@@ -355,7 +358,7 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
                 es[v] = es[v] - c * (Q @ (Q.T @ es[v]))
                 if H is not None:
                     H[v] = [A - c * (Q @ (Q.T @ A)) for A in H[v]]
-        cache.update(inputs=[fingerprint(shared, o) for o in own], jacobians=want_jacobians, e=es, H=H)
+        cache.update(shared=key, own=[own_key(o) for o in own], jacobians=want_jacobians, e=es, H=H)
 
     def factor(v: int, t) -> gtsam.CustomFactor:
         keys = [key_robot, key_mount] + ([key_scale] if key_scale is not None else []) + [t.key_cam]
@@ -363,9 +366,10 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
 
         def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
             shared = shared_inputs(values)
-            if (cache["inputs"] is None or (H is not None and not cache["jacobians"])
-                    or cache["inputs"][v] != fingerprint(shared, own_inputs(values, t))):
-                compute(values, shared, H is not None)
+            key = shared_key(shared)
+            if (cache["own"] is None or (H is not None and not cache["jacobians"]) or cache["shared"] != key
+                    or cache["own"][v] != own_key(own_inputs(values, t))):
+                compute(values, shared, key, H is not None)
             if H is not None:
                 for i, A in enumerate(cache["H"][v]):
                     H[i] = A
