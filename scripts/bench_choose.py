@@ -2,7 +2,7 @@
 """How long does the autonomous loop take to choose the next pose (target: < 1 s on 2 cores)?
 
 Runs ``calibgraph capture --auto``'s loop (:func:`calibgraph.acquire.auto.run_auto`, placements
-unknown, synthetic corners at 0.05 px as in ``bench_planning.py``) on simulated cells and seeds,
+unknown, synthetic corners at 0.02 px as in ``bench_planning.py``) on simulated cells and seeds,
 and reports per run the time of every active choice (:meth:`calibgraph.plan.active.ActivePlanner.choose`,
 as logged in ``plan_log.json``: ``choose_time_s``), split into the candidate top-up (IK, collision
 and keep-out checks), the scoring (visibility + information of every pool candidate) and the rest
@@ -51,7 +51,7 @@ from calibgraph.sim.render import SimWorld  # noqa: E402
 from calibgraph.sim.corner_devices import corner_devices  # noqa: E402
 from calibgraph.sim.workcell import workcell_from_dict  # noqa: E402
 
-PIXEL_SIGMA_PX = 0.05
+PIXEL_SIGMA_PX = 0.02
 
 
 class _Timer:
@@ -186,7 +186,7 @@ def main(argv=None):
     md = ["# bench_choose: time to choose the next pose in the autonomous loop (target < 1 s on 2 cores)", "",
           f"`nice -n 10 python scripts/bench_choose.py{' --baseline-tree ...' if before else ''}` on {os.cpu_count()} "
           f"cores, load average {load0:.1f} at the start and {load1:.1f} at the end (other jobs shared the machine). "
-          "Synthetic corners (0.05 px), placements unknown, tolerance 0.5 mm / 0.03°. Per run: median and max CPU "
+          f"Synthetic corners ({PIXEL_SIGMA_PX} px), placements unknown, tolerance 0.5 mm / 0.03°. Per run: median and max CPU "
           "time of the active choices (s), the median split into candidate top-up (IK, collisions, keep-outs) / the "
           "rest (scoring, occlusion re-check, motion check), wall time median / max (load-dependent); captures "
           "until every camera is within tolerance (survey included); worst true error / reported 1σ (translation "

@@ -188,7 +188,7 @@ def test_detection_record_round_trips():
 
 def test_dataset_detector_parallel_cached_and_reports_bad_files(tmp_path, monkeypatch):
     from calibgraph.core.problem import Capture
-    from calibgraph.detect import dataset as detect_mod  # where the dataset detector looks detect_image up
+    from calibgraph.detect import dataset as detect_mod  # where the dataset detector looks its search up
     from calibgraph.io.dataset import image_relpath, write_capture, write_header
     from calibgraph.io.layouts import load_dataset
 
@@ -214,8 +214,8 @@ def test_dataset_detector_parallel_cached_and_reports_bad_files(tmp_path, monkey
     assert len(caches) == 1
     # Second run is answered from the cache: the detector must not be called again for good files.
     calls = []
-    real = detect_mod.detect_image
-    monkeypatch.setattr(detect_mod, "detect_image", lambda *a, **k: calls.append(a[0]) or real(*a, **k))
+    real = detect_mod.look_blind
+    monkeypatch.setattr(detect_mod, "look_blind", lambda *a, **k: calls.append(a[0]) or real(*a, **k))
     det2 = dataset_detector(load_dataset(tmp_path), progress=False)
     det2.run()
     assert calls == []
@@ -266,3 +266,92 @@ def test_cli_detect_prints_stats_and_problems(tmp_path, capsys):
     assert row[1:3] == ["3", "2"]  # views, detected
     assert "000001.png" in err and "empty" in err
     assert not (tmp_path / ".calibgraph_cache").exists()
+
+
+def _two_camera_board_dataset(root, declared, printed, n=6, blank_camera=None):
+    """Two cameras x ``n`` captures of the ``printed`` board (rendered, 1280x800), ``declared`` in
+    dataset.yaml; ``blank_camera``'s frames show no board."""
+    from calibgraph.core.problem import Capture
+    from calibgraph.io.dataset import image_relpath, write_capture, write_header
+
+    intr = preset("d455")
+    write_header(root, declared, {"cam0": intr, "cam1": intr})
+    tex = board_texture(printed, 3000.0)
+    rng = np.random.default_rng(0)
+    for k in range(n):
+        views = {}
+        for i, cam in enumerate(("cam0", "cam1")):
+            rel = image_relpath(cam, k)
+            (root / rel).parent.mkdir(parents=True, exist_ok=True)
+            if cam == blank_camera:
+                img = np.clip(90 + rng.normal(0, 3, (800, 1280)), 0, 255).astype(np.uint8)
+            else:
+                T = look_at_board(printed, 0.9 + 0.1 * i, 12 * k - 30, 8 * i - 4, 25 * k, (0, 0), intr)
+                img = render_view(printed, intr, T, texture=tex, seed=10 * k + i).image
+            cv2.imwrite(str(root / rel), img)
+            views[cam] = {"image": rel}
+        write_capture(root, Capture(index=k, T_base_flange=np.eye(4)), views)
+
+
+@pytest.mark.parametrize("declared", [(4, 5), (7, 10)])
+def test_wrong_board_spec_is_named_in_one_line(tmp_path, capsys, declared):
+    """A 6x9 board declared smaller (a grid found inside it) or larger: `calibgraph detect` and the
+    dataset detector stop with one line naming the grid the images show and rows/cols."""
+    from calibgraph.cli.main import main
+    from calibgraph.core.errors import InputError
+    from calibgraph.io.layouts import load_dataset
+
+    printed = a4_board_54()
+    _two_camera_board_dataset(tmp_path, replace(printed, rows=declared[0], cols=declared[1]), printed)
+    with pytest.raises(InputError, match=r"the images show a 6x9 grid: check rows/cols"):
+        dataset_detector(load_dataset(tmp_path), progress=False, cache=False, fail_fast=True).run()
+    assert main(["detect", str(tmp_path), "--quiet", "--no-cache"]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and f"{declared[0]}x{declared[1]}" in err[0] and "6x9" in err[0], err
+
+
+def test_a_board_seen_by_one_camera_only_is_not_a_wrong_spec(tmp_path):
+    """cam1 never sees the board; cam0 does: the spec is right and every frame is searched."""
+    from calibgraph.io.layouts import load_dataset
+
+    printed = a4_board_54()
+    _two_camera_board_dataset(tmp_path, printed, printed, blank_camera="cam1")
+    det = dataset_detector(load_dataset(tmp_path), progress=False, cache=False, fail_fast=True)
+    det.run()
+    assert sum(d.ok for (c, _), d in det.results.items() if c == "cam0") >= 5
+    assert not any(d.ok for (c, _), d in det.results.items() if c == "cam1")
+    assert len(det.results) == 12
+
+
+def test_spec_check_searches_a_sample_of_unseen_frames_before_naming_no_board():
+    """Frames the probe saw nothing in are deferred, not judged: once every camera's first frames are
+    in and none showed the board, a sample of them is searched in full first; a board in the sample
+    settles the spec, none names it wrong in one line."""
+    from calibgraph.core.errors import InputError
+    from calibgraph.detect.detection import failed_detection
+    from calibgraph.detect.spec_check import SAMPLE_PER_CAMERA, BoardSpecCheck
+
+    t = a4_board_54()
+    unseen = failed_detection("probe saw nothing", t, deferred=True)
+    board = ImageDetection(ids=np.arange(4), uv_px=np.zeros((4, 2)), ok=True)
+
+    def first_frames(check):
+        for cam in ("a", "b"):
+            for k in range(5):
+                check.add(cam, unseen, key=(cam, k))
+        return check.judge()
+
+    check = BoardSpecCheck(t, {"a": 5, "b": 5})
+    sample = first_frames(check)
+    assert len(sample) == 2 * SAMPLE_PER_CAMERA and {c for c, _ in sample} == {"a", "b"}
+    assert check.searching and check.judge() == []  # waits for the sample
+    for key in sample:
+        check.add(key[0], board if key == sample[0] else failed_detection("nothing", t), key=key)
+    assert check.judge() == [] and check.settled and not check.searching
+
+    check = BoardSpecCheck(t, {"a": 5, "b": 5})
+    sample = first_frames(check)
+    for key in sample:
+        check.add(key[0], failed_detection("nothing", t), key=key)
+    with pytest.raises(InputError, match=r"no checkerboard of 6x9 inner corners .* in the first 5 frames of any camera"):
+        check.judge()

@@ -91,3 +91,58 @@ def test_guided_finds_what_blind_finds_and_solves_the_same(recording, monkeypatc
         d_mm = 1e3 * np.linalg.norm(c.T_ref_cam[:3, 3] - rb.cameras[n].T_ref_cam[:3, 3])
         assert d_mm < 0.1 * np.linalg.norm(c.sigma_translation_mm), (n, d_mm)
     assert any("guided detection" in n for n in det_guided.notes)
+
+
+def _variant(root, dest, target=None, blank_camera=None):
+    """A copy of the recording with ``target`` declared in dataset.yaml instead of the printed board,
+    or with every image of ``blank_camera`` replaced by an empty frame."""
+    import shutil
+
+    import cv2
+    import yaml
+
+    shutil.copytree(root, dest, ignore=shutil.ignore_patterns(".calibgraph_cache"))
+    if target is not None:
+        head = yaml.safe_load((dest / "dataset.yaml").read_text())
+        head["target"] = target.to_dict()
+        (dest / "dataset.yaml").write_text(yaml.safe_dump(head, sort_keys=False))
+    if blank_camera is not None:
+        rng = np.random.default_rng(1)
+        yy, xx = np.mgrid[0:480, 0:640]
+        for f in sorted((dest / "images" / blank_camera).glob("*.png")):
+            cv2.imwrite(str(f), np.clip(60 + 0.2 * xx + 0.1 * yy + rng.normal(0, 3, (480, 640)), 0, 255).astype(np.uint8))
+    return dest
+
+
+def test_wrong_board_spec_stops_on_the_first_frames_naming_rows_and_cols(recording, tmp_path, capsys, monkeypatch):
+    """The recording's board has 6x9 inner corners; declared 4x5 (same pitch), `calibgraph solve`
+    exits non-zero with one line naming the grid the images show, after the survey's first frames
+    (not after searching every frame, as it did)."""
+    import calibgraph.solver.build as build
+    from calibgraph.cli.main import main
+    from calibgraph.core.targets import Target
+
+    root, _, _ = recording
+    wrong = _variant(root, tmp_path / "wrong", target=Target(kind="checkerboard", rows=4, cols=5, pitch_m=0.025))
+    looked = []
+    real = build.look_blind
+    monkeypatch.setattr(build, "look_blind", lambda frame, *a, **k: looked.append(frame.name) or real(frame, *a, **k))
+    assert main(["solve", str(wrong), "--quiet"]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1, err
+    assert "no checkerboard of 4x5 inner corners" in err[0] and "6x9 grid" in err[0] and "rows/cols" in err[0], err[0]
+    n_views = len(load_dataset(wrong).views)
+    assert 0 < len(looked) <= n_views // 2, (len(looked), n_views)
+
+
+def test_a_camera_that_never_sees_the_board_is_not_a_wrong_spec(recording, tmp_path):
+    """One camera's frames are all empty: the others find the board, so the spec is right and the
+    detector runs to the end (the camera without views is the solver's business)."""
+    root, seen, _ = recording
+    blank = _variant(root, tmp_path / "blank", blank_camera="cam2")
+    det = GuidedDatasetDetector(load_dataset(blank), progress=False)
+    det.run()
+    found = {k for k, d in det.results.items() if d.ok}
+    assert not any(c == "cam2" for c, _ in found)
+    assert {c for c, _ in found} == {c for c, _ in seen} - {"cam2"}
+    assert len(det.results) == len(load_dataset(blank).views)

@@ -14,9 +14,20 @@
    expected reduction of the cameras' shortfall per second, predicted on the linearised graph of
    the captures so far; after each capture iSAM2 updates, the batch solver solves every capture
    so far and its 1-sigma goes into the plan log beside the predicted one.
-4. **Stop**: when the batch solve says every placed camera is within tolerance (its 1-sigma is
-   what ``result.json`` reports), otherwise the loop goes on until ``max_poses`` captures.
-   A camera short of tolerance at the end gets a line saying why and what would help.
+4. **Stop**: when the batch solve says every placed camera is within tolerance: its 1-sigma,
+   marginal over the mount, the board scale, the FK and every camera model estimated from the
+   captures (factory intrinsics under their prior), is what ``result.json`` reports; iSAM2's
+   (rescaled) 1-sigma only stands in for the planner's beliefs while a batch solve fails and never
+   stops the run. A camera that the captures left cannot bring within tolerance — the
+   optimistic bound of :meth:`~calibgraph.plan.active.ActivePlanner.reach` stays above it at two
+   choices in a row (a far camera with factory intrinsics: its focal length is tied to its depth) —
+   is given up early and said so with the bound and what would help: the 1-sigma the same poses
+   would give after a close-range intrinsics session (``calibgraph intrinsics``, then the camera
+   file with ``--intrinsics NAME=CAM.yaml``; predicted by :mod:`calibgraph.solver.session_plan`), else
+   the batch solve's error-budget advice; the loop goes on for the others and stops when they
+   are within tolerance ("stopped short": ``converged`` false, ``capture --auto`` exits 3),
+   otherwise at ``max_poses`` captures. A camera short of tolerance at the end gets a line saying
+   why and what would help.
 
 These phases are the *plan* of the acquisition loop (:mod:`calibgraph.acquire.loop`), the one a
 trajectory capture runs too: every step is a visit of that loop, so every motion gets the same
@@ -46,7 +57,14 @@ from calibgraph.acquire.loop import Settings, Station, acquisition_loop, make_lo
 from calibgraph.acquire.safety import FRANKA_LIMITS, SafetyLimits, check_motion, check_speed, fk_function
 from calibgraph.core.errors import InputError
 from calibgraph.detect.corners import detect_image
-from calibgraph.plan.active import ActivePlanner, CameraBelief, explain_shortfall, motion_time_s, sigma_norms
+from calibgraph.plan.active import (
+    SESSION_VIEWS,
+    ActivePlanner,
+    CameraBelief,
+    explain_shortfall,
+    motion_time_s,
+    sigma_norms,
+)
 from calibgraph.plan.planner import free_motion
 from calibgraph.plan.survey import (
     SURVEY_ROUNDS,
@@ -60,6 +78,7 @@ from calibgraph.solver.incremental import IncrementalSolver
 __all__ = ["AutoOptions", "AutoReport", "run_auto", "dry_run_survey", "refuted_from_steps", "PLAN_LOG_NAME"]
 
 REFINE_BATCHES = 2  # refinement batches (of 4 stops) per camera before the survey gives up on it
+REACH_AFTER = 3  # active captures before a camera may be given up (the first ones settle the estimates)
 
 
 @dataclass(frozen=True)
@@ -307,29 +326,109 @@ def _active(L):
                             fk_sigma_translation_m=o.fk_sigma_translation_m, fk_sigma_rotation_rad=o.fk_sigma_rotation_rad)
     while True:
         res = L.refresh()
-        if res is not None and res.cameras and all(L.within(c.covariance) for c in res.cameras.values()):
+        if res is not None and res.cameras and all(L.within(c.covariance) for n, c in res.cameras.items()
+                                                   if n not in L.out_of_reach):
             L.final = res
-            return "converged"
+            return "out_of_reach" if L.out_of_reach else "converged"
         b = L.beliefs()
         if not _budget_left(L):
             return "budget"
         q = np.asarray(L.robot.joint_positions(), float)
         t0 = time.perf_counter()
         ch = planner.choose(b, L.mount(), L.pixel_sigma_px or 0.5, L.opts.tolerance_mm, L.opts.tolerance_deg, q,
-                            n_top_up=L.opts.candidates_per_step, history=L.history)
+                            n_top_up=L.opts.candidates_per_step, history=L.history, skip=tuple(L.out_of_reach))
         t_choose = time.perf_counter() - t0
         L.world.set_q(q)
-        if ch is None:
-            if b and all(L.within(x.covariance) for x in b.values()):
-                return "converged_isam"
+        t0 = time.perf_counter()
+        if _judge_reach(L, planner, b):
+            continue  # a camera is given up: the stop rule first, then a choice without it
+        t_reach = time.perf_counter() - t0
+        if ch is None:  # (beliefs within tolerance but no batch solve saying so: iSAM2's 1-sigma never stops the run)
             return "no_candidate"
         e = yield from L.step("active", f"active {L.n_captures}", ch.candidate.q_rad, ch.why, expected=ch.sees,
                    predicted={n: [round(v[0], 4), round(v[1], 4)] for n, v in ch.predicted.items()}, motion=ch.motion)
         e["choose_time_s"] = round(t_choose, 3)
+        e["reach_time_s"] = round(t_reach, 3)
         e["candidates"] = list(ch.candidates)  # the best ones, best first (the rerun recording shows them)
         e["chosen_candidate"] = ch.chosen_index
         e["chosen_board_centre_m"] = list(ch.board_centre_m)
         L.save_log()
+
+
+def _judge_reach(L, planner, beliefs) -> bool:
+    """Give up the cameras that the captures left cannot bring within tolerance: those whose
+    optimistic bound (:meth:`~calibgraph.plan.active.ActivePlanner.reach`, every reachable candidate
+    weighted at will) stays above it at two choices in a row. Returns True when one was given up;
+    it is journaled with the bound and what would help, and the run goes on for the others."""
+    tol = (L.opts.tolerance_mm, L.opts.tolerance_deg)
+    short = [n for n, x in beliefs.items() if n not in L.out_of_reach and x.covariance is not None
+             and not L.within(x.covariance)]
+    if not short or L.pixel_sigma_px is None or sum(s["phase"] == "active" for s in L.steps) < REACH_AFTER:
+        return False
+    left = L.opts.max_poses - L.n_captures
+    got = planner.reach(beliefs, L.mount(), L.pixel_sigma_px, left, short, history=L.history, tol_mm=tol[0],
+                        tol_deg=tol[1])
+    gave_up = False
+    for n in short:
+        r = got.get(n)
+        if r is None or not r.out_of_reach(*tol):
+            L.reach_strikes.pop(n, None)
+            continue
+        L.reach_strikes[n] = L.reach_strikes.get(n, 0) + 1
+        if L.reach_strikes[n] < 2:
+            continue
+        t, d = sigma_norms(beliefs[n].covariance)
+        L.out_of_reach[n] = {"at_capture": L.n_captures, "captures_left": left, "sigma_now": [round(t, 4), round(d, 5)],
+                             "best_possible": [round(r.lower[0], 4), round(r.lower[1], 5)],
+                             "design": [round(r.design[0], 4), round(r.design[1], 5)], "candidates": r.candidates}
+        if r.with_session:
+            L.out_of_reach[n]["with_session"] = [round(r.with_session[0], 4), round(r.with_session[1], 5)]
+        line = (f"camera {n} cannot reach {tol[0]:g} mm / {tol[1]:g}° with the {_poses(left)} left: from the "
+                f"reachable poses it could get to {_bound_text(r.lower, tol)} at best (now {t:.2f} mm / "
+                f"{d:.3f}°){_session_text(n, r.with_session)}; calibrating the others")
+        L.messages.append(line)
+        L.log(line)
+        gave_up = True
+    if gave_up:
+        L.save_log()
+    return gave_up
+
+
+def _poses(n) -> str:
+    return f"{n} capture pose{'' if n == 1 else 's'}"
+
+
+def _session_text(name, sigma) -> str:
+    """'; a close-range intrinsics session ... would bring it to about 0.31 mm / 0.012° ...' (or '')."""
+    if not sigma:
+        return ""
+    return (f"; a close-range intrinsics session of {SESSION_VIEWS} images (calibgraph intrinsics, then --intrinsics "
+            f"{name}=CAM.yaml) would bring it to about {sigma[0]:.2f} mm / {sigma[1]:.3f}° with those poses")
+
+
+def _bound_text(lower, tol) -> str:
+    """'0.83 mm / 0.041°': the bounded norms (mm, deg) that exceed the tolerance (or, when none
+    does, those bounded)."""
+    out = [i for i in (0, 1) if lower[i] > tol[i]] or [i for i in (0, 1) if lower[i] > 0]
+    return " / ".join(f"{lower[i]:.2f} mm" if i == 0 else f"{lower[i]:.3f}°" for i in out)
+
+
+def _out_of_reach_status(c, rec, res, tol) -> str:
+    """The summary line of camera ``c`` given up as out of reach (``rec``: its journal record): its
+    1-sigma, the bound that said so, and what would help (the batch solve's error-budget advice)."""
+    cr = res.cameras.get(c) if res is not None else None
+    if cr is not None and cr.covariance is not None:
+        t, r = sigma_norms(cr.covariance)
+        now = f"1σ {t:.2f} mm / {r:.3f}° from {cr.views_used} views"
+    else:
+        now = "no pose"
+    lo = rec.get("best_possible") or [0.0, 0.0]
+    advice = _session_text(c, rec.get("with_session"))[2:] or ((cr.error_budget or {}).get("advice") if cr is not None
+                                                              else None) or (
+        f"a close-range intrinsics session (calibgraph intrinsics, then --intrinsics {c}=CAM.yaml)")
+    return (f"OUT OF REACH of {tol[0]:g} mm / {tol[1]:g}°: {now}; at capture {rec.get('at_capture')} the model of the "
+            f"captures so far predicted at best {_bound_text(lo, tol)} from the {_poses(rec.get('captures_left'))} "
+            f"left (any reachable poses); would help: {advice}")
 
 
 def _finish(L, stop) -> AutoReport:
@@ -350,14 +449,18 @@ def _finish(L, stop) -> AutoReport:
             status[c] = "lost (grab failures); not calibrated"
         elif res is not None and c in res.cameras and not res.cameras[c].calibrated:
             status[c] = f"NOT CALIBRATED: {res.cameras[c].why}"
+        elif c in L.out_of_reach and not (res is not None and c in res.cameras and L.within(res.cameras[c].covariance)):
+            status[c] = _out_of_reach_status(c, L.out_of_reach[c], res, (L.opts.tolerance_mm, L.opts.tolerance_deg))
         elif res is not None and c in res.cameras:
             t, r = sigma_norms(res.cameras[c].covariance)
             if L.within(res.cameras[c].covariance):
                 status[c] = f"within tolerance: 1σ {t:.2f} mm / {r:.3f}° from {res.cameras[c].views_used} views"
             else:
                 b = CameraBelief(c, L.intr[c], res.cameras[c].T_ref_cam, res.cameras[c].covariance)
+                advice = (res.cameras[c].error_budget or {}).get("advice")
                 status[c] = "SHORT of tolerance: " + explain_shortfall(c, b, views, L.cell.target, L.opts.tolerance_mm,
-                                                                         L.opts.tolerance_deg)
+                                                                         L.opts.tolerance_deg) + (
+                    f"; error budget: {advice}" if advice else "")
         elif not views:
             rej = L.station.reasons.get(c, {})
             what = ", ".join(f"{n}x {r}" for r, n in sorted(rej.items(), key=lambda x: -x[1])[:3]) or "no frames"
@@ -368,13 +471,17 @@ def _finish(L, stop) -> AutoReport:
                          "it needs views from several tilts (a hint or a larger --max-poses may help)")
     if stop == "converged":
         reason = f"every camera within {tol} (1σ, batch solve) after {L.n_captures} capture poses"
-    elif stop == "converged_isam":
-        reason = f"iSAM2 says every camera is within {tol} but no candidate improves the batch estimate further"
+    elif stop == "out_of_reach" and any(c not in L.out_of_reach for c in (res.cameras if res is not None else ())):
+        reason = (f"stopped early after {L.n_captures} capture poses: every camera within {tol} (1σ, batch solve) "
+                  f"except {', '.join(L.out_of_reach)}, which the reachable poses cannot bring there (see below)")
+    elif stop == "out_of_reach":
+        reason = (f"stopped early after {L.n_captures} capture poses: no camera can reach {tol} from the reachable "
+                  "poses with the capture poses left (see below)")
     elif stop == "budget":
         reason = f"budget of {L.opts.max_poses} capture poses used up before every camera reached {tol}"
     elif stop == "no_candidate":
         reason = ("no reachable, collision-free pose shows the board to a camera still short of tolerance "
-                  "(unreachable region); stopped early")
+                  "(unreachable region), or the batch solve failed; stopped early")
     else:
         reason = str(stop)
     if err:

@@ -13,8 +13,10 @@ Files in ``out_dir`` (a ``calibgraph-dataset/1``, solvable by ``calibgraph solve
   per camera (mm, deg), the motion time, the board centre of the capture (``board_centre_m``);
   active steps add the best candidates of the choice (``candidates``: board centre, score = gain
   per second, gain; best first, at most 20), ``chosen_candidate`` (its index there) and
-  ``chosen_board_centre_m``, which the rerun recording shows; rewritten atomically after each
-  step's capture file;
+  ``chosen_board_centre_m``, which the rerun recording shows; ``out_of_reach``: the cameras given
+  up, each with the capture it was given up at, the captures then left, its 1-sigma then and the
+  best 1-sigma the bound allowed (``best_possible``, mm and deg; 0 where not bounded); rewritten
+  atomically after each step's capture file;
 - ``result.json``: the batch solve at the stop.
 
 Resume (``resume=True``) after a kill at any instant: captures on disk are replayed into the
@@ -36,6 +38,7 @@ from calibgraph.core.problem import Capture, Detection
 from calibgraph.io.files import atomic_write_text
 from calibgraph.io.layouts import load_dataset
 from calibgraph.plan.active import CameraBelief, keepout_violation, motion_time_s, shortfall, sigma_norms
+from calibgraph.plan.information import intrinsics_prior
 from calibgraph.plan.planner import free_motion
 from calibgraph.solver.batch import solve
 from calibgraph.solver.build import build_problem
@@ -91,6 +94,8 @@ class AutoState:
     ref_at: int = -1  # n_captures when ``ref`` was solved
     messages: list = field(default_factory=list)
     final: object = None  # the batch Result the loop converged on
+    out_of_reach: dict = field(default_factory=dict)  # camera given up -> the bound that said so (journaled)
+    reach_strikes: dict = field(default_factory=dict)  # camera -> choices in a row its bound was out of tolerance
 
     @property
     def robot(self):
@@ -173,10 +178,16 @@ class AutoState:
         for n, ce in (self.est.cameras if self.est else {}).items():
             rc = self._ref_camera(n)
             if rc is not None and rc.calibrated:
-                out[n] = CameraBelief(n, self.intr[n], rc.T_ref_cam, rc.covariance, ce.views)
+                out[n] = CameraBelief(n, self.intr[n], rc.T_ref_cam, rc.covariance, ce.views, self._model_prior(n, rc))
             else:
-                out[n] = CameraBelief(n, self.intr[n], ce.T_ref_cam, self.cov(n), ce.views)
+                out[n] = CameraBelief(n, self.intr[n], ce.T_ref_cam, self.cov(n), ce.views, self._model_prior(n, None))
         return out
+
+    def _model_prior(self, name, rc):
+        """The prior the batch solver puts on camera ``name``'s model (the wide one when its last
+        solve found the given values contradicted by the views), None when it holds it known."""
+        rec = (rc.intrinsics or {}) if rc is not None else {}
+        return intrinsics_prior(self.intr[name], wide=rec.get("prior") == "wide")
 
     def sigmas(self) -> dict:
         """camera -> [1-sigma mm, deg] the loop works with (see :meth:`beliefs`)."""
@@ -212,7 +223,7 @@ class AutoState:
         d = {"format": PLAN_LOG_FORMAT, "cell": self.cell.name, "cameras": list(self.intr),
              "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.opts.__dict__.items()},
              "pixel_sigma_px": self.pixel_sigma_px, "cov_scale": self.cov_scale, "steps": self.steps,
-             "messages": self.messages}
+             "messages": self.messages, "out_of_reach": self.out_of_reach}
         if stop is not None:
             d["stop"] = stop
         atomic_write_text(self.out / PLAN_LOG_NAME, json.dumps(d, indent=1))
@@ -329,6 +340,7 @@ class AutoState:
         self.pixel_sigma_px = d.get("pixel_sigma_px")
         self.cov_scale = dict(d.get("cov_scale") or {})
         self.messages = list(d.get("messages", []))
+        self.out_of_reach = {str(c): dict(v) for c, v in (d.get("out_of_reach") or {}).items() if isinstance(v, dict)}
         logged = {s["step"] for s in self.steps}
         self.replay()
         for cap, dets in self.captures_on_disk():

@@ -56,7 +56,7 @@ def run(args) -> int:
     ds = load_dataset(args.dataset)
     up = args.upscale if args.upscale == "auto" else int(args.upscale)
     det = dataset_detector(ds, workers=args.workers, progress=not args.quiet, cache=not args.no_cache, upscale=up,
-                           method=args.method)
+                           method=args.method, fail_fast=True)
     results = det.run()
     print(f"{ds.root}: target {ds.target.kind} {ds.target.rows}x{ds.target.cols} points, {len(ds.cameras)} camera(s), "
           f"{len(ds.captures)} captures")

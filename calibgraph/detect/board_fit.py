@@ -92,13 +92,14 @@ _GL_T, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_T, _GL_W = 0.5 * (_GL_T + 1.0), 0.5 * _GL_W
 
 
-def _phi2_excess(z1, z2, rho):
+def _phi2_excess(z1, z2, rho, phi_pdf=None, phi_cdf=None):
     """``Phi2(z1, z2; rho) - Phi(z1) Phi(z2)`` and its derivatives by z1, z2 and rho (broadcast).
 
     The excess is (1 / 2 pi) * integral over theta in [0, asin rho] of
     exp(-(z1^2 + z2^2 - 2 z1 z2 sin theta) / (2 cos^2 theta)) (Sheppard), by 8-point
     Gauss-Legendre (|rho| <= 0.95 here: lines meeting at 18 deg or more); d Phi2 / d z1 =
-    phi(z1) Phi((z2 - rho z1) / sqrt(1 - rho^2))."""
+    phi(z1) Phi((z2 - rho z1) / sqrt(1 - rho^2)). ``phi_pdf``, ``phi_cdf``: the normal density
+    and CDF at (z1, z2), when the caller has them already."""
     a = np.arcsin(rho)
     th = a[..., None] * _GL_T  # (..., Q)
     sn, c2 = np.sin(th), np.cos(th) ** 2
@@ -106,10 +107,10 @@ def _phi2_excess(z1, z2, rho):
     f = np.exp(-(q1 * q1 + q2 * q2 - 2.0 * q1 * q2 * sn) / (2.0 * c2))
     ex = (f * _GL_W).sum(-1) * a / (2.0 * np.pi)
     sr = np.sqrt(1.0 - rho * rho)
-    p1 = np.exp(-0.5 * z1 * z1) / _SQRT2PI
-    p2 = np.exp(-0.5 * z2 * z2) / _SQRT2PI
-    d1 = p1 * (_phi_cdf((z2 - rho * z1) / sr) - _phi_cdf(z2))
-    d2 = p2 * (_phi_cdf((z1 - rho * z2) / sr) - _phi_cdf(z1))
+    p1, p2 = phi_pdf or (np.exp(-0.5 * z1 * z1) / _SQRT2PI, np.exp(-0.5 * z2 * z2) / _SQRT2PI)
+    P1, P2 = phi_cdf or (_phi_cdf(z1), _phi_cdf(z2))
+    d1 = p1 * (_phi_cdf((z2 - rho * z1) / sr) - P2)
+    d2 = p2 * (_phi_cdf((z1 - rho * z2) / sr) - P1)
     # d Phi2 / d rho is the bivariate normal density.
     dr = np.exp(-(z1 * z1 - 2.0 * rho * z1 * z2 + z2 * z2) / (2.0 * sr * sr)) / (2.0 * np.pi * sr)
     return ex, d1, d2, dr
@@ -266,8 +267,8 @@ def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
         F = Pz @ coef + const[:, None, :]  # (N, P, R) the separable terms along this axis
         # d/d sigma of Phi(d / sigma) = -phi(z) z / sigma
         F_s = ((pz * z) @ coef) / -sig
-        axes.append((F, F_s, coef, pz, L, nrm, num, z))
-    (Fu, Fu_s, cu, _, L_u, nrm_u, _, z_u), (Fv, Fv_s, cv, _, L_v, nrm_v, _, z_v) = axes
+        axes.append((F, F_s, coef, pz, L, nrm, num, z, Pz))
+    (Fu, Fu_s, cu, pz_u, L_u, nrm_u, _, z_u, Pz_u), (Fv, Fv_s, cv, pz_v, L_v, nrm_v, _, z_v, Pz_v) = axes
     # Where a u-line and a v-line meet at an angle, the blurred quadrant X > k, Y > l is the
     # bivariate normal Phi2(z_k, z_l; rho) with rho the cosine between the lines' normals, not
     # the product Phi(z_k) Phi(z_l); add the difference (zero for square pixels of a frontal
@@ -276,18 +277,24 @@ def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
     n_v = L_v[:, :, :2] / nrm_v[:, 0, :, None]
     rho = np.clip(n_u @ n_v.transpose(0, 2, 1), -0.95, 0.95)  # (N, Lu, Lv)
     C = (cu * s_r) @ cv.transpose(0, 2, 1)  # (N, Lu, Lv) weight of each quadrant
-    z1, z2 = z_u[:, :, :, None], z_v[:, :, None, :]  # (N, P, Lu, 1), (N, P, 1, Lv)
+    Lu, Lv = kap.size, kap.size
     # The excess vanishes (< 1e-7) unless the pixel is within ~5.5 sigma of both lines, i.e.
-    # near their node: evaluate it on those few (pixel, node) pairs only (and only where the
-    # lines bound a printed quadrant: a square's edge never with a marker's).
-    shape = np.broadcast_shapes(z1.shape, z2.shape)
-    near = (np.abs(z1) < 5.5) & (np.abs(z2) < 5.5) & (C[:, None] != 0.0)
-    corr, d1, d2, dr = (np.zeros(shape) for _ in range(4))
-    if near.any():
-        idx = np.nonzero(near)
-        corr[idx], d1[idx], d2[idx], dr[idx] = _phi2_excess(z_u[idx[:3]], z_v[idx[0], idx[1], idx[3]],
-                                                            rho[idx[0], idx[2], idx[3]])
-    white = 1.0 - (Fu * Fv) @ s_r - (corr * C[:, None]).sum(axis=(2, 3))
+    # near their node: it is evaluated on those few (pixel, node) pairs only (and only where the
+    # lines bound a printed quadrant: a square's edge never with a marker's), and its sums over
+    # nodes are gathered from them (np.bincount) rather than over all (pixel, node) pairs.
+    near_u, near_v = np.abs(z_u) < 5.5, np.abs(z_v) < 5.5
+    n_i, p_i, lu_i, lv_i = np.nonzero(near_u[:, :, :, None] & near_v[:, :, None, :] & (C[:, None] != 0.0))
+    Cw = C[n_i, lu_i, lv_i]
+    z1, z2 = z_u[n_i, p_i, lu_i], z_v[n_i, p_i, lv_i]
+    ex_k, d1, d2, dr = _phi2_excess(z1, z2, rho[n_i, lu_i, lv_i],
+                                    phi_pdf=(pz_u[n_i, p_i, lu_i], pz_v[n_i, p_i, lv_i]),
+                                    phi_cdf=(Pz_u[n_i, p_i, lu_i], Pz_v[n_i, p_i, lv_i]))
+    pix = n_i * P + p_i
+
+    def gather(w, n_bins=N * P, at=pix):
+        return np.bincount(at, weights=w, minlength=n_bins)
+
+    white = 1.0 - (Fu * Fv) @ s_r - gather(ex_k * Cw).reshape(N, P)
     lo = q[:, 0:1] + q[:, 1:2] * ex[..., 0] + q[:, 2:3] * ex[..., 1]
     gain = q[:, 3:4] + q[:, 4:5] * ex[..., 0] + q[:, 5:6] * ex[..., 1]
     M = lo + gain * white
@@ -296,16 +303,17 @@ def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
     # Parameter-major (15, N, P): every row is written contiguously.
     J = np.empty((N_PARAMS, N, P))
     # d/d sigma through z = d / sigma: -(dz1 z1 + dz2 z2) / sigma
-    corr_s = -((d1 * z1 + d2 * z2) * C[:, None]).sum(axis=(2, 3)) / sig[..., 0]
+    corr_s = -gather((d1 * z1 + d2 * z2) * Cw).reshape(N, P) / sig[..., 0]
     J[8] = -gain * ((Fu_s * Fv + Fu * Fv_s) @ s_r + corr_s)
     # The excess's derivatives by each line's z, per line.
-    extra = ((d1 * C[:, None]).sum(axis=3), (d2 * C[:, None]).sum(axis=2))
+    extra = (gather(d1 * Cw, N * P * Lu, pix * Lu + lu_i).reshape(N, P, Lu),
+             gather(d2 * Cw, N * P * Lv, pix * Lv + lv_i).reshape(N, P, Lv))
     J[9] = 1.0
     J[10], J[11] = ex[..., 0], ex[..., 1]
     J[12] = white
     J[13], J[14] = white * ex[..., 0], white * ex[..., 1]
     J[6:8] = 0.0
-    for axis, (_, _, coef, pz, L, nrm, num, _) in enumerate(axes):
+    for axis, (_, _, coef, pz, L, nrm, num, _, _) in enumerate(axes):
         other = Fv if axis == 0 else Fu
         # dM/dd_l for each line l of this axis (N, P, L)
         A = (-gain / sig[..., 0])[..., None] * (pz * ((other * s_r) @ coef.transpose(0, 2, 1)) + extra[axis])
@@ -322,13 +330,14 @@ def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
         J[3 * axis + 2] = sA
     # ... and through rho = n_u . n_v, the cosine between the lines: d rho / d L_u[:2] =
     # (n_v - rho n_u) / |L_u[:2]| (and the same with u, v swapped); L_u = G0 - kap_k G2.
-    Lu, Lv = kap.size, kap.size
-    Rk = ((-gain)[..., None, None] * C[:, None] * dr).reshape(N, P, Lu * Lv)
+    Rk = -gain[n_i, p_i] * Cw * dr  # per (pixel, node) pair
     Tu = (n_v[:, None, :, :] - rho[..., None] * n_u[:, :, None, :]) / nrm_u[:, 0, :, None, None]
     Tv = (n_u[:, :, None, :] - rho[..., None] * n_v[:, None, :, :]) / nrm_v[:, 0, None, :, None]
     T2 = -(kap[None, :, None, None] * Tu + kap[None, None, :, None] * Tv)
     for rows, T in ((slice(0, 2), Tu), (slice(3, 5), Tv), (slice(6, 8), T2)):
-        J[rows] += np.moveaxis(Rk @ T.reshape(N, Lu * Lv, 2), 2, 0)
+        Tk = T[n_i, lu_i, lv_i]  # (pairs, 2)
+        for m in range(2):
+            J[rows.start + m] += gather(Rk * Tk[:, m]).reshape(N, P)
     return M, J, white
 
 

@@ -1,24 +1,34 @@
-"""Detecting a whole dataset: every undetected view, in parallel, cached next to the data.
+"""Detecting a whole dataset: every undetected view, streamed through a worker pool, cached next
+to the data, stopped early when the board spec is wrong.
 
 :func:`dataset_detector` returns the callable that ``Dataset.to_problem(detector=...)`` takes. It
-detects on first use (a thread pool; OpenCV releases the GIL), shows a progress bar, stores the
-results in ``DATASET/.calibgraph_cache/`` keyed by the target spec, the detector version and the
-options, and collects a message for every image it could not use.
+detects on first use (:class:`~calibgraph.detect.stream.OrderedPool`; OpenCV releases the GIL),
+shows a progress bar, stores the results in ``DATASET/.calibgraph_cache/`` (:class:`DetectionCache`,
+keyed by the target spec, the detector version and the options) and collects a message for every
+image it could not use. Frames are taken in an order that spreads each camera's first frames over
+the whole run, so that with ``fail_fast`` the first frames of every camera can tell a wrong board
+spec (:mod:`calibgraph.detect.spec_check`) before the rest are searched.
 """
 
 from __future__ import annotations
 
 import json
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calibgraph.core.errors import InputError
+import numpy as np
+
+from calibgraph.core.errors import DetectionError, InputError
+from calibgraph.detect.blind import look_blind
 from calibgraph.detect.detection import ImageDetection, failed_detection
-from calibgraph.detect.search import detect_image
+from calibgraph.detect.image import Frame
+from calibgraph.detect.spec_check import FIRST_FRAMES, BoardSpecCheck
+from calibgraph.detect.stream import OrderedPool
 from calibgraph.io.files import atomic_write_text
 
 # Part of the cache key: bump when a change can move detected points.
-DETECTOR_VERSION = "3"
+DETECTOR_VERSION = "4"
 
 
 def cache_path(dataset, cache_dir=None, **options) -> Path:
@@ -33,6 +43,121 @@ def cache_path(dataset, cache_dir=None, **options) -> Path:
     return base / f"detections-{h}.json"
 
 
+class DetectionCache:
+    """A dataset's detections stored beside it, one entry per image (and per ``tag``: how the
+    image was searched), valid while the image file keeps its size and modification time.
+
+    ``cache``: True (``DATASET/.calibgraph_cache/``), False/None (no cache) or a folder;
+    ``options``: what the detections depend on besides the target and the detector version.
+    """
+
+    def __init__(self, dataset, cache=True, options: dict | None = None):
+        self.dataset = dataset
+        self.options = dict(options or {})
+        self.path = None if cache is False or cache is None else \
+            cache_path(dataset, None if cache is True else cache, **self.options)
+        self.entries = {}
+        self.changed = False
+        if self.path is not None and self.path.is_file():
+            try:
+                self.entries = json.loads(self.path.read_text()).get("entries", {})
+            except (OSError, ValueError):
+                self.entries = {}  # a damaged cache is only a lost speed-up
+        self._stamps = {}
+
+    def _stamp(self, view) -> str:
+        if view.image not in self._stamps:
+            try:
+                st = (Path(self.dataset.root) / view.image).stat()
+                self._stamps[view.image] = f"{st.st_size}:{int(st.st_mtime_ns)}"
+            except OSError:
+                self._stamps[view.image] = "missing"
+        return self._stamps[view.image]
+
+    @staticmethod
+    def _key(view, tag: str) -> str:
+        return view.image if not tag else f"{view.image}#{tag}"
+
+    def lookup(self, view, tag: str = "") -> ImageDetection | None:
+        """The stored detection of ``view``'s image searched as ``tag``, if still valid."""
+        hit = self.entries.get(self._key(view, tag))
+        stamp = self._stamp(view)
+        if hit is None or hit.get("stamp") != stamp or stamp == "missing":
+            return None
+        return ImageDetection.from_dict(hit["detection"])
+
+    def store(self, view, det: ImageDetection, tag: str = "") -> None:
+        stamp = self._stamp(view)
+        if self.path is not None and stamp != "missing":
+            self.entries[self._key(view, tag)] = {"stamp": stamp, "detection": det.to_dict()}
+            self.changed = True
+
+    def save(self) -> list:
+        """Write the cache if anything new was stored; a (file, message) problem when it cannot be."""
+        if self.path is None or not self.changed:
+            return []
+        try:
+            atomic_write_text(self.path, json.dumps({"version": DETECTOR_VERSION, "target": self.dataset.target.to_dict(),
+                                                     "options": {k: str(v) for k, v in self.options.items()},
+                                                     "entries": self.entries}))
+        except InputError as e:
+            return [(str(self.path), f"cannot write the detection cache ({e}); continuing without")]
+        self.changed = False
+        return []
+
+
+def spread_order(views, n: int = FIRST_FRAMES) -> list:
+    """``views`` reordered so that the first ``n`` captures taken are spread evenly over the run
+    (then the rest in their order): the first frames of every camera then sample the whole run."""
+    caps = sorted({v.capture for v in views})
+    first = spread(caps, n)
+    rank = {c: (0 if c in first else 1, i) for i, c in enumerate(caps)}
+    return sorted(views, key=lambda v: rank[v.capture])
+
+
+def spread(items: list, n: int) -> set:
+    """``n`` items evenly spread over ``items`` (all of them when there are fewer)."""
+    if len(items) <= n:
+        return set(items)
+    return {items[int(i)] for i in np.round(np.linspace(0, len(items) - 1, n))}
+
+
+def progress_bar(total: int, show: bool):
+    """A tqdm bar over ``total`` images, or None when not shown."""
+    if not show or total <= 0:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="detect", unit="img", leave=False)
+
+
+def unusable(target, path, error: Exception) -> ImageDetection:
+    """The record of an image the detector itself failed on (one odd image must not stop a run)."""
+    return failed_detection(f"detector failed on this image ({type(error).__name__}: {str(error).strip()[:200]})",
+                            target, str(path))
+
+
+def open_frame(path, target) -> tuple:
+    """(:class:`~calibgraph.detect.image.Frame` of ``path`` decoded at full resolution, None), or
+    (None, the failed detection naming the problem) when the file cannot be read."""
+    frame = Frame(path)
+    try:
+        frame.grey()
+    except DetectionError as e:
+        return None, failed_detection(str(e), target, str(path))
+    return frame, None
+
+
+def wrong_spec_everywhere(dataset, results: dict) -> list:
+    """A (folder, message) problem when the target was found in no image at all: most likely the
+    wrong spec, said once."""
+    if results and not any(d.ok for d in results.values()):
+        t = dataset.target
+        return [(str(dataset.root), f"the target ({t.kind}, {t.rows}x{t.cols} points, pitch {t.pitch_m} m) was "
+                 "not found in any image: check the target spec in dataset.yaml")]
+    return []
+
+
 @dataclass
 class DatasetDetector:
     """Callable ``(view, dataset) -> (ids, uv_px) | None`` for ``Dataset.to_problem(detector=...)``.
@@ -44,9 +169,13 @@ class DatasetDetector:
 
     Attributes:
         views: optional set of (camera, capture) to detect (default: every undetected view).
-        detect_view: optional ``(view, path, intrinsics) -> ImageDetection`` used instead of
-            :func:`detect_image` (guided detection, :mod:`calibgraph.detect.guided`); its results
-            are cached under ``cache_tag`` so they never stand in for an unguided run's.
+        detect_view: optional ``(view, path, intrinsics) -> ImageDetection`` used instead of the
+            blind look (:func:`calibgraph.detect.blind.look_blind`); its results are cached under
+            ``cache_tag`` so they never stand in for an unguided run's.
+        fail_fast: stop with one :class:`InputError` naming the likely cause when the first
+            frames of every camera show no board, or a board of another size
+            (:mod:`calibgraph.detect.spec_check`); off, such a run ends with a problem saying the
+            target was found nowhere.
         results: (camera, capture) -> :class:`ImageDetection`.
         problems: (file, message) for every image that could not be used; the CLI prints them.
     """
@@ -59,98 +188,108 @@ class DatasetDetector:
     views: object = None
     detect_view: object = None
     cache_tag: str = ""
+    fail_fast: bool = False
     results: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)
     _done: bool = False
+    _unreadable: set = field(default_factory=set)
 
     def run(self) -> dict:
         """Detect all undetected views now (idempotent); returns ``results``."""
         if self._done:
             return self.results
-        from concurrent.futures import ThreadPoolExecutor
-
         ds = self.dataset
-        root = Path(ds.root)
-        use_cache = self.cache is not False and self.cache is not None
-        key_opts = dict(self.options, **({"guided": self.cache_tag} if self.cache_tag else {}))
-        cpath = cache_path(ds, None if self.cache is True else self.cache, **key_opts) if use_cache else None
-        cache = {}
-        if use_cache and cpath.is_file():
-            try:
-                cache = json.loads(cpath.read_text()).get("entries", {})
-            except (OSError, ValueError):
-                cache = {}  # a damaged cache is only a lost speed-up
-        todo, keys = [], {}
+        cache = DetectionCache(ds, self.cache, dict(self.options, **({"guided": self.cache_tag} if self.cache_tag
+                                                                      else {})))
         wanted = None if self.views is None else set(self.views)
+        todo = []
         for v in ds.views:
             if v.detected or (wanted is not None and (v.camera, v.capture) not in wanted):
                 continue
             if not v.image:
                 self.problems.append((f"camera {v.camera}, capture {v.capture}", "no image and no detection; skipped"))
                 continue
-            p = root / v.image
-            try:
-                st = p.stat()
-                stamp = f"{st.st_size}:{int(st.st_mtime_ns)}"
-            except OSError:
-                stamp = "missing"
-            key = v.image
-            keys[(v.camera, v.capture)] = (key, stamp)
-            hit = cache.get(key)
-            if hit is not None and hit.get("stamp") == stamp and stamp != "missing":
-                self.results[(v.camera, v.capture)] = ImageDetection.from_dict(hit["detection"])
-            else:
-                todo.append(v)
-
-        def work(v):
-            import cv2
-
-            cv2.setNumThreads(1)  # parallelism comes from the pool; avoid oversubscription
-            intr = ds.cameras.get(v.camera)
-            try:
-                if self.detect_view is not None:
-                    return v, self.detect_view(v, root / v.image, intr)
-                return v, detect_image(root / v.image, ds.target, intrinsics=intr, **self.options)
-            except (cv2.error, ValueError, MemoryError) as e:
-                # One odd image must not stop the run: record it and carry on with the rest.
-                return v, failed_detection(f"detector failed on this image ({type(e).__name__}: {str(e).strip()[:200]})",
-                                  ds.target, str(root / v.image))
-
-        if todo:
-            bar = None
-            if self.progress:
-                from tqdm import tqdm
-
-                bar = tqdm(total=len(todo), desc="detect", unit="img", leave=False)
-            with ThreadPoolExecutor(max_workers=max(1, int(self.workers))) as ex:
-                for v, det in ex.map(work, todo):
-                    self.results[(v.camera, v.capture)] = det
-                    if bar is not None:
-                        bar.update(1)
+            todo.append(v)
+        todo = spread_order(todo)
+        check = None
+        if self.fail_fast and self.detect_view is None:
+            check = BoardSpecCheck(ds.target, {c: sum(v.camera == c for v in todo) for c in ds.cameras})
+        hits = {(v.camera, v.capture): cache.lookup(v) for v in todo}
+        bar = progress_bar(sum(h is None for h in hits.values()), self.progress)
+        items = iter(todo)
+        deferred, again = [], deque()  # frames the spec check put off; those now due for a full search
+        try:
+            with OrderedPool(self.workers) as pool:
+                while True:
+                    while pool.has_room:
+                        if again:
+                            v = again.popleft()
+                            pool.submit(v, self._work, v, False)
+                            continue
+                        v = next(items, None)
+                        if v is None:
+                            break
+                        hit = hits[(v.camera, v.capture)]
+                        if hit is not None:
+                            pool.put(v, hit)
+                        else:
+                            pool.submit(v, self._work, v, check is not None and check.searching)
+                    if len(pool):
+                        v, det = pool.next()
+                        self._take(v, det, hits, cache, bar, deferred, check)
+                        sample = check.judge() if check is not None else []
+                    elif check is None or not deferred:
+                        break
+                    else:
+                        sample = check.judge(final=True)  # the stream is done: settled, sampled or named wrong
+                    if sample:
+                        again.extend(v for v in deferred if (v.camera, v.capture) in set(sample))
+                        deferred[:] = [v for v in deferred if (v.camera, v.capture) not in set(sample)]
+                    elif check is not None and check.settled and deferred:
+                        again.extend(deferred)
+                        deferred.clear()
+        finally:
             if bar is not None:
                 bar.close()
-        if todo and use_cache:
-            entries = dict(cache)
-            for (cam, cap), det in self.results.items():
-                k, stamp = keys.get((cam, cap), (None, None))
-                if k is not None and stamp != "missing":
-                    entries[k] = {"stamp": stamp, "detection": det.to_dict()}
-            try:
-                atomic_write_text(cpath, json.dumps({"version": DETECTOR_VERSION, "target": ds.target.to_dict(),
-                                                     "options": {k: str(v) for k, v in key_opts.items()},
-                                                     "entries": entries}))
-            except InputError as e:
-                self.problems.append((str(cpath), f"cannot write the detection cache ({e}); continuing without"))
+        self.problems += cache.save()
         for (cam, cap), det in sorted(self.results.items(), key=lambda kv: (kv[0][0], kv[0][1])):
             if not det.ok:
                 self.problems.append((det.image or f"camera {cam}, capture {cap}", det.reason))
-        # A target that is found nowhere is most likely the wrong spec: say so once.
-        if self.results and not any(d.ok for d in self.results.values()) and self.detect_view is None:
-            t = ds.target
-            self.problems.append((str(root), f"the target ({t.kind}, {t.rows}x{t.cols} points, pitch {t.pitch_m} m) was "
-                                  "not found in any image: check the target spec in dataset.yaml"))
+        if self.detect_view is None:
+            self.problems += wrong_spec_everywhere(ds, self.results)
         self._done = True
         return self.results
+
+    def _take(self, v, det, hits, cache, bar, deferred, check) -> None:
+        """One frame's answer: kept (and cached) unless the spec check deferred it."""
+        key = (v.camera, v.capture)
+        if check is not None:
+            check.add(v.camera, det, readable=key not in self._unreadable, key=key)
+        if det.deferred:
+            deferred.append(v)
+        else:
+            self.results[key] = det
+            if hits[key] is None:
+                cache.store(v, det)
+                if bar is not None:
+                    bar.update(1)
+
+    def _work(self, v, check_spec: bool) -> ImageDetection:
+        import cv2
+
+        ds = self.dataset
+        path = Path(ds.root) / v.image
+        intr = ds.cameras.get(v.camera)
+        try:
+            if self.detect_view is not None:
+                return self.detect_view(v, path, intr)
+            frame, unreadable = open_frame(path, ds.target)
+            if unreadable is not None:
+                self._unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
+                return unreadable
+            return look_blind(frame, ds.target, intr, check_spec=check_spec, **self.options)
+        except (cv2.error, ValueError, MemoryError) as e:
+            return unusable(ds.target, path, e)
 
     def __call__(self, view, dataset=None):
         self.run()
@@ -167,12 +306,13 @@ def view_points(view, results: dict):
 
 
 def dataset_detector(dataset, workers: int = 2, progress: bool = True, cache=True, views=None, detect_view=None,
-                     cache_tag: str = "", **options) -> DatasetDetector:
+                     cache_tag: str = "", fail_fast: bool = False, **options) -> DatasetDetector:
     """A detector for ``Dataset.to_problem(detector=...)`` that detects all undetected views of
     ``dataset`` in parallel (``workers`` threads; OpenCV releases the GIL), shows a tqdm progress
     bar, caches results next to the data and collects per-file problems in ``.problems``.
     ``cache``: True (``DATASET/.calibgraph_cache/``), False (no cache) or a folder.
-    ``options`` are passed to :func:`detect_image` (e.g. ``upscale=1``, ``method="sb"``); ``views``,
-    ``detect_view`` and ``cache_tag`` as in :class:`DatasetDetector`."""
+    ``options`` are passed to :func:`~calibgraph.detect.search.detect_image` (e.g. ``upscale=1``,
+    ``method="sb"``); ``views``, ``detect_view``, ``cache_tag`` and ``fail_fast`` as in
+    :class:`DatasetDetector`."""
     return DatasetDetector(dataset=dataset, workers=workers, progress=progress, options=dict(options), cache=cache,
-                           views=views, detect_view=detect_view, cache_tag=cache_tag)
+                           views=views, detect_view=detect_view, cache_tag=cache_tag, fail_fast=fail_fast)

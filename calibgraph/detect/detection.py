@@ -36,6 +36,11 @@ class ImageDetection:
         homography_rms_px: residual of the board-to-image homography.
         time_s: detection time.
         image: source file, when read from disk.
+        other_grid: (rows, cols) inner corners of a chessboard of another size than the target's seen in
+            the image (a sign of a wrong board spec, :mod:`calibgraph.detect.spec_check`), else None.
+        deferred: the image was not searched yet: while the board spec is in doubt, a quick probe saw no
+            chessboard of the declared size in it (:mod:`calibgraph.detect.blind`); the dataset driver
+            searches it in full once the spec is settled, and never caches such a record.
     """
 
     ids: np.ndarray
@@ -53,6 +58,8 @@ class ImageDetection:
     n_refined: int = 0
     time_s: float = 0.0
     image: str | None = None
+    other_grid: tuple | None = None
+    deferred: bool = False
 
     def __post_init__(self):
         ids = np.asarray(self.ids, int).reshape(-1)
@@ -63,6 +70,8 @@ class ImageDetection:
             raise InputError("detection: ok=True with no points.")
         object.__setattr__(self, "ids", ids)
         object.__setattr__(self, "uv_px", uv)
+        if self.other_grid is not None:
+            object.__setattr__(self, "other_grid", tuple(int(v) for v in self.other_grid))
 
     @property
     def n_found(self) -> int:

@@ -9,7 +9,11 @@ large its squares are. Then:
   the whole frame and every candidate region the blind search tries;
 - a view predicted empty (board outside the image, behind the camera or edge-on) is confirmed
   empty cheaply: OpenCV's quick chessboard check on the half-resolution frame, a few ms. Only if
-  that check sees a board after all (the prediction was wrong) does the full detector run.
+  that check sees a board after all (the prediction was wrong) does the full detector run;
+- a view whose board is predicted far out of view (its centre behind the camera, its face turned
+  away, or its image farther outside the frame than its own size) is not even decoded: decoding
+  is then most of what a frame costs, and the frame is worth nothing. The dataset driver checks a
+  sample of such frames anyway, so a wrong estimate shows (:mod:`calibgraph.solver.build`).
 
 On a frame without the board the blind detector spends most of its time in the up-scaled searches
 of regions that merely look like a board; the confirmation costs little more than the image decode.
@@ -22,9 +26,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from calibgraph.core.camera import Intrinsics
+from calibgraph.core.errors import DetectionError
 from calibgraph.core.targets import Target
-from calibgraph.detect.detection import ImageDetection
-from calibgraph.detect.image import read_grey
+from calibgraph.detect.detection import ImageDetection, failed_detection
+from calibgraph.detect.image import Frame
 from calibgraph.detect.search import detect_image
 
 # Squares predicted smaller than this (pixels; the blind detector's min_pitch_px) are searched with
@@ -40,11 +45,13 @@ class ViewHint:
         visible: the board (or part of it) is predicted inside the image, facing the camera.
         region_px: (x0, y0, x1, y1) search region, clipped to the image (None when not visible).
         pitch_px: predicted smallest spacing between neighbouring points, pixels.
+        far: not visible, and far enough from it that the frame need not be read (module docstring).
     """
 
     visible: bool
     region_px: tuple | None = None
     pitch_px: float = 0.0
+    far: bool = False
 
 
 def predict_view(target: Target, intrinsics: Intrinsics, T_cam_board: np.ndarray, margin_frac: float = 0.25,
@@ -59,20 +66,22 @@ def predict_view(target: Target, intrinsics: Intrinsics, T_cam_board: np.ndarray
     outline = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], float)
     pts = np.vstack([target.points_board_m, outline])
     p_c = pts @ T[:3, :3].T + T[:3, 3]
-    if np.any(p_c[:, 2] < 0.05):
-        return ViewHint(False)
     centre = p_c.mean(axis=0)
+    if np.any(p_c[:, 2] < 0.05):
+        return ViewHint(False, far=bool(centre[2] < 0))
     # the printed face looks along -z of the board frame (+z for the modified circle grid, whose
     # z comes out of the sheet): the viewing ray must run along +z into a face seen from the front
     normal = T[:3, 2] * (-1.0 if target.kind == "modified_circles" else 1.0)
     cos_view = float(normal @ centre) / float(np.linalg.norm(centre))
     if cos_view < np.cos(np.radians(max_angle_deg)):
-        return ViewHint(False)  # seen from behind or edge-on
+        return ViewHint(False, far=cos_view < 0)  # seen from behind or edge-on
     uv = intrinsics.project(p_c)
     w, h = intrinsics.width_px, intrinsics.height_px
     lo, hi = uv.min(axis=0), uv.max(axis=0)
     if hi[0] < 0 or hi[1] < 0 or lo[0] > w - 1 or lo[1] > h - 1:
-        return ViewHint(False)
+        # how far outside: the gap between the board's image and the frame, against the board's size
+        gap = max(-hi[0], -hi[1], lo[0] - (w - 1), lo[1] - (h - 1))
+        return ViewHint(False, far=bool(gap > max(float(np.max(hi - lo)), 0.1 * max(w, h))))
     pad = margin_frac * float(np.max(hi - lo)) + margin_px
     region = (int(max(0, np.floor(lo[0] - pad))), int(max(0, np.floor(lo[1] - pad))),
               int(min(w, np.ceil(hi[0] + pad) + 1)), int(min(h, np.ceil(hi[1] + pad) + 1)))
@@ -96,14 +105,14 @@ def _min_neighbour_px(uv: np.ndarray, target: Target) -> float:
     return float(np.min(np.concatenate(d))) if d else 0.0
 
 
-def board_maybe_present(grey: np.ndarray, target: Target) -> bool:
+def board_maybe_present(frame, target: Target) -> bool:
     """A cheap look for a board the prediction missed: OpenCV's quick chessboard check at half
     resolution (checkerboards and ChArUco; their squares form the same pattern), a few ms.
     Circle grids have no such check: they are looked for with the detector at half resolution
-    and without up-scaling."""
+    and without up-scaling. ``frame``: a :class:`~calibgraph.detect.image.Frame` or a grey image."""
     import cv2
 
-    half = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    half = (frame if isinstance(frame, Frame) else Frame(frame)).reduced(2)
     if target.kind == "checkerboard":
         return bool(cv2.checkChessboard(half, (target.cols, target.rows)))
     if target.kind == "charuco":
@@ -117,26 +126,32 @@ def board_maybe_present(grey: np.ndarray, target: Target) -> bool:
 
 def detect_with_hint(image, target: Target, intrinsics: Intrinsics | None, hint: ViewHint | None,
                      **options) -> ImageDetection:
-    """Detect ``target`` in ``image`` guided by ``hint`` (module docstring); ``hint=None`` is the
-    blind :func:`detect_image`. ``options`` go to :func:`detect_image`."""
+    """Detect ``target`` in ``image`` (a path, an image array or a
+    :class:`~calibgraph.detect.image.Frame`) guided by ``hint`` (module docstring); ``hint=None``
+    is the blind :func:`detect_image`. ``options`` go to :func:`detect_image`."""
     import time
 
-    if hint is None:
-        return detect_image(image, target, intrinsics, **options)
     t0 = time.perf_counter()
     options = dict(options)
-    src = options.pop("source", None) or (None if isinstance(image, np.ndarray) else str(image))
-    grey = image if isinstance(image, np.ndarray) else read_grey(image)
-    if not hint.visible:
-        if board_maybe_present(grey, target):
-            return detect_image(grey, target, intrinsics, source=src, **options)
-        return ImageDetection(ids=np.zeros(0, int), uv_px=np.zeros((0, 2)), ok=False,
-                              reason="board predicted out of view, and none seen by the quick check",
-                              n_expected=target.n_points, image=src, time_s=time.perf_counter() - t0)
-    opts = dict(options)
-    if not (0 < hint.pitch_px < GUIDED_MIN_PITCH_PX):
-        opts["upscale"] = 1  # large squares: no up-scaling ladder
-    det = detect_image(grey, target, intrinsics, source=src, region_px=hint.region_px, **opts)
-    if det.ok:
-        return replace(det, time_s=time.perf_counter() - t0)
-    return replace(det, reason=f"{det.reason} (searched the predicted region)", time_s=time.perf_counter() - t0)
+    src = options.pop("source", None)
+    frame = image if isinstance(image, Frame) else Frame(image, src)
+    src = src or frame.name
+    if hint is not None and hint.far:
+        return failed_detection("board predicted far out of view; frame not read", target, src, t0)
+    try:
+        if hint is None:
+            det = detect_image(frame.grey(), target, intrinsics, source=src, **options)
+        elif not hint.visible:
+            if board_maybe_present(frame, target):
+                det = detect_image(frame.grey(), target, intrinsics, source=src, **options)
+            else:
+                det = failed_detection("board predicted out of view, and none seen by the quick check", target, src)
+        else:
+            if not (0 < hint.pitch_px < GUIDED_MIN_PITCH_PX):
+                options["upscale"] = 1  # large squares: no up-scaling ladder
+            det = detect_image(frame.grey(), target, intrinsics, source=src, region_px=hint.region_px, **options)
+            if not det.ok:
+                det = replace(det, reason=f"{det.reason} (searched the predicted region)")
+    except DetectionError as e:
+        det = failed_detection(str(e), target, src)
+    return replace(det, time_s=time.perf_counter() - t0)

@@ -15,6 +15,7 @@ import numpy as np
 
 from calibgraph.core.errors import DetectionError
 from calibgraph.core.targets import Target
+from calibgraph.detect.image import sample_bilinear
 
 
 def page_xy(target: Target) -> np.ndarray:
@@ -53,14 +54,6 @@ def _grid_candidates(G: np.ndarray, rows: int, cols: int):
     return outs
 
 
-def _bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    import cv2
-
-    m = uv.astype(np.float32).reshape(-1, 1, 2)
-    out = cv2.remap(img, m[:, :, 0], m[:, :, 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1).astype(float)
-
-
 def _colour_score(grey: np.ndarray, G: np.ndarray) -> float:
     """Mean grey of cells expected black minus cells expected white (negative when the ordering
     matches the board's colours: cell (i, j) between corners (i, j) and (i+1, j+1) is black iff
@@ -69,7 +62,7 @@ def _colour_score(grey: np.ndarray, G: np.ndarray) -> float:
 
     cells = 0.25 * (G[:-1, :-1] + G[1:, 1:] + G[:-1, 1:] + G[1:, :-1])
     sm = cv2.blur(grey, (3, 3))
-    val = _bilinear(sm, cells.reshape(-1, 2)).reshape(cells.shape[:2])
+    val = sample_bilinear(sm, cells.reshape(-1, 2)).reshape(cells.shape[:2])
     ii, jj = np.indices(val.shape)
     black = (ii + jj) % 2 == 0
     if black.all() or (~black).all():

@@ -43,7 +43,7 @@ from calibgraph.detect.regions import roi_candidates, roi_from_points
 def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, upscale="auto", method: str = "auto",
                  allow_symmetric: bool = False, filter: bool = True, min_pitch_px: float = 12.0,
                  min_points: int = 4, source: str | None = None, refine: bool = True,
-                 region_px: tuple | None = None) -> ImageDetection:
+                 region_px: tuple | None = None, bounded: bool = False) -> ImageDetection:
     """Detect ``target`` in one image.
 
     Args:
@@ -68,6 +68,9 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
             :mod:`calibgraph.detect.guided`): only that region is searched, like a candidate region
             of the blind search (no quick whole-frame rejection), at full resolution and, with
             ``upscale="auto"``, up-scaled when its squares are small.
+        bounded: before a candidate region is searched up-scaled, a quick probe (OpenCV's fast
+            check at x2 and x3) must see a board there, as in a guided search: a frame without
+            the board then costs a fraction of a second, not seconds (dataset passes use it).
     Returns:
         :class:`ImageDetection`; never raises for a bad image: ``ok=False`` and ``reason`` say why.
     """
@@ -79,19 +82,20 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
         return failed_detection(str(e), target, src, t0)
     s = _Search(grey=grey, target=target, intrinsics=intrinsics, method=method, upscale=_check_options(method, upscale),
                 allow_symmetric=allow_symmetric, filter=filter, min_pitch_px=min_pitch_px, min_points=min_points,
-                refine=refine, src=src, t0=t0)
+                refine=refine, src=src, t0=t0, bounded=bounded)
     if region_px is not None:
         best = _search_region(s, tuple(int(v) for v in region_px))
         return best if best is not None else _not_found(s)
     native = _attempt(s, _raw_detect, s, grey, 1.0) if s.upscale in ("auto", 1) else None
-    first = _finish(s, native, 1) if native is not None else None
+    deferred = native if s.upscale == "auto" and _plainly_small(s, native) else None
+    first = _finish(s, native, 1) if native is not None and deferred is None else None
     if s.upscale == 1 or (first is not None and first.ok and first.pitch_px >= min_pitch_px):
         best = first
     else:
         if native is None and s.upscale != "auto":
             native = _attempt(s, _raw_detect, s, grey, 1.0)  # its points give the region to up-scale
         rois, first = _upscale_regions(s, native, first)
-        best = _search_upscaled(s, rois, first)
+        best = _search_upscaled(s, rois, first, deferred)
     return best if best is not None else _not_found(s)
 
 
@@ -111,6 +115,7 @@ class _Search:
     refine: bool
     src: str | None
     t0: float
+    bounded: bool = False
     attempts: list = field(default_factory=list)
 
 
@@ -229,10 +234,13 @@ def _upscale_regions(s: _Search, native, first):
     return rois, first
 
 
-def _search_upscaled(s: _Search, rois, first):
+def _search_upscaled(s: _Search, rois, first, deferred=None):
     """Search ``rois`` up-scaled (x2 then x3 for ``"auto"``); the first accepted detection wins,
-    else the best so far (``first``, or the first rejected one for its reason)."""
+    else the best so far (``first``, or the native detection ``deferred``, or the first rejected
+    one for its reason)."""
     factors = (2, 3) if s.upscale == "auto" else (int(s.upscale),)
+    if s.bounded and s.target.kind == "checkerboard":
+        rois = [roi for roi in rois if _probe_sees_board(s, roi)]
     best = first
     for k in factors:
         for roi in rois:
@@ -243,11 +251,20 @@ def _search_upscaled(s: _Search, rois, first):
             if det.ok:
                 best = det
                 break
-            if best is None:
+            if best is None and deferred is None:
                 best = det
         if best is not None and best.ok and best.upscale > 1:
             break
+    if best is None and deferred is not None:
+        best = _finish(s, deferred, 1)
     return best
+
+
+def _plainly_small(s: _Search, raw) -> bool:
+    """A raw native detection whose squares are plainly under ``min_pitch_px``: the up-scaled
+    search that follows replaces it unless it fails, so its refinement (the board fit, the
+    costliest step) waits until then. The margin keeps the decision the refined pitch would make."""
+    return raw is not None and len(raw[0]) >= 2 and _pitch(raw[0], raw[1], s.target) < s.min_pitch_px - 1.0
 
 
 def _search_region(s: _Search, roi) -> ImageDetection | None:
@@ -260,10 +277,11 @@ def _search_region(s: _Search, roi) -> ImageDetection | None:
         got = _attempt(s, _detect_in_roi, s, roi, int(s.upscale), False)
         return _finish(s, got, int(s.upscale)) if got is not None else None
     got = _attempt(s, _detect_in_roi, s, roi, 1, False)
-    best = _finish(s, got, 1) if got is not None else None
+    deferred = got if _plainly_small(s, got) else None
+    best = _finish(s, got, 1) if got is not None and deferred is None else None
     if best is not None and best.ok and best.pitch_px >= s.min_pitch_px:
         return best
-    if best is None and all(_attempt(s, _detect_in_roi, s, roi, k, True) is None for k in (2, 3)):
+    if got is None and not _probe_sees_board(s, roi):
         return None
     for k in (2, 3):
         got = _attempt(s, _detect_in_roi, s, roi, k, False)
@@ -272,9 +290,15 @@ def _search_region(s: _Search, roi) -> ImageDetection | None:
         det = _finish(s, got, k)
         if det.ok:
             return det
-        if best is None:
+        if best is None and deferred is None:
             best = det
-    return best
+    return best if best is not None or deferred is None else _finish(s, deferred, 1)
+
+
+def _probe_sees_board(s: _Search, roi) -> bool:
+    """OpenCV's fast check sees a board in ``roi`` up-scaled x2 or x3 (a miss costs a fraction
+    of a full up-scaled search)."""
+    return any(_attempt(s, _detect_in_roi, s, roi, k, True) is not None for k in (2, 3))
 
 
 def _not_found(s: _Search) -> ImageDetection:

@@ -2,23 +2,25 @@
 
 After the survey every camera that saw the board has a pose ``T_base_cam`` and a 6x6 marginal
 covariance (rotation first, base axes: the left rotation vector and the camera-centre offset):
-the batch solve of every capture so far (:mod:`calibgraph.acquire.auto`), the numbers the stop
-rule and ``result.json`` use. A candidate flange pose is scored on the *linearised calibration
-graph* (:func:`joint_information`): the parameters are every placed camera, the board mount and
-the board scale; each capture's flange is marginalised under the FK prior, so the cameras that
-see one capture share it:
+the batch solve of every capture so far (:mod:`calibgraph.acquire.auto`), marginal over the mount,
+the board scale, the FK and every camera model, the numbers the stop rule and ``result.json`` use.
+A candidate flange pose is scored on the *linearised calibration graph*
+(:mod:`calibgraph.plan.information`): the parameters are every placed camera, the board mount, the
+board scale and the camera model [fx, fy, cx, cy, k1, k2] of every camera whose intrinsics the
+solver estimates, under the prior of their source (factory values: focal length to 2 %); each
+capture's flange is marginalised under the FK prior, so the cameras that see one capture share it:
 
-    J_k   = d uv / d(cameras, mount, scale, flange_k)   (2 rows per corner seen, 6K + 13 columns)
-    I_k   = Schur complement of flange_k in  J_k^T J_k / sigma_px^2 + FK prior
     Sigma = (priors + sum over the captures so far of I_k)^-1,  Sigma' = (Sigma^-1 + I_candidate)^-1
 
 This is the solver's graph at the current estimate (``tests/test_auto.py`` checks it against
-:func:`calibgraph.solver.covariance.crlb`); what it leaves out (intrinsics, robust weights) is carried
-by applying its *ratio* to the batch 1-sigma: predicted sigma_c = batch sigma_c x model sigma'_c /
-model sigma_c. It matters for far cameras: their depth is tied to the board scale and their
-lateral position to their rotation, and only views at several depths and sides, or other
-cameras' views, untie them; a one-camera model with the mount and scale held known predicted
-1.7 mm -> 0.77 mm for a view that gave 1.18 mm (top-down cell), now 1.185 for 1.183.
+:func:`calibgraph.solver.covariance.crlb` with exact, factory and calibrated intrinsics); what it
+leaves out (robust weights, the corner-noise modes) is carried by applying its *ratio* to the batch
+1-sigma: predicted sigma_c = batch sigma_c x model sigma'_c / model sigma_c. With the camera models
+among the parameters, a camera whose model is weak gains most from the views that pin it: the board
+near and far along its line of sight and tilted (its focal length against its depth, which with
+factory intrinsics makes most of a far camera's 1-sigma), towards the edges of its image
+(principal point and distortion against its rotation), and views it shares with a camera that
+pins the capture's flange better than the robot's FK does.
 
 A camera counts as seeing a candidate when the whole board is in view from its *estimated* pose
 (:func:`calibgraph.plan.visibility.board_visible`, with an image margin grown by the pixel shift
@@ -38,7 +40,9 @@ every step: board poses facing a camera short of tolerance (or the bisector of t
 centres half the time near the camera's azimuth and half anywhere round the base (a far camera
 learns most from board positions spread across and along its line of sight), :data:`OVERSAMPLE`
 times more drawn than the IK is given, ranked by the model's expected gain first; a candidate is
-used once. Choosing costs well under a second on two cores (``scripts/bench_choose.py``): the
+used once. A camera whose 1-sigma the captures left cannot bring within tolerance, even with the
+pool's candidates weighted at will (:meth:`ActivePlanner.reach`), is given up by the loop and said
+so early. Choosing costs well under a second on two cores (``scripts/bench_choose.py``): the
 whole pool is scored in one vectorised pass (:func:`~calibgraph.plan.visibility.boards_visible`,
 :func:`joint_information` on a stack of poses), ray casts and path checks only for the best dozen.
 """
@@ -50,12 +54,22 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibgraph.core.transforms import inv
+from calibgraph.plan.information import (
+    block_sigmas,
+    design_bound,
+    inv_scaled,
+    joint_information,
+    shortfall,
+    sigma_norms,
+    view_information,
+)
 from calibgraph.plan.planner import free_motion
 from calibgraph.plan.survey import board_pose_facing, reach_pose, seeds_at
 from calibgraph.plan.visibility import board_visible, boards_visible, occlusion_probes, square_px
+from calibgraph.solver.session_plan import predict_session_covariance
 
-__all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_information", "sigma_norms", "shortfall",
-           "motion_time_s", "keepout_violation", "explain_shortfall"]
+__all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_information", "joint_information",
+           "sigma_norms", "shortfall", "motion_time_s", "keepout_violation", "explain_shortfall"]
 
 SETTLE_S = 0.5  # what every motion costs on top of the joint-space time (the simulated robot's model too)
 STAND_RADIUS_M = 0.25  # keep-out radius round an estimated camera stand, before its uncertainty
@@ -68,159 +82,28 @@ CAPTURE_S = 2.0
 # than 4 on the irregular cell (42 against 41 on average over seeds 0-5, with less spread), at more
 # choose time.
 OVERSAMPLE = 4
+# Smallest board square (px) the planner counts on a camera detecting: calibgraph's detector (up-scaling,
+# photometric board fit) finds 96 % of boards with 5 px squares at 0.01 px per corner
+# (scripts/results/bench_detect_bias.md); a D455 sees the A4 board's 25 mm squares that small from 3 m.
+MIN_SQUARE_PX = 5.0
+SESSION_VIEWS = 25  # images of the close-range intrinsics session a camera out of reach is advised (Reach.with_session)
+REACH_SAMPLE = 240  # board poses drawn per camera to bound what the captures left can give it (ActivePlanner.reach)
 
 
 @dataclass(frozen=True)
 class CameraBelief:
     """What the loop knows about a camera: intrinsics, estimated ``T_base_cam`` (4, 4) and its
-    6x6 covariance (rotation first, base axes; None while only a single-view guess exists)."""
+    6x6 covariance (rotation first, base axes; None while only a single-view guess exists);
+    ``intrinsics_prior``: the (6, 6) covariance of the prior the solver puts on its [fx, fy, cx,
+    cy, k1, k2] (:func:`~calibgraph.plan.information.intrinsics_prior`), None when it holds them
+    known: the planner's model then leaves the camera model out."""
 
     name: str
     intrinsics: object
     T_base_cam: np.ndarray
     covariance: np.ndarray | None = None
     views: int = 0
-
-
-def sigma_norms(cov: np.ndarray) -> tuple:
-    """(translation 1-sigma norm in mm, rotation 1-sigma norm in deg) of a rotation-first 6x6."""
-    d = np.sqrt(np.clip(np.diag(cov), 0, None))
-    return float(np.linalg.norm(d[3:]) * 1e3), float(np.degrees(np.linalg.norm(d[:3])))
-
-
-def shortfall(cov, tol_mm: float, tol_deg: float) -> float:
-    """max(|sigma_t| / tol_mm, |sigma_r| / tol_deg): <= 1 within tolerance (inf when unknown)."""
-    if cov is None:
-        return float("inf")
-    t, r = sigma_norms(cov)
-    return max(t / tol_mm, r / tol_deg)
-
-
-def view_information(intrinsics, T_base_cam: np.ndarray, T_base_board: np.ndarray, points_board_m: np.ndarray,
-                     pixel_sigma_px: float, T_flange_board: np.ndarray | None = None,
-                     fk_sigma_translation_m: float = 0.0, fk_sigma_rotation_rad: float = 0.0) -> np.ndarray:
-    """Fisher information (6x6, rotation first, base axes) on ``T_base_cam`` of one view of the
-    board points; for ``T_base_board`` (M, 4, 4) the M views' informations (M, 6, 6) at once.
-
-    Perturbing the camera by ``R <- exp(dr) R, c <- c + dt`` moves a point seen at
-    ``p_cam = R^T (p - c)`` by ``R^T [p - c]x dr - R^T dt``. With an FK prior (the flange pose of
-    the view is itself uncertain, 1-sigma ``fk_sigma_*``, perturbed at the flange as the solver
-    does) the flange is marginalised out: the Schur complement of the 12x12 information of
-    (camera, flange) with the prior on the flange block. Without it a far camera's gain is
-    overstated several times: at 0.05 px corner noise the robot's 0.1 mm / 0.01 deg dominates.
-    """
-    T_bb = np.asarray(T_base_board, float)
-    single = T_bb.ndim == 2
-    T_bb = T_bb.reshape(-1, 4, 4)
-    M, N = len(T_bb), len(points_board_m)
-    R, c = T_base_cam[:3, :3], T_base_cam[:3, 3]
-    p = np.einsum("nj,mij->mni", points_board_m, T_bb[:, :3, :3]) + T_bb[:, None, :3, 3]  # (M, N, 3) base
-    p_cam = (p - c) @ R
-    _, Jp = intrinsics.project(p_cam.reshape(-1, 3), with_jacobian=True)  # (M N, 2, 3)
-    Jp = np.where(np.all(np.isfinite(Jp), axis=(1, 2))[:, None, None], Jp, 0.0)  # behind the camera: no information
-    JpR = Jp @ R.T  # d uv / d p (base axes)
-    # d p_cam / d(dr, dt) = R^T [[p - c]x, -I]  =>  d uv / d(dr) = JpR [p - c]x, d uv / d(dt) = -JpR
-    Jc = np.empty((M * N, 2, 6))
-    Jc[:, :, :3] = np.einsum("nij,njk->nik", JpR, _skew_rows((p - c).reshape(-1, 3)))
-    Jc[:, :, 3:] = -JpR
-    Jc = Jc.reshape(M, 2 * N, 6)
-    w = 1.0 / pixel_sigma_px ** 2
-    I_cc = w * np.einsum("mki,mkj->mij", Jc, Jc)
-    if T_flange_board is None or not (fk_sigma_translation_m > 0 and fk_sigma_rotation_rad > 0):
-        return I_cc[0] if single else I_cc
-    # flange right-perturbation xi = [w, v]: p = T_bf exp(xi) p_f moves by R_bf ([-p_f]x w + v)
-    T_bf = T_bb @ np.linalg.inv(T_flange_board)
-    R_bf = T_bf[:, :3, :3]
-    p_f = np.einsum("mni,mij->mnj", p - T_bf[:, None, :3, 3], R_bf)  # flange axes
-    JpRf = np.einsum("mnij,mjk->mnik", JpR.reshape(M, N, 2, 3), R_bf)  # d uv / d p (flange axes)
-    Jf = np.empty((M, N, 2, 6))
-    Jf[..., :3] = -np.einsum("mnij,mnjk->mnik", JpRf, _skew_rows(p_f.reshape(-1, 3)).reshape(M, N, 3, 3))
-    Jf[..., 3:] = JpRf
-    Jf = Jf.reshape(M, 2 * N, 6)
-    prior = np.diag(1.0 / np.array([fk_sigma_rotation_rad] * 3 + [fk_sigma_translation_m] * 3) ** 2)
-    I_cf = w * np.einsum("mki,mkj->mij", Jc, Jf)
-    I_ff = w * np.einsum("mki,mkj->mij", Jf, Jf) + prior
-    out = I_cc - I_cf @ np.linalg.solve(I_ff, np.swapaxes(I_cf, 1, 2))
-    return out[0] if single else out
-
-
-def view_jacobians(intrinsics, T_base_cam: np.ndarray, T_base_flange: np.ndarray, T_flange_board: np.ndarray,
-                   points_board_m: np.ndarray) -> np.ndarray:
-    """d uv / d(camera, flange, mount, board scale) of the board points seen by one camera from
-    the flange poses ``T_base_flange`` (M, 4, 4): (M, 2N, 19), columns [camera 6 (base axes, as in
-    :func:`view_information`), flange 6 (right perturbation), mount 6 (right perturbation of
-    ``T_flange_board``), board scale 1 (the points scaled about the board origin, as the solver does)].
-    Points behind the camera give zero rows."""
-    T_bf = np.asarray(T_base_flange, float).reshape(-1, 4, 4)
-    M, N = len(T_bf), len(points_board_m)
-    T_bb = T_bf @ T_flange_board
-    R_bb = T_bb[:, :3, :3]
-    R, c = T_base_cam[:3, :3], T_base_cam[:3, 3]
-    p = np.einsum("nj,mij->mni", points_board_m, R_bb) + T_bb[:, None, :3, 3]  # (M, N, 3) base
-    _, Jp = intrinsics.project(((p - c) @ R).reshape(-1, 3), with_jacobian=True)
-    Jp = np.where(np.all(np.isfinite(Jp), axis=(1, 2))[:, None, None], Jp, 0.0)
-    JpR = (Jp @ R.T).reshape(M, N, 2, 3)  # d uv / d p (base axes)
-    J = np.empty((M, N, 2, 19))
-    J[..., :3] = np.einsum("mnij,mnjk->mnik", JpR, _skew_rows((p - c).reshape(-1, 3)).reshape(M, N, 3, 3))
-    J[..., 3:6] = -JpR
-    R_bf = T_bf[:, :3, :3]
-    p_f = np.einsum("mni,mij->mnj", p - T_bf[:, None, :3, 3], R_bf)  # flange axes
-    JpRf = np.einsum("mnij,mjk->mnik", JpR, R_bf)
-    J[..., 6:9] = -np.einsum("mnij,mnjk->mnik", JpRf, _skew_rows(p_f.reshape(-1, 3)).reshape(M, N, 3, 3))
-    J[..., 9:12] = JpRf
-    JpRb = np.einsum("mnij,mjk->mnik", JpR, R_bb)
-    J[..., 12:15] = -np.einsum("mnij,njk->mnik", JpRb, _skew_rows(np.asarray(points_board_m, float)))
-    J[..., 15:18] = JpRb
-    J[..., 18] = np.einsum("mnij,nj->mni", JpRb, np.asarray(points_board_m, float))
-    return J.reshape(M, 2 * N, 19)
-
-
-def joint_information(cams: list, seen: np.ndarray, T_base_flange: np.ndarray, T_flange_board: np.ndarray,
-                      points_board_m: np.ndarray, pixel_sigma_px: float, fk_sigma_translation_m: float,
-                      fk_sigma_rotation_rad: float) -> np.ndarray:
-    """Fisher information of M captures on the parameters shared across views, each capture's
-    flange marginalised under the FK prior: (M, P, P) with P = 6K + 7, the order [camera 1 ... camera
-    K (6 each, rotation first, base axes), mount 6, board scale 1]. ``cams``: K (intrinsics,
-    T_base_cam); ``seen``: (M, K) which cameras see each capture.
-
-    This is the linearised calibration graph one capture at a time: unlike :func:`view_information`
-    (one camera, mount and scale held known) the cameras of a capture share its flange, and every
-    view informs the mount and the board scale that all cameras depend on. A far camera's depth is
-    tied to the board scale (a 1e-4 scale error is 0.45 mm at 4.5 m), which only views at several
-    depths, or other cameras, pin down."""
-    T_bf = np.asarray(T_base_flange, float).reshape(-1, 4, 4)
-    seen = np.asarray(seen, bool).reshape(len(T_bf), len(cams))
-    M, K = len(T_bf), len(cams)
-    P = 6 * K + 7
-    w = 1.0 / pixel_sigma_px ** 2
-    L = np.zeros((M, P + 6, P + 6))
-    for k, (intr, T_bc) in enumerate(cams):
-        m = seen[:, k]
-        if not m.any():
-            continue
-        J = view_jacobians(intr, T_bc, T_bf[m], T_flange_board, points_board_m)
-        idx = np.r_[6 * k:6 * k + 6, P:P + 6, 6 * K:6 * K + 7]  # camera, flange, mount + scale
-        L[np.ix_(np.flatnonzero(m), idx, idx)] += w * np.einsum("mki,mkj->mij", J, J)
-    L[:, P:, P:] += np.diag(1.0 / np.array([fk_sigma_rotation_rad] * 3 + [fk_sigma_translation_m] * 3) ** 2)
-    I_pf = L[:, :P, P:]
-    return L[:, :P, :P] - I_pf @ np.linalg.solve(L[:, P:, P:], np.swapaxes(I_pf, 1, 2))
-
-
-def _block_sigmas(cov: np.ndarray, K: int) -> np.ndarray:
-    """(..., K, 2) translation-norm (mm) and rotation-norm (deg) 1-sigma of each camera block of a
-    joint covariance (..., P, P)."""
-    d = np.sqrt(np.clip(np.diagonal(cov, axis1=-2, axis2=-1)[..., :6 * K], 0, None))
-    d = d.reshape(*d.shape[:-1], K, 6)
-    return np.stack([np.linalg.norm(d[..., 3:], axis=-1) * 1e3, np.degrees(np.linalg.norm(d[..., :3], axis=-1))], -1)
-
-
-def _skew_rows(v: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) skew matrices of the rows of ``v`` (N, 3)."""
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
-    return S
+    intrinsics_prior: np.ndarray | None = field(default=None, repr=False)
 
 
 def motion_time_s(q0, q1, dq_max_rad_s, speed_scale: float) -> float:
@@ -300,6 +183,32 @@ class Choice:
     chosen_index: int = -1
 
 
+@dataclass(frozen=True)
+class Reach:
+    """How far ``budget`` more captures could take a camera (:meth:`ActivePlanner.reach`).
+
+    Attributes:
+        camera: its name.
+        budget: the captures counted.
+        candidates: pool candidates that show it the board.
+        lower: (mm, deg) no ``budget`` captures from the pool give a smaller 1-sigma (0: not bounded).
+        design: (mm, deg) the 1-sigma of the best weights found (an estimate of what planning reaches).
+        with_session: (mm, deg) the same design's 1-sigma after a close-range intrinsics session of
+            ``SESSION_VIEWS`` images (its predicted covariance of [fx, fy, cx, cy, k1, k2] added to the
+            camera's prior); given only for a camera out of reach whose model the solver estimates.
+    """
+
+    camera: str
+    budget: int
+    candidates: int
+    lower: tuple
+    design: tuple
+    with_session: tuple = ()
+
+    def out_of_reach(self, tol_mm: float, tol_deg: float) -> bool:
+        return self.lower[0] > tol_mm or self.lower[1] > tol_deg
+
+
 class ActivePlanner:
     """Candidate pool + scoring (see the module docstring).
 
@@ -322,6 +231,7 @@ class ActivePlanner:
         self.dq_max = np.asarray(dq_max_rad_s, float)
         self.speed_scale = float(speed_scale)
         self.rng = np.random.default_rng(seed)
+        self.reach_rng = np.random.default_rng([seed, 1])  # its own stream: bounding never changes the choices
         self.tilt, self.roll = np.radians(tilt_deg), np.radians(roll_deg)
         self.radius_m = radius_m
         self.height_m = height_m
@@ -357,30 +267,11 @@ class ActivePlanner:
             return 0
         w = np.array([max(float(weights.get(n, 0.0)), 1e-6) for n in names])
         w /= w.sum()
-        eyes = {n: beliefs[n].T_base_cam[:3, 3] for n in beliefs}
-        az = {n: float(np.arctan2(e[1], e[0])) for n, e in eyes.items()}
         samples = []  # (T_base_board, IK seeds, aimed): all drawn first, in the sampler's fixed order
-        for _ in range(n_new * (max(int(oversample), 1) if prescore is not None else 1)):
-            cam = names[self.rng.choice(len(names), p=w)]
-            others = [o for o in beliefs if o != cam and abs(np.angle(np.exp(1j * (az[o] - az[cam])))) < np.radians(120)]
-            if others and self.rng.uniform() < 0.33:
-                o = others[self.rng.integers(len(others))]
-                a = float(np.angle(np.exp(1j * az[cam]) + np.exp(1j * az[o])))
-                aimed, tilt = (cam, o), self.tilt * self.rng.uniform(0, 0.4)
-            else:
-                a, aimed, tilt = az[cam], (cam,), self.tilt * self.rng.uniform(0.2, 1.0)
-            if self.rng.uniform() < 0.5:  # anywhere round the base: across and along the camera's line of sight
-                a = self.rng.uniform(-np.pi, np.pi)
-            else:  # on the camera's side
-                a += self.rng.uniform(-1, 1) * np.radians(75)
-            r = self.rng.uniform(*self.radius_m)
-            centre = np.array([r * np.cos(a), r * np.sin(a), self.rng.uniform(*self.height_m)])
-            # face the camera, or the bisector of the directions to the two (equal angles to both)
-            eye = centre + sum((eyes[n] - centre) / max(np.linalg.norm(eyes[n] - centre), 1e-9) for n in aimed)
-            t_axis = self.rng.uniform(0, 2 * np.pi)
-            T_bb = board_pose_facing(eye, centre, self.cell.target, tilt * np.array([np.cos(t_axis), np.sin(t_axis), 0]),
-                                     self.roll * self.rng.uniform(-1, 1))
-            lo, hi = self.world.q_lo[0] + 0.1, self.world.q_hi[0] - 0.1
+        lo, hi = self.world.q_lo[0] + 0.1, self.world.q_hi[0] - 0.1
+        T_all, a_all, aimed_all = self._draw(beliefs, names, w, self.rng,
+                                             n_new * (max(int(oversample), 1) if prescore is not None else 1))
+        for T_bb, a, aimed in zip(T_all, a_all, aimed_all):
             near = q_now is not None and abs(np.angle(np.exp(1j * (q_now[0] - a)))) < 0.6
             samples.append((T_bb, seeds_at(float(np.clip(a, lo, hi)), q_now if near else None, 2, self.rng), aimed))
         if not samples:
@@ -391,7 +282,8 @@ class ActivePlanner:
             seen = np.zeros(len(samples), bool)
             for n in useful:
                 b = beliefs[n]
-                seen |= boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_all, margin_px=0.0)
+                seen |= boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_all, margin_px=0.0,
+                                       min_square_px=MIN_SQUARE_PX)
             keep &= seen
         T_fb_inv = inv(T_flange_board)
         for i, (T_bb, _, _) in enumerate(samples):
@@ -423,6 +315,41 @@ class ActivePlanner:
             self.world.set_q(q_saved)
         return added
 
+    def _draw(self, beliefs: dict, names: list, w: np.ndarray, rng, n: int):
+        """``n`` board poses aimed at cameras of ``names`` (drawn with probabilities ``w``), a third of
+        them at the bisector of the camera and a neighbour within 120 deg: (T_base_board (n, 4, 4),
+        azimuth of each centre (n,), cameras each is aimed at)."""
+        all_names = list(beliefs)
+        eyes = np.array([beliefs[x].T_base_cam[:3, 3] for x in all_names])
+        az = np.arctan2(eyes[:, 1], eyes[:, 0])
+        cam = np.array([all_names.index(x) for x in names])[rng.choice(len(names), p=w, size=n)]
+        pair = rng.uniform(size=n) < 0.33
+        other = np.full(n, -1)
+        for c in np.unique(cam):
+            near = [o for o in range(len(all_names)) if o != c and abs(np.angle(np.exp(1j * (az[o] - az[c])))) < np.radians(120)]
+            sel = np.flatnonzero((cam == c) & pair)
+            if near and len(sel):
+                other[sel] = np.array(near)[rng.integers(len(near), size=len(sel))]
+        pair = other >= 0
+        a = np.where(pair, np.angle(np.exp(1j * az[cam]) + np.exp(1j * az[np.maximum(other, 0)])), az[cam])
+        tilt = self.tilt * np.where(pair, rng.uniform(0, 0.4, n), rng.uniform(0.2, 1.0, n))
+        anywhere = rng.uniform(size=n) < 0.5  # anywhere round the base: across and along the camera's line of sight
+        a = np.where(anywhere, rng.uniform(-np.pi, np.pi, n), a + rng.uniform(-1, 1, n) * np.radians(75))
+        r = rng.uniform(*self.radius_m, n)
+        centre = np.column_stack([r * np.cos(a), r * np.sin(a), rng.uniform(*self.height_m, n)])
+        # face the camera, or the bisector of the directions to the two (equal angles to both)
+        to_eye = eyes[cam] - centre
+        to_eye /= np.maximum(np.linalg.norm(to_eye, axis=1, keepdims=True), 1e-9)
+        to_other = eyes[np.maximum(other, 0)] - centre
+        to_other /= np.maximum(np.linalg.norm(to_other, axis=1, keepdims=True), 1e-9)
+        facing = to_eye + np.where(pair[:, None], to_other, 0.0)
+        t_axis = rng.uniform(0, 2 * np.pi, n)
+        tilt_vec = tilt[:, None] * np.column_stack([np.cos(t_axis), np.sin(t_axis), np.zeros(n)])
+        roll = self.roll * rng.uniform(-1, 1, n)
+        T_bb = boards_facing(facing, centre, tilt_vec, roll, self._points_b.mean(axis=0))
+        aimed = [(all_names[c],) if o < 0 else (all_names[c], all_names[o]) for c, o in zip(cam, other)]
+        return T_bb, a, aimed
+
     # -- scoring ---------------------------------------------------------------------------------------
     def predict(self, cand: Candidate, beliefs: dict, T_flange_board, pixel_sigma_px: float, occlusion: bool = True):
         """camera -> Fisher information (6x6) of the view ``cand`` would give, for every camera that
@@ -434,27 +361,36 @@ class ActivePlanner:
         for n, b in beliefs.items():
             d = float(np.linalg.norm(T_bb[:3, 3] - b.T_base_cam[:3, 3]))
             if not board_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb, margin_px=_pixel_margin(b, d),
+                                 min_square_px=MIN_SQUARE_PX,
                                  occluded=self.world.occluded if occlusion else None):
                 continue
             out[n] = view_information(b.intrinsics, b.T_base_cam, T_bb, self._points_b, pixel_sigma_px,
                                       T_flange_board, *self.fk_sigmas)
         return out
 
+    @staticmethod
+    def free_intrinsics(scored: dict, names) -> list:
+        """Which of the cameras ``names`` have their camera model among the model's parameters."""
+        return [scored[n].intrinsics_prior is not None for n in names]
+
     def graph_information(self, scored: dict, history, T_flange_board, pixel_sigma_px):
         """The linearised graph of the captures so far: (names, [(intrinsics, T_base_cam)], information
-        (P, P)) over the ``scored`` cameras, the mount and the board scale (see :func:`joint_information`),
-        with the solver's weak priors (1 rad / 10 m on cameras and mount) and the board-scale prior."""
+        (P, P)) over the ``scored`` cameras, the mount, the board scale and the camera models the
+        solver estimates (see :func:`joint_information`; :meth:`free_intrinsics`), with the solver's
+        weak priors (1 rad / 10 m on cameras and mount), the board-scale prior and each camera
+        model's prior."""
         names = list(scored)
         cams = [(scored[n].intrinsics, scored[n].T_base_cam) for n in names]
+        free = self.free_intrinsics(scored, names)
         K = len(names)
-        P = 6 * K + 7
-        J = np.diag(np.r_[np.tile([1.0] * 3 + [0.01] * 3, K + 1), 1.0 / BOARD_SCALE_SIGMA ** 2])
+        priors = [np.diag(np.r_[np.tile([1.0] * 3 + [0.01] * 3, K + 1), 1.0 / BOARD_SCALE_SIGMA ** 2])]
+        priors += [np.linalg.inv(scored[n].intrinsics_prior) for n, f in zip(names, free) if f]
+        J = _block_diag(priors)
         hist = [(np.asarray(T, float), tuple(c)) for T, c in (history or ()) if any(n in c for n in names)]
         if hist:
             seen = np.array([[n in c for n in names] for _, c in hist])
             J = J + joint_information(cams, seen, np.array([T for T, _ in hist]), T_flange_board, self._points_b,
-                                      pixel_sigma_px, *self.fk_sigmas).sum(axis=0)
-        assert J.shape == (P, P)
+                                      pixel_sigma_px, *self.fk_sigmas, free_intrinsics=free).sum(axis=0)
         return names, cams, J
 
     def _predictor(self, scored: dict, rho: dict, short: dict, T_flange_board, pixel_sigma_px, tol_mm, tol_deg,
@@ -462,26 +398,19 @@ class ActivePlanner:
         """(names, visible(T_base_board (M, 4, 4)) -> (M, K), predict(visible (M, K), T_base_flange (M, 4, 4)) ->
         (gain (M,), predicted 1-sigma (M, K, 2))) for the ``scored`` cameras.
 
-        The prediction is the joint model's ratio (:meth:`_model`, the candidate's information added)
-        applied to each camera's reference 1-sigma (the batch solve's): the model leaves out the
-        intrinsics and the robust weights, the ratio carries what it does capture (shared flange,
-        mount, board scale). gain = sum over the cameras short of tolerance of
-        max(rho, 1)^2 - max(rho', 1)^2."""
+        The prediction is the joint model's ratio (:meth:`graph_information`, the candidate's
+        information added) applied to each camera's reference 1-sigma (the batch solve's): the model
+        leaves out the robust weights and the corner-noise modes, the ratio carries what it does
+        capture (shared flange, mount, board scale, camera models). gain = sum over the cameras short
+        of tolerance of max(rho, 1)^2 - max(rho', 1)^2."""
         names, cams, J0 = self.graph_information(scored, history, T_flange_board, pixel_sigma_px)
+        free = self.free_intrinsics(scored, names)
         K = len(names)
-        sig0 = _block_sigmas(np.linalg.inv(J0), K)  # (K, 2) model 1-sigma now
+        sig0 = block_sigmas(inv_scaled(J0), K)  # (K, 2) model 1-sigma now
         ref = np.array([sigma_norms(scored[n].covariance) for n in names])  # (K, 2) reference 1-sigma now
         rho_now = np.array([max(rho[n], 1.0) for n in names])
         is_short = np.array([n in short for n in names])
-
-        def visible(T_bb):
-            vis = np.zeros((len(T_bb), K), bool)
-            for k, n in enumerate(names):
-                b = scored[n]
-                d = np.linalg.norm(T_bb[:, :3, 3] - b.T_base_cam[:3, 3], axis=1)
-                vis[:, k] = boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb,
-                                           margin_px=_pixel_margin(b, d))
-            return vis
+        visible = self._visibility(scored, names)
 
         def predict(rows, T_bf):
             rows = np.asarray(rows, bool).reshape(-1, K)
@@ -489,13 +418,92 @@ class ActivePlanner:
             m = rows.any(axis=1)
             if m.any():
                 I = joint_information(cams, rows[m], T_bf[m], T_flange_board, self._points_b, pixel_sigma_px,
-                                      *self.fk_sigmas)
-                sig[m] = ref * _block_sigmas(np.linalg.inv(J0 + I), K) / np.maximum(sig0, 1e-12)
+                                      *self.fk_sigmas, free_intrinsics=free)
+                sig[m] = ref * block_sigmas(inv_scaled(J0 + I), K) / np.maximum(sig0, 1e-12)
                 rho_new = np.maximum(np.maximum(sig[m][..., 0] / tol_mm, sig[m][..., 1] / tol_deg), 1.0)
                 gain[m] = np.sum(np.where(is_short, rho_now ** 2 - rho_new ** 2, 0.0), axis=-1)
             return gain, sig
 
         return names, visible, predict
+
+    def _visibility(self, scored: dict, names: list):
+        """visible(T_base_board (M, 4, 4)) -> (M, K): which of the cameras ``names`` see the whole
+        board from their estimated poses (image margin grown by their uncertainty; no occlusion test)."""
+
+        def visible(T_bb):
+            vis = np.zeros((len(T_bb), len(names)), bool)
+            for k, n in enumerate(names):
+                b = scored[n]
+                d = np.linalg.norm(T_bb[:, :3, 3] - b.T_base_cam[:3, 3], axis=1)
+                vis[:, k] = boards_visible(b.intrinsics, b.T_base_cam, self.cell.target, T_bb,
+                                           margin_px=_pixel_margin(b, d), min_square_px=MIN_SQUARE_PX)
+            return vis
+
+        return visible
+
+    def reach(self, beliefs: dict, T_flange_board, pixel_sigma_px: float, budget: int, names, history=None,
+              tol_mm: float = np.inf, tol_deg: float = np.inf, n_sample: int = REACH_SAMPLE) -> dict:
+        """camera -> :class:`Reach`: how far ``budget`` more captures could take each camera of
+        ``names`` (see :func:`~calibgraph.plan.information.design_bound`).
+
+        The candidates are ``n_sample`` board poses drawn as the pool's are but aimed at the camera
+        alone, with the pool's candidates: those the camera sees whole from its estimate. The bound
+        is optimistic on purpose, so that a camera said to be out of reach is: no IK or keep-out
+        test and no occlusion (a drawn pose need not be reachable), the convex relaxation's weights
+        (any non-negative weights summing to ``budget``, repeats allowed, every capture spent on this
+        camera), and the other cameras' poses and models held known in the new captures (their views
+        of a capture then pin its flange, the mount and the scale for free); what the captures so
+        far tell is the camera's marginal (the others marginalised, not held), so that a budget of
+        none gives today's 1-sigma. The model's 1-sigma is scaled to the
+        batch solve's as in the choice. Only the norms short of ``tol_mm`` / ``tol_deg`` are bounded
+        (the other is given as 0)."""
+        scored = {n: b for n, b in beliefs.items() if b.covariance is not None}
+        all_names, cams, J0 = self.graph_information(scored, history, T_flange_board, pixel_sigma_px)
+        free = self.free_intrinsics(scored, all_names)
+        K, P0 = len(all_names), 6 * len(all_names) + 7
+        ratio = (np.array([sigma_norms(scored[n].covariance) for n in all_names])
+                 / np.maximum(block_sigmas(inv_scaled(J0), K), 1e-12))
+        visible = self._visibility(scored, all_names)
+        T_fb_inv = inv(T_flange_board)
+        model_cols, j = {}, 0
+        for k, f in enumerate(free):
+            if f:
+                model_cols[k] = np.arange(P0 + 6 * j, P0 + 6 * j + 6)
+                j += 1
+        out = {}
+        for n in names:
+            if n not in scored:
+                continue
+            k = all_names.index(n)
+            T_bb = self._draw(scored, [n], np.ones(1), self.reach_rng, n_sample)[0]
+            T_bb = np.concatenate([T_bb, np.array([c.T_base_flange for c in self.pool]).reshape(-1, 4, 4) @ T_flange_board])
+            T_bb = T_bb[self._visibility(scored, [n])(T_bb)[:, 0]]  # this camera's first: the others see a few
+            vis, T_bf = visible(T_bb), T_bb @ T_fb_inv
+            own = np.r_[6 * k:6 * k + 6, 6 * K:6 * K + 7, model_cols.get(k, np.zeros(0, int))]
+            infos = joint_information(cams, vis, T_bf, T_flange_board, self._points_b, pixel_sigma_px, *self.fk_sigmas,
+                                      free_intrinsics=free)[:, own][:, :, own] if len(T_bf) else np.zeros((0, 0, 0))
+            # what the captures so far tell of its own columns: the others marginalised (Schur
+            # complement), so that no captures give exactly today's 1-sigma
+            oth = np.setdiff1d(np.arange(len(J0)), own)
+            Jk = J0[np.ix_(own, own)] - J0[np.ix_(own, oth)] @ inv_scaled(J0[np.ix_(oth, oth)]) @ J0[np.ix_(oth, own)]
+            Jk = 0.5 * (Jk + Jk.T)
+            t_now, r_now = sigma_norms(scored[n].covariance)
+            lower, design = [0.0, 0.0], [t_now, r_now]
+            for i, (rows, now, tol, unit) in enumerate((([3, 4, 5], t_now, tol_mm, 1e3),
+                                                        ([0, 1, 2], r_now, tol_deg, np.degrees(1.0)))):
+                if now > tol:
+                    lb, v = design_bound(Jk, infos, budget if len(T_bf) else 0, rows)
+                    lower[i], design[i] = (float(ratio[k, i] * unit * np.sqrt(x)) for x in (lb, v))
+            session = ()
+            if (lower[0] > tol_mm or lower[1] > tol_deg) and k in model_cols and len(T_bf):
+                m = np.arange(len(own) - 6, len(own))  # the camera model's columns of ``own``
+                Js = Jk.copy()
+                Js[np.ix_(m, m)] += np.linalg.inv(predict_session_covariance(scored[n].intrinsics, self.cell.target,
+                                                                             SESSION_VIEWS))
+                session = tuple(float(ratio[k, i] * unit * np.sqrt(design_bound(Js, infos, budget, rows)[1]))
+                                for i, (rows, unit) in enumerate((([3, 4, 5], 1e3), ([0, 1, 2], np.degrees(1.0)))))
+            out[n] = Reach(n, int(budget), int(len(T_bf)), tuple(lower), tuple(design), session)
+        return out
 
     def _score_pool(self, predictor, T_flange_board):
         """Every pool candidate at once, geometry only: (visible (M, K), gain (M,), predicted 1-sigma (M, K, 2))."""
@@ -506,7 +514,8 @@ class ActivePlanner:
         return vis, gain, sig
 
     def choose(self, beliefs: dict, T_flange_board, pixel_sigma_px: float, tol_mm: float, tol_deg: float, q_now,
-               n_top_up: int = 20, max_step_rad: float = 0.03, max_pool: int = 160, history=None) -> Choice | None:
+               n_top_up: int = 20, max_step_rad: float = 0.03, max_pool: int = 160, history=None,
+               skip=()) -> Choice | None:
         """The best candidate (highest gain per second) with a collision-free motion from ``q_now``,
         or None when no candidate shows the board to a camera short of tolerance. Only cameras
         with a covariance are scored; ``beliefs`` without one still shape the keep-outs.
@@ -514,10 +523,10 @@ class ActivePlanner:
         Scoring runs without the occlusion test (pure geometry, vectorised over the pool); the
         best dozen are then checked for occlusion by the arm (ray casts at the candidate's
         configuration) and re-scored with the cameras it hides removed, and for a free motion
-        from ``q_now``."""
+        from ``q_now``. Cameras in ``skip`` (out of reach) are not pursued."""
         scored = {n: b for n, b in beliefs.items() if b.covariance is not None}
         rho = {n: shortfall(b.covariance, tol_mm, tol_deg) for n, b in scored.items()}
-        short = {n: r for n, r in rho.items() if r > 1.0}
+        short = {n: r for n, r in rho.items() if r > 1.0 and n not in skip}
         if not short:
             return None
         predictor = self._predictor(scored, rho, short, T_flange_board, pixel_sigma_px, tol_mm, tol_deg, history)
@@ -635,3 +644,41 @@ def explain_shortfall(name: str, belief: CameraBelief, views: list, target, tol_
         reasons.append("the budget ran out")
         helps.append("a larger --max-poses budget")
     return f"{parts[0]}: {', '.join(reasons)}; would help: {'; '.join(dict.fromkeys(helps))}"
+
+
+def _block_diag(blocks: list) -> np.ndarray:
+    n = sum(len(b) for b in blocks)
+    out, i = np.zeros((n, n)), 0
+    for b in blocks:
+        out[i:i + len(b), i:i + len(b)] = b
+        i += len(b)
+    return out
+
+
+def boards_facing(facing: np.ndarray, centre_m: np.ndarray, tilt_rotvec: np.ndarray, roll_rad: np.ndarray,
+                  pattern_centre_b: np.ndarray) -> np.ndarray:
+    """(n, 4, 4) ``T_base_board`` of boards whose pattern centre is at ``centre_m`` (n, 3) and whose
+    printed face (-z) looks along ``facing`` (n, 3), tilted and rolled as
+    :func:`calibgraph.core.transforms.board_facing` does it, for many at once."""
+    z = -facing / np.linalg.norm(facing, axis=1, keepdims=True)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    flat = np.linalg.norm(x, axis=1) < 1e-9
+    x[flat] = np.cross(z[flat], [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z], axis=2) @ _exp_so3_rows(tilt_rotvec) @ _exp_so3_rows(np.outer(roll_rad, [0.0, 0.0, 1.0]))
+    T = np.tile(np.eye(4), (len(R), 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = centre_m - R @ pattern_centre_b
+    return T
+
+
+def _exp_so3_rows(w: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations of the rotation vectors ``w`` (n, 3) (Rodrigues)."""
+    th = np.linalg.norm(w, axis=1)
+    k = w / np.maximum(th, 1e-12)[:, None]
+    K = np.zeros((len(w), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 0] = -k[:, 2], k[:, 1], k[:, 2]
+    K[:, 1, 2], K[:, 2, 0], K[:, 2, 1] = -k[:, 0], -k[:, 1], k[:, 0]
+    s, c = np.sin(th)[:, None, None], (1 - np.cos(th))[:, None, None]
+    return np.eye(3) + s * K + c * (K @ K)

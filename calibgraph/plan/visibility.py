@@ -60,15 +60,15 @@ def boards_visible(intrinsics, T_base_cam: np.ndarray, target, T_base_boards: np
     if M == 0:
         return np.zeros(0, bool)
     margin = np.broadcast_to(np.asarray(margin_px, float), (M,))
-    T_cb = np.einsum("ij,mjk->mik", inv(T_base_cam), T)
+    T_cb = inv(T_base_cam) @ T
     pts_b = target.points_board_m
-    p_c = np.einsum("nj,mij->mni", pts_b, T_cb[:, :3, :3]) + T_cb[:, None, :3, 3]  # (M, N, 3)
+    p_c = pts_b @ np.swapaxes(T_cb[:, :3, :3], 1, 2) + T_cb[:, None, :3, 3]  # (M, N, 3)
     ok = np.all(p_c[:, :, 2] >= 0.2, axis=1)
     # camera on the printed side (-z_board): z of the camera centre in board axes < 0
-    cam_z_board = -np.einsum("mi,mi->m", T_cb[:, :3, 2], T_cb[:, :3, 3])
+    cam_z_board = -(T_cb[:, :3, 2] * T_cb[:, :3, 3]).sum(axis=1)
     ok &= cam_z_board < 0
     centre_c = p_c.mean(axis=1)
-    cosang = np.einsum("mi,mi->m", T_cb[:, :3, 2], centre_c) / np.linalg.norm(centre_c, axis=1)
+    cosang = (T_cb[:, :3, 2] * centre_c).sum(axis=1) / np.linalg.norm(centre_c, axis=1)
     ok &= cosang >= np.cos(np.radians(max_angle_deg))
     idx = np.flatnonzero(ok)
     if len(idx):

@@ -4,36 +4,58 @@ the images that carry no stored corners — guided by a first estimate when ther
 Guided detection (:mod:`calibgraph.detect.guided`): a blind search of a frame without the board
 is the detector's most expensive case (it tries up-scaled regions that merely look like a board),
 and in recordings where every camera captures at every robot pose most frames are such frames.
-So, for a dataset with many undetected views:
+So, for a dataset with many undetected views, :class:`GuidedDatasetDetector` streams the frames
+through one worker pool (:class:`~calibgraph.detect.stream.OrderedPool`), both cores busy from
+the first frame to the last, in this order of priority:
 
 1. a *survey*: the views of ``SURVEY_CAPTURES`` captures spread over the run are detected blind,
-   first without up-scaling (an empty frame then costs a fraction of the full search); only the
-   survey views of cameras that this leaves without a pose are searched again with up-scaling;
-2. a coarse solve of the survey gives every camera that saw the board a pose (and the board mount);
-3. every other view gets a prediction from its capture's flange pose — the board's image region
-   and square size, or "not in view" — and is detected in that region at that scale, or confirmed
-   empty by a quick check. Cameras the survey could not place are searched blind.
+   without up-scaling, and only where a quick probe sees a chessboard (an empty frame then costs
+   little more than its decoding; every survey miss gets a second look, guided or deep). These first
+   frames of every camera also decide whether the board spec is wrong
+   (:mod:`calibgraph.detect.spec_check`): then the run stops with one line naming the likely cause;
+2. as soon as a camera has ``PLACE_VIEWS`` survey detections, a coarse solve of the survey so far
+   gives it a pose (and the board mount), and from then on its frames are searched guided: each
+   gets a prediction from its capture's flange pose — the board's image region and square size,
+   "not in view" (confirmed by a quick check) or "far out of view" (not even decoded; every
+   ``SPOT_CHECK_EVERY``-th such frame is checked anyway, and one that shows the board sends all of
+   that camera's frames back to the quick check). Each later coarse solve (another camera placed,
+   the survey complete) refines the predictions of the frames not yet searched, and a predicted
+   board missed under an older estimate is searched once more where the newer one says;
+3. the survey views of cameras the quick survey could not place are searched again with
+   up-scaling; cameras still without a pose are searched blind. Both passes search a candidate
+   region up-scaled only where a quick probe sees a board there (``bounded``), so a frame without
+   the board costs a fraction of a second, not seconds.
 
-The final answer comes from the full solve of all detections, as without guidance; only where the
-detector looks changes.
+The frames' answers are taken in the order they were asked for, so every decision (and so the
+detections) is the same whatever the threads' timing. The final answer comes from the full solve
+of all detections, as without guidance; only where the detector looks changes.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
-import numpy as np
+from collections import Counter, deque
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.problem import Problem, SolverOptions, mode_frames
 from calibgraph.core.transforms import inv
-from calibgraph.detect.dataset import dataset_detector, view_points
+from calibgraph.detect.blind import look_blind
+from calibgraph.detect.dataset import (DetectionCache, dataset_detector, open_frame, progress_bar, spread, unusable,
+                                       view_points, wrong_spec_everywhere)
 from calibgraph.detect.guided import GUIDED_MIN_PITCH_PX, ViewHint, detect_with_hint, predict_view
+from calibgraph.detect.image import Frame
+from calibgraph.detect.spec_check import BoardSpecCheck
+from calibgraph.detect.stream import OrderedPool
 from calibgraph.io.dataset import Dataset
 from calibgraph.solver.batch import solve
 
-GUIDED_MIN_VIEWS = 48  # fewer undetected views than this: a blind pass costs little, skip the survey
-SURVEY_CAPTURES = 24   # captures detected blind to place the cameras
+GUIDED_MIN_VIEWS = 48   # fewer undetected views than this: a blind pass costs little, skip the survey
+SURVEY_CAPTURES = 24    # captures detected blind to place the cameras
+PLACE_VIEWS = 6         # survey detections of a camera at which a coarse solve places it
+SPOT_CHECK_EVERY = 8    # of the frames predicted far out of view, those of every n-th capture are read
+GUIDED_CACHE_TAG = "guided-3"
+_PRIORITY = ("survey", "deep", "guided", "blind")
 
 
 def build_problem(dataset: Dataset, method: str = "joint", options: SolverOptions | None = None,
@@ -42,7 +64,8 @@ def build_problem(dataset: Dataset, method: str = "joint", options: SolverOption
     stored detection; otherwise its ``problems`` list names the images it could not use).
 
     ``guided``: with many undetected views, detect a survey blind and the rest guided by its
-    coarse solve (module docstring); False searches every image blind.
+    coarse solve (module docstring); False searches every image blind. Either way a wrong board
+    spec stops the run early with an :class:`~calibgraph.core.errors.InputError` naming it.
     """
     todo = [v for v in dataset.views if not v.detected and v.image]
     detector = None
@@ -50,7 +73,7 @@ def build_problem(dataset: Dataset, method: str = "joint", options: SolverOption
         detector = GuidedDatasetDetector(dataset, progress=progress, method=method, options=options)
         detector.run()
     elif any(not v.detected for v in dataset.views):
-        detector = dataset_detector(dataset, progress=progress)
+        detector = dataset_detector(dataset, progress=progress, fail_fast=True)
     return dataset.to_problem(method=method, options=options, detector=detector), detector
 
 
@@ -58,17 +81,22 @@ def build_problem(dataset: Dataset, method: str = "joint", options: SolverOption
 class GuidedDatasetDetector:
     """A dataset detector (callable ``(view, dataset) -> (ids, uv_px) | None``, with ``results`` and
     ``problems`` like :class:`~calibgraph.detect.dataset.DatasetDetector`) that detects a survey
-    blind and the other views guided by the survey's coarse solve.
+    blind and the other views guided by coarse solves of the survey (module docstring).
 
     Attributes:
         notes: what it did, in words (the CLI prints them).
-        hints: (camera, capture) -> :class:`~calibgraph.detect.guided.ViewHint` of guided views.
+        hints: (camera, capture) -> :class:`~calibgraph.detect.guided.ViewHint` of guided views
+            (the last prediction each was searched with).
+        fail_fast: stop with an :class:`~calibgraph.core.errors.InputError` on a wrong board spec.
     """
 
     dataset: Dataset
     progress: bool = True
     method: str = "joint"
     options: SolverOptions | None = None
+    workers: int = 2
+    cache: object = True
+    fail_fast: bool = True
     results: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)
     notes: list = field(default_factory=list)
@@ -79,105 +107,301 @@ class GuidedDatasetDetector:
         """Detect every undetected view (idempotent); returns ``results``."""
         if self._done:
             return self.results
-        ds = self.dataset
-        todo = [v for v in ds.views if not v.detected and v.image]
-        survey_caps = _spread(sorted({v.capture for v in todo}), SURVEY_CAPTURES)
-        survey = {(v.camera, v.capture) for v in todo if v.capture in survey_caps}
-        cache_problems = []
-        quick = dataset_detector(ds, progress=self.progress, views=survey, upscale=1)
-        quick.run()
-        self.results.update(quick.results)
-        coarse = self._coarse_solve(survey_caps)
-        placed = set() if coarse is None else set(coarse.cameras)
-        again = {(c, k) for (c, k) in survey if c not in placed and not self.results[(c, k)].ok}
-        if again:
-            deep = dataset_detector(ds, progress=self.progress, views=again)
-            deep.run()
-            self.results.update(deep.results)
-            cache_problems += _cache_problems(deep)
-            coarse = self._coarse_solve(survey_caps)
-        cache_problems += _cache_problems(quick)
-        # every other view, and the survey views of placed cameras that the quick pass missed or
-        # found with small squares (not up-scaled: less accurate), are searched where the estimate says
-        rest = [v for v in todo if (v.camera, v.capture) not in survey
-                or (v.camera in placed and (v.camera, v.capture) not in again
-                    and not _good_native(self.results[(v.camera, v.capture)]))]
-        if coarse is not None:
-            self.hints = _predict(ds, coarse, rest)
-        target = ds.target
-
-        def detect_view(view, path, intrinsics):
-            return detect_with_hint(path, target, intrinsics, self.hints.get((view.camera, view.capture)))
-
-        guided = dataset_detector(ds, progress=self.progress, views={(v.camera, v.capture) for v in rest},
-                                  detect_view=detect_view, cache_tag="guided-1")
-        guided.run()
-        self.results.update(guided.results)
-        cache_problems += _cache_problems(guided)
-        self.problems = cache_problems + [(d.image or f"camera {c}, capture {k}", d.reason)
-                                          for (c, k), d in sorted(self.results.items()) if not d.ok]
-        if self.results and not any(d.ok for d in self.results.values()):
-            t = ds.target
-            self.problems.append((str(ds.root), f"the target ({t.kind}, {t.rows}x{t.cols} points, pitch {t.pitch_m} m) "
-                                  "was not found in any image: check the target spec in dataset.yaml"))
-        unplaced = sorted({v.camera for v in rest} - {c for (c, _) in self.hints})
-        n_empty = sum(not h.visible for h in self.hints.values())
-        self.notes.append(f"guided detection: {len(survey)} views of {len(survey_caps)} captures searched blind "
-                          f"({len(again)} again with up-scaling), {len(self.hints)} guided by the survey's estimate "
-                          f"({n_empty} predicted out of view)"
-                          + (f"; cameras {', '.join(unplaced)} not placed by the survey, searched blind" if unplaced
-                             else ""))
+        run = _GuidedRun(self)
+        run.execute()
+        self.problems = run.cache_problems + [(d.image or f"camera {c}, capture {k}", d.reason)
+                                              for (c, k), d in sorted(self.results.items()) if not d.ok]
+        self.problems += wrong_spec_everywhere(self.dataset, self.results)
+        self.notes.append(run.summary())
         self._done = True
         return self.results
-
-    def _answer(self, view, dataset=None):
-        """Detections found so far (no further search)."""
-        return view_points(view, self.results)
-
-    def _coarse_solve(self, survey_caps):
-        """Solve the survey's detections; None (and a note) when they cannot place the cameras.
-        Cameras with too few survey views are left out of this solve (searched blind later)."""
-        ds = self.dataset
-        views = [v for v in ds.views if v.capture in survey_caps]
-        seen = {}
-        for v in views:
-            if self._answer(v) is not None:
-                seen[v.camera] = seen.get(v.camera, 0) + 1
-        opts = self.options or SolverOptions(**ds.solver)
-        cams = {c: i for c, i in ds.cameras.items() if seen.get(c, 0) >= max(opts.min_views_per_camera, 4)}
-        if not cams:
-            return None
-        sub = Dataset(root=ds.root, target=ds.target, cameras=cams,
-                      captures=tuple(c for c in ds.captures if c.index in survey_caps),
-                      views=tuple(v for v in views if v.camera in cams), mode=ds.mode, solver=ds.solver)
-        try:
-            return solve(sub.to_problem(method=self.method, options=self.options, detector=self._answer))
-        except CalibgraphError as e:
-            self.notes.append(f"guided detection: the survey could not place the cameras ({e}); searching blind")
-            return None
 
     def __call__(self, view, dataset=None):
         self.run()
         return view_points(view, self.results)
 
 
+class _GuidedRun:
+    """One run of :class:`GuidedDatasetDetector`: the job queues, the estimate and the pool loop."""
+
+    def __init__(self, owner: GuidedDatasetDetector):
+        self.o = owner
+        ds = self.ds = owner.dataset
+        todo = [v for v in ds.views if not v.detected and v.image]
+        self.survey_caps = spread(sorted({v.capture for v in todo}), SURVEY_CAPTURES)
+        # capture by capture, every camera's view of it: the first frames of every camera come first
+        survey = sorted((v for v in todo if v.capture in self.survey_caps), key=lambda v: (v.capture, v.camera))
+        self.survey_keys = {(v.camera, v.capture) for v in survey}
+        self.queues = {k: deque() for k in _PRIORITY}
+        self.queues["survey"].extend(("survey", v, None) for v in survey)
+        self.rest = {c: [v for v in todo if v.camera == c and v.capture not in self.survey_caps] for c in ds.cameras}
+        self.views = {(v.camera, v.capture): v for v in todo}
+        self.in_flight = Counter()
+        self.n_total = len(todo)
+        self.coarse = None
+        self.placed = set()
+        self.ok_survey = Counter()
+        self.solved_at = -1            # survey/deep detections found when the last coarse solve ran
+        self.n_found_blind = 0
+        self.stage = "survey"
+        self.retried = set()
+        self.distrusted = set()
+        self.counts = Counter()
+        self.unreadable = set()
+        self.deferred = set()      # survey frames the spec check put off
+        self.sampled = set()       # frames the spec check wants searched in full, without the probe
+        self.cache = DetectionCache(ds, owner.cache, {"guided": GUIDED_CACHE_TAG})
+        self.cache_problems = []
+        self.check = BoardSpecCheck(ds.target, {c: sum(v.camera == c for v in survey) for c in ds.cameras}) \
+            if owner.fail_fast else None
+
+    # -- the loop -------------------------------------------------------------------------------
+    def execute(self) -> None:
+        self.bar = progress_bar(self.n_total, self.o.progress)
+        try:
+            with OrderedPool(self.o.workers) as pool:
+                while True:
+                    self._top_up(pool)
+                    if not len(pool):
+                        break
+                    job, det = pool.next()
+                    self._take(job, det)
+        finally:
+            if self.bar is not None:
+                self.bar.close()
+        self.cache_problems = self.cache.save()
+
+    def _top_up(self, pool) -> None:
+        while True:
+            while self.stage != "done" and not self.queues[self.stage] and not self.in_flight[self.stage]:
+                self._advance()  # the survey (or the deep pass) is complete: start what comes next
+            q = next((self.queues[k] for k in _PRIORITY if self.queues[k]), None)
+            if q is None or not pool.has_room:
+                return
+            kind, v, hint = q.popleft()
+            tag = kind if kind in ("survey", "deep", "blind") else _hint_tag(hint)
+            job = (kind, v, hint, tag)
+            self.in_flight[kind] += 1
+            hit = self.cache.lookup(v, tag)
+            if hit is not None:
+                pool.put(job + (True,), hit)
+            else:
+                sampled = (v.camera, v.capture) in self.sampled
+                check_spec = kind in ("survey", "deep") and self.check is not None and self.check.searching and not sampled
+                pool.submit(job + (False,), self._work, kind, v, hint, check_spec, not sampled)
+
+    def _work(self, kind, v, hint, check_spec, gate):
+        import cv2
+
+        ds = self.ds
+        path = Path(ds.root) / v.image
+        intr = ds.cameras.get(v.camera)
+        try:
+            if kind in ("guided", "spot"):
+                return detect_with_hint(Frame(path), ds.target, intr, hint)
+            frame, unreadable = open_frame(path, ds.target)
+            if unreadable is not None:
+                self.unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
+                return unreadable
+            return look_blind(frame, ds.target, intr, check_spec=check_spec,
+                              **({"upscale": 1, "gate": gate} if kind == "survey" else {"bounded": True}))
+        except (cv2.error, ValueError, MemoryError) as e:
+            return unusable(ds.target, path, e)
+
+    def _take(self, job, det) -> None:
+        kind, v, hint, tag, cached = job
+        key = (v.camera, v.capture)
+        self.in_flight[kind] -= 1
+        self.counts[kind] += 1
+        if not cached and not det.deferred:
+            self.cache.store(v, det, tag)
+        if self.bar is not None:
+            self.bar.update(1)
+        if kind == "survey" and self.check is not None:
+            self.check.add(v.camera, det, readable=key not in self.unreadable, key=key)
+        if det.deferred:  # searched in full once the spec check has settled (blind.py)
+            self.deferred.add(key)
+            self.o.results.setdefault(key, det)
+            self._judge()
+            return
+        old = self.o.results.get(key)
+        if old is None or det.ok or not old.ok:  # a redo that misses keeps the first look's board
+            self.o.results[key] = det
+        if hint is not None:
+            self.o.hints[key] = hint
+        if kind == "survey":
+            if det.ok:
+                self.ok_survey[v.camera] += 1
+                self.n_found_blind += 1
+            if v.camera in self.placed and not _good_native(det):
+                self._guide([v])
+            elif v.camera not in self.placed and self.ok_survey[v.camera] == PLACE_VIEWS:
+                self._solve()
+        elif kind == "deep" and det.ok:
+            self.n_found_blind += 1
+            if self.check is not None:
+                self.check.add(v.camera, det)
+        elif kind in ("guided", "spot") and not det.ok:
+            self._retry([v])
+        elif kind == "spot" and v.camera not in self.distrusted:
+            # a frame predicted far out of view shows the board: the estimate is wrong for this camera
+            self._distrust(v.camera)
+        self._judge()
+
+    def _judge(self, final: bool = False) -> None:
+        """Let the spec check judge (it raises on a wrong spec); queue the frames it wants searched
+        in full (a sample, or every deferred frame once the spec is settled)."""
+        if self.check is None:
+            return
+        sample = set(self.check.judge(final=final))
+        redo = sample if sample else (set(self.deferred) if self.check.settled else set())
+        if not redo:
+            return
+        self.sampled |= sample  # searched in full, without the probe, before the spec is judged
+        self.deferred -= redo
+        self.queues["survey"].extend(("survey", self.views[k], None) for k in sorted(redo))
+        if self.bar is not None:
+            self.bar.total += len(redo)  # frames looked at again
+            self.bar.refresh()
+
+    def _advance(self) -> None:
+        """The survey (then the deep pass) is complete: solve again, and start what comes next."""
+        if self.stage == "survey":
+            if self.n_found_blind != self.solved_at:
+                self._solve()
+            again = [v for v in (self.views[k] for k in sorted(self.survey_keys))
+                     if v.camera not in self.placed and not self.o.results[(v.camera, v.capture)].ok]
+            self.queues["deep"].extend(("deep", v, None) for v in again)
+            self.counts["again"] = len(again)
+            self.stage = "deep"
+            return
+        if self.n_found_blind != self.solved_at:
+            self._solve()
+        self._judge(final=True)
+        for cam in sorted(set(self.ds.cameras) - self.placed):
+            self.queues["blind"].extend(("blind", v, None) for v in self.rest[cam])
+            self.rest[cam] = []
+        self.stage = "done"
+
+    # -- the estimate ---------------------------------------------------------------------------
+    def _solve(self) -> None:
+        """Coarse solve of the survey so far; newly placed cameras get their frames guided, and the
+        queued guided frames of placed ones get the newer predictions."""
+        self.solved_at = self.n_found_blind
+        coarse = self._coarse_solve()
+        if coarse is None:
+            return
+        self.coarse = coarse
+        new = set(coarse.cameras) - self.placed
+        self.placed |= new
+        queued = [v for _, v, _ in self.queues["guided"]]
+        self.queues["guided"].clear()
+        todo = list(queued)
+        for cam in sorted(new):
+            todo += self.rest[cam]
+            self.rest[cam] = []
+            pending = [j for j in self.queues["survey"] if j[1].camera == cam]
+            for j in pending:
+                self.queues["survey"].remove(j)
+            todo += [j[1] for j in pending]
+            todo += [self.views[k] for k, d in sorted(self.o.results.items())
+                     if k[0] == cam and k in self.survey_keys and not _good_native(d)]
+        self._guide(todo)
+        self._retry([self.views[k] for k in sorted(self.o.hints) if k[0] in self.placed and not self.o.results[k].ok])
+
+    def _retry(self, views) -> None:
+        """Search once more the guided frames that missed under an older estimate where the current
+        one predicts the board somewhere else (or in view after all)."""
+        redo = {}
+        for v in views:
+            key = (v.camera, v.capture)
+            if key in self.retried or key not in self.o.hints:
+                continue
+            newer = self._hint(v)
+            if newer is not None and newer.visible and _hint_tag(newer) != _hint_tag(self.o.hints[key]):
+                self.retried.add(key)
+                redo[key] = newer
+        if redo:
+            self._guide([self.views[k] for k in redo], hints=redo)
+
+    def _distrust(self, camera: str) -> None:
+        """A frame predicted far out of view showed the board: the estimate is wrong for ``camera``,
+        so all its frames predicted far out of view are read after all (quick check)."""
+        self.distrusted.add(camera)
+        q = self.queues["guided"]
+        keep = [j for j in q if not (j[1].camera == camera and j[2].far)]
+        far = [j[1] for j in q if j[1].camera == camera and j[2].far]
+        far += [self.views[k] for k, h in sorted(self.o.hints.items()) if k[0] == camera and h.far]
+        q.clear()
+        q.extend(keep)
+        self._guide(far)
+
+    def _coarse_solve(self):
+        """Solve the survey's detections; None (and a note) when they cannot place the cameras.
+        Cameras with too few survey views are left out of this solve (searched blind later)."""
+        ds = self.ds
+        views = [v for v in ds.views if v.capture in self.survey_caps]
+        seen = Counter(v.camera for v in views if view_points(v, self.o.results) is not None)
+        opts = self.o.options or SolverOptions(**ds.solver)
+        cams = {c: i for c, i in ds.cameras.items() if seen.get(c, 0) >= max(opts.min_views_per_camera, 4)}
+        if not cams:
+            return None
+        sub = Dataset(root=ds.root, target=ds.target, cameras=cams,
+                      captures=tuple(c for c in ds.captures if c.index in self.survey_caps),
+                      views=tuple(v for v in views if v.camera in cams), mode=ds.mode, solver=ds.solver)
+        try:
+            return solve(sub.to_problem(method=self.o.method, options=self.o.options,
+                                        detector=lambda v, _=None: view_points(v, self.o.results)))
+        except CalibgraphError as e:
+            self.o.notes.append(f"guided detection: the survey could not place the cameras ({e}); searching blind")
+            return None
+
+    def _hint(self, v) -> ViewHint | None:
+        return _predict(self.ds, self.coarse, [v]).get((v.camera, v.capture)) if self.coarse is not None else None
+
+    def _guide(self, views, hints=None) -> None:
+        """Queue ``views`` for guided search with the current estimate's predictions (or ``hints``);
+        a frame predicted far out of view is read only on a spot check or when its camera is
+        distrusted."""
+        hints = hints or _predict(self.ds, self.coarse, views)
+        for v in views:
+            key = (v.camera, v.capture)
+            h = hints.get(key)
+            if h is None:
+                continue
+            if h.far and (v.camera in self.distrusted or v.capture % SPOT_CHECK_EVERY == 0):
+                self.queues["guided"].append(("spot", v, replace(h, far=False)))
+            else:
+                self.queues["guided"].append(("guided", v, h))
+            if key in self.o.results and self.bar is not None:
+                self.bar.total += 1  # a frame looked at again
+                self.bar.refresh()
+
+    def summary(self) -> str:
+        hints = self.o.hints
+        n_empty = sum(not h.visible for h in hints.values())
+        n_far = sum(h.far for h in hints.values())
+        unplaced = sorted(set(self.ds.cameras) - self.placed)
+        return (f"guided detection: {len(self.survey_keys)} views of {len(self.survey_caps)} captures searched blind "
+                f"({self.counts['again']} again with up-scaling), {len(hints)} guided by the survey's estimate "
+                f"({n_empty} predicted out of view, {n_far} of them far enough not to be read)"
+                + (f"; cameras {', '.join(unplaced)} not placed by the survey, searched blind" if unplaced else ""))
+
+
+def _hint_tag(hint: ViewHint) -> str:
+    """How a guided frame is searched, for the cache: the same prediction gives the same search."""
+    if hint.far:
+        return "far"
+    if not hint.visible:
+        return "empty"
+    small = 0 < hint.pitch_px < GUIDED_MIN_PITCH_PX
+    return "region:" + ",".join(str(int(x)) for x in hint.region_px) + (":up" if small else "")
+
+
 def _good_native(det) -> bool:
     """A quick-survey detection that needs no second, guided look: found, with squares large
     enough that the blind detector would not have up-scaled them either."""
     return det.ok and det.pitch_px >= GUIDED_MIN_PITCH_PX
-
-
-def _cache_problems(detector) -> list:
-    """A sub-detector's problems that are not about one image (e.g. an unwritable cache)."""
-    images = {d.image for d in detector.results.values()}
-    return [(f, m) for f, m in detector.problems if f not in images and not f.startswith("camera ")]
-
-
-def _spread(items: list, n: int) -> set:
-    """``n`` items evenly spread over ``items`` (all of them when there are fewer)."""
-    if len(items) <= n:
-        return set(items)
-    return {items[int(i)] for i in np.round(np.linspace(0, len(items) - 1, n))}
 
 
 def _predict(ds: Dataset, coarse, views) -> dict:
