@@ -369,7 +369,9 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
             key = shared_key(shared)
             if (cache["own"] is None or (H is not None and not cache["jacobians"]) or cache["shared"] != key
                     or cache["own"][v] != own_key(own_inputs(values, t))):
-                compute(values, shared, key, H is not None)
+                # with the Jacobians even for the error alone: LM linearises next where it accepted a
+                # step, at values whose error it has just asked for
+                compute(values, shared, key, True)
             if H is not None:
                 for i, A in enumerate(cache["H"][v]):
                     H[i] = A
