@@ -14,12 +14,12 @@ from calibgraph.solver.reduced import Linear
 from calibgraph.solver.session_plan import predict_session_covariance
 from calibgraph.solver.camera_model import intrinsics_record
 from calibgraph.solver.covariance import pair_covariance, to_ref_axes
-from calibgraph.solver.factors import project_chain
 from calibgraph.solver.graph import Estimate
 from calibgraph.solver.keys import B, C, K, O, S
 from calibgraph.solver.observability import check_after_solve
 from calibgraph.solver.optimise import Group
 from calibgraph.solver.result import CameraResult, PairResult, RejectedView
+from calibgraph.solver.views import reprojections
 
 
 def view_residuals(name: str, est: Estimate, views: list, cameras: dict) -> tuple[dict, np.ndarray, list]:
@@ -28,9 +28,8 @@ def view_residuals(name: str, est: Estimate, views: list, cameras: dict) -> tupl
     (camera, capture, corner id, residual px))."""
     intr = est.camera_model(name, cameras)
     residuals, kept, rejected_corners = {}, [], []
-    for v in views:
-        uv_hat = project_chain(est.T_ref_cam[name], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
-                               est.board_scale * v.p_board_m, intr)
+    uv_hats = reprojections(views, est.T_ref_cam, est.T_mount_board, est.T_ref_mount, {name: intr}, est.board_scale)
+    for v, uv_hat in zip(views, uv_hats):
         d = uv_hat - v.uv_px
         residuals[v.capture] = {"ids": v.ids, "uv_detected_px": v.uv_px, "residual_px": d,
                                 "weight": v.w.copy(), "rejected": not v.active}
@@ -47,9 +46,10 @@ def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
     est = group.est
     keys = {n: (C(est.slots[n]), K(est.slots[n]) if est.values.exists(K(est.slots[n])) else None) for n in group.names}
     out, doubled = {}, doubled_information(lin)
+    doubled_cov = np.linalg.inv(doubled)  # one inverse for every camera's "twice the poses"
     for n, b in budgets(lin, keys).items():
         out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=_session_information(problem, est, n),
-                                  doubled=doubled))
+                                  doubled=doubled, doubled_cov=doubled_cov))
     return out
 
 

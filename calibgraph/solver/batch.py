@@ -100,7 +100,7 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
 def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve_time_s: float) -> Result:
     cameras, rejected_corners = {}, []
     for g in groups:
-        budget = error_budgets(problem, g, linearise_graph(g.est.graph, g.est.values))
+        budget = error_budgets(problem, g, g.est.linear or linearise_graph(g.est.graph, g.est.values))
         for n in g.names:
             cameras[n], corners = camera_result(problem, n, g, rejected, budget[n])
             rejected_corners += corners

@@ -75,7 +75,7 @@ def doubled_information(L: Linear) -> np.ndarray:
 
 
 def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_info=None,
-           doubled: np.ndarray | None = None) -> str:
+           doubled: np.ndarray | None = None, doubled_cov: np.ndarray | None = None) -> str:
     """One line with numbers: what would shrink camera ``name``'s 1-sigma most, judged by what the
     camera's 1-sigma would become after each remedy: a close-range intrinsics session, twice the
     poses, the board's scale measured.
@@ -84,7 +84,7 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
     close-range session of 25 images gives (or a callable returning it, called only when a session
     could be the best remedy); without it, the intrinsics known exactly, the best any session can do.
     ``doubled``: :func:`doubled_information` of ``L`` (computed here when not given; one per graph
-    serves every camera)."""
+    serves every camera); ``doubled_cov``: its inverse, when the caller has it."""
     top = max(b.shares, key=b.shares.get)
     head = f"{name}: {100 * b.shares[top]:.0f} % of its {b.sigma_mm:.2f} mm 1σ is " + {
         "corners": "corner noise", "intrinsics": "the intrinsics' prior" if b.own_intrinsics < 0.5 * b.shares["intrinsics"]
@@ -94,7 +94,8 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
     has_K = own_K_key is not None and own_K_key in L.prior_K
     if has_K:  # the bound first: intrinsics known exactly
         options["session"] = sigma_with(L, cam_key, add_info={own_K_key: np.eye(6) * 1e12 - L.prior_K[own_K_key]})
-    options["poses"] = sigma_with(L, cam_key, S=doubled if doubled is not None else doubled_information(L))
+    options["poses"] = sigma_with(L, cam_key, S=doubled if doubled is not None else doubled_information(L),
+                                  cov=doubled_cov)
     s_keys = [k for k in L.index if chr(gtsam.Symbol(k).chr()) == "s"]
     if s_keys and b.shares["board"] > 0.05:
         options["board"] = sigma_with(L, cam_key, add_info={k: np.eye(1) * 1e12 for k in s_keys})

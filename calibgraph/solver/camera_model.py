@@ -14,10 +14,11 @@ import numpy as np
 
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.problem import Problem, intrinsics_source
-from calibgraph.solver.factors import intrinsics_vector, project_chain
+from calibgraph.solver.factors import intrinsics_vector
 from calibgraph.solver.graph import Estimate, estimates_intrinsics, intrinsics_prior
 from calibgraph.solver.keys import K, S
 from calibgraph.solver.optimise import Group, solve_from_start
+from calibgraph.solver.views import reprojections
 
 INTRINSICS_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2")
 # A camera whose kept corners miss by more than this (px RMS), mostly along the radial direction,
@@ -32,14 +33,12 @@ def radial_structure(est: Estimate, views: list, name: str, cameras: dict) -> tu
     """(RMS px of the kept corners' residuals, fraction of their energy along a radial distortion
     pattern about the principal point) of camera ``name``."""
     intr = est.camera_model(name, cameras)
+    mine = [v for v in views if v.camera == name and v.active]
+    uv_hats = reprojections(mine, est.T_ref_cam, est.T_mount_board, est.T_ref_mount, {name: intr}, est.board_scale)
     d_all, b_all = [], []
-    for v in views:
-        if v.camera != name or not v.active:
-            continue
+    for v, uv_hat in zip(mine, uv_hats):
         keep = v.kept
-        uv_hat = project_chain(est.T_ref_cam[name], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
-                               est.board_scale * v.p_board_m[keep], intr)
-        d_all.append(uv_hat - v.uv_px[keep])
+        d_all.append(uv_hat[keep] - v.uv_px[keep])
         x = (v.uv_px[keep] - intr.K[:2, 2]) / np.array([intr.K[0, 0], intr.K[1, 1]])
         b_all.append(x * np.sum(x * x, axis=1, keepdims=True) * np.array([intr.K[0, 0], intr.K[1, 1]]))
     if not d_all:

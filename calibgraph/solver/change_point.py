@@ -33,7 +33,7 @@ import numpy as np
 
 from calibgraph.core.transforms import pose_error
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.factors import fk_noise, view_residual
+from calibgraph.solver.factors import fk_noise, pad_views, padded_view_residuals
 from calibgraph.solver.robust import loss_weights
 
 MIN_GROUP_VIEWS = 2     # a side of a split needs this many views (one view is a single outlier, not a pose)
@@ -124,56 +124,71 @@ def _robot_pose_terms(problem, views, est, sigma_px: float) -> tuple[dict, dict]
         R = np.asarray(noise(centre[k]).R())
         rho = np.asarray(gtsam.Pose3.Logmap(_pose(centre[k]).between(_pose(T_est))))
         per_capture[k] = [R.T @ R, R.T @ R @ rho]
-    for v in views:
-        if not v.active or v.camera not in est.T_ref_cam:
-            continue
-        keep = v.kept
-        e, (_, J_f, _) = view_residual(est.T_ref_cam[v.camera], est.T_ref_mount.get(v.capture, v.T_ref_mount),
-                                       est.T_mount_board, est.board_scale * v.p_board_m[keep], v.uv_px[keep],
-                                       est.camera_model(v.camera, problem.cameras), np.sqrt(v.w[keep]) / sigma_px)
-        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J_f))):
-            continue
-        H, g = J_f.T @ J_f, J_f.T @ e
-        per_capture[v.capture][0] = per_capture[v.capture][0] + H
-        per_capture[v.capture][1] = per_capture[v.capture][1] + g
-        per_view[(v.camera, v.capture)] = (H, g)
+    active = [v for v in views if v.active and v.camera in est.T_ref_cam]
+    for name in dict.fromkeys(v.camera for v in active):  # one camera's views at once
+        mine = [v for v in active if v.camera == name]
+        P, UV, _, W = pad_views(mine, est.board_scale, kept_only=True)
+        sw = np.sqrt(W) / sigma_px
+        T_F = np.array([est.T_ref_mount.get(v.capture, v.T_ref_mount) for v in mine])
+        e, _, J_f = padded_view_residuals(est.T_ref_cam[name], T_F, est.T_mount_board, P, UV,
+                                          est.camera_model(name, problem.cameras), sw)
+        finite = np.isfinite(e).all(axis=1) & np.isfinite(J_f).all(axis=(1, 2))
+        H, g = J_f.transpose(0, 2, 1) @ J_f, np.einsum("vji,vj->vi", J_f, e)
+        for i in np.flatnonzero(finite):
+            v = mine[i]
+            per_capture[v.capture][0] = per_capture[v.capture][0] + H[i]
+            per_capture[v.capture][1] = per_capture[v.capture][1] + g[i]
+            per_view[(v.camera, v.capture)] = (H[i], g[i])
     return per_capture, per_view
 
 
-def _view_tangent(v, T_lin, T_F, est, intr, sigma_px, A, d, opts, passes: int = 3):
-    """(zeta (6,), information (6, 6), weighted squared residual in sigmas, residual count) of the
-    camera pose view ``v`` implies at ``T_lin``, the robot pose at ``T_F`` + ``d`` with information
-    ``A`` (prior and the other cameras), the corners re-weighted against the view's own best fit;
-    None when the view is degenerate."""
-    w = np.ones(len(v.ids))
-    p = est.board_scale * v.p_board_m
+def _view_tangents(padded: tuple, T_lin, T_F, est, intr, sigma_px, A, d, opts, passes: int = 3):
+    """Every view of one camera at once (``padded``: (points, pixels, valid) of :func:`pad_views`; ``T_F`` (V, 4, 4), ``A`` (V, 6, 6),
+    ``d`` (V, 6)): (ok (V,) bool, zeta (V, 6), information (V, 6, 6), weighted squared residual in sigmas
+    (V,), residual count (V,)) of the camera pose each view implies at ``T_lin``, the robot pose at
+    ``T_F`` + ``d`` with information ``A`` (prior and the other cameras), each view's corners
+    re-weighted against its own best fit (until its weights settle, at most ``passes`` times); ``ok``
+    is False for a degenerate view."""
+    P, UV, valid = padded
+    V, N = valid.shape
+    w = valid.astype(float)
+    ok, done = np.ones(V, bool), np.zeros(V, bool)
+    zeta, info, rss, n_obs = np.zeros((V, 6)), np.zeros((V, 6, 6)), np.zeros(V), np.zeros(V, int)
     for _ in range(passes):
         keep = w > 0
-        if keep.sum() < 4:
-            return None
-        sw = np.sqrt(w[keep]) / sigma_px
-        e, (J_c, J_f, _) = view_residual(T_lin, T_F, est.T_mount_board, p[keep], v.uv_px[keep], intr, sw)
-        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J_c)) and np.all(np.isfinite(J_f))):
-            return None
-        e = e + J_f @ d
-        M = J_f.T @ J_f + A
-        Mi_FtC = np.linalg.solve(M, J_f.T @ J_c)
-        Mi_Fte = np.linalg.solve(M, J_f.T @ e)
-        info = J_c.T @ J_c - (J_c.T @ J_f) @ Mi_FtC
-        grad = J_c.T @ e - (J_c.T @ J_f) @ Mi_Fte
-        zeta = -np.linalg.solve(info, grad)
-        eps = -(Mi_Fte + Mi_FtC @ zeta)
-        r = (e + J_c @ zeta + J_f @ eps).reshape(-1, 2)
-        norms = np.zeros(len(w))
-        norms[keep] = np.linalg.norm(r, axis=1) / (np.sqrt(w[keep]) + 1e-12)  # in sigmas, unweighted
-        w_new = np.where(keep, loss_weights(norms, opts.loss, opts.loss_scale), 0.0)
-        w_new[norms > opts.outlier_sigmas] = 0.0
-        if np.allclose(w_new, w, atol=0.05):
+        ok &= done | (keep.sum(axis=1) >= 4)
+        act = np.flatnonzero(ok & ~done)
+        if not len(act):
             break
-        w = w_new
-    if not (np.all(np.isfinite(zeta)) and np.all(np.isfinite(info))):
-        return None
-    return zeta, 0.5 * (info + info.T), float(np.sum(r * r)), 2 * int(keep.sum())
+        sw = np.sqrt(w[act]) / sigma_px
+        e, J_c, J_f = padded_view_residuals(T_lin, T_F[act], est.T_mount_board, P[act], UV[act], intr, sw)
+        finite = (np.isfinite(e).all(axis=1) & np.isfinite(J_c).all(axis=(1, 2)) & np.isfinite(J_f).all(axis=(1, 2)))
+        ok[act[~finite]] = False
+        act, sw, e, J_c, J_f = act[finite], sw[finite], e[finite], J_c[finite], J_f[finite]
+        if not len(act):
+            break
+        e = e + np.einsum("vij,vj->vi", J_f, d[act])
+        Ft = J_f.transpose(0, 2, 1)
+        Ct = J_c.transpose(0, 2, 1)
+        M = Ft @ J_f + A[act]
+        Mi_FtC = np.linalg.solve(M, Ft @ J_c)
+        Mi_Fte = np.linalg.solve(M, np.einsum("vji,vj->vi", J_f, e)[..., None])[..., 0]
+        CtF = Ct @ J_f
+        inf = Ct @ J_c - CtF @ Mi_FtC
+        grad = np.einsum("vji,vj->vi", J_c, e) - np.einsum("vij,vj->vi", CtF, Mi_Fte)
+        z = -np.linalg.solve(inf, grad[..., None])[..., 0]
+        eps = -(Mi_Fte + np.einsum("vij,vj->vi", Mi_FtC, z))
+        r = (e + np.einsum("vij,vj->vi", J_c, z) + np.einsum("vij,vj->vi", J_f, eps)).reshape(len(act), N, 2)
+        k, wa = keep[act], w[act]
+        norms = np.where(k, np.linalg.norm(r, axis=2) / (np.sqrt(wa) + 1e-12), 0.0)  # in sigmas, unweighted
+        w_new = np.where(k, loss_weights(norms, opts.loss, opts.loss_scale), 0.0)
+        w_new[norms > opts.outlier_sigmas] = 0.0
+        settled = np.all(np.abs(w_new - wa) <= 0.05 + 1e-5 * np.abs(wa), axis=1)
+        zeta[act], info[act], rss[act], n_obs[act] = z, inf, np.sum(r * r, axis=(1, 2)), 2 * k.sum(axis=1)
+        done[act[settled]] = True
+        w[act[~settled]] = w_new[~settled]
+    ok &= np.isfinite(zeta).all(axis=1) & np.isfinite(info).all(axis=(1, 2))
+    return ok, zeta, 0.5 * (info + info.transpose(0, 2, 1)), rss, n_obs
 
 
 def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per_capture: dict,
@@ -184,35 +199,30 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
     intr = est.camera_model(name, problem.cameras)
     centre, noise = _prior_centres(problem, est, sorted({v.capture for v in views}))
     mine = sorted(views, key=lambda v: v.capture)
+    T_F = np.array([est.T_ref_mount.get(v.capture, centre[v.capture]) for v in mine])
+    A, g = np.empty((len(mine), 6, 6)), np.empty((len(mine), 6))
+    for i, v in enumerate(mine):
+        if v.capture in per_capture:
+            A_k, g_k = per_capture[v.capture]
+            H_c, g_c = per_view.get((name, v.capture), (0.0, 0.0))
+            A[i], g[i] = A_k - H_c, g_k - g_c
+        else:  # a capture no active view is in: the FK prior alone
+            R = np.asarray(noise(centre[v.capture]).R())
+            rho = np.asarray(gtsam.Pose3.Logmap(_pose(centre[v.capture]).between(_pose(T_F[i]))))
+            A[i], g[i] = R.T @ R, R.T @ R @ rho
+    d = -np.linalg.solve(A, g[..., None])[..., 0]
+    padded = pad_views(mine, est.board_scale)[:3]
     for _ in range(3):
-        caps, zs, infos, own = [], [], [], []
-        for v in mine:
-            T_F = est.T_ref_mount.get(v.capture, centre[v.capture])
-            if v.capture in per_capture:
-                A, g = per_capture[v.capture]
-                H_c, g_c = per_view.get((name, v.capture), (0.0, 0.0))
-                A, g = A - H_c, g - g_c
-            else:  # a capture no active view is in: the FK prior alone
-                R = np.asarray(noise(centre[v.capture]).R())
-                rho = np.asarray(gtsam.Pose3.Logmap(_pose(centre[v.capture]).between(_pose(T_F))))
-                A, g = R.T @ R, R.T @ R @ rho
-            d = -np.linalg.solve(A, g)
-            out = _view_tangent(v, T_lin, T_F, est, intr, sigma_px, A, d, problem.options)
-            if out is None:
-                continue
-            caps.append(v.capture)
-            zs.append(out[0])
-            infos.append(out[1])
-            own.append(out[2:])
-        if len(zs) < 2 * MIN_GROUP_VIEWS:
+        ok, zeta, info, rss, n_obs = _view_tangents(padded, T_lin, T_F, est, intr, sigma_px, A, d, problem.options)
+        if ok.sum() < 2 * MIN_GROUP_VIEWS:
             return None
-        zeta, info = np.array(zs), np.array(infos)
+        zeta, info = zeta[ok], info[ok]
         mean = np.linalg.solve(info.sum(axis=0), np.einsum("nij,nj->i", info, zeta))
         if np.max(np.abs(mean)) < LINEARISE_AGAIN:
             break
         T_lin = (_pose(T_lin) * gtsam.Pose3.Expmap(mean)).matrix()  # the views' mean: linearise there
-    own = np.array(own, float).reshape(-1, 2)
-    return ViewPoses(name, np.array(caps), zeta, info, np.asarray(T_lin), own[:, 0], own[:, 1])
+    caps = np.array([v.capture for v in mine])[ok]
+    return ViewPoses(name, caps, zeta, info, np.asarray(T_lin), rss[ok].astype(float), n_obs[ok].astype(float))
 
 
 def best_split(vp: ViewPoses, min_side: int = MIN_GROUP_VIEWS) -> Split | None:

@@ -88,6 +88,55 @@ def view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr:
     return e, (H_c, H_f, H_b)
 
 
+def _cross_last(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """cross(a[..., r, :], p[...]) for a (..., 2, 3) and p (..., 3)."""
+    px, py, pz = p[..., None, 0], p[..., None, 1], p[..., None, 2]
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    return np.stack([ay * pz - az * py, az * px - ax * pz, ax * py - ay * px], axis=-1)
+
+
+def pad_views(views: list, scale: float = 1.0, kept_only: bool = False) -> tuple:
+    """Views' corners padded to the largest view, for :func:`padded_view_residuals`: (points
+    ``scale * p_board_m`` (V, N, 3), pixels (V, N, 2), valid (V, N), the corners' weights ``w`` (V, N),
+    0 on padding). ``kept_only``: each view's kept corners only (non-zero weight), in order. A
+    padding slot repeats the view's first corner (finite)."""
+    sel = [v.kept if kept_only else np.ones(len(v.ids), bool) for v in views]
+    N = max([1] + [int(m.sum()) for m in sel])
+    V = len(views)
+    P, UV, valid, W = np.zeros((V, N, 3)), np.zeros((V, N, 2)), np.zeros((V, N), bool), np.zeros((V, N))
+    for i, (v, m) in enumerate(zip(views, sel)):
+        n = int(m.sum())
+        P[i, :n], UV[i, :n], valid[i, :n], W[i, :n] = scale * v.p_board_m[m], v.uv_px[m], True, v.w[m]
+        if n:
+            P[i, n:], UV[i, n:] = P[i, 0], UV[i, 0]
+    return P, UV, valid, W
+
+
+def padded_view_residuals(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w):
+    """:func:`view_residual` of V views of one camera at once, their corners padded to N.
+
+    ``T_ref_cam`` (4, 4) or (V, 4, 4), ``T_ref_mount`` (V, 4, 4), ``p_board_m`` (V, N, 3), ``uv_px``
+    (V, N, 2), ``sqrt_w`` (V, N) including 1 / sigma_px, 0 on padding (whose points must be finite
+    ones of the view). Returns e (V, 2N) and the Jacobians on the camera and the robot pose
+    (V, 2N, 6), rows ordered as :func:`view_residual` orders them."""
+    V, N = sqrt_w.shape
+    T_rc = np.broadcast_to(T_ref_cam, (V, 4, 4))
+    R_rc, t_rc = T_rc[:, :3, :3], T_rc[:, :3, 3]
+    R_rm, t_rm = T_ref_mount[:, :3, :3], T_ref_mount[:, :3, 3]
+    p_m = p_board_m @ T_mount_board[:3, :3].T + T_mount_board[:3, 3]
+    p_r = p_m @ R_rm.transpose(0, 2, 1) + t_rm[:, None]
+    p_c = (p_r - t_rc[:, None]) @ R_rc
+    p_c_safe = p_c.copy()
+    p_c_safe[..., 2] = np.maximum(p_c_safe[..., 2], _MIN_DEPTH_M)
+    uv, Jp = intr.project(p_c_safe.reshape(-1, 3), with_jacobian=True)
+    e = ((uv.reshape(V, N, 2) - uv_px) * sqrt_w[..., None]).reshape(V, 2 * N)
+    Jp = Jp.reshape(V, N, 2, 3) * sqrt_w[..., None, None]
+    H_c = np.concatenate([_cross_last(Jp, p_c), -Jp], axis=-1)
+    JF = Jp @ (R_rc.transpose(0, 2, 1) @ R_rm)[:, None]
+    H_f = np.concatenate([-_cross_last(JF, p_m), JF], axis=-1)
+    return e, H_c.reshape(V, 2 * N, 6), H_f.reshape(V, 2 * N, 6)
+
+
 def make_view_factor(key_cam, key_robot, key_mount, p_board_m: np.ndarray, uv_px: np.ndarray, intr: Intrinsics,
                      sqrt_w: np.ndarray, noise=None) -> gtsam.CustomFactor:
     """A CustomFactor for one view (keys: camera pose, robot pose, board mount). ``noise``: the
@@ -194,7 +243,7 @@ def make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, int
 
 @dataclass(frozen=True)
 class ViewTerm:
-    """One view inside a capture factor (:func:`make_capture_factor`): its camera's keys and model,
+    """One view of a capture (:func:`make_capture_factors`): its camera's keys and model,
     its kept corners and their weights (``sqrt_w`` (n,) already includes 1 / sigma_px), and
     ``whiten`` (2n, 6) Q scaled so that ``e - whiten @ (Q^T e)`` whitens correlated low-order modes
     (None: independent corners)."""
@@ -209,26 +258,23 @@ class ViewTerm:
     mode_factor: float = 1.0  # their variance factor
 
 
-def make_capture_factor(key_robot, key_mount, key_scale, terms: list) -> gtsam.CustomFactor:
-    """One CustomFactor for every view of one capture: the views share the robot pose ``key_robot``
-    (F(k)), the mount and the board scale (``key_scale`` or None), and each brings its camera pose
-    and, when estimated, its intrinsics. The residual is the views' residuals stacked, each view's
+def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
+    """One CustomFactor per view of one capture (``terms``: :class:`ViewTerm` s): the views share
+    the robot pose ``key_robot`` (F(k)), the mount and the board scale (``key_scale`` or None), and
+    each brings its camera pose and, when estimated, its intrinsics. Each view's residual has its
     low-order modes whitened by its variance factor (covariance I + (f - 1) Q Q^T, whose inverse
-    square root is I - (1 - f^-1/2) Q Q^T), so the factor's noise model is unit.
+    square root is I - (1 - f^-1/2) Q Q^T), so its noise model is unit.
 
-    The same model as one factor per view (:func:`make_calibration_factor`); the capture's corners
-    are projected in one vectorised pass with per-corner camera parameters, which is what makes
-    large cells affordable (one Python call per capture, not one per view)."""
-    keys = [key_robot, key_mount] + ([key_scale] if key_scale is not None else [])
-    n_fixed = len(keys)
-    col_cam, col_intr, rows, whiten = [], [], [], []
+    The same model as :func:`make_calibration_factor`; the capture's corners are projected in one
+    vectorised pass with per-corner camera parameters (one numpy pass per capture, not per view),
+    and each view's factor takes its rows of it. A factor's Jacobian is then its own view's rows on
+    its own keys, so the linear system keeps the graph's sparsity (a factor over the whole capture
+    would carry every camera's block over every view's rows). The pass is redone whenever a view
+    finds the values of its keys differ from those it was made with."""
+    n_views = len(terms)
+    rows, whiten = [], []
     start = 0
     for t in terms:
-        col_cam.append(len(keys))
-        keys.append(t.key_cam)
-        col_intr.append(len(keys) if t.key_intr is not None else None)
-        if t.key_intr is not None:
-            keys.append(t.key_intr)
         n = t.p_board_m.shape[0]
         rows.append(slice(start, start + 2 * n))
         c = 1.0 - 1.0 / np.sqrt(t.mode_factor) if t.modes is not None and t.mode_factor > 1.0 else 0.0
@@ -239,23 +285,36 @@ def make_capture_factor(key_robot, key_mount, key_scale, terms: list) -> gtsam.C
     UV = np.concatenate([t.uv_px for t in terms])
     SW = np.concatenate([t.sqrt_w for t in terms])
     counts = [t.p_board_m.shape[0] for t in terms]
-    vi = np.repeat(np.arange(len(terms)), counts)  # view of each corner
+    vi = np.repeat(np.arange(n_views), counts)  # view of each corner
     static = np.array([[t.intr.K[0, 1], *t.intr.dist8] for t in terms])  # skew, k1..k6 as given
     estimated = np.array([t.key_intr is not None for t in terms])
+    # the last pass: the bytes of the shared keys' values and of each view's own, its residuals and Jacobians
+    cache = {"shared": None, "own": None, "jacobians": False, "e": None, "H": None}
 
-    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
+    def shared_inputs(values):
         T_rm = values.atPose3(key_robot).matrix()
         T_mb = values.atPose3(key_mount).matrix()
         scale = float(values.atVector(key_scale)[0]) if key_scale is not None else 1.0
-        R_rc = np.empty((len(terms), 3, 3))
-        t_rc = np.empty((len(terms), 3))
-        par = np.empty((len(terms), 4))  # fx, fy, cx, cy
+        return T_rm, T_mb, scale
+
+    def own_inputs(values, t):
+        return values.atPose3(t.key_cam).matrix(), (values.atVector(t.key_intr) if t.key_intr is not None else None)
+
+    def shared_key(shared) -> bytes:  # exact: the inputs' bytes
+        return shared[0].tobytes() + shared[1].tobytes() + np.float64(shared[2]).tobytes()
+
+    def own_key(own) -> bytes:
+        return own[0].tobytes() if own[1] is None else own[0].tobytes() + np.asarray(own[1], float).tobytes()
+
+    def compute(values, shared, key: bytes, want_jacobians: bool):
+        T_rm, T_mb, scale = shared
+        own = [own_inputs(values, t) for t in terms]
+        R_rc = np.array([T[:3, :3] for T, _ in own])
+        t_rc = np.array([T[:3, 3] for T, _ in own])
+        par = np.empty((n_views, 4))  # fx, fy, cx, cy
         dist = static[:, 1:].copy()
-        for v, t in enumerate(terms):
-            T = values.atPose3(t.key_cam).matrix()
-            R_rc[v], t_rc[v] = T[:3, :3], T[:3, 3]
-            if estimated[v]:
-                k6 = values.atVector(t.key_intr)
+        for v, (t, (_, k6)) in enumerate(zip(terms, own)):
+            if k6 is not None:
                 par[v] = k6[:4]
                 dist[v, :2] = k6[4:6]
             else:
@@ -269,19 +328,20 @@ def make_capture_factor(key_robot, key_mount, key_scale, terms: list) -> gtsam.C
         p_c = np.einsum("ni,nij->nj", p_r - t_rc[vi], Rp)
         p_c[:, 2] = np.maximum(p_c[:, 2], _MIN_DEPTH_M)  # finite residuals for a corner behind the camera
         fx, fy, cx, cy = (par[vi, i] for i in range(4))
-        uv, Jp, aux = project_points(p_c, fx, fy, cx, cy, static[vi, 0], dist[vi].T, H is not None)
+        uv, Jp, aux = project_points(p_c, fx, fy, cx, cy, static[vi, 0], dist[vi].T, want_jacobians)
         e = ((uv - UV) * SW[:, None]).reshape(-1)
-        if H is not None:
+        H = None
+        if want_jacobians:
             Jp = Jp * SW[:, None, None]
             H_c = np.concatenate([_cross_rows(Jp, p_c), -Jp], axis=2).reshape(total, 6)
             JF = np.einsum("nij,njk->nik", Jp, np.einsum("nji,jk->nik", Rp, R_rm))  # Jp R_rc^T R_rm
             H_f = np.concatenate([-_cross_rows(JF, p_m), JF], axis=2).reshape(total, 6)
             JB = JF @ R_mb
             H_b = np.concatenate([-_cross_rows(JB, p_b), JB], axis=2).reshape(total, 6)
-            blocks = [H_f, H_b]
+            shared_blocks = [H_f, H_b]
             if key_scale is not None:
-                blocks.append(np.einsum("nij,nj->ni", JB, P_b).reshape(total, 1))
-            blocks += [None] * (len(keys) - n_fixed)
+                shared_blocks.append(np.einsum("nij,nj->ni", JB, P_b).reshape(total, 1))
+            Jk = None
             if estimated.any():
                 x, y, xd, yd, r2, b = aux
                 Jk = np.zeros((len(vi), 2, 6))
@@ -290,24 +350,33 @@ def make_capture_factor(key_robot, key_mount, key_scale, terms: list) -> gtsam.C
                     Jk[:, 0, col] = (fx * x + static[vi, 0] * y) * rp
                     Jk[:, 1, col] = fy * y * rp
                 Jk = (Jk * SW[:, None, None]).reshape(total, 6)
-            for v, rs in enumerate(rows):
-                Hc = np.zeros((total, 6))
-                Hc[rs] = H_c[rs]
-                blocks[col_cam[v]] = Hc
-                if col_intr[v] is not None:
-                    Hk = np.zeros((total, 6))
-                    Hk[rs] = Jk[rs]
-                    blocks[col_intr[v]] = Hk
+            H = [[A[rs] for A in shared_blocks] + [H_c[rs]] + ([Jk[rs]] if estimated[v] else [])
+                 for v, rs in enumerate(rows)]
+        es = [e[rs] for rs in rows]
         for v, (c, Q) in enumerate(whiten):
             if c:
-                rs = rows[v]
-                e[rs] -= c * (Q @ (Q.T @ e[rs]))
+                es[v] = es[v] - c * (Q @ (Q.T @ es[v]))
                 if H is not None:
-                    for A in blocks:
-                        A[rs] -= c * (Q @ (Q.T @ A[rs]))
-        if H is not None:
-            for i, A in enumerate(blocks):
-                H[i] = A
-        return e
+                    H[v] = [A - c * (Q @ (Q.T @ A)) for A in H[v]]
+        cache.update(shared=key, own=[own_key(o) for o in own], jacobians=want_jacobians, e=es, H=H)
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(total), keys, error_func)
+    def factor(v: int, t) -> gtsam.CustomFactor:
+        keys = [key_robot, key_mount] + ([key_scale] if key_scale is not None else []) + [t.key_cam]
+        keys += [t.key_intr] if t.key_intr is not None else []
+
+        def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
+            shared = shared_inputs(values)
+            key = shared_key(shared)
+            if (cache["own"] is None or (H is not None and not cache["jacobians"]) or cache["shared"] != key
+                    or cache["own"][v] != own_key(own_inputs(values, t))):
+                # with the Jacobians even for the error alone: LM linearises next where it accepted a
+                # step, at values whose error it has just asked for
+                compute(values, shared, key, True)
+            if H is not None:
+                for i, A in enumerate(cache["H"][v]):
+                    H[i] = A
+            return cache["e"][v]
+
+        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2 * t.p_board_m.shape[0]), keys, error_func)
+
+    return [factor(v, t) for v, t in enumerate(terms)]

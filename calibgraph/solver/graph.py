@@ -31,9 +31,10 @@ from calibgraph.core.errors import InputError, ObservabilityError
 from calibgraph.core.problem import Problem, intrinsics_estimated, intrinsics_prior_covariance
 from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.factors import ViewTerm, fk_noise, intrinsics_vector, make_capture_factor, with_pinhole
+from calibgraph.solver.factors import ViewTerm, fk_noise, intrinsics_vector, make_capture_factors, with_pinhole
 from calibgraph.solver.keys import B, C, F, K, O, S
 from calibgraph.solver.noise_model import MODE_MIN_CORNERS, view_mode_basis
+from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.timing import timed
 from calibgraph.solver.views import residual_norms
 
@@ -67,6 +68,7 @@ class Estimate:
     fk_ratio: object | None = None  # fk_check.FkRatio of the final graph
     graph: object | None = field(default=None, repr=False)  # the final graph and its values (error budget)
     values: object | None = field(default=None, repr=False)
+    linear: object | None = field(default=None, repr=False)  # reduced.Linear of the final graph, when formed
 
     def camera_model(self, name: str, cameras: dict) -> Intrinsics:
         """The intrinsics camera ``name`` is projected with: estimated, else given (``cameras``)."""
@@ -189,7 +191,8 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
             terms.append(ViewTerm(C(slots[v.camera]), K(slots[v.camera]) if v.camera in refine else None,
                                   problem.cameras[v.camera], v.p_board_m[keep], v.uv_px[keep],
                                   np.sqrt(v.w[keep]) / sigma_px, modes, f))
-        graph.add(make_capture_factor(F(k), B(0), S(0) if o.board_scale else None, terms))
+        for f in make_capture_factors(F(k), B(0), S(0) if o.board_scale else None, terms):
+            graph.add(f)
     return graph, values
 
 
@@ -244,6 +247,20 @@ def marginals(graph, values, form: str, timings: dict | None = None) -> Marginal
         ) from None
 
 
+def reduced_marginals(graph, values, timings: dict | None = None):
+    """(the Schur-reduced linearisation of a solved view graph (:mod:`calibgraph.solver.reduced`,
+    which the error budget reads too), its marginals): one linearisation, and only the few global
+    variables' covariance formed. A graph whose reduced information is not positive definite goes
+    to :func:`marginals` (which refuses a singular one with advice): (None, its marginals)."""
+    with timed(timings, "marginals"):
+        try:
+            L = linearise_graph(graph, values)
+            return L, L.marginals(values.keys())
+        except np.linalg.LinAlgError:
+            pass
+    return None, marginals(graph, values, "view", timings)
+
+
 @dataclass(frozen=True)
 class LMRun:
     """The outcome of one Levenberg-Marquardt run."""
@@ -254,23 +271,77 @@ class LMRun:
     converged: bool  # ended on its error tolerance, not on the iteration limit
 
 
+# LM stops once the decrease the next iteration would bring, predicted from the last two
+# (``d_k^2 / d_(k-1)`` while they shrink at least tenfold), is below this (GTSAM's error, 0.5 chi^2):
+# the estimate is then within sqrt(2 * 1e-4) ~ 0.014 sigma (Mahalanobis, all variables together) of
+# the optimum, and the iteration that would only confirm it is not run.
+PREDICTED_DECREASE_TOL = 1e-4
+# ... or once an undamped step (lambda at most GN_LAMBDA) decreased the error as its linearisation
+# predicted to within PREDICTED_DECREASE_TOL: the quadratic model holds there, and its minimum, where
+# the step went, is the optimum's to that accuracy.
+GN_LAMBDA = 1e-4
+# GTSAM's LevenbergMarquardtParams defaults, which the loop below follows
+LAMBDA_INITIAL, LAMBDA_FACTOR, LAMBDA_MAX, MIN_MODEL_FIDELITY = 1e-5, 10.0, 1e5, 1e-3
+REL_ERROR_TOL, ABS_ERROR_TOL = 1e-9, 1e-12
+
+
+def _damping(values, lam: float) -> gtsam.GaussianFactorGraph:
+    """LM's damping: a prior sqrt(lambda) I on every variable's tangent (GTSAM's, without diagonal damping)."""
+    out = gtsam.GaussianFactorGraph()
+    zero = values.zeroVectors()
+    for k in values.keys():
+        d = zero.at(k).shape[0]
+        out.push_back(gtsam.JacobianFactor(k, np.eye(d), np.zeros(d), gtsam.noiseModel.Isotropic.Sigma(d, 1.0 / np.sqrt(lam))))
+    return out
+
+
 def levenberg_marquardt(graph, values, max_iterations, form: str = "view") -> LMRun:
-    """One LM run with the solver's elimination ordering. A singular system raises ObservabilityError."""
-    params = gtsam.LevenbergMarquardtParams()
-    params.setOrdering(ordering(values, form))
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-9)
-    params.setAbsoluteErrorTol(1e-12)
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    try:
-        out = opt.optimize()
-    except RuntimeError as e:  # gtsam's IndeterminantLinearSystemException surfaces as RuntimeError
-        raise ObservabilityError(
-            f"the calibration graph is singular ({str(e).splitlines()[0][:120]}); some parameter is not "
-            "determined by the views: add poses with the board tilted about different axes."
-        ) from None
-    error = graph.error(out)
-    return LMRun(out, opt.iterations(), error, bool(np.isfinite(error) and opt.iterations() < max_iterations))
+    """One LM run with the solver's elimination ordering: GTSAM's Levenberg-Marquardt (its lambda
+    policy, model-fidelity test and error tolerances), stopped too on :data:`PREDICTED_DECREASE_TOL`.
+
+    The loop is run here, on GTSAM's linearisation and linear solver, rather than by
+    ``gtsam.LevenbergMarquardtOptimizer``: inside that optimizer every Python factor's call receives a
+    copy of all the values, which on a large cell costs more than the solve. A singular system
+    raises ObservabilityError."""
+    order = ordering(values, form)
+    error, lam, iterations, last, stop = graph.error(values), LAMBDA_INITIAL, 0, None, False
+    while iterations < max_iterations and not stop and np.isfinite(error):
+        lin = graph.linearize(values)
+        accepted, solved = None, False
+        while accepted is None and lam < LAMBDA_MAX:
+            damped = gtsam.GaussianFactorGraph()
+            damped.push_back(lin)
+            damped.push_back(_damping(values, lam))
+            try:
+                delta = damped.optimize(order)
+                solved = True
+            except RuntimeError:  # indeterminant even with this damping: damp more
+                lam *= LAMBDA_FACTOR
+                continue
+            lin_drop = error - lin.error(delta)
+            if lin_drop >= 0:
+                new_values = values.retract(delta)
+                new_error = graph.error(new_values)
+                if lin_drop <= np.finfo(float).eps * error or (error - new_error) / lin_drop > MIN_MODEL_FIDELITY:
+                    accepted = (new_values, new_error, lin_drop, lam)
+                    lam = lam / LAMBDA_FACTOR
+                    break
+            lam *= LAMBDA_FACTOR
+        iterations += 1
+        if accepted is None:  # no lambda decreases the error: at the optimum (or the system is singular)
+            if not solved:
+                raise ObservabilityError(
+                    "the calibration graph is singular: some parameter is not determined by the views: add poses "
+                    "with the board tilted about different axes.")
+            break
+        values, new_error, lin_drop, lam_used = accepted
+        drop = error - new_error
+        error = new_error
+        stop = drop <= ABS_ERROR_TOL or drop <= REL_ERROR_TOL * (error + drop) or (
+            last is not None and drop < 0.1 * last and drop * drop / last < PREDICTED_DECREASE_TOL) or (
+            lam_used <= GN_LAMBDA and abs(drop - lin_drop) < PREDICTED_DECREASE_TOL)
+        last = drop
+    return LMRun(values, iterations, error, bool(np.isfinite(error) and iterations < max_iterations))
 
 
 def extract(values, slots, views, est: Estimate, cameras: dict, form: str = "view") -> Estimate:

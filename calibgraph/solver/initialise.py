@@ -28,7 +28,7 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import ObservabilityError
-from calibgraph.core.transforms import inv, log_so3, make_T, project_to_so3
+from calibgraph.core.transforms import log_so3, make_T, project_to_so3
 
 ROT_INLIER_DEG = 5.0
 MAX_MOUNT_SEEDS = 5
@@ -82,22 +82,26 @@ def _solve_rotations(rows_by_cam: dict, n_cams: int):
     """
     nu = 9 * (n_cams + 1)
     I3 = np.eye(3)
-    blocks = []
+    N = np.zeros((nu, nu))
+    Y = slice(9 * n_cams, nu)
     for slot, pairs in rows_by_cam.items():
         if not pairs:
             continue
         A = np.array([a for a, _ in pairs])
         Bm = np.array([b for _, b in pairs])
         n = len(pairs)
-        Mk = np.zeros((n, 9, nu))
         # kron(I, B^T)[(i,j),(k,l)] = d_ik B[l,j];  kron(A, I)[(i,j),(k,l)] = A[i,k] d_jl
-        Mk[:, :, 9 * slot: 9 * slot + 9] = np.einsum("ik,nlj->nijkl", I3, Bm).reshape(n, 9, 9)
-        Mk[:, :, 9 * n_cams:] = -np.einsum("nik,jl->nijkl", A, I3).reshape(n, 9, 9)
-        blocks.append(Mk.reshape(9 * n, nu))
-    M = np.vstack(blocks)
-    # Normal equations keep this O(rows * nu^2) for thousands of views; the null vector is the
-    # eigenvector of the smallest eigenvalue.
-    evals, evecs = np.linalg.eigh(M.T @ M)
+        Mz = np.einsum("ik,nlj->nijkl", I3, Bm).reshape(9 * n, 9)
+        My = -np.einsum("nik,jl->nijkl", A, I3).reshape(9 * n, 9)
+        Z = slice(9 * slot, 9 * slot + 9)
+        N[Z, Z] += Mz.T @ Mz
+        N[Z, Y] += Mz.T @ My
+        N[Y, Z] += My.T @ Mz
+        N[Y, Y] += My.T @ My
+    # Normal equations, formed block by block (each view touches its camera's block and R_Y only),
+    # keep this O(rows) for thousands of views; the null vector is the eigenvector of the smallest
+    # eigenvalue.
+    evals, evecs = np.linalg.eigh(N)
     v = evecs[:, 0]
     s = np.sqrt(np.clip(evals[::-1], 0, None))
     # The null vector is [R_Z..., R_Y] times an unknown scale s; every block's determinant has the
@@ -194,22 +198,37 @@ def ransac_camera(views: list, rng: np.random.Generator, iterations: int = 300, 
 
 
 def _solve_translations(entries: list, n_cams: int, RZ: list):
-    """Least squares for t_Z (per slot) and shared t_Y from (slot, A, R_B, t_B) entries."""
-    rows, rhs = [], []
-    for slot, A, RB, tB in entries:
-        M = np.zeros((3, 3 * (n_cams + 1)))
-        M[:, 3 * slot: 3 * slot + 3] = np.eye(3)
-        M[:, 3 * n_cams:] = -A[:3, :3]
-        rows.append(M)
-        rhs.append(A[:3, 3] - RZ[slot] @ tB)
-    x, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)
+    """Least squares for t_Z (per slot) and shared t_Y from (slot, A, R_B, t_B) entries: the
+    minimum-norm solution, from normal equations formed block by block (each entry's rows touch its
+    camera's t_Z, as the identity, and t_Y)."""
+    nu = 3 * (n_cams + 1)
+    slots = np.array([e[0] for e in entries])
+    A = np.array([e[1] for e in entries])
+    M_Y = -A[:, :3, :3]
+    b = A[:, :3, 3] - np.einsum("nij,nj->ni", np.array(RZ)[slots], np.array([e[3] for e in entries]))
+    N, r = np.zeros((nu, nu)), np.zeros(nu)
+    Y = slice(3 * n_cams, nu)
+    for slot in np.unique(slots):
+        on = slots == slot
+        Z = slice(3 * slot, 3 * slot + 3)
+        N[Z, Z] = on.sum() * np.eye(3)
+        N[Z, Y] = M_Y[on].sum(axis=0)
+        N[Y, Z] = N[Z, Y].T
+        r[Z] = b[on].sum(axis=0)
+    N[Y, Y] = len(entries) * np.eye(3)  # M_Y^T M_Y = I for a rotation
+    r[Y] = np.einsum("nji,nj->i", M_Y, b)
+    x, *_ = np.linalg.lstsq(N, r, rcond=None)
     return [x[3 * i: 3 * i + 3] for i in range(n_cams)], x[3 * n_cams:]
 
 
 def _robust_translations(entries, n_cams, RZ):
     tZ, tY = _solve_translations(entries, n_cams, RZ)
     for _ in range(3):
-        res = np.array([np.linalg.norm(tZ[s] + RZ[s] @ tB - A[:3, :3] @ tY - A[:3, 3]) for s, A, RB, tB in entries])
+        slots = np.array([e[0] for e in entries])
+        A = np.array([e[1] for e in entries])
+        tB = np.array([e[3] for e in entries])
+        res = np.linalg.norm(np.array(tZ)[slots] + np.einsum("nij,nj->ni", np.array(RZ)[slots], tB)
+                             - A[:, :3, :3] @ tY - A[:, :3, 3], axis=1)
         thr = max(3.0 * np.median(res), 0.01)
         keep = [e for e, r in zip(entries, res) if r <= thr]
         if len(keep) == len(entries) or len(keep) < 3:
@@ -221,13 +240,17 @@ def _robust_translations(entries, n_cams, RZ):
 
 def camera_from_mount(views: list, T_mount_board: np.ndarray):
     """T_ref_cam by consensus over views given the board mount. Returns (T, n_agree)."""
-    props = []
-    for v in views:
-        for j in range(len(v.R)):
-            props.append(v.T_ref_mount @ T_mount_board @ inv(make_T(v.R[j], v.t[j])))
-    if not props:
+    views = [v for v in views if len(v.R)]
+    if not views:
         return None, 0
-    props = np.array(props)
+    A = np.concatenate([np.broadcast_to(v.T_ref_mount, (len(v.R), 4, 4)) for v in views])
+    R_cb = np.concatenate([v.R for v in views])
+    t_cb = np.concatenate([v.t for v in views])
+    T_board_cam = np.zeros((len(R_cb), 4, 4))
+    T_board_cam[:, :3, :3] = R_cb.transpose(0, 2, 1)
+    T_board_cam[:, :3, 3] = -np.einsum("nji,nj->ni", R_cb, t_cb)
+    T_board_cam[:, 3, 3] = 1.0
+    props = A @ T_mount_board @ T_board_cam
     Rs = props[:, :3, :3]
     ang = _angle_deg(Rs[:, None], Rs[None, :])
     counts = (ang < ROT_INLIER_DEG).sum(axis=1)
@@ -340,7 +363,7 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_ref_cam: dict, 
     slot = {n: i for i, n in enumerate(names)}
     nu = 3 * (len(names) + 1)
     RY = T_mount_board[:3, :3]
-    blocks = []  # (A rows, b, view key)
+    blocks = []  # (rows on [t_Z of its camera, t_Y] (m, 6), b (m,), its camera's slot)
     for n in names:
         RZ = T_ref_cam[n][:3, :3]
         intr = intr_by_cam[n]
@@ -357,31 +380,44 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_ref_cam: dict, 
             MZ = -RZ.T
             rows, rhs = [], []
             for c, xn in ((0, xy[:, 0]), (1, xy[:, 1])):
-                # (xn e3 - e_c)^T p_cam = 0
+                # (xn e3 - e_c)^T p_cam = 0; a view's rows touch its camera's t_Z and t_Y only
                 coef_q = xn * q[:, 2] - q[:, c]
-                a_Y = xn[:, None] * MY[2] - MY[c]
-                a_Z = xn[:, None] * MZ[2] - MZ[c]
-                R_ = np.zeros((len(xn), nu))
-                R_[:, 3 * slot[n]: 3 * slot[n] + 3] = a_Z
-                R_[:, 3 * len(names):] = a_Y
-                rows.append(R_)
+                rows.append(np.hstack([xn[:, None] * MZ[2] - MZ[c], xn[:, None] * MY[2] - MY[c]]))
                 rhs.append(-coef_q)
-            blocks.append((np.vstack(rows), np.concatenate(rhs), key))
+            G = np.vstack(rows)
+            blocks.append((G, np.concatenate(rhs), slot[n]))
     if len(blocks) < 3:
         return T_ref_cam, T_mount_board
-    use = list(range(len(blocks)))
-    AtA = [blk[0].T @ blk[0] for blk in blocks]
-    Atb = [blk[0].T @ blk[1] for blk in blocks]
+    nb, ns = len(blocks), len(names)
+    slots = np.array([blk[2] for blk in blocks])
+    AtA = np.array([blk[0].T @ blk[0] for blk in blocks])
+    Atb = np.array([blk[0].T @ blk[1] for blk in blocks])
+    G_all = np.concatenate([blk[0] for blk in blocks])
+    b_all = np.concatenate([blk[1] for blk in blocks])
+    owner = np.repeat(np.arange(nb), [len(blk[1]) for blk in blocks])
+    use = np.ones(nb, bool)
     # A weak pull towards the current translations keeps directions the kept views do not determine
     # (a camera whose views all fell out, a mount seen edge-on) where they were instead of singular.
     x0 = np.concatenate([T_ref_cam[n][:3, 3] for n in names] + [T_mount_board[:3, 3]])
+    Y = slice(3 * ns, nu)
     for _ in range(2):
-        N = sum(AtA[i] for i in use)
+        N_zz, N_zy = np.zeros((ns, 3, 3)), np.zeros((ns, 3, 3))
+        r_z = np.zeros((ns, 3))
+        np.add.at(N_zz, slots[use], AtA[use, :3, :3])
+        np.add.at(N_zy, slots[use], AtA[use, :3, 3:])
+        np.add.at(r_z, slots[use], Atb[use, :3])
+        N, r = np.zeros((nu, nu)), np.zeros(nu)
+        for i in range(ns):
+            Z = slice(3 * i, 3 * i + 3)
+            N[Z, Z], N[Z, Y], N[Y, Z], r[Z] = N_zz[i], N_zy[i], N_zy[i].T, r_z[i]
+        N[Y, Y], r[Y] = AtA[use, 3:, 3:].sum(axis=0), Atb[use, 3:].sum(axis=0)
         lam = 1e-9 * max(np.trace(N) / len(N), 1e-12)
-        x = np.linalg.solve(N + lam * np.eye(len(N)), sum(Atb[i] for i in use) + lam * x0)
-        res = np.array([np.sqrt(np.mean((blocks[i][0] @ x - blocks[i][1]) ** 2)) for i in range(len(blocks))])
-        keep = [i for i in range(len(blocks)) if res[i] <= 4.0 * np.median(res) + 1e-9]
-        if keep == use or len(keep) < 3:
+        x = np.linalg.solve(N + lam * np.eye(len(N)), r + lam * x0)
+        xb = np.hstack([x[:3 * ns].reshape(ns, 3)[slots], np.broadcast_to(x[Y], (nb, 3))])  # each view's unknowns
+        e = np.einsum("rj,rj->r", G_all, xb[owner]) - b_all
+        res = np.sqrt(np.bincount(owner, e * e, nb) / np.bincount(owner, minlength=nb))
+        keep = res <= 4.0 * np.median(res) + 1e-9
+        if np.array_equal(keep, use) or keep.sum() < 3:
             break
         use = keep
     out = {n: make_T(T_ref_cam[n][:3, :3], x[3 * slot[n]: 3 * slot[n] + 3]) if n in slot else T_ref_cam[n] for n in T_ref_cam}

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibgraph.core.problem import Problem
-from calibgraph.solver.factors import fk_noise, view_residual
+from calibgraph.solver.factors import fk_noise, pad_views, padded_view_residuals
 
 
 @dataclass(frozen=True)
@@ -30,24 +30,28 @@ class Linearised:
 
 
 def linearise(problem: Problem, views, est, sigma_px: float) -> Linearised:
-    """Whitened residuals and robot-pose Jacobians of the active views at ``est`` (an Estimate)."""
+    """Whitened residuals and robot-pose Jacobians of the active views at ``est`` (an Estimate),
+    every view of one camera in one vectorised pass."""
+    active = [v for v in views if v.active and v.kept.any()]
+    rows = {}
+    for name in dict.fromkeys(v.camera for v in active):
+        mine = [v for v in active if v.camera == name]
+        P, UV, valid, W = pad_views(mine, est.board_scale, kept_only=True)
+        T_F = np.array([est.T_ref_mount.get(v.capture, v.T_ref_mount) for v in mine])
+        e, _, J_f = padded_view_residuals(est.T_ref_cam[name], T_F, est.T_mount_board, P, UV,
+                                          est.camera_model(name, problem.cameras), np.sqrt(W) / sigma_px)
+        for i, v in enumerate(mine):
+            n2 = 2 * int(valid[i].sum())
+            rows[id(v)] = (e[i, :n2], J_f[i, :n2])
     out, info = [], {}
-    for v in views:
-        if not v.active:
+    for v in active:  # in the order given
+        e, H_f = rows[id(v)]
+        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(H_f))):
             continue
-        keep = v.kept
-        if not keep.any():
-            continue
-        e, J = view_residual(est.T_ref_cam[v.camera], est.T_ref_mount.get(v.capture, v.T_ref_mount), est.T_mount_board,
-                             est.board_scale * v.p_board_m[keep], v.uv_px[keep],
-                             est.camera_model(v.camera, problem.cameras), np.sqrt(v.w[keep]) / sigma_px)
-        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J[1]))):
-            continue
-        H_f = J[1]
         if v.capture not in info:
             R = np.asarray(fk_noise(problem.options, problem.mode, v.T_ref_mount).R())
             info[v.capture] = (R.T @ R, np.zeros((6, 6)), R)
         prior, views_info, R = info[v.capture]
         info[v.capture] = (prior, views_info + H_f.T @ H_f, R)
-        out.append((v, keep, e, H_f))
+        out.append((v, v.kept, e, H_f))
     return Linearised(out, info)

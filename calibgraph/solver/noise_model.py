@@ -86,13 +86,16 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
     cov = lin.robot_pose_covariances()
     acc = {}
     for v, e, H_f, Q in per_view:
-        M = H_f @ cov[v.capture] @ H_f.T
+        # traces of M = H_f Sigma_k H_f^T without forming it (2n x 2n): tr(Q^T M Q) = <Sigma_k, G G^T>
+        # with G = H_f^T Q, and tr(M) = <Sigma_k, H_f^T H_f>
+        Sk = cov[v.capture]
+        G = H_f.T @ Q
         qe = Q.T @ e
         low, total = float(qe @ qe), float(e @ e)
-        t_low = float(np.trace(Q.T @ M @ Q))
+        t_low = float(np.sum(Sk * (G @ G.T)))
+        t_all = float(np.sum(Sk * (H_f.T @ H_f)))
         a = acc.setdefault(v.camera, np.zeros(5))
-        a += [low, max(total - low, 0.0), N_MODES - t_low, len(e) - N_MODES - (float(np.trace(M)) - t_low),
-              low * sigma_px ** 2]
+        a += [low, max(total - low, 0.0), N_MODES - t_low, len(e) - N_MODES - (t_all - t_low), low * sigma_px ** 2]
     out = {}
     for cam, (low, rest, r_low, r_rest, low_px2) in acc.items():
         n_views = sum(1 for v, *_ in per_view if v.camera == cam)

@@ -28,6 +28,7 @@ from calibgraph.solver.graph import (
     formulation,
     levenberg_marquardt,
     marginals,
+    reduced_marginals,
 )
 from calibgraph.solver.initialise import pnp_candidates
 from calibgraph.solver.keys import B
@@ -195,11 +196,15 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
         converged = converged and run.converged
         values = run.values
         est = extract(values, slots, views, est, problem.cameras, form)
-    marg = marginals(graph, values, form, timings)
+    linear = None
+    if form == "view":
+        linear, marg = reduced_marginals(graph, values, timings)
+    else:
+        marg = marginals(graph, values, form, timings)
     mount_cov = factors_ppp.mount_cov_body(marg, values) if form == "corner" else marg.marginalCovariance(B(0))
     return replace(est, iterations=iterations, converged=converged, cost=graph.error(values), sigma_px=sigma_post,
                    slots=slots, formulation=form, marginals=marg, mount_cov_body=mount_cov, mode_ratios=mode_ratios,
-                   fk_ratio=fk_ratio, graph=graph, values=values)
+                   fk_ratio=fk_ratio, graph=graph, values=values, linear=linear)
 
 
 def solve_joint(problem: Problem, names: list, views: list, starts: list, timings: dict | None = None) -> Group:

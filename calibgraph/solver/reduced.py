@@ -11,6 +11,7 @@ error budget (:mod:`calibgraph.solver.budget`) and the test of exact intrinsics 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import gtsam
 import numpy as np
@@ -47,6 +48,16 @@ class Linear:
     S: np.ndarray  # Schur complement: the information of the global variables, the locals eliminated
     g: np.ndarray  # the cost's gradient on the global variables with the locals at their optimum
     prior_K: dict  # K key -> its prior's information (6, 6)
+
+    @cached_property
+    def covariance(self) -> np.ndarray:
+        """``S^-1``: the joint covariance of the global variables (computed once)."""
+        return _inverse(self.S)
+
+    def marginals(self, keys) -> "ReducedMarginals":
+        """Marginal covariances of the graph's variables (``keys``: all of them) from this reduction;
+        raises LinAlgError when the information is not positive definite."""
+        return ReducedMarginals(self, set(keys))
 
     def step_gain(self, free: list) -> float:
         """Decrease of the linearised cost by the Gauss-Newton step of the global variables ``free``
@@ -87,26 +98,28 @@ def linearise_graph(graph, values) -> Linear:
             continue
         keys = list(f.keys())
         A, b = f.jacobian()
-        blocks, col = {}, 0
+        blocks, cols, col = {}, {}, 0
         for k in keys:
             blocks[k] = A[:, col:col + dims[k]]
+            cols[k] = slice(col, col + dims[k])
             col += dims[k]
         src = _source(keys)
         factors.append((src, keys, blocks))
+        AtA, Atb = A.T @ A, A.T @ b  # one product per factor, its blocks scattered below
         if src == "intrinsics":
-            prior_K[keys[0]] = blocks[keys[0]].T @ blocks[keys[0]]
+            prior_K[keys[0]] = AtA[cols[keys[0]], cols[keys[0]]]
         loc = [k for k in keys if k not in index]
         gl = [k for k in keys if k in index]
         for a in gl:
-            grad[index[a]] -= blocks[a].T @ b
+            grad[index[a]] -= Atb[cols[a]]
             for c in gl:
-                H[index[a], index[c]] += blocks[a].T @ blocks[c]
+                H[index[a], index[c]] += AtA[cols[a], cols[c]]
         for l in loc:  # at most one local variable per factor
-            H_ll[l] = H_ll.get(l, 0) + blocks[l].T @ blocks[l]
-            g_l[l] = g_l.get(l, 0) - blocks[l].T @ b
+            H_ll[l] = H_ll.get(l, 0) + AtA[cols[l], cols[l]]
+            g_l[l] = g_l.get(l, 0) - Atb[cols[l]]
             lg = H_lg.setdefault(l, {})
             for g in gl:
-                lg[g] = lg.get(g, 0) + blocks[l].T @ blocks[g]
+                lg[g] = lg.get(g, 0) + AtA[cols[l], cols[g]]
     locals_ = {}
     for l, Hll in H_ll.items():
         inv = np.linalg.inv(Hll)
@@ -136,15 +149,65 @@ def columns(L: Linear, S: np.ndarray, wanted: list) -> dict:
     return X
 
 
-def sigma_with(L: Linear, cam_key, S: np.ndarray | None = None, add_info: dict | None = None) -> float:
+def sigma_with(L: Linear, cam_key, S: np.ndarray | None = None, add_info: dict | None = None,
+               cov: np.ndarray | None = None) -> float:
     """sqrt(trace) of the translation covariance (mm) of the camera pose ``cam_key``, from the
     information ``S`` (default: the graph's) with ``add_info`` (key -> information to add) added.
-    Only the global system is solved: the camera is a global variable."""
-    S = (L.S if S is None else S).copy()
-    for k, dH in (add_info or {}).items():
-        S[L.index[k], L.index[k]] += dH
+    Only the global system is solved: the camera is a global variable. ``cov``: the inverse of ``S``
+    when the caller has it (one inverse serves every camera); the added information then enters as
+    a low-rank update of it, ``Sigma' = Sigma - Sigma_tI (I + D Sigma_II)^-1 D Sigma_It``."""
+    if cov is None:
+        cov = L.covariance if S is None else _inverse(S)
     rows = np.arange(L.index[cam_key].start, L.index[cam_key].stop)[TRANSLATION]
-    e = np.zeros((S.shape[0], len(rows)))
-    e[rows, np.arange(len(rows))] = 1.0
-    X = np.linalg.solve(S, e)
-    return 1e3 * float(np.sqrt(max(np.trace(X[rows]), 0.0)))
+    X = cov[np.ix_(rows, rows)]
+    if add_info:
+        idx = np.concatenate([np.arange(L.index[k].start, L.index[k].stop) for k in add_info])
+        D = np.zeros((len(idx), len(idx)))
+        n = 0
+        for dH in add_info.values():
+            m = dH.shape[0]
+            D[n:n + m, n:n + m] = dH
+            n += m
+        C_tI, C_II = cov[np.ix_(rows, idx)], cov[np.ix_(idx, idx)]
+        X = X - C_tI @ np.linalg.solve(np.eye(len(idx)) + D @ C_II, D @ C_tI.T)
+    return 1e3 * float(np.sqrt(max(np.trace(X), 0.0)))
+
+
+def _inverse(S: np.ndarray) -> np.ndarray:
+    """The covariance of an information matrix (symmetrised)."""
+    C = np.linalg.inv(S)
+    return 0.5 * (C + C.T)
+
+
+class ReducedMarginals:
+    """The marginals a :class:`~calibgraph.solver.graph.Marginals` gives, from a :class:`Linear`:
+    the global variables' joint covariance is ``S^-1``; a local variable's adds what it does not
+    share, ``H_ll^-1 + H_ll^-1 H_lg Sigma_gg H_gl H_ll^-1``."""
+
+    def __init__(self, L: Linear, keys: set):
+        np.linalg.cholesky(L.S)  # LinAlgError when the graph leaves a direction undetermined
+        self._L, self._keys = L, keys
+
+    def _rows(self, keys) -> np.ndarray:
+        return np.concatenate([np.arange(self._L.index[k].start, self._L.index[k].stop) for k in keys])
+
+    def marginalCovariance(self, key) -> np.ndarray:  # noqa: N802 - mirrors gtsam.Marginals
+        L = self._L
+        if key in L.index:
+            r = self._rows([key])
+            return L.covariance[np.ix_(r, r)]
+        inv, lg = L.locals_[key]
+        if not lg:
+            return inv
+        B = np.hstack([lg[g] for g in lg])
+        r = self._rows(list(lg))
+        return inv + inv @ B @ L.covariance[np.ix_(r, r)] @ B.T @ inv
+
+    def has(self, key) -> bool:
+        """True when ``key`` is a variable of the graph."""
+        return key in self._keys
+
+    def joint(self, keys) -> np.ndarray:
+        """Joint covariance of the global variables ``keys``, in the order given."""
+        r = self._rows(list(keys))
+        return self._L.covariance[np.ix_(r, r)]

@@ -160,7 +160,8 @@ def session_poses(intr: Intrinsics, target: Target, n_views: int = 25, distance_
         for axis in (0, 1):
             far = at.copy()
             far[axis] = aim_px[axis]
-            at = _furthest(fits, at, far) if far[axis] != at[axis] else at
+            moved = _furthest(fits, at, far) if far[axis] != at[axis] else at
+            at = at if moved is None else moved  # the pattern fits nowhere along this axis: stay
         R, t = _poses(Kinv, at[None], dist, turn, centre_b)
         T = make_T(R[0], t[0])
         poses.append(T)

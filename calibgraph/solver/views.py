@@ -98,27 +98,35 @@ def captures_by_camera(views: list) -> dict:
     return out
 
 
-def residual_norms(views: list, T_ref_cam: dict, T_mount_board: np.ndarray, T_ref_mount: dict, cameras: dict,
-                   board_scale: float = 1.0) -> list:
-    """Residual norms (px, (N,) per view) of ``views`` at the given values, batched per camera: one
-    projection call per camera instead of one per view. ``T_ref_mount``: capture -> robot pose (a
-    capture missing there is taken at its FK pose); ``cameras``: name -> Intrinsics to project with."""
+def reprojections(views: list, T_ref_cam: dict, T_mount_board: np.ndarray, T_ref_mount: dict, cameras: dict,
+                  board_scale: float = 1.0) -> list:
+    """Reprojected corners (px, (N, 2) per view) of ``views`` at the given values, batched per camera:
+    one projection call per camera instead of one per view. ``T_ref_mount``: capture -> robot pose
+    (a capture missing there is taken at its FK pose); ``cameras``: name -> Intrinsics to project with."""
     out = [None] * len(views)
     by_cam = {}
     for i, v in enumerate(views):
         by_cam.setdefault(v.camera, []).append(i)
     for cam, idx in by_cam.items():
         T_cs = inv(T_ref_cam[cam])
-        pts, uvs, counts = [], [], []
+        pts, counts = [], []
         for i in idx:
             v = views[i]
             T = T_cs @ T_ref_mount.get(v.capture, v.T_ref_mount) @ T_mount_board
             pts.append((board_scale * v.p_board_m) @ T[:3, :3].T + T[:3, 3])
-            uvs.append(v.uv_px)
             counts.append(len(v.ids))
         uv_hat = cameras[cam].project(np.concatenate(pts))
-        r = np.linalg.norm(uv_hat - np.concatenate(uvs), axis=1)
-        r = np.where(np.isfinite(r), r, 1e6)
-        for i, part in zip(idx, np.split(r, np.cumsum(counts)[:-1])):
+        for i, part in zip(idx, np.split(uv_hat, np.cumsum(counts)[:-1])):
             out[i] = part
+    return out
+
+
+def residual_norms(views: list, T_ref_cam: dict, T_mount_board: np.ndarray, T_ref_mount: dict, cameras: dict,
+                   board_scale: float = 1.0) -> list:
+    """Residual norms (px, (N,) per view) of ``views`` at the given values (see :func:`reprojections`;
+    a corner that does not project counts as 1e6 px)."""
+    out = []
+    for v, uv_hat in zip(views, reprojections(views, T_ref_cam, T_mount_board, T_ref_mount, cameras, board_scale)):
+        r = np.linalg.norm(uv_hat - v.uv_px, axis=1)
+        out.append(np.where(np.isfinite(r), r, 1e6))
     return out
