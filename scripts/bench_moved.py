@@ -79,18 +79,24 @@ def judge(res, truth: dict, victim: str | None, captures: list | None, at: int |
     return out
 
 
+def solve_and_judge(problem, truth: dict, victim, caps, at) -> dict:
+    """Solve ``problem`` and judge it (:func:`judge`, with the solve's CPU time); a refused solve
+    is recorded with its first line."""
+    t0 = time.process_time()
+    try:
+        res = solve(problem)
+    except CalibgraphError as e:
+        return {"error": str(e).splitlines()[0][:200]}
+    return judge(res, truth, victim, caps, at, time.process_time() - t0)
+
+
 def synthetic_trial(layout, seed, victim, shift, rot, frac):
     scene = _scene(layout, seed)
     at = int(round(frac * N_POSES))
     prob, T_after = bump_camera(scene, victim, at, shift, rot_deg=rot, seed=seed)
     caps = sorted(d.capture for d in scene.problem.detections if d.camera == victim)
     truth = dict(scene.truth.T_ref_cam, **{victim: T_after})
-    t0 = time.process_time()
-    try:
-        res = solve(prob)
-    except CalibgraphError as e:
-        return {"error": str(e).splitlines()[0][:200]}
-    return judge(res, truth, victim, caps, at, time.process_time() - t0)
+    return solve_and_judge(prob, truth, victim, caps, at)
 
 
 def still_trial(layout, seed, factor):
@@ -169,12 +175,7 @@ def rendered_trial(tmp: Path, k: int, victim, shift, rot, frac, n_poses: int = 4
         at = at_index
         stored = sorted(c.index for c in problem.captures)
         at = min((c for c in stored if c >= at), default=at)
-    t0 = time.process_time()
-    try:
-        res = solve(problem)
-    except CalibgraphError as e:
-        return {"error": str(e).splitlines()[0][:200]}
-    return judge(res, truth, victim, caps, at, time.process_time() - t0)
+    return solve_and_judge(problem, truth, victim, caps, at)
 
 
 # -- summary -------------------------------------------------------------------------------------

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calibgraph.core.errors import InputError
-from calibgraph.io.camera_file import check_image_size
+from calibgraph.io.camera_file import check_camera_names, check_image_size
 
 __all__ = ["ROBOT_DRIVERS", "CAMERA_DRIVERS", "ROBOT_KEYS", "SIM_ROBOT_KEYS", "PLANNING_KEYS", "Simulation", "Devices",
            "open_camera", "open_cameras", "connect_franka", "open_devices"]
@@ -223,10 +223,7 @@ def open_devices(driver: str, workcell=None, *, world=None, names=None, simulate
             open_cameras(hw, where, log, dev)
         if camera_files:
             known = set(dev.cameras) | set(names or ()) | (set(workcell.cameras) if workcell is not None else set())
-            unknown = sorted(set(camera_files) - known)
-            if unknown:
-                raise InputError(f"--intrinsics: {where} has no camera {', '.join(map(repr, unknown))} (its cameras: "
-                                 f"{', '.join(sorted(known)) or 'none'}).")
+            check_camera_names(camera_files, sorted(known), where)
             for name, intr in camera_files.items():
                 if name in dev.cameras:
                     dev.cameras[name] = FileIntrinsicsCamera(name, dev.cameras[name], intr, where)

@@ -79,15 +79,20 @@ def apply_camera_files(cameras: dict, files: dict, where: str, flag: str = "--in
     """``cameras`` (name -> Intrinsics) with each camera named in ``files`` replaced by its camera
     file's intrinsics (values, source and covariance: the solver's prior for that camera). A name
     ``cameras`` lacks, or a file made for another image size, is refused naming both."""
-    unknown = sorted(set(files) - set(cameras))
-    if unknown:
-        raise InputError(f"{flag}: {where} has no camera {', '.join(map(repr, unknown))} (its cameras: "
-                         f"{', '.join(cameras) or 'none'}).")
+    check_camera_names(files, list(cameras), where, flag)
     out = dict(cameras)
     for name, intr in files.items():
         check_image_size(name, cameras[name], intr, where, flag)
         out[name] = intr
     return out
+
+
+def check_camera_names(files: dict, known, where: str, flag: str = "--intrinsics") -> None:
+    """Refuse camera files for cameras ``where`` does not have (``known``: its camera names)."""
+    unknown = sorted(set(files) - set(known))
+    if unknown:
+        raise InputError(f"{flag}: {where} has no camera {', '.join(map(repr, unknown))} (its cameras: "
+                         f"{', '.join(known) or 'none'}).")
 
 
 def check_image_size(name: str, have, intr, where: str, flag: str = "--intrinsics") -> None:
