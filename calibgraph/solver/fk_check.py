@@ -18,7 +18,7 @@ import numpy as np
 
 from calibgraph.core.problem import Problem
 from calibgraph.solver.linearise import Linearised, linearise
-from calibgraph.solver.noise_model import APPLY_Z, NOTE_Z
+from calibgraph.solver.noise_model import APPLY_Z, MODE_MIN_CORNERS, NOTE_Z, view_mode_basis
 
 
 @dataclass(frozen=True)
@@ -40,16 +40,35 @@ class FkRatio:
                 "used_sigma_translation_m": t * s, "used_sigma_rotation_rad": r * s}
 
 
-def fk_variance_ratio(problem: Problem, views, est, sigma_px: float, lin: Linearised | None = None) -> FkRatio | None:
+def _mode_weighted_information(lin: Linearised, mode_factors: dict) -> dict:
+    """capture -> the information its views carry on F(k) when each view's low-order image modes
+    have ``mode_factors[camera]`` times the variance of the rest (as the graph weights them)."""
+    info = {k: np.zeros((6, 6)) for k in lin.captures}
+    for v, keep, _e, H_f in lin.views:
+        f = mode_factors.get(v.camera, 1.0)
+        if f > 1.0 and keep.sum() >= MODE_MIN_CORNERS:
+            G = view_mode_basis(v.uv_px[keep]).T @ H_f
+            info[v.capture] += H_f.T @ H_f - (1.0 - 1.0 / f) * (G.T @ G)
+        else:
+            info[v.capture] += H_f.T @ H_f
+    return info
+
+
+def fk_variance_ratio(problem: Problem, views, est, sigma_px: float, lin: Linearised | None = None,
+                      mode_factors: dict | None = None) -> FkRatio | None:
     """The :class:`FkRatio` of the fit at ``est`` (None when there is too little to tell, or with
     kinematics='joint-offsets', whose poses follow the joint angles). ``lin``: :func:`linearise`
-    of the same arguments, when already computed."""
+    of the same arguments, when already computed; ``mode_factors``: camera -> variance factor of its
+    views' low-order image modes in the graph ``est`` was fitted on (the views then pin F(k) less)."""
     if problem.options.kinematics != "none":
         return None
     lin = lin or linearise(problem, views, est, sigma_px)
     prior_at = {v.capture: v.T_ref_mount for v in views}
+    weighted = _mode_weighted_information(lin, mode_factors) if mode_factors else None
     energy = red = 0.0
     for k, (prior, views_info, R) in lin.captures.items():
+        if weighted is not None:
+            views_info = weighted[k]
         T_est = est.T_ref_mount.get(k)
         if T_est is None:
             continue
