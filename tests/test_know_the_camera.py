@@ -49,6 +49,7 @@ def test_unknown_intrinsics_are_found_from_the_views(mode):
         fx_true, fx = p.cameras[n].K[0, 0], np.asarray(d["K"])[0, 0]
         assert abs(fx - fx_true) < 4 * d["sigma"]["fx"], (n, fx, fx_true, d["sigma"]["fx"])
         assert d["sigma"]["fx"] < 0.05 * fx_true  # found, not merely allowed
+        assert any(x.startswith(f"camera {n}: no intrinsics were given") for x in r.notes), r.notes
     assert r.converged
 
 

@@ -116,6 +116,7 @@ def make_scene(
     options: SolverOptions | None = None,
     seed: int = 0,
     reported_intrinsics=FACTORY,
+    eye_in_hand_distance_m=(0.3, 0.6),
 ) -> Scene:
     """A seeded synthetic workcell.
 
@@ -131,6 +132,7 @@ def make_scene(
             :class:`~calibgraph.sim.reported_intrinsics.ReportedIntrinsics` (default: factory-class
             errors, drawn per camera name and the block's seed) or a mapping of its fields, or ``'exact'`` (the
             true intrinsics, as given in ``cameras``: an oracle's scene).
+        eye_in_hand_distance_m: (near, far) camera-to-board distance of the eye-in-hand poses.
     """
     rng = np.random.default_rng(seed)
     target = target or a4_board_54()
@@ -140,7 +142,7 @@ def make_scene(
     if mode == "eye_in_hand":
         return _make_eye_in_hand(cameras, target, n_poses, pixel_sigma_px, fk_sigma_translation_m,
                                  fk_sigma_rotation_rad, T_flange_board, tilt_deg, method, options, rng,
-                                 reported_intrinsics)
+                                 reported_intrinsics, eye_in_hand_distance_m)
     if cameras is None:
         cameras = ring_cameras([1.5, 3.0, 5.0])
     T_fb = DEFAULT_T_FLANGE_BOARD if T_flange_board is None else T_flange_board
@@ -203,7 +205,7 @@ def make_scene(
 
 
 def _make_eye_in_hand(cameras, target, n_poses, pixel_sigma_px, fk_t, fk_r, T_base_board, tilt_deg, method,
-                      options, rng, reported) -> Scene:
+                      options, rng, reported, distance_m=(0.3, 0.6)) -> Scene:
     pts = target.points_board_m
     board_centre_b = pts.mean(axis=0)
     if cameras is None:
@@ -220,7 +222,7 @@ def _make_eye_in_hand(cameras, target, n_poses, pixel_sigma_px, fk_t, fk_r, T_ba
         attempts += 1
         name0 = names[k % len(names)]
         T_fc = cameras[name0][0]
-        dist = rng.uniform(0.3, 0.6)
+        dist = rng.uniform(*distance_m)
         axis = rng.normal(size=3)
         axis /= np.linalg.norm(axis)
         dirn = exp_so3(axis * np.radians(tilt_deg) * rng.uniform(0.3, 1.0)) @ np.array([0, 0, 1.0])

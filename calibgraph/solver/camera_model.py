@@ -147,12 +147,19 @@ def intrinsics_record(problem: Problem, name: str, est: Estimate) -> dict:
 
 def intrinsics_notes(cameras: dict) -> list:
     """A note per camera whose estimated focal length or principal point is more than 3 sigma and
-    0.2 % (focal) / 2 px (principal point) away from the given values (``cameras``: name ->
-    CameraResult)."""
+    0.2 % (focal) / 2 px (principal point) away from the given values, and one per camera whose
+    intrinsics were not given at all (found from its views) (``cameras``: name -> CameraResult)."""
     out = []
     for n, c in cameras.items():
         d = c.intrinsics or {}
-        if not d.get("estimated") or d.get("prior") in ("wide", "unknown"):
+        if d.get("estimated") and d.get("prior") == "unknown":
+            Km, sig = np.asarray(d["K"], float), d["sigma"]
+            out.append(f"camera {n}: no intrinsics were given (only the image size): found from its own views, "
+                       f"fx {Km[0, 0]:.1f} ± {sig['fx']:.1f}, fy {Km[1, 1]:.1f} ± {sig['fy']:.1f}, "
+                       f"cx {Km[0, 2]:.1f} ± {sig['cx']:.1f}, cy {Km[1, 2]:.1f} ± {sig['cy']:.1f} px; "
+                       "a close-range session (calibgraph intrinsics) pins them better")
+            continue
+        if not d.get("estimated") or d.get("prior") == "wide":
             continue
         given, sig = d["given"], d["sigma"]
         Km = np.asarray(d["K"], float)
