@@ -26,6 +26,9 @@ Cases (what the solve is given):
   with a random sign per corner and axis: their sizes, tails and noise levels kept, any systematic
   direction removed), ``factory_plain`` (plain least squares instead of the robust loss);
   ``factory_fk`` / ``oracle_fk`` tell the solver the simulated arm's true reported-pose error.
+* ``session``: issue 23's first target: each camera's 25-image close-range session rendered once per
+  seed (``sim.session``, the dataset's board, the camera's true intrinsics) beside the dataset,
+  calibrated by ``calibgraph intrinsics``, and the files given as ``solve --intrinsics``.
 
 Per camera and per parameter — rotation about and translation along the base axes (rx, ry, rz,
 x, y, z), fx, fy, cx, cy, k1, k2 — the tables give error/σ RMS with its 95 % interval, max |z|
@@ -36,6 +39,7 @@ centroid), the RMS, the tails, and how far from the image centre they reach. Boa
 estimate against the printed truth (1).
 
     MUJOCO_GL=egl python scripts/bench_rendered_sigma.py run --seeds 0-39
+    python scripts/bench_rendered_sigma.py solve --cell d455_5m --poses 90 --seeds 0-5 --cases session
     python scripts/bench_rendered_sigma.py solve --cases iid,iid_view,signflip,factory_plain
     python scripts/bench_rendered_sigma.py report
 
@@ -85,6 +89,9 @@ CASES = {
     "factory_fk": "as factory, with the solver's robot prior set to the simulated arm's reported-pose error "
                   "(fk_sigma_translation_m, fk_sigma_rotation_rad of the workcell; default flags otherwise)",
     "oracle_fk": "as oracle, with the solver's robot prior set to the simulated arm's reported-pose error",
+    "session": "each camera's file from a rendered 25-image close-range session (`calibgraph intrinsics`, the "
+               "dataset's board at 0.3-0.8 m, the camera's true intrinsics), its covariance the prior "
+               "(`solve --intrinsics NAME=CAM.yaml`), default flags",
     "factory_plain": "as factory, with plain least squares (loss: none; corners beyond outlier_sigmas still cut): "
                      "the robust loss's part in the 1σ",
 }
@@ -205,6 +212,36 @@ def iid_problem(problem, tc: dict, stats: dict, seed: int, per_view: bool = Fals
     return problem.with_(detections=dets), sig
 
 
+def session_camera_files(root: Path, ds, gt: dict, seed: int):
+    """(camera -> Intrinsics read from its camera file, camera -> the file's fx against the truth): a
+    25-image close-range session per camera rendered once into ``root/SESSION`` (the dataset's board,
+    the camera's true intrinsics) and calibrated by ``calibgraph intrinsics`` into ``root/SESSION/<camera>.yaml``."""
+    from calibgraph.cli.main import main as cli_main
+    from calibgraph.io.camera_file import read_camera_file
+    from calibgraph.io.specs import load_target
+    from calibgraph.sim.session import simulate_intrinsics_session
+
+    session = root / "SESSION"
+    if not (session / "ground_truth.json").is_file():
+        if session.exists():
+            shutil.rmtree(session)
+        simulate_intrinsics_session(session, {n: gt["intrinsics_true"][n] for n in ds.cameras}, load_target(root / "dataset.yaml"),
+                                    n_views=25, seed=seed)
+    files, stats = {}, {}
+    for n in ds.cameras:
+        f = session / f"{n}.yaml"
+        if not f.is_file():
+            rc = cli_main(["intrinsics", str(session / n), "--target", str(session / "target.yaml"), "--out", str(f),
+                           "--quiet"])
+            if rc != 0:
+                raise RuntimeError(f"calibgraph intrinsics failed on {session / n} (exit {rc})")
+        files[n] = read_camera_file(f)
+        e = float(files[n].K[0, 0] - gt["intrinsics_true"][n].K[0, 0])
+        s = float(np.sqrt(files[n].covariance[0, 0]))
+        stats[n] = {"fx_err_px": e, "fx_sigma_px": s, "fx_z": e / s}
+    return files, stats
+
+
 def solve_case(root: Path, case: str, seed: int) -> dict:
     """Solve one seed's dataset as ``case`` says (default flags); errors and 1σ per camera and parameter."""
     from dataclasses import replace
@@ -223,6 +260,9 @@ def solve_case(root: Path, case: str, seed: int) -> dict:
         ds = replace(ds, cameras={n: replace(gt["intrinsics_true"][n], source="exact") for n in ds.cameras})
     elif case == "plain":
         ds = replace(ds, cameras={n: replace(gt["intrinsics_true"][n], source="") for n in ds.cameras})
+    elif case == "session":
+        files, session_files = session_camera_files(root, ds, gt, seed)
+        ds = replace(ds, cameras=files)
     opts = dict(ds.solver)
     if case.endswith("_fk"):
         robot = gt["raw"]["robot"]
@@ -234,6 +274,8 @@ def solve_case(root: Path, case: str, seed: int) -> dict:
     tc = true_corners(problem, gt)
     stats = corner_stats(problem, tc)
     out = {"case": case, "seed": seed, "reported": {n: c.to_dict() for n, c in ds.cameras.items()}}
+    if case == "session":
+        out["session_files"] = session_files
     if case.startswith("iid"):
         problem, out["iid_sigma_px"] = iid_problem(problem, tc, stats, seed, per_view=case == "iid_view")
     elif case == "signflip":
@@ -383,7 +425,10 @@ def summarise(cell: str, poses: int, results: dict) -> dict:
                                err_mm_median=float(np.median(e_mm)), err_mm_max=float(np.max(e_mm)),
                                sigma_mm_median=float(np.median([1e3 * np.linalg.norm(c["sigma"][3:6]) for c in cs])),
                                err_deg_max=float(max(np.degrees(np.linalg.norm(c["err"][:3])) for c in cs)),
-                               uncalibrated=len(recs) - len(cs))
+                               uncalibrated=len(recs) - len(cs),
+                               z_pose_max=[float(np.max(np.abs(np.divide(c["err"][:6], c["sigma"][:6])))) for c in cs],
+                               err_mm=[float(e) for e in e_mm],
+                               err_deg=[float(np.degrees(np.linalg.norm(c["err"][:3]))) for c in cs])
         bs = [(r["board_scale"], r["board_scale_sigma"]) for r in recs if r.get("board_scale_sigma")]
         board = None
         if bs:
@@ -395,8 +440,32 @@ def summarise(cell: str, poses: int, results: dict) -> dict:
             seeds=[r["seed"] for r in recs], solve_s_median=float(np.median([r["solve_s"] for r in recs])),
             pose=pose, params=per_parameter(recs, names), board_scale=board,
             corners=corner_summary(recs, names) if case in ("factory", "oracle") else None,
-            notes=note_kinds(recs))
+            notes=note_kinds(recs),
+            session_files={n: [r["session_files"][n] for r in recs if n in r.get("session_files", {})] for n in names}
+            if case == "session" else None)
     return out
+
+
+def session_lines(s: dict) -> list:
+    """The session case against issue 23's target: the files' fx against the truth, and per camera the
+    seeds whose joint solve is <= 3.0 mm / 0.05 deg and within 3 sigma per pose axis."""
+    L = ["", "Issue 23's target for this case: `calibgraph intrinsics` gives fx within 3σ of the truth; `solve "
+         "--intrinsics` gives every camera ≤ 3.0 mm / 0.05°, within 3σ per axis.", "",
+         "| camera | file fx error px (1σ) per seed | fx within 3σ | ≤ 3.0 mm | ≤ 0.05° | within 3σ per axis | all three |",
+         "|---|---|---|---|---|---|---|"]
+    for n, files in s["session_files"].items():
+        p = s["pose"].get(n)
+        if p is None:
+            continue
+        ok_mm = [e <= 3.0 for e in p["err_mm"]]
+        ok_deg = [e <= 0.05 for e in p["err_deg"]]
+        ok_z = [z <= 3.0 for z in p["z_pose_max"]]
+        both = [a and b and c for a, b, c in zip(ok_mm, ok_deg, ok_z)]
+        fx = ", ".join(f"{f['fx_err_px']:+.2f} ({f['fx_sigma_px']:.2f})" for f in files)
+        L.append(f"| {n} | {fx} | "
+                 f"{sum(abs(f['fx_z']) <= 3 for f in files)}/{len(files)} | {sum(ok_mm)}/{len(ok_mm)} | "
+                 f"{sum(ok_deg)}/{len(ok_deg)} | {sum(ok_z)}/{len(ok_z)} | {sum(both)}/{len(both)} |")
+    return L
 
 
 def note_kinds(recs: list) -> list:
@@ -431,6 +500,8 @@ def markdown(summary: dict, timing: dict) -> list:
         for n, p in s["pose"].items():
             L.append(f"| {n} | {p['views_median']:.0f} | {p['err_mm_median']:.2f} / {p['err_mm_max']:.2f} | "
                      f"{p['sigma_mm_median']:.2f} | {p['err_deg_max']:.4f} | {p['uncalibrated']} |")
+        if s.get("session_files"):
+            L += session_lines(s)
         params = [p for p in PARAMS if p in s["params"].get("all", {})]
         L += ["", "error/σ per camera and parameter: **RMS** [95 % interval] / max |z| / mean error ± its standard "
               "error (units: " + ", ".join(f"{p} {UNITS[p][0]}" for p in params if p in ("rx", "x", "fx", "k1")) +
