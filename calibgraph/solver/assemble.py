@@ -96,6 +96,7 @@ def camera_result(problem: Problem, name: str, group: Group, rejected: list, bud
         residuals_px=residuals,
         intrinsics=intrinsics_record(problem, name, est),
         corner_noise=est.mode_ratios[name].to_dict() if name in est.mode_ratios else None,
+        pixel_sigma_px=est.sigma_px * (used[0].noise_scale if used else 1.0),
         error_budget=budget,
     )
     return result, rejected_corners

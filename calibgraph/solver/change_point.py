@@ -285,7 +285,7 @@ def camera_splits(problem, views: list, est, sigma_px: float, names, start: dict
             continue
         try:
             with np.errstate(all="ignore"):
-                vp = view_poses(problem, name, mine, est, T_lin, sigma_px, per_capture, per_view)
+                vp = view_poses(problem, name, mine, est, T_lin, sigma_px * mine[0].noise_scale, per_capture, per_view)
                 split = best_split(vp) if vp is not None else None
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue  # a degenerate camera (absurd intrinsics, views behind it): nothing to say about a move

@@ -97,7 +97,7 @@ def _cross_last(a: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 def pad_views(views: list, scale: float = 1.0, kept_only: bool = False) -> tuple:
     """Views' corners padded to the largest view, for :func:`padded_view_residuals`: (points
-    ``scale * p_board_m`` (V, N, 3), pixels (V, N, 2), valid (V, N), the corners' weights ``w`` (V, N),
+    ``scale * p_board_m`` (V, N, 3), pixels (V, N, 2), valid (V, N), the corners' weights (V, N) (``View.weight``),
     0 on padding). ``kept_only``: each view's kept corners only (non-zero weight), in order. A
     padding slot repeats the view's first corner (finite)."""
     sel = [v.kept if kept_only else np.ones(len(v.ids), bool) for v in views]
@@ -106,7 +106,7 @@ def pad_views(views: list, scale: float = 1.0, kept_only: bool = False) -> tuple
     P, UV, valid, W = np.zeros((V, N, 3)), np.zeros((V, N, 2)), np.zeros((V, N), bool), np.zeros((V, N))
     for i, (v, m) in enumerate(zip(views, sel)):
         n = int(m.sum())
-        P[i, :n], UV[i, :n], valid[i, :n], W[i, :n] = scale * v.p_board_m[m], v.uv_px[m], True, v.w[m]
+        P[i, :n], UV[i, :n], valid[i, :n], W[i, :n] = scale * v.p_board_m[m], v.uv_px[m], True, v.weight[m]
         if n:
             P[i, n:], UV[i, n:] = P[i, 0], UV[i, 0]
     return P, UV, valid, W

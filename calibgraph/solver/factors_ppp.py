@@ -101,9 +101,9 @@ def build(views, slots, problem, est, sigma_px, fk_sigmas):
         hk = H(k)
         keep = v.w > 0
         ids = v.ids[keep].tolist()
-        ws = v.w[keep].tolist()
+        ws = v.weight[keep].tolist()
         for cid, uv, w in zip(ids, v.uv_px[keep], ws):
-            noise = pix if w >= 1.0 else gtsam.noiseModel.Isotropic.Sigma(2, sigma_px / np.sqrt(w))
+            noise = pix if w == 1.0 else gtsam.noiseModel.Isotropic.Sigma(2, sigma_px / np.sqrt(w))
             graph.add(PPP(uv, noise, hk, ci, PKEYS[cid], cal, False, False))
         used_points.update(ids)
     for cid in sorted(used_points):

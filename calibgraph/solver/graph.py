@@ -190,7 +190,7 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
             modes = view_mode_basis(v.uv_px[keep]) if f > 1.0 and keep.sum() >= MODE_MIN_CORNERS else None
             terms.append(ViewTerm(C(slots[v.camera]), K(slots[v.camera]) if v.camera in refine else None,
                                   problem.cameras[v.camera], v.p_board_m[keep], v.uv_px[keep],
-                                  np.sqrt(v.w[keep]) / sigma_px, modes, f))
+                                  np.sqrt(v.weight[keep]) / sigma_px, modes, f))
         for f in make_capture_factors(F(k), B(0), S(0) if o.board_scale else None, terms):
             graph.add(f)
     return graph, values

@@ -14,7 +14,7 @@ the views are weighted and their covariance propagated accordingly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -111,8 +111,37 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
 def robust_pixel_sigma(views: list, norms: list) -> float:
     """A robust pixel sigma from the kept corners' residual norms (``norms``: (N,) per view): the
     median of a 2-D Gaussian residual norm is sqrt(2 ln 2) = 1.1774 per-axis sigmas."""
-    kept = np.concatenate([r[v.kept] for v, r in zip(views, norms)])
+    kept = np.concatenate([r[v.kept] / v.noise_scale for v, r in zip(views, norms)])
     return max(float(np.median(kept)) / 1.1774, 1e-3)
+
+
+# A camera needs this many kept corners for its own noise level; with fewer it keeps the others'.
+CAMERA_SIGMA_MIN_CORNERS = 40
+
+
+def camera_noise_scales(views: list, norms: list) -> tuple[list, float]:
+    """(views with each camera's ``noise_scale`` set, the largest relative change of a scale).
+
+    Cameras differ in corner noise (sensor, lens, distance, blur: a Kinect's corners scatter several
+    times a close L515's); one pixel sigma for all would call the noisy camera's corners outliers
+    and make its 1-sigma too small, and the quiet cameras' too wide. Each camera's robust sigma
+    (median residual norm of its kept corners in active views, as :func:`robust_pixel_sigma`) over
+    that of all cameras' corners pooled is its scale; a camera with fewer than
+    CAMERA_SIGMA_MIN_CORNERS kept corners keeps scale 1."""
+    def raw(pairs):
+        kept = [r[v.kept] for v, r in pairs if v.active]
+        return np.concatenate(kept) if kept else np.zeros(0)
+
+    pooled = raw(zip(views, norms))
+    if pooled.size == 0 or float(np.median(pooled)) <= 0:
+        return views, 0.0
+    ref = float(np.median(pooled))
+    scales = {}
+    for cam in dict.fromkeys(v.camera for v in views):
+        mine = raw((v, r) for v, r in zip(views, norms) if v.camera == cam)
+        scales[cam] = max(float(np.median(mine)) / ref, 1e-3) if mine.size >= CAMERA_SIGMA_MIN_CORNERS else 1.0
+    change = max((abs(scales[v.camera] / v.noise_scale - 1.0) for v in views), default=0.0)
+    return [v if v.noise_scale == scales[v.camera] else replace(v, noise_scale=scales[v.camera]) for v in views], change
 
 
 def a_posteriori_sigma(views: list, norms: list, n_parameters: int, mode_ratios: dict) -> float:
@@ -120,7 +149,7 @@ def a_posteriori_sigma(views: list, norms: list, n_parameters: int, mode_ratios:
     low-order modes counted at 1 / their variance factor (the whitened residual). ``views``: the
     active views, ``norms`` their residual norms (px); ``n_parameters``: the graph's unknowns."""
     n_obs = 2 * sum(int(v.kept.sum()) for v in views)
-    wr2 = sum(float(np.sum(v.w * r ** 2)) for v, r in zip(views, norms))
+    wr2 = sum(float(np.sum(v.weight * r ** 2)) for v, r in zip(views, norms))
     wr2 -= sum(m.energy_modes_px2 * (1.0 - 1.0 / m.applied) for m in mode_ratios.values())
     return max(float(np.sqrt(max(wr2, 0.0) / max(n_obs - n_parameters, 1))), 1e-4)
 

@@ -14,7 +14,8 @@ round-trip it exactly (every number, array and note), in JSON or YAML.
   ``sigma_translation_mm`` (3, base/flange axes), ``sigma_rotation_deg`` (3, same axes),
   ``covariance`` (6x6, rotation first, rad and m, perturbation expressed in the reference frame
   axes: rotation vector of ``R_est R_true^T`` and camera-centre offset), ``reprojection_rms_px``,
-  ``reprojection_max_px``, ``views_used``, ``views_rejected`` (list of {capture, reason}),
+  ``reprojection_max_px``, ``pixel_sigma_px`` (the a posteriori sigma of its corners, px per
+  axis: each camera's own), ``views_used``, ``views_rejected`` (list of {capture, reason}),
   ``corners_used``, ``corners_rejected``, ``intrinsics`` (K, dist, width_px, height_px used; with
   ``sigma`` and ``given`` when they were estimated), ``corner_noise``, ``error_budget`` (what the
   1-sigma is made of); ``moved`` when the camera moved during capture (the pose above is the one
@@ -133,6 +134,8 @@ class CameraResult:
     # rotation_deg, f_stat, T_before (4x4, the pose before; None when too few views to solve it),
     # covariance_before (6x6, as ``covariance``); None when it did not move
     moved: dict | None = None
+    # the a posteriori sigma of this camera's corners (px, per axis): cameras differ in corner noise
+    pixel_sigma_px: float | None = None
     # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
     residuals_px: dict = field(default_factory=dict, repr=False)
 
@@ -144,6 +147,7 @@ class CameraResult:
              T_mount_board=floats_or_none(self.T_mount_board),
              intrinsics=plain_json(self.intrinsics), corner_noise=plain_json(self.corner_noise),
              error_budget=plain_json(self.error_budget), calibrated=bool(self.calibrated), why=str(self.why),
+             pixel_sigma_px=None if self.pixel_sigma_px is None else float(self.pixel_sigma_px),
              residuals_px={int(k): residual_record(v) for k, v in (self.residuals_px or {}).items()})
 
     def __eq__(self, other):  # exact, arrays included
@@ -298,6 +302,8 @@ class Result:
                 "corners_used": c.corners_used,
                 "corners_rejected": c.corners_rejected,
             }
+            if c.pixel_sigma_px is not None:
+                cams[name]["pixel_sigma_px"] = c.pixel_sigma_px
             if c.T_mount_board is not None:
                 cams[name][mount_key] = c.T_mount_board.tolist()
             if c.intrinsics is not None:
@@ -589,6 +595,7 @@ def _camera_from_dict(name: str, c: dict, frames, residuals: dict, where: str) -
         T_mount_board=None if mount is None else pose_matrix(mount, f"{what}: {frames.board_key}"),
         intrinsics=section(c, "intrinsics", what), corner_noise=section(c, "corner_noise", what),
         error_budget=section(c, "error_budget", what),
+        pixel_sigma_px=None if c.get("pixel_sigma_px") is None else number_or(c.get("pixel_sigma_px"), float("nan")),
         moved=None if c.get("moved") is None else moved_from_dict(c["moved"], frames.camera_key, what),
         residuals_px={int(k): residual_from_dict(mapping(v, f"{what}: residuals of capture {k}"))
                       for k, v in residuals.items()},

@@ -15,7 +15,7 @@ import numpy as np
 
 from calibgraph.core.problem import Problem
 from calibgraph.solver.graph import Estimate, build_graph, extract, levenberg_marquardt
-from calibgraph.solver.noise_model import robust_pixel_sigma
+from calibgraph.solver.noise_model import camera_noise_scales, robust_pixel_sigma
 from calibgraph.solver.timing import timed
 from calibgraph.solver.views import MIN_CORNERS_PER_VIEW
 
@@ -64,7 +64,7 @@ def reweight(views: list, norms: list, sigma_px: float, opts) -> tuple[list, flo
         if not v.active:
             out.append(v)
             continue
-        r = r / sigma_px
+        r = r / (sigma_px * v.noise_scale)
         w = loss_weights(r, opts.loss, opts.loss_scale)
         w[r > opts.outlier_sigmas] = 0.0
         change = max(change, float(np.abs(w - v.w).max()))
@@ -86,10 +86,13 @@ def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, s
         iterations += run.iterations
         est = extract(run.values, slots, views, est, problem.cameras, form)
         norms = est.residual_norms(views, problem.cameras)
+        scale_change = 0.0
+        if not opts.pixel_sigma_px:
+            views, scale_change = camera_noise_scales(views, norms)
         active = [(v, r) for v, r in zip(views, norms) if v.active]
         sigma_new = opts.pixel_sigma_px or robust_pixel_sigma(*zip(*active))
         views, change = reweight(views, norms, sigma_new, opts)
-        weights_settled = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05
+        weights_settled = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05 and scale_change < 0.02
         settled = weights_settled and run.converged
         sigma = sigma_new
         if weights_settled:
@@ -102,7 +105,7 @@ def readmit_or_reject(views: list, norms: list, sigma_px: float, opts) -> tuple[
     that fit now re-admitted, True when any view changed)."""
     out, changed = [], False
     for v, res in zip(views, norms):
-        r = res / sigma_px
+        r = res / (sigma_px * v.noise_scale)
         kept = r <= opts.outlier_sigmas
         ok = kept.mean() >= 0.5 and kept.sum() >= MIN_CORNERS_PER_VIEW
         if v.active and not ok:

@@ -24,7 +24,9 @@ class View:
     """One camera's detections in one capture, as the solver uses them.
 
     ``w`` (N,) are the corners' robust weights in [0, 1] (0: rejected corner); ``active`` says
-    whether the view is in the graph, ``reason`` why not.
+    whether the view is in the graph, ``reason`` why not; ``noise_scale`` is its camera's corner
+    noise over the solve's reference pixel sigma (cameras differ: a Kinect's corners scatter
+    several times a close L515's), so a corner's sigma is ``sigma_px * noise_scale / sqrt(w)``.
     """
 
     camera: str
@@ -36,6 +38,7 @@ class View:
     w: np.ndarray = field(default=None, repr=False)  # (N,) robust weights; None: all 1
     active: bool = True
     reason: str = ""
+    noise_scale: float = 1.0
 
     def __post_init__(self):
         if self.w is None:
@@ -45,6 +48,11 @@ class View:
     def kept(self) -> np.ndarray:
         """(N,) True for the corners with a non-zero weight."""
         return self.w > 0
+
+    @property
+    def weight(self) -> np.ndarray:
+        """(N,) the corners' weights in the graph: the robust weight over the camera's noise scale squared."""
+        return self.w / self.noise_scale ** 2
 
 
 def robot_prior_poses(problem: Problem) -> dict:
