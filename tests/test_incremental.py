@@ -25,7 +25,8 @@ def test_incremental_matches_batch_and_reports_sigma():
     from dataclasses import replace
 
     sc = make_scene(n_poses=50, pixel_sigma_px=0.3, seed=6, reported_intrinsics=ORACLE)
-    p = sc.problem.with_(options=replace(sc.problem.options, board_scale=False))  # iSAM2's model: declared board size
+    # iSAM2's model: the declared board size, one pixel sigma for every corner
+    p = sc.problem.with_(options=replace(sc.problem.options, board_scale=False, corner_noise="one"))
     inc = IncrementalSolver(p.points_board_m, p.cameras, options=p.options, pixel_sigma_px=0.3)
     est = _feed(inc, p)
     batch = solver.solve(p)

@@ -42,10 +42,16 @@ def _check_knock(scene, prob, res, victim, T_after, at, clean=None):
     assert len(notes) == 1 and notes[0].startswith(f"camera {victim} moved"), res.notes
     before, after = max(c for c in caps if c < at), min(c for c in caps if c >= at)
     assert f"between captures {before} and {after}" in notes[0]
-    def shared_notes(r):  # what the solve says about the robot and the board
-        return [x.split(":")[0] for x in r.notes if x.startswith("robot:") or "printed at" in x]
+    def robot_notes(r):  # what the solve says about the robot
+        return [x.split(":")[0] for x in r.notes if x.startswith("robot:")]
 
-    assert shared_notes(res) == (shared_notes(clean) if clean is not None else []), res.notes
+    assert robot_notes(res) == (robot_notes(clean) if clean is not None else []), res.notes
+    if clean is not None:
+        # the knock does not drag the board's scale (compared as numbers: a 'printed at' note flips
+        # when the clean estimate sits at its 3-sigma threshold, as seed 4's does at 2.95-3.05)
+        assert abs(res.board_scale - clean.board_scale) < clean.board_scale_sigma, (res.board_scale, clean.board_scale)
+    else:
+        assert not any("printed at" in x for x in res.notes), res.notes
     cam = res.cameras[victim]
     assert cam.moved["capture"] == after and cam.moved["last_capture_before"] == before
     n_after = sum(1 for c in caps if c >= after)

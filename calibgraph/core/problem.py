@@ -205,6 +205,9 @@ class CliFlag:
         return value * self.scale if self.scale != 1.0 else value
 
 
+CORNER_NOISE = ("per-view", "per-camera", "one")
+
+
 def _flag(default, flag: CliFlag | None = None):
     """A SolverOptions field with its command-line flag (None: dataset.yaml's solver section only)."""
     return field(default=default, metadata={"flag": flag})
@@ -263,6 +266,10 @@ class SolverOptions:
             view's low-order image modes (shift, rotation, scale, shear of the board) is estimated
             against the rest of the residuals and, where larger, weighted and propagated as such
             (view formulation). False treats every corner as independent.
+        corner_noise: whose pixel sigma a corner has (see
+            :func:`calibgraph.solver.noise_model.camera_noise_scales`): 'per-view' (default: each
+            camera its own, each view its own level shrunk towards its camera's), 'per-camera', or
+            'one' (a single sigma for every corner). Ignored when ``pixel_sigma_px`` is stated.
         fk_variance: compare the fitted robot poses with the FK prior (see
             :func:`calibgraph.solver.fk_check.fk_variance_ratio`) and, when they depart from it more
             than the stated FK sigmas allow (p < 0.05), solve with the sigmas the fit implies and say so.
@@ -310,9 +317,12 @@ class SolverOptions:
         "--kinematics-staging", "joint: all variables at once (default, see scripts/results/bench_kinematics.md); "
         "staged: cameras with an inflated FK prior, then the offsets, then everything", str, choices=("joint", "staged")))
     view_noise_modes: bool = _flag(True)
+    corner_noise: str = _flag("per-view")
     fk_variance: bool = _flag(True)
 
     def __post_init__(self):
+        if self.corner_noise not in CORNER_NOISE:
+            raise InputError(f"solver: corner_noise must be one of {CORNER_NOISE}, got {self.corner_noise!r}.")
         if self.loss not in LOSSES:
             raise InputError(f"solver: loss must be one of {LOSSES}, got {self.loss!r}.")
         for name in ("fk_sigma_translation_m", "fk_sigma_rotation_rad", "loss_scale", "outlier_sigmas"):

@@ -143,7 +143,7 @@ def _robot_pose_terms(problem, views, est, sigma_px: float) -> tuple[dict, dict]
 
 
 def _view_tangents(padded: tuple, T_lin, T_F, est, intr, sigma_px, A, d, opts, passes: int = 3):
-    """Every view of one camera at once (``padded``: (points, pixels, valid) of :func:`pad_views`; ``T_F`` (V, 4, 4), ``A`` (V, 6, 6),
+    """(``sigma_px``: the views' corner sigma, a number or (V,).) Every view of one camera at once (``padded``: (points, pixels, valid) of :func:`pad_views`; ``T_F`` (V, 4, 4), ``A`` (V, 6, 6),
     ``d`` (V, 6)): (ok (V,) bool, zeta (V, 6), information (V, 6, 6), weighted squared residual in sigmas
     (V,), residual count (V,)) of the camera pose each view implies at ``T_lin``, the robot pose at
     ``T_F`` + ``d`` with information ``A`` (prior and the other cameras), each view's corners
@@ -160,7 +160,7 @@ def _view_tangents(padded: tuple, T_lin, T_F, est, intr, sigma_px, A, d, opts, p
         act = np.flatnonzero(ok & ~done)
         if not len(act):
             break
-        sw = np.sqrt(w[act]) / sigma_px
+        sw = np.sqrt(w[act]) / np.broadcast_to(sigma_px, (V,))[act, None]
         e, J_c, J_f = padded_view_residuals(T_lin, T_F[act], est.T_mount_board, P[act], UV[act], intr, sw)
         finite = (np.isfinite(e).all(axis=1) & np.isfinite(J_c).all(axis=(1, 2)) & np.isfinite(J_f).all(axis=(1, 2)))
         ok[act[~finite]] = False
@@ -212,8 +212,9 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
             A[i], g[i] = R.T @ R, R.T @ R @ rho
     d = -np.linalg.solve(A, g[..., None])[..., 0]
     padded = pad_views(mine, est.board_scale)[:3]
+    sigma_v = sigma_px * np.array([v.sigma_scale for v in mine])  # each view's own corner sigma
     for _ in range(3):
-        ok, zeta, info, rss, n_obs = _view_tangents(padded, T_lin, T_F, est, intr, sigma_px, A, d, problem.options)
+        ok, zeta, info, rss, n_obs = _view_tangents(padded, T_lin, T_F, est, intr, sigma_v, A, d, problem.options)
         if ok.sum() < 2 * MIN_GROUP_VIEWS:
             return None
         zeta, info = zeta[ok], info[ok]
@@ -285,7 +286,7 @@ def camera_splits(problem, views: list, est, sigma_px: float, names, start: dict
             continue
         try:
             with np.errstate(all="ignore"):
-                vp = view_poses(problem, name, mine, est, T_lin, sigma_px * mine[0].noise_scale, per_capture, per_view)
+                vp = view_poses(problem, name, mine, est, T_lin, sigma_px, per_capture, per_view)
                 split = best_split(vp) if vp is not None else None
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue  # a degenerate camera (absurd intrinsics, views behind it): nothing to say about a move

@@ -111,37 +111,59 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
 def robust_pixel_sigma(views: list, norms: list) -> float:
     """A robust pixel sigma from the kept corners' residual norms (``norms``: (N,) per view): the
     median of a 2-D Gaussian residual norm is sqrt(2 ln 2) = 1.1774 per-axis sigmas."""
-    kept = np.concatenate([r[v.kept] / v.noise_scale for v, r in zip(views, norms)])
+    kept = np.concatenate([r[v.kept] / v.sigma_scale for v, r in zip(views, norms)])
     return max(float(np.median(kept)) / 1.1774, 1e-3)
 
 
 # A camera needs this many kept corners for its own noise level; with fewer it keeps the others'.
 CAMERA_SIGMA_MIN_CORNERS = 40
+# A view's own noise level is shrunk towards its camera's as if that had this many residuals, and
+# kept within this range of it (beyond, the robust weights and view rejection take over).
+VIEW_PRIOR_DOF = 20
+VIEW_NOISE_RANGE = (1 / 3, 3.0)
 
 
-def camera_noise_scales(views: list, norms: list) -> tuple[list, float]:
-    """(views with each camera's ``noise_scale`` set, the largest relative change of a scale).
+def camera_noise_scales(views: list, norms: list, per_view: bool = True) -> tuple[list, float, float]:
+    """(views with each camera's ``noise_scale`` and each view's ``view_noise`` set, the largest
+    relative change of a camera's scale, the largest of a view's level).
 
     Cameras differ in corner noise (sensor, lens, distance, blur: a Kinect's corners scatter several
     times a close L515's); one pixel sigma for all would call the noisy camera's corners outliers
     and make its 1-sigma too small, and the quiet cameras' too wide. Each camera's robust sigma
     (median residual norm of its kept corners in active views, as :func:`robust_pixel_sigma`) over
     that of all cameras' corners pooled is its scale; a camera with fewer than
-    CAMERA_SIGMA_MIN_CORNERS kept corners keeps scale 1."""
+    CAMERA_SIGMA_MIN_CORNERS kept corners keeps scale 1.
+
+    Within a camera the views differ too (a far or tilted board's small squares, blur): with
+    ``per_view``, each active view's mean square residual over its camera's, shrunk towards 1 as if
+    the camera's level had VIEW_PRIOR_DOF residuals of its own (a view of 20 corners moves about
+    two thirds of the way), and kept within VIEW_NOISE_RANGE, is its ``view_noise``. Views out of
+    the graph keep 1, so that a rejected view cannot earn its way back by looking noisy."""
     def raw(pairs):
         kept = [r[v.kept] for v, r in pairs if v.active]
         return np.concatenate(kept) if kept else np.zeros(0)
 
     pooled = raw(zip(views, norms))
     if pooled.size == 0 or float(np.median(pooled)) <= 0:
-        return views, 0.0
+        return views, 0.0, 0.0
     ref = float(np.median(pooled))
-    scales = {}
+    scales, level = {}, {}
     for cam in dict.fromkeys(v.camera for v in views):
         mine = raw((v, r) for v, r in zip(views, norms) if v.camera == cam)
         scales[cam] = max(float(np.median(mine)) / ref, 1e-3) if mine.size >= CAMERA_SIGMA_MIN_CORNERS else 1.0
-    change = max((abs(scales[v.camera] / v.noise_scale - 1.0) for v in views), default=0.0)
-    return [v if v.noise_scale == scales[v.camera] else replace(v, noise_scale=scales[v.camera]) for v in views], change
+        level[cam] = float(np.mean(mine ** 2)) if mine.size else 0.0
+    out, change, change_view = [], 0.0, 0.0
+    for v, r in zip(views, norms):
+        t = 1.0
+        if per_view and v.active and level[v.camera] > 0 and v.kept.any():
+            m = 2 * int(v.kept.sum())  # residual count (u and v)
+            ratio = float(np.sum(r[v.kept] ** 2)) / (m / 2) / level[v.camera]
+            t = float(np.clip(np.sqrt((VIEW_PRIOR_DOF + m * ratio) / (VIEW_PRIOR_DOF + m)), *VIEW_NOISE_RANGE))
+        change = max(change, abs(scales[v.camera] / v.noise_scale - 1.0))
+        change_view = max(change_view, abs(t / v.view_noise - 1.0))
+        out.append(v if (v.noise_scale, v.view_noise) == (scales[v.camera], t)
+                   else replace(v, noise_scale=scales[v.camera], view_noise=t))
+    return out, change, change_view
 
 
 def a_posteriori_sigma(views: list, norms: list, n_parameters: int, mode_ratios: dict) -> float:

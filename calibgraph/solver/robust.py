@@ -64,12 +64,17 @@ def reweight(views: list, norms: list, sigma_px: float, opts) -> tuple[list, flo
         if not v.active:
             out.append(v)
             continue
-        r = r / (sigma_px * v.noise_scale)
+        r = r / (sigma_px * v.sigma_scale)
         w = loss_weights(r, opts.loss, opts.loss_scale)
         w[r > opts.outlier_sigmas] = 0.0
         change = max(change, float(np.abs(w - v.w).max()))
         out.append(replace(v, w=w))
     return out, change
+
+
+# A view's own noise level, re-estimated from a fit it changes, moves by a few percent round to round
+# (its weight by twice that): settled when no view's moves by more than this.
+VIEW_NOISE_SETTLED = 0.10
 
 
 def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
@@ -86,13 +91,14 @@ def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, s
         iterations += run.iterations
         est = extract(run.values, slots, views, est, problem.cameras, form)
         norms = est.residual_norms(views, problem.cameras)
-        scale_change = 0.0
-        if not opts.pixel_sigma_px:
-            views, scale_change = camera_noise_scales(views, norms)
+        scale_change = view_change = 0.0
+        if not opts.pixel_sigma_px and opts.corner_noise != "one":
+            views, scale_change, view_change = camera_noise_scales(views, norms, opts.corner_noise == "per-view")
         active = [(v, r) for v, r in zip(views, norms) if v.active]
         sigma_new = opts.pixel_sigma_px or robust_pixel_sigma(*zip(*active))
         views, change = reweight(views, norms, sigma_new, opts)
-        weights_settled = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05 and scale_change < 0.02
+        weights_settled = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05 and scale_change < 0.02 \
+            and view_change < VIEW_NOISE_SETTLED
         settled = weights_settled and run.converged
         sigma = sigma_new
         if weights_settled:
@@ -105,6 +111,8 @@ def readmit_or_reject(views: list, norms: list, sigma_px: float, opts) -> tuple[
     that fit now re-admitted, True when any view changed)."""
     out, changed = [], False
     for v, res in zip(views, norms):
+        # judged at its camera's level: a view whose corners mostly miss by 5 of its camera's sigmas
+        # is off, however noisy it looks on its own
         r = res / (sigma_px * v.noise_scale)
         kept = r <= opts.outlier_sigmas
         ok = kept.mean() >= 0.5 and kept.sum() >= MIN_CORNERS_PER_VIEW

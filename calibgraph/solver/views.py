@@ -26,7 +26,9 @@ class View:
     ``w`` (N,) are the corners' robust weights in [0, 1] (0: rejected corner); ``active`` says
     whether the view is in the graph, ``reason`` why not; ``noise_scale`` is its camera's corner
     noise over the solve's reference pixel sigma (cameras differ: a Kinect's corners scatter
-    several times a close L515's), so a corner's sigma is ``sigma_px * noise_scale / sqrt(w)``.
+    several times a close L515's) and ``view_noise`` this view's over its camera's (a far, small or
+    blurred board's corners scatter more than a near one's), so a corner's sigma is
+    ``sigma_px * noise_scale * view_noise / sqrt(w)``.
     """
 
     camera: str
@@ -39,6 +41,7 @@ class View:
     active: bool = True
     reason: str = ""
     noise_scale: float = 1.0
+    view_noise: float = 1.0
 
     def __post_init__(self):
         if self.w is None:
@@ -51,8 +54,14 @@ class View:
 
     @property
     def weight(self) -> np.ndarray:
-        """(N,) the corners' weights in the graph: the robust weight over the camera's noise scale squared."""
-        return self.w / self.noise_scale ** 2
+        """(N,) the corners' weights in the graph: the robust weight over the view's sigma scale squared."""
+        return self.w / self.sigma_scale ** 2
+
+    @property
+    def sigma_scale(self) -> float:
+        """This view's corner sigma over the solve's reference pixel sigma: its camera's ``noise_scale``
+        times its own ``view_noise``."""
+        return self.noise_scale * self.view_noise
 
 
 def robot_prior_poses(problem: Problem) -> dict:
