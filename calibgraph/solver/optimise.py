@@ -19,7 +19,7 @@ from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.claims import contradicted
 from calibgraph.solver.factors import intrinsics_vector
-from calibgraph.solver.fk_check import fk_variance_ratio, widened
+from calibgraph.solver.fk_check import fk_variance_ratio, robot_pose_marginals, widened
 from calibgraph.solver.graph import (
     Estimate,
     build_graph,
@@ -157,6 +157,17 @@ def _n_parameters(problem: Problem, names: list, est: Estimate) -> int:
     return n + (0 if est.joint_offsets is None else len(est.joint_offsets))
 
 
+def _fk_marginals(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
+                  factors: dict | None, timings: dict | None) -> dict | None:
+    """capture -> marginal covariance of F(k) in the view graph at ``est`` (the FK check's
+    redundancy; :func:`calibgraph.solver.fk_check.robot_pose_marginals`); None in the corner form."""
+    if form != "view" or problem.options.kinematics != "none":
+        return None
+    with timed(timings, "marginals"):
+        graph, values = build_graph(views, slots, problem, est, sigma, form, factors)
+        return robot_pose_marginals(graph, values)
+
+
 def _rejudge_robot(stated: Problem, slots: dict, views: list, est: Estimate, sigma: float, form: str,
                    factors: dict, timings: dict | None):
     """The robot judged again at its stated FK accuracy, on the graph whose views' low-order image
@@ -173,7 +184,8 @@ def _rejudge_robot(stated: Problem, slots: dict, views: list, est: Estimate, sig
         run = levenberg_marquardt(graph, values, stated.options.max_iterations, form)
     est2 = extract(run.values, slots, views, est, stated.cameras, form)
     lin = linearise(stated, views, est2, sigma)
-    fk2 = fk_variance_ratio(stated, views, est2, sigma, lin, factors)
+    fk2 = fk_variance_ratio(stated, views, est2, sigma, lin, factors,
+                            _fk_marginals(stated, views, slots, est2, sigma, form, factors, timings))
     if fk2 is not None and fk2.applied > 1.0:
         return None
     modes = mode_variance_ratios(stated, views, est2, sigma, lin)
@@ -190,7 +202,9 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     converged = rounds.settled
     check_modes = form == "view" and opts.view_noise_modes and not opts.pixel_sigma_px
     lin = linearise(problem, views, est, sigma) if opts.fk_variance or check_modes else None
-    fk_ratio = fk_variance_ratio(problem, views, est, sigma, lin) if opts.fk_variance else None
+    fk_ratio = fk_variance_ratio(problem, views, est, sigma, lin,
+                                 marginal=_fk_marginals(problem, views, slots, est, sigma, form, None, timings)
+                                 ) if opts.fk_variance else None
     if fk_ratio is not None and fk_ratio.applied > 1.0:
         # the robot is less accurate than stated: the final graph uses the FK sigmas the fit implies,
         # and the corner-noise modes are judged on the residuals of that graph
