@@ -66,7 +66,7 @@ from calibgraph.plan.information import (
 from calibgraph.plan.planner import free_motion
 from calibgraph.plan.survey import board_pose_facing, reach_pose, seeds_at
 from calibgraph.plan.visibility import board_visible, boards_visible, occlusion_probes, square_px
-from calibgraph.solver.session_plan import predict_session_covariance
+from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance
 
 __all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_information", "joint_information",
            "sigma_norms", "shortfall", "motion_time_s", "keepout_violation", "explain_shortfall"]
@@ -498,8 +498,10 @@ class ActivePlanner:
             if (lower[0] > tol_mm or lower[1] > tol_deg) and k in model_cols and len(T_bf):
                 m = np.arange(len(own) - 6, len(own))  # the camera model's columns of ``own``
                 Js = Jk.copy()
-                Js[np.ix_(m, m)] += np.linalg.inv(predict_session_covariance(scored[n].intrinsics, self.cell.target,
-                                                                             SESSION_VIEWS))
+                # the session's corners as good as this camera's hand-eye ones, at most a hand-held session's
+                Js[np.ix_(m, m)] += np.linalg.inv(predict_session_covariance(
+                    scored[n].intrinsics, self.cell.target, SESSION_VIEWS,
+                    pixel_sigma_px=min(float(pixel_sigma_px), SESSION_PIXEL_SIGMA_PX)))
                 session = tuple(float(ratio[k, i] * unit * np.sqrt(design_bound(Js, infos, budget, rows)[1]))
                                 for i, (rows, unit) in enumerate((([3, 4, 5], 1e3), ([0, 1, 2], np.degrees(1.0)))))
             out[n] = Reach(n, int(budget), int(len(T_bf)), tuple(lower), tuple(design), session)
