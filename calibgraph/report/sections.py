@@ -89,7 +89,8 @@ def camera_html(result, n: str, intr, verdict: dict, residuals: dict, ws: dict) 
         h.append(f'<tr><td class="l">{esc(label)}</td><td>{num(v, ".4g")}</td><td>{esc(op)} {lim_html}</td>'
                  f"<td>{badge(ok)}</td></tr>")
     h.append("</table>")
-    h.append(f"<p>reprojection RMS {num(c.reprojection_rms_px, '.3f', ' px')}, max "
+    sigma = "" if c.pixel_sigma_px is None else f" (its corners' σ {num(c.pixel_sigma_px, '.3f', ' px')} per axis)"
+    h.append(f"<p>reprojection RMS {num(c.reprojection_rms_px, '.3f', ' px')}{sigma}, max "
              f"{num(c.reprojection_max_px, '.3f', ' px')}; corners used {num(c.corners_used, '.0f')}, "
              f"rejected {num(c.corners_rejected, '.0f')}<br>views used {num(c.views_used, '.0f')}, "
              f"rejected {num(len(c.views_rejected), '.0f')}</p>")
