@@ -34,8 +34,8 @@ from calibgraph.solver.initialise import pnp_candidates
 from calibgraph.solver.keys import B
 from calibgraph.solver.linearise import linearise
 from calibgraph.solver.moved import check_after_rounds
-from calibgraph.solver.noise_model import a_posteriori_sigma, mode_variance_ratios
-from calibgraph.solver.robust import Rounds, robust_rounds
+from calibgraph.solver.noise_model import a_posteriori_sigma, camera_noise_scales, mode_variance_ratios
+from calibgraph.solver.robust import Rounds, reweight, robust_rounds
 from calibgraph.solver.timing import timed
 
 
@@ -200,6 +200,18 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     opts = problem.options
     est, views, sigma, iterations = rounds.est, rounds.views, rounds.sigma_px, rounds.iterations
     converged = rounds.settled
+    if opts.corner_noise == "per-view" and not opts.pixel_sigma_px:
+        # each view its own noise level, now that the rounds have settled which corners and views are in
+        norms = est.residual_norms(views, problem.cameras)
+        views, _, _ = camera_noise_scales(views, norms, per_view=True)
+        views, _ = reweight(views, norms, sigma, opts)  # the corners' robust weights at their view's level
+        if any(v.view_noise != 1.0 for v in views):
+            with timed(timings, "lm"):
+                graph, values = build_graph(views, slots, problem, est, sigma, form)
+                run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+            iterations += run.iterations
+            converged = converged and run.converged
+            est = extract(run.values, slots, views, est, problem.cameras, form)
     check_modes = form == "view" and opts.view_noise_modes and not opts.pixel_sigma_px
     lin = linearise(problem, views, est, sigma) if opts.fk_variance or check_modes else None
     fk_ratio = fk_variance_ratio(problem, views, est, sigma, lin,

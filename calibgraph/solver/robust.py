@@ -93,7 +93,10 @@ def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, s
         norms = est.residual_norms(views, problem.cameras)
         scale_change = view_change = 0.0
         if not opts.pixel_sigma_px and opts.corner_noise != "one":
-            views, scale_change, view_change = camera_noise_scales(views, norms, opts.corner_noise == "per-view")
+            # per camera only here: a view's own level is set in the final graph (solver.optimise), after
+            # the rounds have cut outliers and the move test has run at its camera's level, since a
+            # view that misfits (a knocked camera's) would otherwise look merely noisy and stay in
+            views, scale_change, view_change = camera_noise_scales(views, norms, per_view=False)
         active = [(v, r) for v, r in zip(views, norms) if v.active]
         sigma_new = opts.pixel_sigma_px or robust_pixel_sigma(*zip(*active))
         views, change = reweight(views, norms, sigma_new, opts)
