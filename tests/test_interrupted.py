@@ -48,7 +48,8 @@ def test_capture_killed_at_random_points_then_resumed_equals_an_uninterrupted_ru
         _, err = p.communicate(timeout=30)
         assert "Traceback" not in err.decode() or sig == signal.SIGINT and "KeyboardInterrupt" in err.decode()
         kills.append((signal.Signals(sig).name, _done(out)))
-        assert _done(out) < N_POSES
+        if _done(out) >= N_POSES:
+            break  # the signal landed after the last capture (a loaded machine): nothing left to resume
     assert len(kills) >= 4, kills
     assert [n for _, n in kills] == sorted(n for _, n in kills)  # captures only ever accumulate
     cell = make_fake_cell(n_cameras=2, n_poses=N_POSES, seed=7)

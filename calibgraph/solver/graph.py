@@ -36,7 +36,7 @@ from calibgraph.solver.keys import B, C, F, K, O, S
 from calibgraph.solver.noise_model import MODE_MIN_CORNERS, view_mode_basis
 from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.timing import timed
-from calibgraph.solver.views import residual_norms
+from calibgraph.solver.views import reprojections, residual_norms
 
 # The corner formulation pays off on large graphs only (see scripts/results/bench_solver.md); the
 # per-view graph is the reference and the fallback.
@@ -73,6 +73,12 @@ class Estimate:
     def camera_model(self, name: str, cameras: dict) -> Intrinsics:
         """The intrinsics camera ``name`` is projected with: estimated, else given (``cameras``)."""
         return self.intrinsics.get(name) or cameras[name]
+
+    def residuals(self, views: list, cameras: dict) -> list:
+        """Residuals (reprojected - detected, px, (N, 2) per view) of ``views`` at this estimate."""
+        models = {v.camera: self.camera_model(v.camera, cameras) for v in views}
+        uv_hats = reprojections(views, self.T_ref_cam, self.T_mount_board, self.T_ref_mount, models, self.board_scale)
+        return [uv_hat - v.uv_px for v, uv_hat in zip(views, uv_hats)]
 
     def residual_norms(self, views: list, cameras: dict) -> list:
         """Residual norms (px) of ``views`` at this estimate (see :func:`views.residual_norms`)."""

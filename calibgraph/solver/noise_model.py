@@ -123,42 +123,59 @@ VIEW_PRIOR_DOF = 20
 VIEW_NOISE_RANGE = (1 / 3, 3.0)
 
 
-def camera_noise_scales(views: list, norms: list, per_view: bool = True) -> tuple[list, float, float]:
+def _high_order(v, r) -> tuple[float, int]:
+    """(squared residual of view ``v``'s kept corners outside its 6 low-order image modes, its count):
+    the corners' own scatter, which a pose error of the view (a knocked camera, a robot pose off)
+    leaves alone, since that moves the whole board's image."""
+    keep = v.kept
+    n = int(keep.sum())
+    if not v.active or n < MODE_MIN_CORNERS + 2:
+        return 0.0, 0
+    e = np.asarray(r, float)[keep].reshape(-1)
+    if not np.all(np.isfinite(e)) or np.max(np.abs(e)) >= 1e5:
+        return 0.0, 0
+    Q = view_mode_basis(v.uv_px[keep])
+    h = e - Q @ (Q.T @ e)
+    return float(h @ h), 2 * n - N_MODES
+
+
+def camera_noise_scales(views: list, residuals: list, per_view: bool = True) -> tuple[list, float, float]:
     """(views with each camera's ``noise_scale`` and each view's ``view_noise`` set, the largest
-    relative change of a camera's scale, the largest of a view's level).
+    relative change of a camera's scale, the largest of a view's level). ``residuals``: (N, 2)
+    reprojected - detected per view.
 
     Cameras differ in corner noise (sensor, lens, distance, blur: a Kinect's corners scatter several
     times a close L515's); one pixel sigma for all would call the noisy camera's corners outliers
-    and make its 1-sigma too small, and the quiet cameras' too wide. Each camera's robust sigma
-    (median residual norm of its kept corners in active views, as :func:`robust_pixel_sigma`) over
-    that of all cameras' corners pooled is its scale; a camera with fewer than
-    CAMERA_SIGMA_MIN_CORNERS kept corners keeps scale 1.
+    and make its 1-sigma too small, and the quiet cameras' too wide. A camera's level is the mean
+    square of its kept corners' residuals outside each view's low-order image modes (shift,
+    rotation, scale, shear: what a pose error does to a small board's image), so that a camera
+    whose views misfit as a whole — knocked during capture, or a robot pose off — does not pass for
+    a noisy one and keep its misfitting views; its scale is that level over all cameras' pooled
+    (square root). A camera with fewer than CAMERA_SIGMA_MIN_CORNERS kept corners keeps scale 1.
 
     Within a camera the views differ too (a far or tilted board's small squares, blur): with
-    ``per_view``, each active view's mean square residual over its camera's, shrunk towards 1 as if
-    the camera's level had VIEW_PRIOR_DOF residuals of its own (a view of 20 corners moves about
-    two thirds of the way), and kept within VIEW_NOISE_RANGE, is its ``view_noise``. Views out of
-    the graph keep 1, so that a rejected view cannot earn its way back by looking noisy."""
-    def raw(pairs):
-        kept = [r[v.kept] for v, r in pairs if v.active]
-        return np.concatenate(kept) if kept else np.zeros(0)
-
-    pooled = raw(zip(views, norms))
-    if pooled.size == 0 or float(np.median(pooled)) <= 0:
+    ``per_view``, each active view's level over its camera's, shrunk towards 1 as if the camera's
+    level had VIEW_PRIOR_DOF residuals of its own (a view of 20 corners moves about two thirds of
+    the way), and kept within VIEW_NOISE_RANGE, is its ``view_noise``. Views out of the graph keep
+    1, so that a rejected view cannot earn its way back by looking noisy."""
+    per = [_high_order(v, r) for v, r in zip(views, residuals)]
+    tot_e = sum(e for e, _ in per)
+    tot_n = sum(n for _, n in per)
+    if tot_n == 0 or tot_e <= 0:
         return views, 0.0, 0.0
-    ref = float(np.median(pooled))
+    ref = tot_e / tot_n
     scales, level = {}, {}
     for cam in dict.fromkeys(v.camera for v in views):
-        mine = raw((v, r) for v, r in zip(views, norms) if v.camera == cam)
-        scales[cam] = max(float(np.median(mine)) / ref, 1e-3) if mine.size >= CAMERA_SIGMA_MIN_CORNERS else 1.0
-        level[cam] = float(np.mean(mine ** 2)) if mine.size else 0.0
+        e = sum(pe for v, (pe, _) in zip(views, per) if v.camera == cam)
+        n = sum(pn for v, (_, pn) in zip(views, per) if v.camera == cam)
+        level[cam] = e / n if n > 0 else 0.0
+        scales[cam] = max(float(np.sqrt(level[cam] / ref)), 1e-3) if n >= CAMERA_SIGMA_MIN_CORNERS and e > 0 else 1.0
     out, change, change_view = [], 0.0, 0.0
-    for v, r in zip(views, norms):
+    for v, (pe, pn) in zip(views, per):
         t = 1.0
-        if per_view and v.active and level[v.camera] > 0 and v.kept.any():
-            m = 2 * int(v.kept.sum())  # residual count (u and v)
-            ratio = float(np.sum(r[v.kept] ** 2)) / (m / 2) / level[v.camera]
-            t = float(np.clip(np.sqrt((VIEW_PRIOR_DOF + m * ratio) / (VIEW_PRIOR_DOF + m)), *VIEW_NOISE_RANGE))
+        if per_view and pn > 0 and level[v.camera] > 0:
+            ratio = pe / pn / level[v.camera]
+            t = float(np.clip(np.sqrt((VIEW_PRIOR_DOF + pn * ratio) / (VIEW_PRIOR_DOF + pn)), *VIEW_NOISE_RANGE))
         change = max(change, abs(scales[v.camera] / v.noise_scale - 1.0))
         change_view = max(change_view, abs(t / v.view_noise - 1.0))
         out.append(v if (v.noise_scale, v.view_noise) == (scales[v.camera], t)

@@ -203,7 +203,7 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     if opts.corner_noise == "per-view" and not opts.pixel_sigma_px:
         # each view its own noise level, now that the rounds have settled which corners and views are in
         norms = est.residual_norms(views, problem.cameras)
-        views, _, _ = camera_noise_scales(views, norms, per_view=True)
+        views, _, _ = camera_noise_scales(views, est.residuals(views, problem.cameras), per_view=True)
         views, _ = reweight(views, norms, sigma, opts)  # the corners' robust weights at their view's level
         if any(v.view_noise != 1.0 for v in views):
             with timed(timings, "lm"):

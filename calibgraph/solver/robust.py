@@ -96,7 +96,8 @@ def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, s
             # per camera only here: a view's own level is set in the final graph (solver.optimise), after
             # the rounds have cut outliers and the move test has run at its camera's level, since a
             # view that misfits (a knocked camera's) would otherwise look merely noisy and stay in
-            views, scale_change, view_change = camera_noise_scales(views, norms, per_view=False)
+            views, scale_change, view_change = camera_noise_scales(views, est.residuals(views, problem.cameras),
+                                                                   per_view=False)
         active = [(v, r) for v, r in zip(views, norms) if v.active]
         sigma_new = opts.pixel_sigma_px or robust_pixel_sigma(*zip(*active))
         views, change = reweight(views, norms, sigma_new, opts)
