@@ -36,7 +36,7 @@ def test_capture_killed_at_random_points_then_resumed_equals_an_uninterrupted_ru
     kills = []
     for sig in sigs:
         before = _done(out) if out.exists() else 0
-        p = subprocess.Popen([sys.executable, "-c", CAPTURE_SCRIPT, str(out), str(N_POSES), "7", "0.06"], env=env,
+        p = subprocess.Popen([sys.executable, "-c", CAPTURE_SCRIPT, str(out), str(N_POSES), "7", "0.2"], env=env,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         t_end = time.monotonic() + 60
         while time.monotonic() < t_end and p.poll() is None and (not out.exists() or _done(out) <= before):
