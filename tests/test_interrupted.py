@@ -22,6 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 N_POSES = 30
 
 def _default_signals():
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})  # a blocked mask is inherited too
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
