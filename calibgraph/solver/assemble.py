@@ -41,6 +41,13 @@ def view_residuals(name: str, est: Estimate, views: list, cameras: dict) -> tupl
     return residuals, np.concatenate(kept) if kept else np.zeros((0, 2)), rejected_corners
 
 
+def camera_pixel_sigma(group: Group, name: str) -> float:
+    """The a posteriori sigma of camera ``name``'s corners (px per axis): the solve's reference
+    sigma times the camera's noise scale (that of its active views)."""
+    scale = next((v.noise_scale for v in group.views if v.camera == name and v.active), 1.0)
+    return group.est.sigma_px * scale
+
+
 def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
     """name -> ``CameraResult.error_budget`` of the group's cameras (see :mod:`calibgraph.solver.budget`)."""
     est = group.est
@@ -48,8 +55,7 @@ def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
     out, doubled = {}, doubled_information(lin)
     doubled_cov = np.linalg.inv(doubled)  # one inverse for every camera's "twice the poses"
     for n, b in budgets(lin, keys).items():
-        mine = [v for v in group.views if v.camera == n and v.active]
-        sigma_n = est.sigma_px * (mine[0].noise_scale if mine else 1.0)
+        sigma_n = camera_pixel_sigma(group, n)
         out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=_session_information(problem, est, n, sigma_n),
                                   doubled=doubled, doubled_cov=doubled_cov))
     return out
@@ -104,7 +110,7 @@ def camera_result(problem: Problem, name: str, group: Group, rejected: list, bud
         residuals_px=residuals,
         intrinsics=intrinsics_record(problem, name, est),
         corner_noise=est.mode_ratios[name].to_dict() if name in est.mode_ratios else None,
-        pixel_sigma_px=est.sigma_px * (used[0].noise_scale if used else 1.0),
+        pixel_sigma_px=camera_pixel_sigma(group, name),
         error_budget=budget,
     )
     return result, rejected_corners

@@ -36,7 +36,7 @@ from calibgraph.solver.keys import B, C, F, K, O, S
 from calibgraph.solver.noise_model import MODE_MIN_CORNERS, view_mode_basis
 from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.timing import timed
-from calibgraph.solver.views import reprojections, residual_norms
+from calibgraph.solver.views import norms_of, reprojections
 
 # The corner formulation pays off on large graphs only (see scripts/results/bench_solver.md); the
 # per-view graph is the reference and the fallback.
@@ -82,8 +82,7 @@ class Estimate:
 
     def residual_norms(self, views: list, cameras: dict) -> list:
         """Residual norms (px) of ``views`` at this estimate (see :func:`views.residual_norms`)."""
-        models = {v.camera: self.camera_model(v.camera, cameras) for v in views}
-        return residual_norms(views, self.T_ref_cam, self.T_mount_board, self.T_ref_mount, models, self.board_scale)
+        return norms_of(self.residuals(views, cameras))
 
 
 def estimates_intrinsics(problem: Problem, name: str, est: Estimate) -> bool:

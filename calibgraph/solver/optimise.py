@@ -37,6 +37,7 @@ from calibgraph.solver.moved import check_after_rounds
 from calibgraph.solver.noise_model import a_posteriori_sigma, camera_noise_scales, mode_variance_ratios
 from calibgraph.solver.robust import Rounds, reweight, robust_rounds
 from calibgraph.solver.timing import timed
+from calibgraph.solver.views import norms_of
 
 
 @dataclass(frozen=True)
@@ -157,14 +158,25 @@ def _n_parameters(problem: Problem, names: list, est: Estimate) -> int:
     return n + (0 if est.joint_offsets is None else len(est.joint_offsets))
 
 
+def _resolve(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
+             factors: dict | None, timings: dict | None):
+    """(the estimate, the LM run, the graph) of the graph of ``views`` at ``sigma`` (the views'
+    low-order modes weighted by ``factors``) solved from ``est``."""
+    with timed(timings, "lm"):
+        graph, values = build_graph(views, slots, problem, est, sigma, form, factors)
+        run = levenberg_marquardt(graph, values, problem.options.max_iterations, form)
+    return extract(run.values, slots, views, est, problem.cameras, form), run, graph
+
+
 def _fk_marginals(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
-                  factors: dict | None, timings: dict | None) -> dict | None:
+                  factors: dict | None, timings: dict | None, solved: tuple | None = None) -> dict | None:
     """capture -> marginal covariance of F(k) in the view graph at ``est`` (the FK check's
-    redundancy; :func:`calibgraph.solver.fk_check.robot_pose_marginals`); None in the corner form."""
+    redundancy; :func:`calibgraph.solver.fk_check.robot_pose_marginals`); None in the corner form.
+    ``solved``: (that graph, its values at ``est``) when the caller has just solved it."""
     if form != "view" or problem.options.kinematics != "none":
         return None
     with timed(timings, "marginals"):
-        graph, values = build_graph(views, slots, problem, est, sigma, form, factors)
+        graph, values = solved or build_graph(views, slots, problem, est, sigma, form, factors)
         return robot_pose_marginals(graph, values)
 
 
@@ -179,13 +191,11 @@ def _rejudge_robot(stated: Problem, slots: dict, views: list, est: Estimate, sig
     no longer pull the poses further than the stated accuracy allows, the corners explain it:
     (the stated problem, its estimate, the FK ratio, the mode ratios and factors judged on it, the LM
     iterations spent). None when the robot is still off (the widened FK prior stands)."""
-    with timed(timings, "lm"):
-        graph, values = build_graph(views, slots, stated, est, sigma, form, factors)
-        run = levenberg_marquardt(graph, values, stated.options.max_iterations, form)
-    est2 = extract(run.values, slots, views, est, stated.cameras, form)
+    est2, run, graph = _resolve(stated, views, slots, est, sigma, form, factors, timings)
     lin = linearise(stated, views, est2, sigma)
     fk2 = fk_variance_ratio(stated, views, est2, sigma, lin, factors,
-                            _fk_marginals(stated, views, slots, est2, sigma, form, factors, timings))
+                            _fk_marginals(stated, views, slots, est2, sigma, form, factors, timings,
+                                          (graph, run.values)))
     if fk2 is not None and fk2.applied > 1.0:
         return None
     modes = mode_variance_ratios(stated, views, est2, sigma, lin)
@@ -200,33 +210,29 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     opts = problem.options
     est, views, sigma, iterations = rounds.est, rounds.views, rounds.sigma_px, rounds.iterations
     converged = rounds.settled
+    solved = None  # (graph, values) of the last solve at ``est``, when this function made one
     if opts.corner_noise == "per-view" and not opts.pixel_sigma_px:
         # each view its own noise level, now that the rounds have settled which corners and views are in
-        norms = est.residual_norms(views, problem.cameras)
-        views, _, _ = camera_noise_scales(views, est.residuals(views, problem.cameras), per_view=True)
-        views, _ = reweight(views, norms, sigma, opts)  # the corners' robust weights at their view's level
+        residuals = est.residuals(views, problem.cameras)
+        views, _, _ = camera_noise_scales(views, residuals, per_view=True)
+        views, _ = reweight(views, norms_of(residuals), sigma, opts)  # robust weights at each view's level
         if any(v.view_noise != 1.0 for v in views):
-            with timed(timings, "lm"):
-                graph, values = build_graph(views, slots, problem, est, sigma, form)
-                run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+            est, run, graph = _resolve(problem, views, slots, est, sigma, form, None, timings)
             iterations += run.iterations
             converged = converged and run.converged
-            est = extract(run.values, slots, views, est, problem.cameras, form)
+            solved = (graph, run.values)
     check_modes = form == "view" and opts.view_noise_modes and not opts.pixel_sigma_px
     lin = linearise(problem, views, est, sigma) if opts.fk_variance or check_modes else None
     fk_ratio = fk_variance_ratio(problem, views, est, sigma, lin,
-                                 marginal=_fk_marginals(problem, views, slots, est, sigma, form, None, timings)
+                                 marginal=_fk_marginals(problem, views, slots, est, sigma, form, None, timings, solved)
                                  ) if opts.fk_variance else None
     if fk_ratio is not None and fk_ratio.applied > 1.0:
         # the robot is less accurate than stated: the final graph uses the FK sigmas the fit implies,
         # and the corner-noise modes are judged on the residuals of that graph
         problem = problem.with_(options=widened(opts, fk_ratio))
-        with timed(timings, "lm"):
-            graph, values = build_graph(views, slots, problem, est, sigma, form)
-            run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+        est, run, _ = _resolve(problem, views, slots, est, sigma, form, None, timings)
         iterations += run.iterations
         converged = converged and run.converged
-        est = extract(run.values, slots, views, est, problem.cameras, form)
         lin = None
     mode_ratios = mode_variance_ratios(problem, views, est, sigma, lin) if check_modes else {}
     factors = {c: m.applied for c, m in mode_ratios.items() if m.applied > 1.0}

@@ -17,7 +17,7 @@ from calibgraph.core.problem import Problem
 from calibgraph.solver.graph import Estimate, build_graph, extract, levenberg_marquardt
 from calibgraph.solver.noise_model import camera_noise_scales, robust_pixel_sigma
 from calibgraph.solver.timing import timed
-from calibgraph.solver.views import MIN_CORNERS_PER_VIEW
+from calibgraph.solver.views import MIN_CORNERS_PER_VIEW, norms_of
 
 MAX_WEIGHT_ROUNDS = 6  # LM runs with re-weighting in between, per view-level round
 MAX_VIEW_ROUNDS = 4  # rounds of view rejection / re-admission
@@ -72,11 +72,6 @@ def reweight(views: list, norms: list, sigma_px: float, opts) -> tuple[list, flo
     return out, change
 
 
-# A view's own noise level, re-estimated from a fit it changes, moves by a few percent round to round
-# (its weight by twice that): settled when no view's moves by more than this.
-VIEW_NOISE_SETTLED = 0.10
-
-
 def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
                     timings: dict | None) -> Rounds:
     """LM runs with fixed corner weights, re-weighted in between, until the weights and the pixel
@@ -90,19 +85,18 @@ def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, s
             run = levenberg_marquardt(graph, values, opts.max_iterations, form)
         iterations += run.iterations
         est = extract(run.values, slots, views, est, problem.cameras, form)
-        norms = est.residual_norms(views, problem.cameras)
-        scale_change = view_change = 0.0
+        residuals = est.residuals(views, problem.cameras)
+        norms = norms_of(residuals)
+        scale_change = 0.0
         if not opts.pixel_sigma_px and opts.corner_noise != "one":
             # per camera only here: a view's own level is set in the final graph (solver.optimise), after
             # the rounds have cut outliers and the move test has run at its camera's level, since a
             # view that misfits (a knocked camera's) would otherwise look merely noisy and stay in
-            views, scale_change, view_change = camera_noise_scales(views, est.residuals(views, problem.cameras),
-                                                                   per_view=False)
+            views, scale_change, _ = camera_noise_scales(views, residuals, per_view=False)
         active = [(v, r) for v, r in zip(views, norms) if v.active]
         sigma_new = opts.pixel_sigma_px or robust_pixel_sigma(*zip(*active))
         views, change = reweight(views, norms, sigma_new, opts)
-        weights_settled = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05 and scale_change < 0.02 \
-            and view_change < VIEW_NOISE_SETTLED
+        weights_settled = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05 and scale_change < 0.02
         settled = weights_settled and run.converged
         sigma = sigma_new
         if weights_settled:

@@ -142,8 +142,15 @@ def residual_norms(views: list, T_ref_cam: dict, T_mount_board: np.ndarray, T_re
                    board_scale: float = 1.0) -> list:
     """Residual norms (px, (N,) per view) of ``views`` at the given values (see :func:`reprojections`;
     a corner that does not project counts as 1e6 px)."""
+    uv_hats = reprojections(views, T_ref_cam, T_mount_board, T_ref_mount, cameras, board_scale)
+    return norms_of([uv_hat - v.uv_px for v, uv_hat in zip(views, uv_hats)])
+
+
+def norms_of(residuals: list) -> list:
+    """Residual norms (px, (N,) per view) of residuals ((N, 2) per view); a corner that does not
+    project counts as 1e6 px."""
     out = []
-    for v, uv_hat in zip(views, reprojections(views, T_ref_cam, T_mount_board, T_ref_mount, cameras, board_scale)):
-        r = np.linalg.norm(uv_hat - v.uv_px, axis=1)
+    for d in residuals:
+        r = np.linalg.norm(d, axis=1)
         out.append(np.where(np.isfinite(r), r, 1e6))
     return out
