@@ -109,8 +109,15 @@ def parse_seeds(s: str) -> list:
     return out
 
 
+SELECT = {"select": "information"}  # the planner's pose selection (--select); 'random' caches keep the old names
+
+
+def cell_dir(work: Path, cell: str, poses: int) -> Path:
+    return work / (f"{cell}_{poses}" + ("" if SELECT["select"] == "random" else "_info"))
+
+
 def dataset_dir(work: Path, cell: str, poses: int, seed: int) -> Path:
-    return work / f"{cell}_{poses}" / f"seed{seed:02d}"
+    return cell_dir(work, cell, poses) / f"seed{seed:02d}"
 
 
 def make_cell(cell: str, seed: int):
@@ -135,7 +142,7 @@ def render(work: Path, cell: str, poses: int, seed: int) -> Path:
     wc = make_cell(cell, seed)
     world = SimWorld(wc)
     t0 = time.perf_counter()
-    traj = plan_trajectory(world, n_poses=poses, seed=seed, min_square_px=CELLS[cell][2])
+    traj = plan_trajectory(world, n_poses=poses, seed=seed, min_square_px=CELLS[cell][2], select=SELECT["select"])
     t1 = time.perf_counter()
     tmp = root.with_name(root.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -310,7 +317,7 @@ def solve_case(root: Path, case: str, seed: int) -> dict:
 
 
 def result_file(work: Path, cell: str, poses: int, case: str, seed: int) -> Path:
-    return work / f"{cell}_{poses}" / "results" / case / f"seed{seed:02d}.json"
+    return cell_dir(work, cell, poses) / "results" / case / f"seed{seed:02d}.json"
 
 
 def solve_seed(work: Path, cell: str, poses: int, seed: int, cases: list) -> None:
@@ -339,7 +346,7 @@ def load_results(work: Path, cell: str, poses: int) -> dict:
     """case -> [seed records], sorted by seed."""
     out = {}
     for case in CASES:
-        fs = sorted((work / f"{cell}_{poses}" / "results" / case).glob("seed*.json"))
+        fs = sorted((cell_dir(work, cell, poses) / "results" / case).glob("seed*.json"))
         if fs:
             out[case] = [json.loads(f.read_text()) for f in fs]
     return out
@@ -488,7 +495,7 @@ def fmt_p(d: dict) -> str:
 
 def markdown(summary: dict, timing: dict) -> list:
     cell, poses = summary["cell"], summary["poses"]
-    L = [f"## {cell}: {poses} poses per seed", ""]
+    L = [f"## {cell}: {poses} poses per seed, chosen by the planner's `select='{SELECT['select']}'`", ""]
     if timing:
         L += [f"Render (plan + simulated capture with detection) per seed: median {timing['median_s']:.0f} s over "
               f"{timing['n']} seeds; renderer: {timing['renderer']}.", ""]
@@ -565,7 +572,7 @@ def verdict(summary: dict) -> list:
 
 
 def render_timing(work: Path, cell: str, poses: int) -> dict:
-    ts = [json.loads(f.read_text()) for f in (work / f"{cell}_{poses}").glob("seed*/bench_timing.json")]
+    ts = [json.loads(f.read_text()) for f in cell_dir(work, cell, poses).glob("seed*/bench_timing.json")]
     if not ts:
         return {}
     return {"n": len(ts), "median_s": float(np.median([t["plan_s"] + t["render_s"] for t in ts])),
@@ -582,10 +589,10 @@ def compact(results: dict) -> dict:
             for case, recs in results.items()}
 
 
-def report(work: Path, cell: str, poses: int, out: Path) -> None:
+def report(work: Path, cell: str, poses: int, out: Path, tag: str = "") -> None:
     results = load_results(work, cell, poses)
     if not results:
-        print(f"no results under {work / f'{cell}_{poses}'}", file=sys.stderr)
+        print(f"no results under {cell_dir(work, cell, poses)}", file=sys.stderr)
         return
     summary = summarise(cell, poses, results)
     timing = render_timing(work, cell, poses)
@@ -597,8 +604,9 @@ def report(work: Path, cell: str, poses: int, out: Path) -> None:
          + "; ".join(f"**{k}**: {v}" for k, v in CASES.items() if k in results) + ".", "", "Verdict:", ""]
     L += verdict(summary) + [""] + markdown(summary, timing)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "bench_rendered_sigma.md").write_text("\n".join(L) + "\n")
-    (out / "bench_rendered_sigma.json").write_text(json.dumps({"summary": summary, "render_timing": timing,
+    name = "bench_rendered_sigma" + (f"_{tag}" if tag else "")
+    (out / f"{name}.md").write_text("\n".join(L) + "\n")
+    (out / f"{name}.json").write_text(json.dumps({"summary": summary, "render_timing": timing,
                                                                "seeds": compact(results)}, indent=None))
     print("\n".join(L))
 
@@ -612,7 +620,12 @@ def main(argv=None) -> int:
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK, help="cache of rendered seeds and solves")
     ap.add_argument("--cases", default="factory,oracle", help=f"comma-separated, of {', '.join(CASES)}")
     ap.add_argument("--out", type=Path, default=REPO / "scripts" / "results")
+    ap.add_argument("--select", default="information", choices=("information", "random"),
+                    help="the planner's pose selection (plan_trajectory(select=...)); 'random' is the planner before "
+                         "the information model, whose caches carry no suffix")
+    ap.add_argument("--tag", default="", help="results go to bench_rendered_sigma_TAG.{md,json}")
     a = ap.parse_args(argv)
+    SELECT["select"] = a.select
     poses = a.poses or CELLS[a.cell][1]
     cases = [c for c in a.cases.split(",") if c]
     unknown = set(cases) - set(CASES)
@@ -626,7 +639,7 @@ def main(argv=None) -> int:
         if a.stage in ("run", "solve"):
             solve_seed(a.work, a.cell, poses, s, cases)
     if a.stage in ("run", "report"):
-        report(a.work, a.cell, poses, a.out)
+        report(a.work, a.cell, poses, a.out, a.tag)
     return 0
 
 

@@ -26,6 +26,10 @@ def add_parser(sub):
     p.add_argument("--poses", type=int, default=30, help="robot poses (default 30)")
     p.add_argument("--workcell", type=Path, default=None, help="workcell YAML instead of the options above")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--plan", choices=("information", "random"), default="information",
+                   help="how the planner picks the poses: 'information' (default) chooses them from a sampled pool by "
+                        "what they pin (far cameras' focal length against depth, the mount, the board scale); 'random' "
+                        "takes the first visible ones, as before")
     p.add_argument("--reported-intrinsics", choices=("factory", "exact"), default=None,
                    help="what the simulated cameras report: factory-class intrinsics (default) or exact, the true "
                         "ones (an oracle's figures, labelled so)")
@@ -84,7 +88,7 @@ def run(args) -> int:
     world.check_rendering()  # no OpenGL: one clear error now, not after planning
 
     bar = _bar(args.poses, "plan")
-    traj = plan_trajectory(world, args.poses, seed=args.seed, progress=lambda k, n: bar.update(k - bar.n))
+    traj = plan_trajectory(world, args.poses, seed=args.seed, select=args.plan, progress=lambda k, n: bar.update(k - bar.n))
     bar.close()
     output_folder(out, "output folder")
     traj.save(out / "trajectory.yaml")

@@ -25,6 +25,10 @@ def add_parser(sub):
     p.add_argument("--out", type=Path, required=True, help="new dataset folder")
     p.add_argument("--poses", type=int, default=40, help="poses to plan when no trajectory is given (default 40)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planner")
+    p.add_argument("--plan", choices=("information", "random"), default="information",
+                   help="how the planner picks the poses: 'information' (default) chooses them from a sampled pool by "
+                        "what they pin (far cameras' focal length against depth, the mount, the board scale); 'random' "
+                        "takes the first visible ones, as before")
     p.add_argument("--resume", action="store_true", help="continue an interrupted simulated capture")
     p.add_argument("--reported-intrinsics", choices=("factory", "exact"), default=None,
                    help="what the cameras report, overriding the workcell's realism.reported_intrinsics: factory "
@@ -89,7 +93,7 @@ def run(args) -> int:
         world = SimWorld(cell)
         world.check_rendering()  # no OpenGL: one clear error now, not after planning
         if traj is None:
-            traj = plan_trajectory(world, args.poses, seed=args.seed)
+            traj = plan_trajectory(world, args.poses, seed=args.seed, select=args.plan)
             claim.require({"trajectory_sha256": traj.sha256()})  # a resume with other --poses/--seed: refused here
             traj.save(args.out / "planned_trajectory.yaml")
             via = f" + {traj.n_via} via poses for collision-free motion" if traj.n_via else ""

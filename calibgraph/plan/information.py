@@ -178,7 +178,9 @@ def joint_information(cams: list, seen: np.ndarray, T_base_flange: np.ndarray, T
     flange marginalised under the FK prior: (M, P, P) in the order [camera 1 ... camera K (6 each,
     rotation first, base axes), mount 6, board scale 1, then the camera model (fx, fy, cx, cy, k1,
     k2) of each camera flagged in ``free_intrinsics`` (K booleans; None: none), in camera order].
-    ``cams``: K (intrinsics, T_base_cam); ``seen``: (M, K) which cameras see each capture.
+    ``cams``: K (intrinsics, T_base_cam); ``seen``: (M, K) which cameras see each capture, or the
+    probability that each sees it (floats in [0, 1]: a view's corner information is weighted by it, its
+    expected information).
 
     This is the linearised calibration graph one capture at a time: unlike :func:`view_information`
     (one camera, mount and scale held known) the cameras of a capture share its flange, and every
@@ -186,7 +188,8 @@ def joint_information(cams: list, seen: np.ndarray, T_base_flange: np.ndarray, T
     tied to the board scale (a 1e-4 scale error is 0.45 mm at 4.5 m) and to its focal length,
     which only views at several depths and tilts, or other cameras, pin down."""
     T_bf = np.asarray(T_base_flange, float).reshape(-1, 4, 4)
-    seen = np.asarray(seen, bool).reshape(len(T_bf), len(cams))
+    seen = np.asarray(seen).reshape(len(T_bf), len(cams))
+    seen = seen if seen.dtype == bool else np.clip(seen.astype(float), 0.0, 1.0)
     M, K = len(T_bf), len(cams)
     free = [False] * K if free_intrinsics is None else [bool(f) for f in free_intrinsics]
     P0 = 6 * K + 7
@@ -199,12 +202,13 @@ def joint_information(cams: list, seen: np.ndarray, T_base_flange: np.ndarray, T
         if free[k]:
             cols.append(np.arange(P0 + N_INTR * j, P0 + N_INTR * (j + 1)))
             j += 1
-        m = seen[:, k]
+        m = seen[:, k] > 0
         if not m.any():
             continue
         idx = np.concatenate(cols)
         J = view_jacobians(intr, T_bc, T_bf[m], T_flange_board, points_board_m, with_intrinsics=free[k])
-        L[np.ix_(np.flatnonzero(m), idx, idx)] += w * (np.swapaxes(J, 1, 2) @ J)
+        wk = w * np.asarray(seen[m, k], float)[:, None, None]
+        L[np.ix_(np.flatnonzero(m), idx, idx)] += wk * (np.swapaxes(J, 1, 2) @ J)
     L[:, P:, P:] += np.diag(1.0 / np.array([fk_sigma_rotation_rad] * 3 + [fk_sigma_translation_m] * 3) ** 2)
     I_pf = L[:, :P, P:]
     return L[:, :P, :P] - I_pf @ np.linalg.solve(L[:, P:, P:], np.swapaxes(I_pf, 1, 2))
