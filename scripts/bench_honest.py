@@ -58,8 +58,9 @@ def simulate(work: Path, name: str, quick: bool) -> Path:
     shutil.rmtree(root, ignore_errors=True)
     cell = ring_workcell(name=name, seed=0, **kw)
     world = SimWorld(cell)
-    # far cameras with small boards: count views down to the detector's up-scaling floor
-    traj = plan_trajectory(world, n_poses=n, seed=0, min_square_px=4.5 if "5m" in name else 7.0)
+    # the planner's default: poses chosen by the information model, views counted down to the detector's
+    # up-scaling floor (4.5 px squares) weighted by their chance of being found
+    traj = plan_trajectory(world, n_poses=n, seed=0)
     simulate_dataset(cell, traj, root, world=world, progress=False)
     world.close()
     return root

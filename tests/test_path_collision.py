@@ -53,7 +53,8 @@ def _motions_free(world, q_start, traj):
 
 
 # The planner's former compact workspace: with it, seed 3 on large_cell has colliding motions
-# (measured; the n_via assertion keeps the case honest if the planner changes).
+# (measured with select='random', the planner before the information model; the n_via assertion keeps
+# the case honest if the planner changes).
 COMPACT = dict(radius_m=(0.38, 0.62), height_m=(0.25, 0.70), tilt_deg=35.0)
 
 
@@ -65,7 +66,7 @@ def test_planner_inserts_via_poses_so_every_motion_is_free(world):
     q_start = start_configuration(world)
     # Without via poses this plan has 2 colliding motions (measured with the planner before it
     # checked motions; the n_via assertion below keeps the case honest).
-    traj = plan_trajectory(world, 20, seed=3, **COMPACT)
+    traj = plan_trajectory(world, 20, seed=3, select="random", **COMPACT)
     assert np.all(world.q() == 0)  # the world is left as it was
     assert traj.n_capture == 20 and traj.n_via >= 1 and len(traj) == 20 + traj.n_via
     assert _motions_free(world, q_start, traj) == []
@@ -85,11 +86,33 @@ def test_planner_replaces_poses_no_via_can_reach(world, monkeypatch):
 
     monkeypatch.setattr(plan, "_find_vias", lambda *a, **k: None)  # as if no transit posture helped
     world.set_q(np.zeros(7))
-    traj = plan.plan_trajectory(world, 20, seed=3, **COMPACT)
+    traj = plan.plan_trajectory(world, 20, seed=3, select="random", **COMPACT)
     assert traj.n_capture == 20 and traj.n_via == 0
     assert _motions_free(world, start_configuration(world), traj) == []
     dropped = [n for n in traj.notes if n.startswith("dropped a pose")]
     assert dropped and all("replaced by a new one" in n for n in dropped)
+
+
+def test_information_plan_inserts_vias_and_replaces_unreachable_poses_from_its_pool(world, monkeypatch):
+    """The chosen poses go through the same motion check: seed 2 of the default (information) plan on
+    the large cell has colliding motions (measured: 2 via poses); with no transit posture helping,
+    the poses no motion reaches are replaced by the next best candidates of the pool."""
+    import calibgraph.plan.planner as plan
+    from calibgraph.sim.ik import start_configuration
+
+    world.set_q(np.zeros(7))
+    q_start = start_configuration(world)
+    traj = plan.plan_trajectory(world, 20, seed=2)
+    assert traj.n_capture == 20 and traj.n_via >= 1
+    assert _motions_free(world, q_start, traj) == []
+    monkeypatch.setattr(plan, "_find_vias", lambda *a, **k: None)
+    world.set_q(np.zeros(7))
+    traj = plan.plan_trajectory(world, 20, seed=2)
+    assert traj.n_capture == 20 and traj.n_via == 0
+    assert _motions_free(world, q_start, traj) == []
+    dropped = [n for n in traj.notes if n.startswith("dropped a pose")]
+    assert dropped and all("replaced by a new one" in n for n in dropped)
+    assert any("chosen from" in n for n in traj.notes)
 
 
 def test_simulated_arm_refuses_a_colliding_motion(world):

@@ -46,14 +46,17 @@ The arm model comes in as a :class:`RobotWorld`; today the simulator's (MuJoCo, 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
 
 from calibgraph.core.errors import InputError
+from calibgraph.core.problem import SolverOptions, intrinsics_prior_covariance
 from calibgraph.core.transforms import board_facing, inv, make_T
+from calibgraph.plan.information import block_sigmas, inv_scaled, joint_information
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
-from calibgraph.plan.visibility import visible_cameras
+from calibgraph.plan.visibility import square_px, visible_cameras
 
 __all__ = ["RobotWorld", "plan_trajectory", "free_motion", "TRANSIT_Q_RAD", "InformativeSelection", "planning_prior",
            "SELECTIONS", "detection_probability"]
@@ -323,8 +326,6 @@ class InformativeSelection:
     def __init__(self, cell, pool: list, pixel_sigma_px: float, min_square_px: float = 7.0,
                  fk_sigma_translation_m: float = 1e-4,
                  fk_sigma_rotation_rad: float = float(np.radians(0.01))):
-        from calibgraph.plan.information import joint_information
-
         names = list(cell.camera_names)
         self.names, self.pool = names, pool
         K = len(names)
@@ -363,8 +364,6 @@ class InformativeSelection:
 
     def _value(self, J: np.ndarray) -> np.ndarray:
         """The criterion of information(s) ``J`` (..., P, P)."""
-        from calibgraph.plan.information import inv_scaled
-
         C = inv_scaled(J)
         return np.einsum("...ij,ik,jk->...", C, self.W, self.W)
 
@@ -375,8 +374,6 @@ class InformativeSelection:
 
     def select(self, n: int, banned=()) -> list:
         """Indices of ``n`` pool poses chosen greedily (fewer when the pool runs out), none of ``banned``."""
-        from calibgraph.plan.information import inv_scaled
-
         M = len(self.pool)
         out_of_play = np.zeros(M, bool)
         out_of_play[list(banned)] = True
@@ -399,8 +396,6 @@ class InformativeSelection:
 
     def summary(self) -> str:
         """One line for the trajectory's notes: the model's 1-sigma per camera of the poses chosen."""
-        from calibgraph.plan.information import block_sigmas, inv_scaled
-
         chosen, J = self.last
         s = block_sigmas(inv_scaled(J), self.K)
         per = ", ".join(f"{n} {s[k, 0]:.2g} mm / {s[k, 1]:.2g} deg" for k, n in enumerate(self.names))
@@ -420,8 +415,6 @@ def detection_probability(square_px, min_square_px: float) -> np.ndarray:
 def _squares_px(camera, target, T_base_board: np.ndarray) -> np.ndarray:
     """Smallest square (px) of the board at each of ``T_base_board`` (M, 4, 4) in ``camera`` (the
     planner's measure, :func:`calibgraph.plan.visibility.square_px`)."""
-    from calibgraph.plan.visibility import square_px
-
     pts = target.points_board_m
     R, c = camera.T_base_cam[:3, :3], camera.T_base_cam[:3, 3]
     out = np.empty(len(T_base_board))
@@ -436,10 +429,6 @@ def planning_prior(intrinsics) -> np.ndarray | None:
     (a calibration file's covariance, or a calibration's width) when that is at least as tight as
     a factory calibration's, else a factory calibration's. Planned so, the poses pin a camera's
     model whatever its file turns out to be worth (held exact, the same poses serve it too)."""
-    from dataclasses import replace
-
-    from calibgraph.core.problem import SolverOptions, intrinsics_prior_covariance
-
     if not intrinsics.known:
         return intrinsics_prior_covariance(intrinsics, SolverOptions())
     opts = SolverOptions()
