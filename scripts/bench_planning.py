@@ -14,7 +14,9 @@ at 2-3.5 m and irregular azimuths and heights, drawn with seed N), over several 
              (every capture from the 3rd) and the first prefix with every camera within tolerance counts;
 (c) random:  random reachable, collision-free poses (board facing outwards in a random direction
              of the upper hemisphere), same prefix rule;
-(d) thesis:  110 planned poses, all of them (the thesis's predefined trajectory length).
+(d) thesis:  110 planned poses, all of them (the thesis's predefined trajectory length);
+(e) planner_random: as (b) with ``select='random'``: the first poses sampled near each camera,
+             the planner before its information model.
 
 Each is run twice: with **realistic** intrinsics — the cameras report factory-class intrinsics
 (``realism.reported_intrinsics`` of the cell, or focal 0.6 %, principal point 3 px, k1/k2 0.01
@@ -113,6 +115,10 @@ def _within(cov) -> bool:
     return t <= TOL[0] and r <= TOL[1]
 
 
+def _sig_mm(cov) -> float:
+    return sigma_norms(cov)[0]
+
+
 def _judge(res, wc) -> dict:
     out = {}
     for n in wc.camera_names:
@@ -154,7 +160,7 @@ def _sequence_run(world, wc, qs_capture, vias_time, seed, step=1, all_at_once=Fa
         T, ds = _observe(world, wc, q, rng)
         caps.append(Capture(index=k, T_base_flange=T, q_rad=np.asarray(q)))
         dets += [Detection(camera=n, capture=k, ids=i, uv_px=uv) for n, i, uv in ds]
-    seen_all = None
+    seen_all = last = None
     for n in (range(len(caps), len(caps) + 1) if all_at_once else range(3, len(caps) + 1, step)):
         sub = [d for d in dets if d.capture < n]
         cams = {n: intr for n, intr in wc.intrinsics().items() if sum(d.camera == n for d in sub) >= 3}  # as reported
@@ -165,12 +171,17 @@ def _sequence_run(world, wc, qs_capture, vias_time, seed, step=1, all_at_once=Fa
                                 detections=tuple(d for d in sub if d.camera in cams)))
         except Exception:  # noqa: BLE001 - too few views for a solve yet
             continue
+        last = (n, res)
         if all_at_once or all(_within(c.covariance) for c in res.cameras.values()):
             seen_all = (n, res)
             break
     if seen_all is None:
-        return {"captures": None, "robot_time_s": round(vias_time(len(caps)), 1), "cameras": {},
-                "note": f"not within tolerance after {len(caps)} captures"}
+        out = {"captures": None, "robot_time_s": round(vias_time(len(caps)), 1), "cameras": {},
+               "note": f"not within tolerance after {len(caps)} captures"}
+        if last is not None:  # where the whole sequence got: the worst camera's 1-sigma, the true errors
+            out["cameras"] = _judge(last[1], wc)
+            out["note"] += f" (worst 1σ {max(_sig_mm(c.covariance) for c in last[1].cameras.values()):.2f} mm)"
+        return out
     n, res = seen_all
     return {"captures": n, "robot_time_s": round(vias_time(n), 1), "converged": all(_within(c.covariance) for c in res.cameras.values()),
             "cameras": _judge(res, wc)}
@@ -210,10 +221,10 @@ def run_active(wd, path, seed, max_poses):
             "stop": rep.stop_reason, "status": rep.cameras, "out_of_reach": given_up}
 
 
-def run_planner(wd, path, seed, n):
+def run_planner(wd, path, seed, n, select="information"):
     wc = workcell_from_dict(wd, path)
     world = SimWorld(wc)
-    traj = plan_trajectory(world, n, seed=seed)
+    traj = plan_trajectory(world, n, seed=seed, select=select)
     times = _traj_time(world, traj)
     qs = [p.q_rad for p in traj.poses if p.capture]
     return _sequence_run(world, wc, qs, lambda k: times[k - 1], seed, all_at_once=(n >= 110))
@@ -254,7 +265,10 @@ def _fmt(r):
     if r.get("captures") is None:
         if r.get("out_of_reach"):
             return f"short at {r['captures_used']} ({', '.join(r['out_of_reach'])} out of reach)"
-        return "not reached"
+        if str(r.get("note", "")).startswith("InputError"):
+            return "could not plan: " + r["note"].split(": ", 1)[1].split(";")[0]
+        worst = _worst(r)
+        return "not reached" + (f" (worst 1σ {worst} mm at the end)" if worst != "-" else "")
     return f"{r['captures']} / {r['robot_time_s']:.0f} s"
 
 
@@ -269,8 +283,12 @@ def _errors(r) -> str:
                      if v) or "-"
 
 
+def run_planner_random(wd, path, seed, n):
+    return run_planner(wd, path, seed, n, select="random")
+
+
 METHODS = {"active": (run_active, "max_poses"), "planner": (run_planner, "n_plan"), "random": (run_random, "n_plan"),
-           "thesis_110": (run_planner, 110)}
+           "thesis_110": (run_planner, 110), "planner_random": (run_planner_random, "n_plan")}
 
 
 def main(argv=None):
@@ -282,6 +300,7 @@ def main(argv=None):
     ap.add_argument("--intrinsics", nargs="*", default=["realistic", "oracle"], choices=["realistic", "oracle"])
     ap.add_argument("--max-poses", type=int, default=None, help="budget of (a) (default 80, 40 with --quick)")
     ap.add_argument("--out", type=Path, default=REPO / "scripts" / "results")
+    ap.add_argument("--tag", default="", help="results go to bench_planning_TAG.{md,json}")
     args = ap.parse_args(argv)
     seeds = args.seeds if args.seeds is not None else ([0] if args.quick else [0, 1, 2])
     n_plan, max_poses = (36, 40) if args.quick else (60, 80)
@@ -307,7 +326,7 @@ def main(argv=None):
                           f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
             rows.append(row)
     args.out.mkdir(parents=True, exist_ok=True)
-    tag = "_quick" if args.quick else ""
+    tag = ("_quick" if args.quick else "") + (f"_{args.tag}" if args.tag else "")
     (args.out / f"bench_planning{tag}.json").write_text(json.dumps(rows, indent=1))
     md = [f"# bench_planning{tag}: captures / robot time until every camera is within {TOL[0]} mm / {TOL[1]}° (1σ)",
           "", f"Synthetic corners ({PIXEL_SIGMA_PX} px) through the MuJoCo FR3 cell; (a) placements unknown, survey included, "
@@ -316,7 +335,7 @@ def main(argv=None):
           "estimates under the factory prior; **oracle**: they report their true intrinsics and the solver "
           "holds them (the figures before the simulator reported factory values).", ""]
     cols = [(m, i) for m in args.methods for i in args.intrinsics if not (args.quick and m == "thesis_110")]
-    head = " | ".join(f"({'abcd'[list(METHODS).index(m)]}) {m} {i}" + (": worst 1σ mm" if m == "thesis_110" else "")
+    head = " | ".join(f"({'abcde'[list(METHODS).index(m)]}) {m} {i}" + (": worst 1σ mm" if m == "thesis_110" else "")
                       for m, i in cols)
     md += [f"| cell | seed | {head} |", "|---|---|" + "---|" * len(cols)]
     for r in rows:

@@ -15,8 +15,9 @@ calibration graph with every camera's model [fx, fy, cx, cy, k1, k2] estimated
 (:class:`InformativeSelection`). A camera's position is mostly its focal length against its depth
 when it stands far away, and what pins that is the board near and far along its line of sight —
 on the far side of the robot as well as the near one — and tilted: rendered 3 x D455 at 5 m, 90
-poses, the factory-class position error went from 8.2-9.2 mm median to 1.9-3.0 mm, the oracle's
-from 0.44-0.60 to 0.24-0.32 mm (``scripts/results/bench_rendered_sigma_d455_5m_info.md``).
+poses, the factory-class position error went from 8.75 mm median (max 17.1) to 1.62 mm (max 4.5),
+the oracle's from 0.50 (max 2.12) to 0.30 mm (max 0.54)
+(``scripts/results/bench_rendered_sigma_d455_5m_info.md``).
 ``select='random'`` keeps the first poses sampled near each camera's direction (the planner before).
 
 The poses are then ordered by base rotation and the motions between them are checked: every
