@@ -172,6 +172,8 @@ def _arg_cases(base):
          "invalid float value"),
         ("sim: no --out", ["sim"], 2, "required: --out"),
         ("sim: --poses word", ["sim", "--out", base / "s", "--poses", "many"], 2, "invalid int value"),
+        ("sim: --plan bogus", ["sim", "--out", base / "s", "--plan", "best"], 2, "invalid choice"),
+        ("demo: --plan bogus", ["demo", "--out", base / "demo", "--plan", "best"], 2, "invalid choice"),
         ("demo: --poses 2", ["demo", "--out", base / "demo", "--poses", "2"], 2, "at least 6 poses"),
         ("demo: --cameras word", ["demo", "--cameras", "three"], 2, "invalid int value"),
         ("solve: --estimate-kinematics bogus", ["solve", ds, "--estimate-kinematics", "dh"], 2, "invalid choice"),

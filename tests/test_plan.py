@@ -241,3 +241,26 @@ def test_detection_probability_and_weighted_information():
     I_h1 = joint_information(cams, np.array([[0.5, 0.0], [0.0, 0.0], [0.0, 0.0]]), *no_fk)
     assert np.allclose(I_h1[0], 0.5 * I_one[0], rtol=1e-6, atol=1e-9 * np.abs(I_one[0]).max())
     assert np.all(np.trace(I_half, axis1=1, axis2=2) < np.trace(I_b, axis1=1, axis2=2))
+
+
+def test_planning_prior_is_never_tighter_than_what_the_solver_will_be_told_nor_than_a_factory_one():
+    """The planner plans every camera model as estimated: a calibration file under its own covariance
+    (or the calibration width), anything else (exact, factory, no source) under a factory-class prior,
+    so that the poses pin the model whatever the file is worth; unknown intrinsics under the wide prior."""
+    from calibgraph.core.camera import Intrinsics
+    from calibgraph.core.problem import INTRINSICS_PRIORS, WIDE_INTRINSICS_PRIOR
+    from calibgraph.plan.planner import planning_prior
+
+    K = np.array([[640.0, 0, 640], [0, 640, 400], [0, 0, 1]])
+    f_fac, c_fac, k_fac = INTRINSICS_PRIORS["factory"]
+    f_cal = INTRINSICS_PRIORS["calibration"][0]
+    for src in ("", "exact", "factory"):
+        sd = np.sqrt(np.diag(planning_prior(Intrinsics(K=K, width_px=1280, height_px=800, source=src))))
+        assert np.allclose(sd, [f_fac * 640, f_fac * 640, c_fac * 1280, c_fac * 1280, k_fac, k_fac])
+    sd = np.sqrt(np.diag(planning_prior(Intrinsics(K=K, width_px=1280, height_px=800, source="calibration"))))
+    assert np.isclose(sd[0], f_cal * 640)
+    cov = np.diag([0.2, 0.2, 0.3, 0.3, 1e-3, 1e-3]) ** 2
+    own = planning_prior(Intrinsics(K=K, width_px=1280, height_px=800, covariance=cov))
+    assert np.allclose(own, cov)
+    unknown = planning_prior(Intrinsics(K=K, width_px=1280, height_px=800, source="unknown"))
+    assert np.isclose(np.sqrt(unknown[0, 0]), WIDE_INTRINSICS_PRIOR[0] * 640)
