@@ -220,15 +220,21 @@ def _upscale_regions(s: _Search, native, first):
         # A board on the flange touches the arm, whose shading also answers the saddle
         # filter: its region then looks too big for a small board, and OpenCV's fast check
         # on the whole frame rejects boards of ~10-12 px squares. Search such regions
-        # up-scaled x2 with the fast check (a miss costs ~0.1 s where a search without it
-        # costs seconds), then redo the found board at full resolution in a tight region.
+        # up-scaled x2, then x3, with the fast check (a miss costs ~5-100 ms where a search
+        # without it costs seconds), then redo the found board at full resolution in a tight
+        # region. x3 finds the boards of 4.5-6 px squares that x2's fast check rejects (a far
+        # camera's views: on the rendered 5 m D455 cell they were half of those lost).
         for roi in (r for r in cands if r not in rois):
-            got = _attempt(s, _detect_in_roi, s, roi, 2, True)
+            got = None
+            for k in (2, 3):
+                got = _attempt(s, _detect_in_roi, s, roi, k, True)
+                if got is not None:
+                    break
             if got is None:
                 continue
             tight = roi_from_points(got[1], grey.shape)
             nat = _attempt(s, _detect_in_roi, s, tight, 1)
-            first = _finish(s, nat, 1) if nat is not None else _finish(s, got, 2)
+            first = _finish(s, nat, 1) if nat is not None else _finish(s, got, k)
             rois = [] if first.ok and first.pitch_px >= s.min_pitch_px else [tight]
             break
     return rois, first
