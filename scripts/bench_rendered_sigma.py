@@ -624,8 +624,15 @@ def main(argv=None) -> int:
                     help="the planner's pose selection (plan_trajectory(select=...)); 'random' is the planner before "
                          "the information model, whose caches carry no suffix")
     ap.add_argument("--tag", default="", help="results go to bench_rendered_sigma_TAG.{md,json}")
+    ap.add_argument("--unweighted", action="store_true",
+                    help="control: the information plan without its detection weighting (every view counted whole); "
+                         "give it its own --work, the cache does not record it")
     a = ap.parse_args(argv)
     SELECT["select"] = a.select
+    if a.unweighted:
+        import calibgraph.plan.planner as planner
+
+        planner.detection_probability = lambda square_px, min_square_px: np.ones(np.shape(square_px))
     poses = a.poses or CELLS[a.cell][1]
     cases = [c for c in a.cases.split(",") if c]
     unknown = set(cases) - set(CASES)

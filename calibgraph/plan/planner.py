@@ -15,8 +15,8 @@ calibration graph with every camera's model [fx, fy, cx, cy, k1, k2] estimated
 (:class:`InformativeSelection`). A camera's position is mostly its focal length against its depth
 when it stands far away, and what pins that is the board near and far along its line of sight —
 on the far side of the robot as well as the near one — and tilted: rendered 3 x D455 at 5 m, 90
-poses, the factory-class position error went from 8.75 mm median (max 17.1) to 1.62 mm (max 4.5),
-the oracle's from 0.50 (max 2.12) to 0.30 mm (max 0.54)
+poses, the factory-class position error went from 8.75 mm median (max 17.1) to 1.14 mm (max 4.5),
+the oracle's from 0.50 (max 2.12) to 0.26 mm (max 0.56)
 (``scripts/results/bench_rendered_sigma_d455_5m_info.md``).
 ``select='random'`` keeps the first poses sampled near each camera's direction (the planner before).
 
@@ -405,10 +405,14 @@ class InformativeSelection:
 
 
 def detection_probability(square_px, min_square_px: float) -> np.ndarray:
-    """Chance that a board seen with squares of ``square_px`` is found, for a planner floor of
-    ``min_square_px``: 1/2 at the floor, rising linearly to 1 at 1.4 x the floor. Measured on the
-    rendered 5 m D455 cell (thesis board, floor 4.5 px, 540 + 270 planned views): found 54-78 % at
-    4.5-5 px, 70-76 % at 5-5.5, 78-79 % at 5.5-6, 89-90 % at 6-6.5, all at 6.5-7."""
+    """What a view with squares of ``square_px`` is worth to the plan, for a planner floor of
+    ``min_square_px``: 1/2 at the floor, rising linearly to 1 at 1.4 x the floor. It was measured as
+    the detector's rate on the rendered 5 m D455 cell (thesis board, floor 4.5 px, 540 + 270 planned
+    views: found 54-78 % at 4.5-5 px, 70-76 % at 5-5.5, 78-79 % at 5.5-6, 89-90 % at 6-6.5, all at
+    6.5-7); the detector now finds all of those, and the weight stays for what the model leaves out:
+    the corners of such small squares are not independent (the solver finds their whole-board modes
+    1.4-1.9x noisier), and planned without the weight the same 12 rendered seeds came out worse
+    (factory-class 2.03 mm median against 1.14 mm; ``bench_rendered_sigma_d455_5m_info_unweighted.md``)."""
     sq = np.asarray(square_px, float)
     return np.clip(0.5 + 0.5 * (sq / min_square_px - 1.0) / 0.4, 0.5, 1.0)
 
