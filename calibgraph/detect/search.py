@@ -225,7 +225,6 @@ def _upscale_regions(s: _Search, native, first):
         # region. x3 finds the boards of 4.5-6 px squares that x2's fast check rejects (a far
         # camera's views: on the rendered 5 m D455 cell they were half of those lost).
         for roi in (r for r in cands if r not in rois):
-            got = None
             for k in (2, 3):
                 got = _attempt(s, _detect_in_roi, s, roi, k, True)
                 if got is not None:

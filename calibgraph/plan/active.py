@@ -59,6 +59,7 @@ from calibgraph.plan.information import (
     design_bound,
     inv_scaled,
     joint_information,
+    prior_information,
     shortfall,
     sigma_norms,
     view_information,
@@ -73,7 +74,6 @@ __all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_informa
 
 SETTLE_S = 0.5  # what every motion costs on top of the joint-space time (the simulated robot's model too)
 STAND_RADIUS_M = 0.25  # keep-out radius round an estimated camera stand, before its uncertainty
-BOARD_SCALE_SIGMA = 0.02  # the solver's default prior on the printed board's scale (SolverOptions.board_scale_sigma)
 # What a capture costs beyond its motion (grabbing every camera, detection, the solve): in the score's
 # per-second denominator it keeps a short motion to a nearly useless pose from beating a longer one to
 # a useful pose (bench cells, 6 runs: 59 captures at 2 s against 65 at 0 s; 59 at 6 s, with more robot time).
@@ -383,9 +383,7 @@ class ActivePlanner:
         cams = [(scored[n].intrinsics, scored[n].T_base_cam) for n in names]
         free = self.free_intrinsics(scored, names)
         K = len(names)
-        priors = [np.diag(np.r_[np.tile([1.0] * 3 + [0.01] * 3, K + 1), 1.0 / BOARD_SCALE_SIGMA ** 2])]
-        priors += [np.linalg.inv(scored[n].intrinsics_prior) for n, f in zip(names, free) if f]
-        J = _block_diag(priors)
+        J = prior_information(K, [scored[n].intrinsics_prior for n, f in zip(names, free) if f])
         hist = [(np.asarray(T, float), tuple(c)) for T, c in (history or ()) if any(n in c for n in names)]
         if hist:
             seen = np.array([[n in c for n in names] for _, c in hist])
@@ -646,15 +644,6 @@ def explain_shortfall(name: str, belief: CameraBelief, views: list, target, tol_
         reasons.append("the budget ran out")
         helps.append("a larger --max-poses budget")
     return f"{parts[0]}: {', '.join(reasons)}; would help: {'; '.join(dict.fromkeys(helps))}"
-
-
-def _block_diag(blocks: list) -> np.ndarray:
-    n = sum(len(b) for b in blocks)
-    out, i = np.zeros((n, n)), 0
-    for b in blocks:
-        out[i:i + len(b), i:i + len(b)] = b
-        i += len(b)
-    return out
 
 
 def boards_facing(facing: np.ndarray, centre_m: np.ndarray, tilt_rotvec: np.ndarray, roll_rad: np.ndarray,

@@ -32,9 +32,11 @@ import numpy as np
 from calibgraph.core.problem import SolverOptions, intrinsics_estimated, intrinsics_prior_covariance
 
 __all__ = ["sigma_norms", "shortfall", "view_information", "view_jacobians", "intrinsics_jacobian",
-           "joint_information", "block_sigmas", "inv_scaled", "intrinsics_prior", "design_bound"]
+           "joint_information", "block_sigmas", "inv_scaled", "intrinsics_prior", "prior_information", "design_bound",
+           "BOARD_SCALE_SIGMA"]
 
 N_INTR = 6  # [fx, fy, cx, cy, k1, k2]: the solver's intrinsics vector
+BOARD_SCALE_SIGMA = 0.02  # the solver's default prior on the printed board's scale (SolverOptions.board_scale_sigma)
 
 
 def sigma_norms(cov: np.ndarray) -> tuple:
@@ -59,6 +61,22 @@ def intrinsics_prior(intrinsics, options: SolverOptions | None = None, wide: boo
     if not intrinsics_estimated(intrinsics, o):
         return None
     return intrinsics_prior_covariance(intrinsics, o, wide=wide)
+
+
+def prior_information(n_cameras: int, intrinsics_priors=()) -> np.ndarray:
+    """The priors of the graph :func:`joint_information` linearises, as an information matrix in its
+    parameter order: the solver's weak priors on every camera and the mount (1 rad / 10 m), the
+    board-scale prior (:data:`BOARD_SCALE_SIGMA`), then the inverse of each camera model's prior
+    covariance in ``intrinsics_priors`` (one (6, 6) per camera whose model is estimated, in camera
+    order; None entries are skipped)."""
+    blocks = [np.diag(np.r_[np.tile([1.0] * 3 + [0.01] * 3, n_cameras + 1), 1.0 / BOARD_SCALE_SIGMA ** 2])]
+    blocks += [np.linalg.inv(c) for c in intrinsics_priors if c is not None]
+    n = sum(len(b) for b in blocks)
+    out, i = np.zeros((n, n)), 0
+    for b in blocks:
+        out[i:i + len(b), i:i + len(b)] = b
+        i += len(b)
+    return out
 
 
 def view_information(intrinsics, T_base_cam: np.ndarray, T_base_board: np.ndarray, points_board_m: np.ndarray,

@@ -55,9 +55,9 @@ import numpy as np
 from calibgraph.core.errors import InputError
 from calibgraph.core.problem import SolverOptions, intrinsics_prior_covariance
 from calibgraph.core.transforms import board_facing, inv, make_T
-from calibgraph.plan.information import block_sigmas, inv_scaled, joint_information
+from calibgraph.plan.information import block_sigmas, inv_scaled, joint_information, prior_information
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
-from calibgraph.plan.visibility import square_px, visible_cameras
+from calibgraph.plan.visibility import boards_square_px, visible_cameras
 
 __all__ = ["RobotWorld", "plan_trajectory", "free_motion", "TRANSIT_Q_RAD", "InformativeSelection", "planning_prior",
            "SELECTIONS", "detection_probability"]
@@ -76,7 +76,6 @@ PLAN_PIXEL_SIGMA_PX = 0.1  # corner noise the information model assumes: a real 
 EXACT_CHECKS = 24  # candidates per step scored exactly after the first-order ranking
 MIN_SEPARATION_M, MIN_SEPARATION_DEG = 0.03, 10.0  # two chosen board poses differ by at least one of these
 CRITERION_MM, CRITERION_DEG = 1.0, 0.05  # the units that weigh translation against rotation in the criterion
-BOARD_SCALE_PRIOR = 0.02  # the solver's default prior on the printed board's scale
 
 
 class RobotWorld(Protocol):
@@ -333,21 +332,16 @@ class InformativeSelection:
         cams = [(c.intrinsics, c.T_base_cam) for c in cell.cameras]
         priors = [planning_prior(c.intrinsics) for c in cell.cameras]
         free = [p is not None for p in priors]
-        blocks = [np.diag(np.r_[np.tile([1.0] * 3 + [0.01] * 3, K + 1), 1.0 / BOARD_SCALE_PRIOR ** 2])]
-        blocks += [np.linalg.inv(p) for p in priors if p is not None]
-        P = sum(len(b) for b in blocks)
-        self.J0 = np.zeros((P, P))
-        o = 0
-        for b in blocks:
-            self.J0[o:o + len(b), o:o + len(b)] = b
-            o += len(b)
+        self.J0 = prior_information(K, priors)
+        P = len(self.J0)
         T_bf = np.array([p.T_base_flange for p in pool])
         T_bb = T_bf @ cell.T_flange_board
         seen = np.zeros((len(pool), K))
         for k, c in enumerate(cell.cameras):
             m = np.array([c.name in p.cameras for p in pool], bool)
             if m.any():
-                seen[m, k] = detection_probability(_squares_px(c, cell.target, T_bb[m]), min_square_px)
+                seen[m, k] = detection_probability(boards_square_px(c.intrinsics, c.T_base_cam, cell.target, T_bb[m]),
+                                                   min_square_px)
         self.infos = joint_information(cams, seen, T_bf, cell.T_flange_board, cell.target.points_board_m,
                                        pixel_sigma_px, fk_sigma_translation_m, fk_sigma_rotation_rad,
                                        free_intrinsics=free)
@@ -417,29 +411,14 @@ def detection_probability(square_px, min_square_px: float) -> np.ndarray:
     return np.clip(0.5 + 0.5 * (sq / min_square_px - 1.0) / 0.4, 0.5, 1.0)
 
 
-def _squares_px(camera, target, T_base_board: np.ndarray) -> np.ndarray:
-    """Smallest square (px) of the board at each of ``T_base_board`` (M, 4, 4) in ``camera`` (the
-    planner's measure, :func:`calibgraph.plan.visibility.square_px`)."""
-    pts = target.points_board_m
-    R, c = camera.T_base_cam[:3, :3], camera.T_base_cam[:3, 3]
-    out = np.empty(len(T_base_board))
-    for i, T in enumerate(T_base_board):
-        uv = camera.intrinsics.project(((pts @ T[:3, :3].T + T[:3, 3]) - c) @ R)
-        out[i] = square_px(uv, target)
-    return out
-
-
 def planning_prior(intrinsics) -> np.ndarray | None:
     """The prior on a camera's [fx, fy, cx, cy, k1, k2] the planner plans for: the camera's own
     (a calibration file's covariance, or a calibration's width) when that is at least as tight as
     a factory calibration's, else a factory calibration's. Planned so, the poses pin a camera's
     model whatever its file turns out to be worth (held exact, the same poses serve it too)."""
-    if not intrinsics.known:
-        return intrinsics_prior_covariance(intrinsics, SolverOptions())
-    opts = SolverOptions()
-    if intrinsics.covariance is not None or intrinsics.source == "calibration":
-        return intrinsics_prior_covariance(intrinsics, opts)
-    return intrinsics_prior_covariance(replace(intrinsics, source="factory", covariance=None), opts)
+    if intrinsics.known and intrinsics.covariance is None and intrinsics.source != "calibration":
+        intrinsics = replace(intrinsics, source="factory")
+    return intrinsics_prior_covariance(intrinsics, SolverOptions())
 
 
 def free_motion(world, q0_rad, q1_rad, max_step_rad: float = 0.03):

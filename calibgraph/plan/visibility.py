@@ -78,13 +78,25 @@ def boards_visible(intrinsics, T_base_cam: np.ndarray, target, T_base_boards: np
         inside = (np.isfinite(uv).all(axis=2) & (uv[:, :, 0] >= -0.5 + m) & (uv[:, :, 1] >= -0.5 + m)
                   & (uv[:, :, 0] <= intrinsics.width_px - 0.5 - m) & (uv[:, :, 1] <= intrinsics.height_px - 0.5 - m))
         good = inside.all(axis=1)
-        grid = uv.reshape(len(idx), target.rows, target.cols, 2)
-        with np.errstate(invalid="ignore"):
-            sq = np.minimum(np.linalg.norm(np.diff(grid, axis=1), axis=3).min(axis=(1, 2)),
-                            np.linalg.norm(np.diff(grid, axis=2), axis=3).min(axis=(1, 2)))
-        good &= sq >= min_square_px
+        good &= _grid_squares_px(uv, target) >= min_square_px
         ok[idx] = good
     return ok
+
+
+def boards_square_px(intrinsics, T_base_cam: np.ndarray, target, T_base_boards: np.ndarray) -> np.ndarray:
+    """:func:`square_px` of the board at each of ``T_base_boards`` (M, 4, 4) seen by a camera with
+    ``intrinsics`` at ``T_base_cam``: (M,) smallest spacing (px) between neighbouring grid points."""
+    T_cb = inv(T_base_cam) @ np.asarray(T_base_boards, float).reshape(-1, 4, 4)
+    p_c = target.points_board_m @ np.swapaxes(T_cb[:, :3, :3], 1, 2) + T_cb[:, None, :3, 3]  # (M, N, 3)
+    return _grid_squares_px(intrinsics.project(p_c.reshape(-1, 3)).reshape(len(T_cb), -1, 2), target)
+
+
+def _grid_squares_px(uv_px: np.ndarray, target) -> np.ndarray:
+    """(M,) :func:`square_px` of M projected boards ``uv_px`` (M, N, 2)."""
+    grid = np.asarray(uv_px).reshape(len(uv_px), target.rows, target.cols, 2)
+    with np.errstate(invalid="ignore"):
+        return np.minimum(np.linalg.norm(np.diff(grid, axis=1), axis=3).min(axis=(1, 2)),
+                          np.linalg.norm(np.diff(grid, axis=2), axis=3).min(axis=(1, 2)))
 
 
 def square_px(uv_px: np.ndarray, target) -> float:
