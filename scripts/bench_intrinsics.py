@@ -103,7 +103,7 @@ def session_case(model: str, board: str, seed: int) -> dict:
     r = calibrate_views(views, target, truth.width_px, truth.height_px)
     t_cal = time.process_time() - t4
     e = _vec(r.intrinsics) - _vec(truth)
-    sig = np.sqrt(np.diag(r.intrinsics.covariance))
+    sig = np.sqrt(np.diag(r.intrinsics.covariance))[:6]  # fx fy cx cy k1 k2 (the file's p1 p2 k3 follow)
     pred = predict_session_covariance(truth, target, pixel_sigma_px=r.pixel_sigma_px)
     corner_err = np.vstack(err) if err else np.zeros((0, 2))
     return {"camera": model, "board": board, "seed": seed, "views_detected": len(views),
@@ -247,7 +247,7 @@ def target_case(work: Path, scene_seed: int = 0) -> dict:
         cli[n] = {"rc": rc, "wall_s": time.time() - t0, "cpu_s": time.process_time() - c0}
         files[n] = read_camera_file(out)
         e = _vec(files[n]) - _vec(t)
-        s = np.sqrt(np.diag(files[n].covariance))
+        s = np.sqrt(np.diag(files[n].covariance))[:6]
         cli[n].update({"fx_err_px": float(e[0]), "fx_sigma_px": float(s[0]), "fx_z": float(e[0] / s[0]),
                        "z": dict(zip(INTRINSICS_VECTOR, (e / s).tolist()))})
     rng = np.random.default_rng(77)

@@ -79,6 +79,38 @@ def test_the_file_is_the_camera_prior(cell):
     assert _cam(root / "file.json", "cam0")["intrinsics"].get("source") != "calibration"
 
 
+def test_a_file_with_tangential_terms_has_them_estimated(cell, tmp_path):
+    """A file whose covariance covers p1, p2 and k3 (as `calibgraph intrinsics` writes for its default
+    model) has them estimated under that covariance, not held as if exact: held, their errors moved a
+    rendered 5 m camera's principal point (and pan) by up to 1 sigma unaccounted."""
+    root, scene = cell
+    true = scene.truth.intrinsics["cam2"]
+    sigma = np.r_[FILE_SIGMA, 7e-5, 8e-5, 3e-4]
+    rng = np.random.default_rng(9)
+    e = rng.normal(size=9) * sigma
+    K = true.K.copy()
+    K[0, 0], K[1, 1], K[0, 2], K[1, 2] = K[0, 0] + e[0], K[1, 1] + e[1], K[0, 2] + e[2], K[1, 2] + e[3]
+    dist = true.dist8[:5] + e[4:]
+    order = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    write_camera_file(tmp_path / "cam2.yaml", {"source": "calibration", "width_px": true.width_px, "height_px": true.height_px,
+                                               "K": K.tolist(), "distortion": dist.tolist(), "covariance_order": order,
+                                               "covariance": np.diag(sigma ** 2).tolist()})
+    out = tmp_path / "r.json"
+    assert main(["solve", str(root / "ds"), "--intrinsics", f"cam2={tmp_path / 'cam2.yaml'}", "--out", str(out),
+                 "--quiet"]) == 0
+    got = _cam(out, "cam2")["intrinsics"]
+    assert got["estimated"] and got["prior"] == "calibration"
+    assert list(got["sigma"]) == order and list(got["given"]) == order
+    assert np.allclose([got["given"][n] for n in ("p1", "p2", "k3")], dist[2:])
+    # the data add to the file's knowledge, never subtract from it
+    assert all(got["sigma"][n] <= s * (1 + 1e-6) for n, s in zip(order, sigma)), got["sigma"]
+    T = np.asarray(_cam(out, "cam2")["T_base_cam"])
+    T_true = scene.truth.T_ref_cam["cam2"]
+    z = np.concatenate([log_so3(T[:3, :3] @ T_true[:3, :3].T), T[:3, 3] - T_true[:3, 3]]) / np.sqrt(
+        np.diag(np.asarray(_cam(out, "cam2")["covariance"])))
+    assert np.all(np.abs(z) < 4.0), z
+
+
 @pytest.mark.parametrize("case", ["unknown_name", "no_equals", "other_size", "missing_file", "twice"])
 def test_bad_intrinsics_arguments_are_one_line(case, cell, tmp_path, capsys):
     root, scene = cell

@@ -15,9 +15,32 @@ from calibgraph.core.errors import InputError
 _ALLOWED_DIST = (0, 4, 5, 8)
 # 'unknown': no values given (only the image size); the solver initialises them from the views
 INTRINSICS_SOURCES = ("", "exact", "factory", "calibration", "unknown")
-# the solver's intrinsics vector: what a prior (and ``Intrinsics.covariance``) is over
+# the solver's intrinsics vector: what a generic prior is over
 INTRINSICS_VECTOR = ("fx", "fy", "cx", "cy", "k1", "k2")
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+# a calibration file's covariance may cover more: the solver then estimates (and keeps the prior on)
+# the first 6, 8 or 9 of these (its distortion entries are OpenCV's first coefficients, in order)
+INTRINSICS_FULL = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+INTRINSICS_SIZES = (9, 8, 6)
+
+
+def intrinsics_names(n: int) -> tuple:
+    """The names of an intrinsics vector (or covariance) of size ``n`` (6, 8 or 9)."""
+    if n not in INTRINSICS_SIZES:
+        raise InputError(f"intrinsics: a vector of {n} parameters; expected one of {sorted(INTRINSICS_SIZES)} "
+                         f"(the first of {list(INTRINSICS_FULL)}).")
+    return INTRINSICS_FULL[:n]
+
+
+def covered_size(names, n_dist: int | None = None) -> int | None:
+    """The largest of 9, 8, 6 whose first parameters of ``INTRINSICS_FULL`` all appear in ``names``
+    (and, given ``n_dist``, are among the first ``n_dist`` distortion coefficients); None when even
+    [fx, fy, cx, cy, k1, k2] are not all there."""
+    have = set(names)
+    for n in INTRINSICS_SIZES:
+        if set(INTRINSICS_FULL[:n]) <= have and (n_dist is None or n - 4 <= max(n_dist, 2)):
+            return n
+    return None
 
 
 @dataclass(frozen=True)
@@ -32,8 +55,11 @@ class Intrinsics:
             (``SolverOptions.intrinsics``): 'exact' (a simulation's own camera: held fixed),
             'factory', 'calibration', 'unknown' (only the image size is known: K is a placeholder
             the solver replaces with values from the views), or '' (not said: the solver's default).
-        covariance: (6, 6) covariance of [fx, fy, cx, cy, k1, k2] (``INTRINSICS_VECTOR``) when the
-            values come with one (a ``calibgraph intrinsics`` file): the solver's prior then.
+        covariance: covariance of [fx, fy, cx, cy, k1, k2] (6, 6), or of those and [p1, p2] (8, 8) or
+            [p1, p2, k3] (9, 9) (``INTRINSICS_FULL``), when the values come with one (a ``calibgraph
+            intrinsics`` file): the solver's prior then, over every parameter it covers (estimated with
+            the others, so that an error in the file's tangential or third radial coefficient is not
+            held as if exact).
     """
 
     K: np.ndarray
@@ -63,9 +89,12 @@ class Intrinsics:
             raise InputError(f"intrinsics: source must be one of {INTRINSICS_SOURCES[1:]}, got {self.source!r}.")
         if self.covariance is not None:
             cov = np.asarray(self.covariance, float)
-            if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
-                raise InputError(f"intrinsics: covariance must be a finite 6x6 matrix over {list(INTRINSICS_VECTOR)}, "
-                                 f"got shape {cov.shape}.")
+            n = cov.shape[0] if cov.ndim == 2 else -1
+            if cov.ndim != 2 or cov.shape[1] != n or n not in INTRINSICS_SIZES or not np.all(np.isfinite(cov)) \
+                    or n - 4 > max(dist.size, 2):
+                raise InputError(f"intrinsics: covariance must be a finite square matrix over {list(INTRINSICS_VECTOR)} "
+                                 f"(optionally then p1, p2 [, k3], each a distortion coefficient given), got shape "
+                                 f"{cov.shape} with {dist.size} distortion coefficients.")
             cov = 0.5 * (cov + cov.T)
             if np.linalg.eigvalsh(cov).min() <= 0:
                 raise InputError("intrinsics: covariance is not positive definite; give a covariance from a "
@@ -97,7 +126,8 @@ class Intrinsics:
         return cls(K=K, dist=np.zeros(5), width_px=width_px, height_px=height_px, source="unknown")
 
     def with_pinhole(self, k6) -> "Intrinsics":
-        """A copy with [fx, fy, cx, cy] and, when given, [k1, k2] replaced by ``k6`` (4 or 6 values),
+        """A copy with [fx, fy, cx, cy] and, when given, the first distortion coefficients [k1, k2
+        [, p1, p2 [, k3]]] replaced by ``k6`` (4, 6, 8 or 9 values: ``INTRINSICS_FULL``'s order),
         built without validation: the solver calls this for every view at every iteration with
         values of its own graph (validating them cost a quarter of the optimiser's time)."""
         K = self.K.copy()
@@ -105,7 +135,7 @@ class Intrinsics:
         dist = self.dist8 if self.dist.size < 5 else self.dist.copy()
         if len(k6) > 4:
             dist = dist.copy()
-            dist[:2] = k6[4:6]
+            dist[:len(k6) - 4] = k6[4:]
         out = object.__new__(Intrinsics)
         for name, value in (("K", K), ("dist", dist), ("width_px", self.width_px), ("height_px", self.height_px),
                             ("source", self.source), ("covariance", None)):
@@ -119,10 +149,10 @@ class Intrinsics:
 
     @property
     def sigma(self) -> dict | None:
-        """1-sigma of [fx, fy, cx, cy, k1, k2] from ``covariance`` (None without one)."""
+        """1-sigma of the parameters ``covariance`` covers (None without one)."""
         if self.covariance is None:
             return None
-        return dict(zip(INTRINSICS_VECTOR, np.sqrt(np.diag(self.covariance)).tolist()))
+        return dict(zip(intrinsics_names(self.covariance.shape[0]), np.sqrt(np.diag(self.covariance)).tolist()))
 
     @property
     def dist8(self) -> np.ndarray:
@@ -142,7 +172,7 @@ class Intrinsics:
             d["source"] = self.source
         if self.covariance is not None:
             d["covariance"] = self.covariance.tolist()
-            d["covariance_order"] = list(INTRINSICS_VECTOR)
+            d["covariance_order"] = list(intrinsics_names(self.covariance.shape[0]))
         return d
 
     @classmethod
@@ -243,16 +273,17 @@ def project_points(p_cam_m, fx, fy, cx, cy, s, dist8, with_jacobian: bool = Fals
 
 
 def _intrinsics_block(cov: np.ndarray, order, n_dist: int) -> np.ndarray:
-    """The (6, 6) block of a covariance over [fx, fy, cx, cy, k1, k2] (the marginal covariance of
-    those parameters) from one whose rows follow ``order`` (default fx, fy, cx, cy, then the
-    distortion coefficients)."""
+    """The block of a covariance (the marginal covariance of those parameters) over the first 9, 8
+    or 6 of ``INTRINSICS_FULL`` it covers, from one whose rows follow ``order`` (default fx, fy, cx,
+    cy, then the distortion coefficients)."""
     order = list(order) if order is not None else ["fx", "fy", "cx", "cy", *DIST_NAMES[:n_dist]]
     if cov.ndim != 2 or cov.shape[0] != cov.shape[1] or cov.shape[0] != len(order):
         raise InputError(f"intrinsics: covariance of shape {cov.shape} does not match covariance_order {order}.")
-    missing = [n for n in INTRINSICS_VECTOR if n not in order]
-    if missing:
+    n = covered_size(order, n_dist)
+    if n is None:
+        missing = [m for m in INTRINSICS_VECTOR if m not in order]
         raise InputError(f"intrinsics: covariance has no rows for {missing}; it must cover {list(INTRINSICS_VECTOR)}.")
-    idx = [order.index(n) for n in INTRINSICS_VECTOR]
+    idx = [order.index(m) for m in INTRINSICS_FULL[:n]]
     return cov[np.ix_(idx, idx)]
 
 

@@ -88,16 +88,18 @@ def intrinsics_estimated(intr: Intrinsics, options: "SolverOptions") -> bool:
 
 
 def intrinsics_prior_covariance(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
-    """(6, 6) covariance of the prior on [fx, fy, cx, cy, k1, k2] of a camera: the covariance its
-    intrinsics came with (a calibration file's), else the diagonal width of its source."""
+    """Covariance of the prior on a camera's intrinsics vector: the covariance its intrinsics came
+    with (a calibration file's: over [fx, fy, cx, cy, k1, k2] and, when it covers them, [p1, p2
+    [, k3]]), else the diagonal width of its source over [fx, fy, cx, cy, k1, k2]. Its size is the
+    size of the vector the solver estimates."""
     if intr.covariance is not None and not wide and intr.known and options.intrinsics == "auto":
         return intr.covariance
     return np.diag(intrinsics_prior_sigmas(intr, options, wide) ** 2)
 
 
 def intrinsics_prior_sigmas(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
-    """1-sigma of the prior on [fx, fy, cx, cy, k1, k2] of a camera (see ``SolverOptions.intrinsics``),
-    without the correlations of a calibration file's covariance (:func:`intrinsics_prior_covariance`)."""
+    """1-sigma of the prior on a camera's intrinsics vector (see ``SolverOptions.intrinsics`` and
+    :func:`intrinsics_prior_covariance`), without the correlations of a calibration file's covariance."""
     if intr.covariance is not None and not wide and intr.known and options.intrinsics == "auto":
         return np.sqrt(np.diag(intr.covariance))
     if options.intrinsics == "estimate" and intr.known:

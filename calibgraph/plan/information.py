@@ -56,11 +56,12 @@ def shortfall(cov, tol_mm: float, tol_deg: float) -> float:
 def intrinsics_prior(intrinsics, options: SolverOptions | None = None, wide: bool = False) -> np.ndarray | None:
     """(6, 6) covariance of the prior the batch solver puts on a camera's [fx, fy, cx, cy, k1, k2]
     (``wide``: the wide prior it falls back on when the data reject the given values), or None
-    when it holds them fixed (``source: exact``, ``--fixed-intrinsics``)."""
+    when it holds them fixed (``source: exact``, ``--fixed-intrinsics``); of a calibration file whose
+    covariance also covers p1, p2 (, k3), their marginal block (the planning model holds those)."""
     o = options or SolverOptions()
     if not intrinsics_estimated(intrinsics, o):
         return None
-    return intrinsics_prior_covariance(intrinsics, o, wide=wide)
+    return intrinsics_prior_covariance(intrinsics, o, wide=wide)[:6, :6]
 
 
 def prior_information(n_cameras: int, intrinsics_priors=()) -> np.ndarray:

@@ -418,7 +418,7 @@ def planning_prior(intrinsics) -> np.ndarray | None:
     model whatever its file turns out to be worth (held exact, the same poses serve it too)."""
     if intrinsics.known and intrinsics.covariance is None and intrinsics.source != "calibration":
         intrinsics = replace(intrinsics, source="factory")
-    return intrinsics_prior_covariance(intrinsics, SolverOptions())
+    return intrinsics_prior_covariance(intrinsics, SolverOptions())[:6, :6]
 
 
 def free_motion(world, q0_rad, q1_rad, max_step_rad: float = 0.03):

@@ -14,7 +14,7 @@ from calibgraph.solver.reduced import Linear
 from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance
 from calibgraph.solver.camera_model import intrinsics_record
 from calibgraph.solver.covariance import pair_covariance, to_ref_axes
-from calibgraph.solver.graph import Estimate
+from calibgraph.solver.graph import Estimate, intrinsics_size
 from calibgraph.solver.keys import B, C, K, O, S
 from calibgraph.solver.observability import check_after_solve
 from calibgraph.solver.optimise import Group
@@ -56,14 +56,16 @@ def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
     doubled_cov = np.linalg.inv(doubled)  # one inverse for every camera's "twice the poses"
     for n, b in budgets(lin, keys).items():
         sigma_n = camera_pixel_sigma(group, n)
-        out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=_session_information(problem, est, n, sigma_n),
+        size = intrinsics_size(problem, n, est) if keys[n][1] is not None else 6
+        out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=_session_information(problem, est, n, sigma_n, size),
                                   doubled=doubled, doubled_cov=doubled_cov))
     return out
 
 
-def _session_information(problem: Problem, est: Estimate, name: str, sigma_px: float | None = None):
-    """A callable giving the (6, 6) information a close-range session of 25 images with the
-    problem's board would give camera ``name`` at its estimated intrinsics (None: board unknown).
+def _session_information(problem: Problem, est: Estimate, name: str, sigma_px: float | None = None, size: int = 6):
+    """A callable giving the (size, size) information on the intrinsics vector (``size``: that of
+    its graph, 6, 8 or 9) a close-range session of 25 images with the problem's board would give
+    camera ``name`` at its estimated intrinsics (None: board unknown).
     Its corners are taken as good as this camera's own in the hand-eye views (``sigma_px``: same
     camera and detector, the board nearer and larger), at most SESSION_PIXEL_SIGMA_PX (a hand-held
     session's printed board and exposure): with the fixed 0.1 px the advice for a rendered 5 m D455
@@ -75,7 +77,7 @@ def _session_information(problem: Problem, est: Estimate, name: str, sigma_px: f
     def info():
         try:
             cov = predict_session_covariance(est.camera_model(name, problem.cameras), problem.target,
-                                             pixel_sigma_px=sigma)
+                                             pixel_sigma_px=sigma, size=size)
         except (CalibgraphError, np.linalg.LinAlgError):  # a board or camera no session plan fits
             return None
         return np.linalg.inv(cov)

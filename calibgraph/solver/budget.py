@@ -80,7 +80,8 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
     camera's 1-sigma would become after each remedy: a close-range intrinsics session, twice the
     poses, the board's scale measured.
 
-    ``session_info``: the (6, 6) information on the camera's [fx, fy, cx, cy, k1, k2] that a
+    ``session_info``: the information on the camera's intrinsics vector ([fx, fy, cx, cy, k1, k2],
+    with p1, p2 (, k3) when its graph estimates them) that a
     close-range session of 25 images gives (or a callable returning it, called only when a session
     could be the best remedy); without it, the intrinsics known exactly, the best any session can do.
     ``doubled``: :func:`doubled_information` of ``L`` (computed here when not given; one per graph
@@ -93,7 +94,8 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
     options = {}
     has_K = own_K_key is not None and own_K_key in L.prior_K
     if has_K:  # the bound first: intrinsics known exactly
-        options["session"] = sigma_with(L, cam_key, add_info={own_K_key: np.eye(6) * 1e12 - L.prior_K[own_K_key]})
+        n_k = L.prior_K[own_K_key].shape[0]
+        options["session"] = sigma_with(L, cam_key, add_info={own_K_key: np.eye(n_k) * 1e12 - L.prior_K[own_K_key]})
     options["poses"] = sigma_with(L, cam_key, S=doubled if doubled is not None else doubled_information(L),
                                   cov=doubled_cov)
     s_keys = [k for k in L.index if chr(gtsam.Symbol(k).chr()) == "s"]

@@ -15,12 +15,12 @@ import numpy as np
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.problem import Problem, intrinsics_source
 from calibgraph.solver.factors import intrinsics_vector
+from calibgraph.core.camera import intrinsics_names
 from calibgraph.solver.graph import Estimate, estimates_intrinsics, intrinsics_prior
 from calibgraph.solver.keys import K, S
 from calibgraph.solver.optimise import Group, solve_from_start
 from calibgraph.solver.views import reprojections
 
-INTRINSICS_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2")
 # A camera whose kept corners miss by more than this (px RMS), mostly along the radial direction,
 # has intrinsics the prior of their source cannot fix (sub-pixel detectors on sharp boards leave
 # 0.05-0.3 px).
@@ -52,15 +52,15 @@ def radial_structure(est: Estimate, views: list, name: str, cameras: dict) -> tu
 
 
 def intrinsics_disagreement(problem: Problem, est: Estimate, name: str) -> float:
-    """Squared Mahalanobis distance (6 dof) between the estimated and the given intrinsics of a
-    camera, against the covariance of that difference (prior minus posterior): large when the data
-    disagree with the given values more than their source's prior allows."""
+    """Squared Mahalanobis distance (6 dof) between the estimated and the given [fx, fy, cx, cy, k1,
+    k2] of a camera, against the covariance of that difference (prior minus posterior): large when
+    the data disagree with the given values more than their source's prior allows."""
     if est.marginals is None or not estimates_intrinsics(problem, name, est):
         return 0.0
     given = problem.cameras[name]
     delta = intrinsics_vector(est.camera_model(name, problem.cameras)) - intrinsics_vector(given)
-    P_prior = intrinsics_prior(problem, name, est)
-    P_post = est.marginals.marginalCovariance(K(est.slots[name]))
+    P_prior = intrinsics_prior(problem, name, est)[:6, :6]
+    P_post = est.marginals.marginalCovariance(K(est.slots[name]))[:6, :6]
     w, V = np.linalg.eigh(0.5 * (P_prior - P_post + (P_prior - P_post).T))
     keep = w > 1e-9 * max(float(w.max()), 1e-30)
     z = V[:, keep].T @ delta
@@ -132,7 +132,8 @@ def board_scale(problem: Problem, groups: list, robot_suspect: bool = False) -> 
 
 def intrinsics_record(problem: Problem, name: str, est: Estimate) -> dict:
     """The camera's intrinsics as result.json records them: the model solved with and, when
-    estimated, ``estimated``, ``prior`` (its source, or 'wide'), ``sigma`` and ``given``."""
+    estimated, ``estimated``, ``prior`` (its source, or 'wide'), ``sigma`` and ``given`` (over fx, fy,
+    cx, cy, k1, k2, and p1, p2 (, k3) when a calibration file's covariance brought them in)."""
     d = est.camera_model(name, problem.cameras).to_dict()
     if est.marginals is None or not estimates_intrinsics(problem, name, est):
         return d
@@ -140,8 +141,8 @@ def intrinsics_record(problem: Problem, name: str, est: Estimate) -> dict:
     wide = name in est.wide_intrinsics or name in est.free_intrinsics
     d["estimated"] = True
     d["prior"] = "wide" if wide else intrinsics_source(problem.cameras[name], problem.options)
-    d["sigma"] = dict(zip(INTRINSICS_NAMES, sig.tolist()))
-    d["given"] = dict(zip(INTRINSICS_NAMES, intrinsics_vector(problem.cameras[name]).tolist()))
+    d["sigma"] = dict(zip(intrinsics_names(sig.size), sig.tolist()))
+    d["given"] = dict(zip(intrinsics_names(sig.size), intrinsics_vector(problem.cameras[name], sig.size).tolist()))
     return d
 
 

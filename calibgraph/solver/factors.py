@@ -165,17 +165,41 @@ def with_pinhole(intr: Intrinsics, k6: np.ndarray) -> Intrinsics:
     return Intrinsics(K=fast.K, dist=fast.dist, width_px=intr.width_px, height_px=intr.height_px, source=intr.source)
 
 
-def intrinsics_vector(intr: Intrinsics) -> np.ndarray:
-    """[fx, fy, cx, cy, k1, k2]: the refined subset of the intrinsics."""
-    return np.array([intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2], intr.dist8[0], intr.dist8[1]])
+def intrinsics_vector(intr: Intrinsics, n: int = 6) -> np.ndarray:
+    """[fx, fy, cx, cy, k1, k2] (``n`` 6), then [p1, p2] (8) and k3 (9): the refined subset of the
+    intrinsics (``INTRINSICS_FULL``'s first ``n``; its distortion part is OpenCV's first ``n - 4``)."""
+    return np.concatenate([[intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2]], intr.dist8[:n - 4]])
+
+
+def _distortion_columns(x, y, r2, b, fx, fy, s, n: int) -> np.ndarray:
+    """(N, 2, n - 4) d(u, v) / d(k1, k2[, p1, p2[, k3]]) at undistorted normalised points (x, y),
+    r2 = x^2 + y^2, b the rational denominator (1 without k4..k6), skew ``s``."""
+    out = np.zeros((len(x), 2, n - 4))
+    rad = [r2 / b, r2 * r2 / b]
+    for j, rp in enumerate(rad):
+        out[:, 0, j] = (fx * x + s * y) * rp
+        out[:, 1, j] = fy * y * rp
+    if n >= 8:
+        dxd = (2 * x * y, r2 + 2 * x * x)  # d x_d / d(p1, p2)
+        dyd = (r2 + 2 * y * y, 2 * x * y)  # d y_d / d(p1, p2)
+        for j in range(2):
+            out[:, 0, 2 + j] = fx * dxd[j] + s * dyd[j]
+            out[:, 1, 2 + j] = fy * dyd[j]
+    if n >= 9:
+        rp = r2 * r2 * r2 / b
+        out[:, 0, 4] = (fx * x + s * y) * rp
+        out[:, 1, 4] = fy * y * rp
+    return out
 
 
 def _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, cur: Intrinsics, k6, e, sqrt_w):
-    """Weighted d residual / d [fx, fy, cx, cy, k1, k2] (2N, 6) at the current intrinsics ``cur``.
+    """Weighted d residual / d [fx, fy, cx, cy, k1, k2 (, p1, p2 (, k3))] (2N, len(k6)) at the
+    current intrinsics ``cur``.
 
     With x, y the undistorted and x_d, y_d the distorted normalised coordinates, r2 = x^2 + y^2 and
     b the rational denominator (1 without k4..k6): d u / d(fx, cx) = (x_d, 1), d v / d(fy, cy) =
-    (y_d, 1), d(x_d, y_d) / d k1 = (x, y) r2 / b and / d k2 = (x, y) r2^2 / b.
+    (y_d, 1), d(x_d, y_d) / d k1 = (x, y) r2 / b, / d k2 = (x, y) r2^2 / b, / d k3 = (x, y) r2^3 / b,
+    / d p1 = (2 x y, r2 + 2 y^2), / d p2 = (r2 + 2 x^2, 2 x y).
     """
     n = p_board_m.shape[0]
     T_cam_board = np.linalg.inv(T_ref_cam) @ T_ref_mount @ T_mount_board
@@ -189,21 +213,20 @@ def _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px
     yd = (uv[:, 1] - k6[3]) / k6[1]
     xd = (uv[:, 0] - k6[2] - cur.K[0, 1] * yd) / k6[0]
     fx, s, fy = cur.K[0, 0], cur.K[0, 1], cur.K[1, 1]
-    Jk = np.zeros((n, 2, 6))
+    m = len(k6)
+    Jk = np.zeros((n, 2, m))
     Jk[:, 0, 0] = xd
     Jk[:, 0, 2] = 1.0
     Jk[:, 1, 1] = yd
     Jk[:, 1, 3] = 1.0
-    for col, rp in ((4, r2 / b), (5, r2 * r2 / b)):
-        Jk[:, 0, col] = (fx * x + s * y) * rp
-        Jk[:, 1, col] = fy * y * rp
-    return (Jk * sqrt_w[:, None, None]).reshape(2 * n, 6)
+    Jk[:, :, 4:] = _distortion_columns(x, y, r2, b, fx, fy, s, m)
+    return (Jk * sqrt_w[:, None, None]).reshape(2 * n, m)
 
 
 def make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, intr: Intrinsics, sqrt_w,
                             key_intr=None, key_scale=None, noise=None) -> gtsam.CustomFactor:
-    """View factor with, optionally, the camera's intrinsics ``key_intr`` ([fx, fy, cx, cy, k1, k2],
-    a Vector6 variable) and the board's scale factor ``key_scale`` (a Vector1 variable ``s``: the
+    """View factor with, optionally, the camera's intrinsics ``key_intr`` ([fx, fy, cx, cy, k1, k2]
+    and, for a file whose covariance covers them, [p1, p2 (, k3)]: a Vector variable) and the board's scale factor ``key_scale`` (a Vector1 variable ``s``: the
     printed board's points are ``s * p_board_m``) as variables too.
 
     The scale's Jacobian is the chain through the mount: d p_cam / d s = R_cam_board p_board.
@@ -256,6 +279,7 @@ class ViewTerm:
     sqrt_w: np.ndarray
     modes: np.ndarray | None = None  # (2n, 6) orthonormal basis Q of the view's low-order modes
     mode_factor: float = 1.0  # their variance factor
+    n_intr: int = 6  # the size of the camera's intrinsics vector when estimated (6, 8 or 9)
 
 
 def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
@@ -288,6 +312,7 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
     vi = np.repeat(np.arange(n_views), counts)  # view of each corner
     static = np.array([[t.intr.K[0, 1], *t.intr.dist8] for t in terms])  # skew, k1..k6 as given
     estimated = np.array([t.key_intr is not None for t in terms])
+    n_intr = np.array([t.n_intr for t in terms])  # each estimated camera's intrinsics vector size
     # the last pass: the bytes of the shared keys' values and of each view's own, its residuals and Jacobians
     cache = {"shared": None, "own": None, "jacobians": False, "e": None, "H": None}
 
@@ -316,7 +341,7 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
         for v, (t, (_, k6)) in enumerate(zip(terms, own)):
             if k6 is not None:
                 par[v] = k6[:4]
-                dist[v, :2] = k6[4:6]
+                dist[v, :len(k6) - 4] = k6[4:]
             else:
                 par[v] = t.intr.K[0, 0], t.intr.K[1, 1], t.intr.K[0, 2], t.intr.K[1, 2]
         R_mb, t_mb = T_mb[:3, :3], T_mb[:3, 3]
@@ -344,13 +369,12 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
             Jk = None
             if estimated.any():
                 x, y, xd, yd, r2, b = aux
-                Jk = np.zeros((len(vi), 2, 6))
+                m = int(n_intr.max())
+                Jk = np.zeros((len(vi), 2, m))
                 Jk[:, 0, 0], Jk[:, 0, 2], Jk[:, 1, 1], Jk[:, 1, 3] = xd, 1.0, yd, 1.0
-                for col, rp in ((4, r2 / b), (5, r2 * r2 / b)):
-                    Jk[:, 0, col] = (fx * x + static[vi, 0] * y) * rp
-                    Jk[:, 1, col] = fy * y * rp
-                Jk = (Jk * SW[:, None, None]).reshape(total, 6)
-            H = [[A[rs] for A in shared_blocks] + [H_c[rs]] + ([Jk[rs]] if estimated[v] else [])
+                Jk[:, :, 4:] = _distortion_columns(x, y, r2, b, fx, fy, static[vi, 0], m)
+                Jk = (Jk * SW[:, None, None]).reshape(total, m)
+            H = [[A[rs] for A in shared_blocks] + [H_c[rs]] + ([Jk[rs, :n_intr[v]]] if estimated[v] else [])
                  for v, rs in enumerate(rows)]
         es = [e[rs] for rs in rows]
         for v, (c, Q) in enumerate(whiten):

@@ -7,7 +7,8 @@ eye-in-hand, ``mount`` the other one, the frame the board is fixed to)::
     B(0)  T_mount_board, the board mount -- unknown, no prior ('single': one graph per camera)
     F(k)  T_ref_mount of capture k      -- prior from forward kinematics (:func:`fk_noise`)
     K(c)  [fx, fy, cx, cy, k1, k2]      -- unless the intrinsics are held: prior around the given
-                                           values, as wide as their source says
+                                           values, as wide as their source says; a calibration
+                                           file's covariance over [p1, p2 (, k3)] too adds them
     S(0)  board scale factor s          -- unless board_scale=False: prior N(1, board_scale_sigma)
     O(0)  free joint zero offsets       -- only with kinematics='joint-offsets': F(k) then has a
                                            factor to O(0) through FK(q_k + o) instead of its prior
@@ -91,9 +92,16 @@ def estimates_intrinsics(problem: Problem, name: str, est: Estimate) -> bool:
 
 
 def intrinsics_prior(problem: Problem, name: str, est: Estimate) -> np.ndarray:
-    """(6, 6) covariance of the prior on camera ``name``'s [fx, fy, cx, cy, k1, k2] in this graph."""
+    """Covariance of the prior on camera ``name``'s intrinsics vector in this graph: over [fx, fy,
+    cx, cy, k1, k2] and, for a calibration file whose covariance covers them, [p1, p2 (, k3)]."""
     wide = name in est.wide_intrinsics or name in est.free_intrinsics
     return intrinsics_prior_covariance(problem.cameras[name], problem.options, wide=wide)
+
+
+def intrinsics_size(problem: Problem, name: str, est: Estimate) -> int:
+    """The size of camera ``name``'s intrinsics vector in this graph (6, 8 or 9; see
+    :func:`intrinsics_prior`)."""
+    return intrinsics_prior(problem, name, est).shape[0]
 
 
 def _prior_noise(cov: np.ndarray):
@@ -176,10 +184,13 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
         values.insert(C(i), gtsam.Pose3(est.T_ref_cam[name]))
     values.insert(B(0), gtsam.Pose3(est.T_mount_board))
     refine = {name for name in slots if estimates_intrinsics(problem, name, est)}
+    n_intr = {}
     for name in refine:
         i, given = slots[name], problem.cameras[name]
-        graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(given), _prior_noise(intrinsics_prior(problem, name, est))))
-        values.insert(K(i), intrinsics_vector(est.camera_model(name, problem.cameras)))
+        prior = intrinsics_prior(problem, name, est)
+        n_intr[name] = prior.shape[0]
+        graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(given, n_intr[name]), _prior_noise(prior)))
+        values.insert(K(i), intrinsics_vector(est.camera_model(name, problem.cameras), n_intr[name]))
     if o.board_scale:
         graph.add(gtsam.PriorFactorVector(S(0), np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, o.board_scale_sigma)))
         values.insert(S(0), np.array([est.board_scale]))
@@ -195,7 +206,7 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
             modes = view_mode_basis(v.uv_px[keep]) if f > 1.0 and keep.sum() >= MODE_MIN_CORNERS else None
             terms.append(ViewTerm(C(slots[v.camera]), K(slots[v.camera]) if v.camera in refine else None,
                                   problem.cameras[v.camera], v.p_board_m[keep], v.uv_px[keep],
-                                  np.sqrt(v.weight[keep]) / sigma_px, modes, f))
+                                  np.sqrt(v.weight[keep]) / sigma_px, modes, f, n_intr.get(v.camera, 6)))
         for f in make_capture_factors(F(k), B(0), S(0) if o.board_scale else None, terms):
             graph.add(f)
     return graph, values

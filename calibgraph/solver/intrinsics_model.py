@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibgraph.core.camera import DIST_NAMES, INTRINSICS_VECTOR, Intrinsics
+from calibgraph.core.camera import DIST_NAMES, INTRINSICS_FULL, Intrinsics, covered_size
 from calibgraph.core.errors import InputError
 
 # distortion model -> the coefficients it estimates (the others are held at zero)
@@ -141,8 +141,10 @@ def reduced_information(blocks) -> np.ndarray:
     return S
 
 
-def intrinsics_block(covariance: np.ndarray, names: tuple) -> np.ndarray:
-    """The (6, 6) block of ``covariance`` (rows ``names``) over ``INTRINSICS_VECTOR`` (fx, fy, cx, cy, k1, k2):
-    their marginal covariance, the other coefficients marginalised out."""
-    idx = [list(names).index(n) for n in INTRINSICS_VECTOR]
+def intrinsics_block(covariance: np.ndarray, names: tuple, size: int | None = None) -> np.ndarray:
+    """The block of ``covariance`` (rows ``names``) over the first ``size`` of ``INTRINSICS_FULL``
+    (fx, fy, cx, cy, k1, k2 [, p1, p2 [, k3]]; default: as many of 9, 8, 6 as ``names`` cover): their
+    marginal covariance, the other coefficients marginalised out."""
+    n = covered_size(names) if size is None else size
+    idx = [list(names).index(m) for m in INTRINSICS_FULL[:n]]
     return covariance[np.ix_(idx, idx)]

@@ -101,8 +101,8 @@ class SessionResult:
     """A calibrated camera.
 
     Attributes:
-        intrinsics: the camera (``source='calibration'``) with the (6, 6) covariance of
-            [fx, fy, cx, cy, k1, k2] its joint-graph prior uses.
+        intrinsics: the camera (``source='calibration'``) with the covariance its joint-graph prior
+            uses: of [fx, fy, cx, cy, k1, k2] and the model's p1, p2 and k3 (those it estimates).
         model: the distortion model (``intrinsics_model.DISTORTION_MODELS``).
         parameter_names: the estimated parameters, rows of ``covariance``.
         covariance: their full covariance (px, unitless).

@@ -26,6 +26,7 @@ from calibgraph.solver.graph import (
     estimates_intrinsics,
     extract,
     formulation,
+    intrinsics_size,
     levenberg_marquardt,
     marginals,
     reduced_marginals,
@@ -153,8 +154,8 @@ def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str
 
 
 def _n_parameters(problem: Problem, names: list, est: Estimate) -> int:
-    n_intr = sum(estimates_intrinsics(problem, n, est) for n in names)
-    n = 6 * (len(names) + 1) + 6 * n_intr + int(problem.options.board_scale)
+    n_intr = sum(intrinsics_size(problem, n, est) for n in names if estimates_intrinsics(problem, n, est))
+    n = 6 * (len(names) + 1) + n_intr + int(problem.options.board_scale)
     return n + (0 if est.joint_offsets is None else len(est.joint_offsets))
 
 

@@ -170,8 +170,9 @@ def session_poses(intr: Intrinsics, target: Target, n_views: int = 25, distance_
 
 def predict_session_covariance(intrinsics: Intrinsics, target: Target, n_views: int = 25,
                                distance_range_m=(0.3, 0.8), pixel_sigma_px: float = SESSION_PIXEL_SIGMA_PX,
-                               model: str = DEFAULT_MODEL) -> np.ndarray:
-    """(6, 6) covariance of [fx, fy, cx, cy, k1, k2] that a close-range session of ``n_views`` images
+                               model: str = DEFAULT_MODEL, size: int = 6) -> np.ndarray:
+    """(size, size) covariance of [fx, fy, cx, cy, k1, k2] (then p1, p2, k3 as ``size`` 8 or 9
+    asks: the joint graph's vector for a camera file with them) that a close-range session of ``n_views`` images
     of ``target`` (:func:`session_poses`, deterministic) would give this camera, with corners of
     independent noise ``pixel_sigma_px`` per axis, the view poses and the model's other distortion
     coefficients (``model``, default k1 k2 p1 p2 k3) marginalised out.
@@ -204,7 +205,7 @@ def predict_session_covariance(intrinsics: Intrinsics, target: Target, n_views: 
             _INFO_CACHE.pop(next(iter(_INFO_CACHE)))
         _INFO_CACHE[key] = info
     cov = np.linalg.inv(info) * pixel_sigma_px ** 2
-    return intrinsics_block(0.5 * (cov + cov.T), names)
+    return intrinsics_block(0.5 * (cov + cov.T), names, size)
 
 
 # (camera, target, session) -> information of the intrinsics per unit corner variance: the error

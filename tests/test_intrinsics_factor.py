@@ -1,0 +1,77 @@
+"""The view factors' Jacobian on a camera's intrinsics vector, of every size the solver builds:
+[fx, fy, cx, cy, k1, k2] and, for a calibration file whose covariance covers them, [p1, p2] and k3
+(issue 23: a file's tangential and third radial coefficients are estimated under its covariance,
+not held as if exact). Checked against central differences of the factors' own error."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from calibgraph.core.camera import Intrinsics
+from calibgraph.core.transforms import exp_so3, make_T
+from calibgraph.solver.factors import ViewTerm, intrinsics_vector, make_calibration_factor, make_capture_factors
+from calibgraph.solver.keys import B, C, F, K, S
+
+
+def _cell(n_intr: int):
+    """One view of a 6x5 board (40 mm pitch) about 1 m in front of a skewed, strongly distorted camera."""
+    intr = Intrinsics(np.array([[900.0, 0.4, 655.0], [0, 905.0, 362.0], [0, 0, 1]]),
+                      np.array([0.09, -0.21, 0.0012, -0.0008, 0.05]), 1280, 720, "calibration")
+    gx, gy = np.meshgrid(np.arange(6) * 0.04, np.arange(5) * 0.04)
+    p_board = np.column_stack([gx.ravel() - 0.1, gy.ravel() - 0.08, np.zeros(gx.size)])
+    T_ref_cam = make_T(exp_so3(np.array([0.1, -0.2, 0.05])), np.array([0.02, -0.01, 0.0]))
+    T_ref_mount = make_T(exp_so3(np.array([-0.05, 0.15, 0.1])), np.array([0.05, 0.03, 0.9]))
+    T_mount_board = make_T(exp_so3(np.array([0.2, 0.1, -0.1])), np.array([0.01, 0.0, 0.05]))
+    T_cam_board = np.linalg.inv(T_ref_cam) @ T_ref_mount @ T_mount_board
+    pc = p_board @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    uv = intr.project(pc) + np.random.default_rng(1).normal(scale=0.3, size=(len(p_board), 2))
+    values = gtsam.Values()
+    values.insert(C(0), gtsam.Pose3(T_ref_cam))
+    values.insert(F(0), gtsam.Pose3(T_ref_mount))
+    values.insert(B(0), gtsam.Pose3(T_mount_board))
+    values.insert(S(0), np.array([1.0]))
+    # the estimate a little off the given values, so that every column is exercised away from them
+    k = intrinsics_vector(intr, n_intr) + np.r_[[3.0, -2.0, 1.5, -1.0], [0.01, -0.02, 4e-4, -3e-4, 0.01][:n_intr - 4]]
+    values.insert(K(0), k)
+    return intr, p_board, uv, values
+
+
+def _numeric(factor, values, key, n):
+    out = np.zeros((len(factor.unwhitenedError(values)), n))
+    x0 = values.atVector(key)
+    for j in range(n):
+        h = 1e-6 * max(1.0, abs(x0[j]))
+        vp, vm = gtsam.Values(values), gtsam.Values(values)
+        d = np.zeros(n)
+        d[j] = h
+        vp.update(key, x0 + d)
+        vm.update(key, x0 - d)
+        out[:, j] = (factor.unwhitenedError(vp) - factor.unwhitenedError(vm)) / (2 * h)
+    return out
+
+
+@pytest.mark.parametrize("n_intr", [6, 8, 9])
+def test_intrinsics_jacobian_matches_finite_differences(n_intr):
+    intr, p_board, uv, values = _cell(n_intr)
+    sqrt_w = np.full(len(p_board), 1 / 0.3)
+    single = make_calibration_factor(C(0), F(0), B(0), p_board, uv, intr, sqrt_w, key_intr=K(0), key_scale=S(0))
+    term = ViewTerm(C(0), K(0), intr, p_board, uv, sqrt_w, n_intr=n_intr)
+    (capture,) = make_capture_factors(F(0), B(0), S(0), [term])
+    for factor, col in ((single, 3), (capture, 4)):  # keys: cam, robot, mount, K, S / robot, mount, S, cam, K
+        J = factor.linearize(values).jacobian()[0]
+        widths = [6, 6, 6, n_intr, 1] if factor is single else [6, 6, 1, 6, n_intr]
+        start = sum(widths[:col])
+        analytic = J[:, start:start + n_intr]
+        numeric = _numeric(factor, values, K(0), n_intr)
+        scale = np.abs(numeric).max(axis=0)
+        assert np.allclose(analytic, numeric, atol=1e-5 * scale.max(), rtol=1e-4), \
+            np.abs(analytic - numeric).max(axis=0) / scale
+        # and the error itself is the camera model with those coefficients
+        e = factor.unwhitenedError(values)
+        model = intr.with_pinhole(values.atVector(K(0)))
+        T_cb = (np.linalg.inv(values.atPose3(C(0)).matrix()) @ values.atPose3(F(0)).matrix()
+                @ values.atPose3(B(0)).matrix())
+        expect = ((model.project(p_board @ T_cb[:3, :3].T + T_cb[:3, 3]) - uv) * sqrt_w[:, None]).ravel()
+        assert np.allclose(e, expect, atol=1e-9)
