@@ -50,6 +50,11 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+
+# The poses of the saved figures came from the planner before it chose poses by information
+# (plan_trajectory(select='random')); kept so that this script reproduces them. 'information' (today's
+# default) re-measures with the planner `calibgraph sim` uses.
+PLAN_SELECT = "random"
 sys.path.insert(0, str(REPO))
 
 from calibgraph.core.problem import Capture  # noqa: E402
@@ -77,7 +82,7 @@ def render_recording(root: Path, n_cameras: int, n_poses: int, seed: int, distan
     cell = ring_workcell(n_cameras=n_cameras, preset_name="kinect_v2", distances_m=list(distances_m),
                          spread_deg=300 if n_cameras > 2 else 90, seed=seed, name=name)
     world = SimWorld(cell)
-    traj = plan_trajectory(world, n_poses=n_poses, seed=seed, shared_fraction=shared_fraction)
+    traj = plan_trajectory(world, n_poses=n_poses, seed=seed, shared_fraction=shared_fraction, select=PLAN_SELECT)
     write_header(root, declared or cell.target, {c.name: c.intrinsics for c in cell.cameras})
     rng = np.random.default_rng(seed)
     poses = [p for p in traj.poses if p.capture]

@@ -24,6 +24,11 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+
+# The poses of the saved figures came from the planner before it chose poses by information
+# (plan_trajectory(select='random')); kept so that this script reproduces them. 'information' (today's
+# default) re-measures with the planner `calibgraph sim` uses.
+PLAN_SELECT = "random"
 sys.path.insert(0, str(REPO))
 
 from calibgraph.core.problem import Capture  # noqa: E402
@@ -49,7 +54,7 @@ def make_recording(root: Path, n_poses: int, seed: int) -> Path:
     cell = ring_workcell(n_cameras=4, preset_name="kinect_v2", distances_m=[1.8, 2.5, 3.0, 3.5], spread_deg=300,
                          seed=seed, name="bench_guided")
     world = SimWorld(cell)
-    traj = plan_trajectory(world, n_poses=n_poses, seed=seed, shared_fraction=0.0)
+    traj = plan_trajectory(world, n_poses=n_poses, seed=seed, shared_fraction=0.0, select=PLAN_SELECT)
     write_header(root, cell.target, cell.intrinsics())  # what the cameras report (factory-class)
     k = 0
     for pose in traj.poses:

@@ -37,6 +37,11 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+
+# The poses of the saved figures came from the planner before it chose poses by information
+# (plan_trajectory(select='random')); kept so that this script reproduces them. 'information' (today's
+# default) re-measures with the planner `calibgraph sim` uses.
+PLAN_SELECT = "random"
 sys.path.insert(0, str(REPO))
 
 from calibgraph.detect.corners import detect_image  # noqa: E402
@@ -71,7 +76,7 @@ def square_px(world, camera: str) -> float:
 def run_cell(name: str, n_poses: int) -> dict:
     cell = CELLS[name]()
     worlds = {b: SimWorld(cell, renderer=b) for b in ("mujoco", "raster")}
-    traj = plan_trajectory(worlds["mujoco"], n_poses, seed=1)
+    traj = plan_trajectory(worlds["mujoco"], n_poses, seed=1, select=PLAN_SELECT)
     rows = []
     times = {b: [] for b in worlds}
     for k, pose in enumerate(traj.poses):

@@ -37,6 +37,11 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+
+# The poses of the saved figures came from the planner before it chose poses by information
+# (plan_trajectory(select='random')); kept so that this script reproduces them. 'information' (today's
+# default) re-measures with the planner `calibgraph sim` uses.
+PLAN_SELECT = "random"
 sys.path.insert(0, str(REPO))
 
 # Thesis Table 6.1 (single) and 6.2 (multi): distance -> [T_C1C2, T_C1C3, T_C2C3, T_WC1, T_WC2, T_WC3 (mm), err1, err2, err3 (px)]
@@ -106,7 +111,7 @@ def simulate(distance_m, preset, board, n_poses, seed, work: Path, spread_deg, p
     cell = ring_workcell(n_cameras=3, distance_m=distance_m, preset_name=preset, board=board, spread_deg=spread_deg,
                          name=f"thesis_{preset}_{distance_m:.1f}", seed=seed)
     world = SimWorld(cell)
-    traj = plan_trajectory(world, n_poses, seed=seed, **(plan_kw or {}))
+    traj = plan_trajectory(world, n_poses, seed=seed, **{"select": PLAN_SELECT, **(plan_kw or {})})
     ds = work / f"{preset}_{board}_{distance_m:.1f}m_{n_poses}poses_s{seed}"
     if ds.exists():
         shutil.rmtree(ds)
