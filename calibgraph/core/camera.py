@@ -272,6 +272,31 @@ def project_points(p_cam_m, fx, fy, cx, cy, s, dist8, with_jacobian: bool = Fals
     return uv, J, (x, y, xd, yd, r2, b)
 
 
+def distortion_partials(x, y, dist8, n: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """d(x_d, y_d) / d(the first ``n`` distortion coefficients, in ``DIST_NAMES`` order: k1, k2, p1,
+    p2, k3, k4, k5, k6) at undistorted normalised points (x, y): two (N, n) arrays. ``dist8``: (8,)
+    or (8, N) (one camera, or one per point)."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = dist8
+    r2 = x * x + y * y
+    b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    powers = (r2, r2 * r2, r2 * r2 * r2)
+    dx, dy = np.zeros((x.size, n)), np.zeros((x.size, n))
+    for i, name in enumerate(DIST_NAMES[:n]):
+        if name == "p1":
+            dx[:, i], dy[:, i] = 2 * x * y, r2 + 2 * y * y
+            continue
+        if name == "p2":
+            dx[:, i], dy[:, i] = r2 + 2 * x * x, 2 * x * y
+            continue
+        if name in ("k1", "k2", "k3"):
+            drad = powers[("k1", "k2", "k3").index(name)] / b
+        else:
+            a = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            drad = -a * powers[("k4", "k5", "k6").index(name)] / (b * b)
+        dx[:, i], dy[:, i] = x * drad, y * drad
+    return dx, dy
+
+
 def _intrinsics_block(cov: np.ndarray, order, n_dist: int) -> np.ndarray:
     """The block of a covariance (the marginal covariance of those parameters) over the first 9, 8
     or 6 of ``INTRINSICS_FULL`` it covers, from one whose rows follow ``order`` (default fx, fy, cx,

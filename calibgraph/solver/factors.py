@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from calibgraph.core.camera import Intrinsics, project_points
+from calibgraph.core.camera import Intrinsics, distortion_partials, project_points
 
 _MIN_DEPTH_M = 1e-3
 
@@ -171,44 +171,25 @@ def intrinsics_vector(intr: Intrinsics, n: int = 6) -> np.ndarray:
     return np.concatenate([[intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2]], intr.dist8[:n - 4]])
 
 
-def _distortion_columns(x, y, r2, b, fx, fy, s, n: int) -> np.ndarray:
-    """(N, 2, n - 4) d(u, v) / d(k1, k2[, p1, p2[, k3]]) at undistorted normalised points (x, y),
-    r2 = x^2 + y^2, b the rational denominator (1 without k4..k6), skew ``s``."""
-    out = np.zeros((len(x), 2, n - 4))
-    rad = [r2 / b, r2 * r2 / b]
-    for j, rp in enumerate(rad):
-        out[:, 0, j] = (fx * x + s * y) * rp
-        out[:, 1, j] = fy * y * rp
-    if n >= 8:
-        dxd = (2 * x * y, r2 + 2 * x * x)  # d x_d / d(p1, p2)
-        dyd = (r2 + 2 * y * y, 2 * x * y)  # d y_d / d(p1, p2)
-        for j in range(2):
-            out[:, 0, 2 + j] = fx * dxd[j] + s * dyd[j]
-            out[:, 1, 2 + j] = fy * dyd[j]
-    if n >= 9:
-        rp = r2 * r2 * r2 / b
-        out[:, 0, 4] = (fx * x + s * y) * rp
-        out[:, 1, 4] = fy * y * rp
-    return out
+def _distortion_columns(x, y, dist8, fx, fy, s, n: int) -> np.ndarray:
+    """(N, 2, n - 4) d(u, v) / d(k1, k2[, p1, p2[, k3]]) at undistorted normalised points (x, y)
+    (u = fx x_d + s y_d + cx, v = fy y_d + cy; ``dist8`` (8,) or (8, N), skew ``s``)."""
+    dx, dy = distortion_partials(x, y, dist8, n - 4)
+    return np.stack([fx * dx.T + s * dy.T, fy * dy.T], axis=0).transpose(2, 0, 1)
 
 
 def _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, cur: Intrinsics, k6, e, sqrt_w):
     """Weighted d residual / d [fx, fy, cx, cy, k1, k2 (, p1, p2 (, k3))] (2N, len(k6)) at the
     current intrinsics ``cur``.
 
-    With x, y the undistorted and x_d, y_d the distorted normalised coordinates, r2 = x^2 + y^2 and
-    b the rational denominator (1 without k4..k6): d u / d(fx, cx) = (x_d, 1), d v / d(fy, cy) =
-    (y_d, 1), d(x_d, y_d) / d k1 = (x, y) r2 / b, / d k2 = (x, y) r2^2 / b, / d k3 = (x, y) r2^3 / b,
-    / d p1 = (2 x y, r2 + 2 y^2), / d p2 = (r2 + 2 x^2, 2 x y).
+    With x_d, y_d the distorted normalised coordinates: d u / d(fx, cx) = (x_d, 1), d v / d(fy, cy)
+    = (y_d, 1); the distortion columns are :func:`calibgraph.core.camera.distortion_partials`.
     """
     n = p_board_m.shape[0]
     T_cam_board = np.linalg.inv(T_ref_cam) @ T_ref_mount @ T_mount_board
     p_c = p_board_m @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
     z = np.maximum(p_c[:, 2], _MIN_DEPTH_M)
     x, y = p_c[:, 0] / z, p_c[:, 1] / z
-    r2 = x * x + y * y
-    k4, k5, k6_ = cur.dist8[5:8]
-    b = 1 + r2 * (k4 + r2 * (k5 + r2 * k6_))
     uv = e.reshape(n, 2) / sqrt_w[:, None] + uv_px
     yd = (uv[:, 1] - k6[3]) / k6[1]
     xd = (uv[:, 0] - k6[2] - cur.K[0, 1] * yd) / k6[0]
@@ -219,7 +200,7 @@ def _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px
     Jk[:, 0, 2] = 1.0
     Jk[:, 1, 1] = yd
     Jk[:, 1, 3] = 1.0
-    Jk[:, :, 4:] = _distortion_columns(x, y, r2, b, fx, fy, s, m)
+    Jk[:, :, 4:] = _distortion_columns(x, y, cur.dist8, fx, fy, s, m)
     return (Jk * sqrt_w[:, None, None]).reshape(2 * n, m)
 
 
@@ -368,11 +349,11 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
                 shared_blocks.append(np.einsum("nij,nj->ni", JB, P_b).reshape(total, 1))
             Jk = None
             if estimated.any():
-                x, y, xd, yd, r2, b = aux
+                x, y, xd, yd = aux[:4]
                 m = int(n_intr.max())
                 Jk = np.zeros((len(vi), 2, m))
                 Jk[:, 0, 0], Jk[:, 0, 2], Jk[:, 1, 1], Jk[:, 1, 3] = xd, 1.0, yd, 1.0
-                Jk[:, :, 4:] = _distortion_columns(x, y, r2, b, fx, fy, static[vi, 0], m)
+                Jk[:, :, 4:] = _distortion_columns(x, y, dist[vi].T, fx, fy, static[vi, 0], m)
                 Jk = (Jk * SW[:, None, None]).reshape(total, m)
             H = [[A[rs] for A in shared_blocks] + [H_c[rs]] + ([Jk[rs, :n_intr[v]]] if estimated[v] else [])
                  for v, rs in enumerate(rows)]

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibgraph.core.camera import DIST_NAMES, INTRINSICS_FULL, Intrinsics, covered_size
+from calibgraph.core.camera import DIST_NAMES, INTRINSICS_FULL, Intrinsics, covered_size, distortion_partials
 from calibgraph.core.errors import InputError
 
 # distortion model -> the coefficients it estimates (the others are held at zero)
@@ -60,25 +60,6 @@ def with_parameters(intr: Intrinsics, names: tuple, x: np.ndarray, n_coefficient
     return Intrinsics(K=K, dist=dist[:n], width_px=intr.width_px, height_px=intr.height_px, source=intr.source)
 
 
-def _distortion_partials(x: np.ndarray, y: np.ndarray, dist8: np.ndarray):
-    """d(xd, yd)/d(k1..k6, p1, p2) at normalised points (x, y): two (N, 8) arrays in ``DIST_NAMES`` order."""
-    k1, k2, p1, p2, k3, k4, k5, k6 = dist8
-    r2 = x * x + y * y
-    r4, r6 = r2 * r2, r2 * r2 * r2
-    a = 1 + k1 * r2 + k2 * r4 + k3 * r6
-    b = 1 + k4 * r2 + k5 * r4 + k6 * r6
-    drad = {"k1": r2 / b, "k2": r4 / b, "k3": r6 / b, "k4": -a * r2 / b ** 2, "k5": -a * r4 / b ** 2,
-            "k6": -a * r6 / b ** 2}
-    dx = np.zeros((x.size, 8))
-    dy = np.zeros((x.size, 8))
-    for i, n in enumerate(DIST_NAMES):
-        if n in drad:
-            dx[:, i], dy[:, i] = x * drad[n], y * drad[n]
-    dx[:, 2], dy[:, 2] = 2 * x * y, r2 + 2 * y * y  # p1
-    dx[:, 3], dy[:, 3] = r2 + 2 * x * x, 2 * x * y  # p2
-    return dx, dy
-
-
 def _skews(v: np.ndarray) -> np.ndarray:
     """(n, 3, 3) cross-product matrices of the rows of ``v`` (n, 3)."""
     S = np.zeros((len(v), 3, 3))
@@ -109,7 +90,7 @@ def view_jacobians(intr: Intrinsics, names: tuple, p_board_m: np.ndarray, T_cam_
     A[:, :, 3:] = J
     A[:, :, :3] = -np.einsum("nij,njk->nik", J, _skews(Rp))
     x, y = p_c[:, 0] / p_c[:, 2], p_c[:, 1] / p_c[:, 2]
-    dx, dy = _distortion_partials(x, y, intr.dist8)
+    dx, dy = distortion_partials(x, y, intr.dist8)
     fx, fy = intr.K[0, 0], intr.K[1, 1]
     xd = (uv[:, 0] - intr.K[0, 2]) / fx
     yd = (uv[:, 1] - intr.K[1, 2]) / fy
