@@ -111,6 +111,29 @@ def test_a_file_with_tangential_terms_has_them_estimated(cell, tmp_path):
     assert np.all(np.abs(z) < 4.0), z
 
 
+def test_a_ros_camera_info_is_a_camera_file(cell, tmp_path, capsys):
+    """A ROS camera_info YAML is what integrators have: it is that camera's intrinsics (no covariance:
+    the default source's prior); a fisheye one is one line and exit 2."""
+    root, scene = cell
+    true = scene.truth.intrinsics["cam2"]
+    info = {"image_width": true.width_px, "image_height": true.height_px, "distortion_model": "plumb_bob",
+            "camera_matrix": {"rows": 3, "cols": 3, "data": true.K.ravel().tolist()},
+            "distortion_coefficients": {"rows": 1, "cols": 5, "data": true.dist8[:5].tolist()}}
+    (tmp_path / "cam2_info.yaml").write_text(yaml.safe_dump(info))
+    out = tmp_path / "r.json"
+    assert main(["solve", str(root / "ds"), "--intrinsics", f"cam2={tmp_path / 'cam2_info.yaml'}", "--out", str(out),
+                 "--quiet"]) == 0
+    got = _cam(out, "cam2")["intrinsics"]
+    assert got["prior"] == "calibration" and np.allclose(got["given"]["fx"], true.K[0, 0])
+    (tmp_path / "fish.yaml").write_text(yaml.safe_dump({**info, "distortion_model": "equidistant"}))
+    capsys.readouterr()
+    assert main(["solve", str(root / "ds"), "--intrinsics", f"cam2={tmp_path / 'fish.yaml'}", "--out",
+                 str(tmp_path / "f.json"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "equidistant" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "f.json").exists()
+
+
 @pytest.mark.parametrize("case", ["unknown_name", "no_equals", "other_size", "missing_file", "twice"])
 def test_bad_intrinsics_arguments_are_one_line(case, cell, tmp_path, capsys):
     root, scene = cell

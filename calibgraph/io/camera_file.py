@@ -18,6 +18,21 @@ A camera file is a YAML mapping that :meth:`calibgraph.core.camera.Intrinsics.fr
 
 Only ``K`` (or fx, fy, cx, cy), ``width_px``/``height_px``, ``distortion`` and ``source`` are needed
 to use it; ``covariance`` (with ``covariance_order``) makes it the camera's prior in the joint graph.
+
+:func:`read_camera_file` also reads the intrinsics files other tools write (no covariance: the
+solver's prior for their source, ``--intrinsics-source``, applies):
+
+- a ROS camera_info YAML (``camera_calibration``'s ``image_width``, ``camera_matrix: {rows, cols,
+  data}``, ``distortion_model``, ``distortion_coefficients``), or a ROS 2 CameraInfo message dump
+  (``width``, ``height``, ``k``, ``d``, ``distortion_model``);
+- an OpenCV FileStorage file (``%YAML:1.0`` or XML: ``camera_matrix``, ``distortion_coefficients``,
+  ``image_width``, ``image_height``), as OpenCV's calibration samples and ``calibgraph export
+  --format opencv`` write;
+- a Kalibr camchain or camera YAML with one pinhole camera (``intrinsics: [fu, fv, pu, pv]``,
+  ``distortion_model: radtan | none``, ``distortion_coeffs``, ``resolution: [w, h]``).
+
+Fisheye models (ROS ``equidistant``, Kalibr ``equidistant`` / ``fov``) are refused: the engine models
+OpenCV's pinhole with radial-tangential distortion.
 """
 
 from __future__ import annotations
@@ -28,7 +43,13 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import CalibgraphError, InputError
-from calibgraph.io.files import atomic_write_text, read_yaml
+from calibgraph.io.files import (
+    atomic_write_text,
+    is_opencv_storage,
+    read_input_bytes,
+    read_opencv_storage,
+    yaml_error_line,
+)
 
 
 def write_camera_file(path, content: dict) -> Path:
@@ -47,16 +68,119 @@ def write_camera_file(path, content: dict) -> Path:
 
 
 def read_camera_file(path) -> Intrinsics:
-    """The :class:`Intrinsics` of a camera file (or any intrinsics YAML ``Intrinsics.from_dict`` reads);
-    a malformed file is refused naming it."""
-    d = read_yaml(path, "camera file")
+    """The :class:`Intrinsics` of a camera file (or any intrinsics YAML ``Intrinsics.from_dict`` reads,
+    or a ROS camera_info, OpenCV FileStorage or Kalibr file: see the module's docstring); a malformed
+    file is refused naming it."""
+    import yaml
+
+    p = Path(path)
+    raw = read_input_bytes(p, "camera file")
+    if is_opencv_storage(raw):
+        d = _from_opencv(p, read_opencv_storage(p, "camera file", raw))
+    else:
+        try:
+            d = yaml.safe_load(raw.decode("utf-8"))
+        except UnicodeDecodeError as e:
+            raise InputError(f"{p}: cannot read camera file: {e}") from None
+        except yaml.YAMLError as e:
+            raise InputError(f"{p}: cannot read camera file: {yaml_error_line(e)}") from None
+        if not isinstance(d, dict):
+            raise InputError(f"{p}: camera file must be a YAML mapping.")
+        d = _from_ros(p, d) if _is_ros(d) else _from_kalibr(p, d) if _kalibr_camera(d) is not None else d
     try:
         return Intrinsics.from_dict(d)
     except CalibgraphError as e:
-        raise InputError(f"{path}: {e}") from None
+        raise InputError(f"{p}: {e}") from None
     except (TypeError, ValueError) as e:
-        raise InputError(f"{path}: not a camera file ({e}); it needs K (3x3) or fx, fy, cx, cy, and width_px, "
+        raise InputError(f"{p}: not a camera file ({e}); it needs K (3x3) or fx, fy, cx, cy, and width_px, "
                          "height_px.") from None
+
+
+# distortion models other tools name -> True when calibgraph's OpenCV model carries them
+_PINHOLE_MODELS = {"plumb_bob": True, "rational_polynomial": True, "radtan": True, "none": True, "": True,
+                   "equidistant": False, "fisheye": False, "fov": False, "kannala_brandt": False}
+
+
+def _check_model(p: Path, model, where: str) -> None:
+    m = str(model or "").strip().lower()
+    if not _PINHOLE_MODELS.get(m, False):
+        raise InputError(f"{p}: {where} distortion model {model!r} is not supported: calibgraph models OpenCV's "
+                         "pinhole with radial-tangential distortion (plumb_bob / radtan, rational_polynomial); "
+                         "calibrate the camera with that model (calibgraph intrinsics does).")
+
+
+def _numbers(p: Path, x, what: str, n=None) -> list:
+    """A flat list of numbers from a list or a ROS/OpenCV matrix mapping ``{rows, cols, data}``."""
+    if isinstance(x, dict):
+        x = x.get("data")
+    try:
+        v = np.asarray(x if x is not None else [], float).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"{p}: {what} is not a list of numbers.") from None
+    if n is not None and v.size != n:
+        raise InputError(f"{p}: {what} has {v.size} numbers, expected {n}.")
+    return v.tolist()
+
+
+def _is_ros(d: dict) -> bool:
+    return ("camera_matrix" in d and "image_width" in d) or ("k" in d and "width" in d and "height" in d)
+
+
+def _from_ros(p: Path, d: dict) -> dict:
+    """A ROS camera_info YAML (or a ROS 2 CameraInfo message dump) as ``Intrinsics.from_dict`` reads it."""
+    _check_model(p, d.get("distortion_model", "plumb_bob"), "ROS camera_info")
+    if "camera_matrix" in d:
+        K = _numbers(p, d["camera_matrix"], "camera_matrix", 9)
+        dist = _numbers(p, d.get("distortion_coefficients"), "distortion_coefficients")
+        w, h = d.get("image_width"), d.get("image_height")
+    else:
+        K = _numbers(p, d["k"], "k", 9)
+        dist = _numbers(p, d.get("d"), "d")
+        w, h = d.get("width"), d.get("height")
+    return {"K": np.reshape(K, (3, 3)).tolist(), "dist": dist, "width_px": w, "height_px": h,
+            **({"source": d["source"]} if "source" in d else {})}
+
+
+def _from_opencv(p: Path, d: dict) -> dict:
+    """An OpenCV FileStorage camera file as ``Intrinsics.from_dict`` reads it."""
+    if d.get("camera_matrix") is None:
+        raise InputError(f"{p}: an OpenCV FileStorage file without a camera_matrix; not a camera's intrinsics.")
+    K = np.asarray(d["camera_matrix"], float)
+    if K.shape != (3, 3):
+        raise InputError(f"{p}: camera_matrix is {K.shape[0]}x{K.shape[1] if K.ndim > 1 else 1}, expected 3x3.")
+    dist = d.get("distortion_coefficients", d.get("dist_coeffs"))
+    return {"K": K.tolist(), "dist": [] if dist is None else np.asarray(dist, float).reshape(-1).tolist(),
+            "width_px": d.get("image_width", 0), "height_px": d.get("image_height", 0)}
+
+
+def _kalibr_camera(d: dict):
+    """The one camera entry of a Kalibr camchain (``cam0: {...}``) or camera YAML; None when ``d`` is
+    not one."""
+    if "intrinsics" in d and "camera_model" in d:
+        return d
+    cams = {k: v for k, v in d.items() if isinstance(v, dict) and "intrinsics" in v and "camera_model" in v}
+    if not cams or len(cams) != len(d):
+        return None
+    return cams
+
+
+def _from_kalibr(p: Path, d: dict) -> dict:
+    """A Kalibr camera (one pinhole camera) as ``Intrinsics.from_dict`` reads it."""
+    cam = _kalibr_camera(d)
+    if cam is not d:
+        if len(cam) != 1:
+            raise InputError(f"{p}: a Kalibr camchain of {len(cam)} cameras ({', '.join(cam)}); give a file with the "
+                             "one camera this name refers to.")
+        cam = next(iter(cam.values()))
+    if str(cam.get("camera_model", "")).lower() != "pinhole":
+        raise InputError(f"{p}: Kalibr camera_model {cam.get('camera_model')!r} is not supported: calibgraph models "
+                         "OpenCV's pinhole camera.")
+    _check_model(p, cam.get("distortion_model", "none"), "Kalibr")
+    fu, fv, pu, pv = _numbers(p, cam["intrinsics"], "intrinsics", 4)
+    res = _numbers(p, cam.get("resolution"), "resolution", 2)
+    dist = _numbers(p, cam.get("distortion_coeffs"), "distortion_coeffs")
+    return {"K": [[fu, 0.0, pu], [0.0, fv, pv], [0.0, 0.0, 1.0]], "dist": dist,
+            "width_px": int(res[0]), "height_px": int(res[1])}
 
 
 def read_camera_file_args(specs, flag: str = "--intrinsics") -> dict:

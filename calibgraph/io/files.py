@@ -60,6 +60,46 @@ def read_input_bytes(path, what: str) -> bytes:
         os.close(fd)
 
 
+def is_opencv_storage(raw: bytes) -> bool:
+    """True when ``raw`` is an OpenCV FileStorage document, which a YAML parser cannot read: XML, YAML
+    with OpenCV 3/4's ``%YAML:1.0`` header, or YAML with its ``!!opencv-matrix`` nodes (OpenCV 5)."""
+    head = raw.lstrip()[:32]
+    return head.startswith((b"%YAML:", b"<?xml", b"<opencv_storage>")) or b"!!opencv-" in raw
+
+
+def read_opencv_storage(path, what: str, raw: bytes | None = None) -> dict:
+    """The top-level nodes of an OpenCV FileStorage file (YAML or XML) as a dict: strings, ints,
+    reals, and matrices as numpy arrays. ``raw``: its bytes when already read."""
+    import cv2
+
+    p = Path(path)
+    raw = read_input_bytes(p, what) if raw is None else raw
+    try:
+        fs = cv2.FileStorage(raw.decode("utf-8"), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    except (cv2.error, UnicodeDecodeError) as e:
+        raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file: "
+                         f"{str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__}") from None
+    if not fs.isOpened():
+        raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file.")
+    out = {}
+    try:
+        for key in fs.root().keys():
+            node = fs.getNode(key)
+            if node.isString():
+                out[key] = node.string()
+            elif node.isInt():
+                out[key] = int(node.real())
+            elif node.isReal():
+                out[key] = node.real()
+            elif node.isSeq():  # a plain list of numbers
+                out[key] = [node.at(i).real() for i in range(node.size())]
+            else:  # a matrix (None for anything else)
+                out[key] = node.mat()
+    finally:
+        fs.release()
+    return out
+
+
 def yaml_error_line(e) -> str:
     """A YAML parser error in one line: what and where (line, column)."""
     mark = getattr(e, "problem_mark", None)

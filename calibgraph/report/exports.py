@@ -40,7 +40,7 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.kinematics import corrected_urdf
 from calibgraph.core.transforms import R_to_quat_xyzw
 from calibgraph.core.version import __version__
-from calibgraph.io.files import atomic_write_text, atomic_write_via, output_folder
+from calibgraph.io.files import atomic_write_text, atomic_write_via, output_folder, read_opencv_storage
 from calibgraph.io.layouts import as_dataset
 from calibgraph.solver.kinematics import load_chain
 from calibgraph.solver.result import as_result
@@ -311,25 +311,7 @@ def _write_opencv_camera(tmp: Path, result, name: str, ident: str, intr) -> None
 
 def read_opencv_yaml(path) -> dict:
     """Read back a file written by :func:`write_opencv_yaml` (matrices as numpy arrays)."""
-    import cv2
-
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    if not fs.isOpened():
-        raise InputError(f"{path}: cannot open as an OpenCV FileStorage file.")
-    out = {}
-    root = fs.root()
-    for key in root.keys():
-        node = fs.getNode(key)
-        if node.isString():
-            out[key] = node.string()
-        elif node.isInt():
-            out[key] = int(node.real())
-        elif node.isReal():
-            out[key] = node.real()
-        else:
-            out[key] = node.mat()
-    fs.release()
-    return out
+    return read_opencv_storage(path, "OpenCV YAML")
 
 
 def export(result, fmt: str, out_dir, dataset=None, parent: str | None = None) -> list:
