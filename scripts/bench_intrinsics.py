@@ -276,7 +276,9 @@ def _f(x, nd=2):
 
 
 def markdown(doc: dict) -> str:
-    L = ["# bench_intrinsics", "", f"Run {doc['when']}; `{doc['command']}`.", ""]
+    runs = doc.get("runs") or {}
+    made = "; ".join(f"({part}) {when}, `{cmd}`" for part, (when, cmd) in sorted(runs.items()))
+    L = ["# bench_intrinsics", "", f"Made by: {made}." if made else f"Run {doc['when']}; `{doc['command']}`.", ""]
     if doc.get("a_summary"):
         L += ["## (a) Close-range stage on rendered sessions", "",
               "25 images per session at 0.3-0.8 m, rendered through the true camera (distortion included), "
@@ -368,6 +370,8 @@ def main() -> int:
     jpath = args.out / ("bench_intrinsics_quick.json" if args.quick else "bench_intrinsics.json")
     doc = json.loads(jpath.read_text()) if jpath.is_file() else {}
     doc.update(when=time.strftime("%Y-%m-%d %H:%M"), command="python scripts/bench_intrinsics.py " + " ".join(sys.argv[1:]))
+    # each part says which invocation made it (a part not run keeps its earlier one)
+    doc["runs"] = {**doc.get("runs", {}), **{p: (doc["when"], doc["command"]) for p in parts}}
 
     def save():
         args.out.mkdir(parents=True, exist_ok=True)
