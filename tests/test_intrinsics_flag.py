@@ -92,8 +92,8 @@ def test_a_file_with_tangential_terms_has_them_estimated(cell, tmp_path):
     K[0, 0], K[1, 1], K[0, 2], K[1, 2] = K[0, 0] + e[0], K[1, 1] + e[1], K[0, 2] + e[2], K[1, 2] + e[3]
     dist = true.dist8[:5] + e[4:]
     order = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
-    write_camera_file(tmp_path / "cam2.yaml", {"source": "calibration", "width_px": true.width_px, "height_px": true.height_px,
-                                               "K": K.tolist(), "distortion": dist.tolist(), "covariance_order": order,
+    write_camera_file(tmp_path / "cam2.yaml", {"source": "calibration", "width_px": true.width_px,
+                                               "height_px": true.height_px, "K": K.tolist(), "distortion": dist.tolist(), "covariance_order": order,
                                                "covariance": np.diag(sigma ** 2).tolist()})
     out = tmp_path / "r.json"
     assert main(["solve", str(root / "ds"), "--intrinsics", f"cam2={tmp_path / 'cam2.yaml'}", "--out", str(out),

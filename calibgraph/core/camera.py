@@ -92,9 +92,9 @@ class Intrinsics:
             n = cov.shape[0] if cov.ndim == 2 else -1
             if cov.ndim != 2 or cov.shape[1] != n or n not in INTRINSICS_SIZES or not np.all(np.isfinite(cov)) \
                     or n - 4 > max(dist.size, 2):
-                raise InputError(f"intrinsics: covariance must be a finite square matrix over {list(INTRINSICS_VECTOR)} "
-                                 f"(optionally then p1, p2 [, k3], each a distortion coefficient given), got shape "
-                                 f"{cov.shape} with {dist.size} distortion coefficients.")
+                raise InputError(f"intrinsics: covariance must be a finite square matrix over "
+                                 f"{list(INTRINSICS_VECTOR)} (optionally then p1, p2 [, k3], each a distortion "
+                                 f"coefficient given), got shape {cov.shape} with {dist.size} distortion coefficients.")
             cov = 0.5 * (cov + cov.T)
             if np.linalg.eigvalsh(cov).min() <= 0:
                 raise InputError("intrinsics: covariance is not positive definite; give a covariance from a "

@@ -43,13 +43,7 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import CalibgraphError, InputError
-from calibgraph.io.files import (
-    atomic_write_text,
-    is_opencv_storage,
-    read_input_bytes,
-    read_opencv_storage,
-    yaml_error_line,
-)
+from calibgraph.io.files import atomic_write_text, is_opencv_storage, parse_yaml, read_input_bytes, read_opencv_storage
 
 
 def write_camera_file(path, content: dict) -> Path:
@@ -71,21 +65,12 @@ def read_camera_file(path) -> Intrinsics:
     """The :class:`Intrinsics` of a camera file (or any intrinsics YAML ``Intrinsics.from_dict`` reads,
     or a ROS camera_info, OpenCV FileStorage or Kalibr file: see the module's docstring); a malformed
     file is refused naming it."""
-    import yaml
-
     p = Path(path)
     raw = read_input_bytes(p, "camera file")
     if is_opencv_storage(raw):
         d = _from_opencv(p, read_opencv_storage(p, "camera file", raw))
     else:
-        try:
-            d = yaml.safe_load(raw.decode("utf-8"))
-        except UnicodeDecodeError as e:
-            raise InputError(f"{p}: cannot read camera file: {e}") from None
-        except yaml.YAMLError as e:
-            raise InputError(f"{p}: cannot read camera file: {yaml_error_line(e)}") from None
-        if not isinstance(d, dict):
-            raise InputError(f"{p}: camera file must be a YAML mapping.")
+        d = parse_yaml(raw, p, "camera file")
         d = _from_ros(p, d) if _is_ros(d) else _from_kalibr(p, d) if _kalibr_camera(d) is not None else d
     try:
         return Intrinsics.from_dict(d)
@@ -137,8 +122,7 @@ def _from_ros(p: Path, d: dict) -> dict:
         K = _numbers(p, d["k"], "k", 9)
         dist = _numbers(p, d.get("d"), "d")
         w, h = d.get("width"), d.get("height")
-    return {"K": np.reshape(K, (3, 3)).tolist(), "dist": dist, "width_px": w, "height_px": h,
-            **({"source": d["source"]} if "source" in d else {})}
+    return {"K": np.reshape(K, (3, 3)).tolist(), "dist": dist, "width_px": w, "height_px": h}
 
 
 def _from_opencv(p: Path, d: dict) -> dict:

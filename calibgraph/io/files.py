@@ -16,11 +16,16 @@ def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
 
     With ``mapping`` the document must be a YAML mapping (``{}`` for an empty file when ``empty_ok``).
     """
+    return parse_yaml(read_input_bytes(path, what), path, what, mapping, empty_ok)
+
+
+def parse_yaml(raw: bytes, path, what: str, mapping: bool = True, empty_ok: bool = False):
+    """:func:`read_yaml` of bytes already read from ``path``."""
     import yaml
 
     p = Path(path)
     try:
-        d = yaml.safe_load(read_input_bytes(p, what).decode("utf-8"))
+        d = yaml.safe_load(raw.decode("utf-8"))
     except UnicodeDecodeError as e:
         raise InputError(f"{p}: cannot read {what}: {e}") from None
     except yaml.YAMLError as e:

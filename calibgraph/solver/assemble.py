@@ -57,7 +57,8 @@ def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
     for n, b in budgets(lin, keys).items():
         sigma_n = camera_pixel_sigma(group, n)
         size = intrinsics_size(problem, n, est) if keys[n][1] is not None else 6
-        out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=_session_information(problem, est, n, sigma_n, size),
+        session = _session_information(problem, est, n, sigma_n, size)
+        out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=session,
                                   doubled=doubled, doubled_cov=doubled_cov))
     return out
 

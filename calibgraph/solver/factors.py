@@ -207,8 +207,9 @@ def _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px
 def make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, intr: Intrinsics, sqrt_w,
                             key_intr=None, key_scale=None, noise=None) -> gtsam.CustomFactor:
     """View factor with, optionally, the camera's intrinsics ``key_intr`` ([fx, fy, cx, cy, k1, k2]
-    and, for a file whose covariance covers them, [p1, p2 (, k3)]: a Vector variable) and the board's scale factor ``key_scale`` (a Vector1 variable ``s``: the
-    printed board's points are ``s * p_board_m``) as variables too.
+    and, when its prior covers them, [p1, p2 (, k3)]: a Vector variable) and the board's scale factor
+    ``key_scale`` (a Vector1 variable ``s``: the printed board's points are ``s * p_board_m``) as
+    variables too.
 
     The scale's Jacobian is the chain through the mount: d p_cam / d s = R_cam_board p_board.
     """
