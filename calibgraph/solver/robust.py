@@ -20,6 +20,7 @@ from calibgraph.solver.timing import timed
 from calibgraph.solver.views import MIN_CORNERS_PER_VIEW, norms_of
 
 MAX_WEIGHT_ROUNDS = 6  # LM runs with re-weighting in between, per view-level round
+SETTLED_RMS_WEIGHT_CHANGE = 0.01  # corner weights whose RMS change is below this have settled
 MAX_VIEW_ROUNDS = 4  # rounds of view rejection / re-admission
 
 
@@ -72,6 +73,12 @@ def reweight(views: list, norms: list, sigma_px: float, opts) -> tuple[list, flo
     return out, change
 
 
+def _rms_weight_change(before: list, after: list) -> float:
+    """RMS over the active views' corners of the change of their robust weights."""
+    d = [a.w - b.w for b, a in zip(before, after) if b.active]
+    return float(np.sqrt(np.mean(np.concatenate(d) ** 2))) if d else 0.0
+
+
 def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
                     timings: dict | None) -> Rounds:
     """LM runs with fixed corner weights, re-weighted in between, until the weights and the pixel
@@ -95,9 +102,14 @@ def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, s
             views, scale_change, _ = camera_noise_scales(views, residuals, per_view=False)
         active = [(v, r) for v, r in zip(views, norms) if v.active]
         sigma_new = opts.pixel_sigma_px or robust_pixel_sigma(*zip(*active))
+        old = views
         views, change = reweight(views, norms, sigma_new, opts)
-        weights_settled = abs(sigma_new - sigma) < 0.02 * sigma and change < 0.05 and scale_change < 0.02
-        settled = weights_settled and run.converged
+        level_settled = abs(sigma_new - sigma) < 0.02 * sigma and scale_change < 0.02
+        weights_settled = level_settled and change < 0.05
+        # settled also when only a few corners straddling the loss's knee still flip their weight
+        # (the largest change stays above 0.05 round after round while the estimate no longer moves)
+        settled = (weights_settled or (level_settled and _rms_weight_change(old, views) < SETTLED_RMS_WEIGHT_CHANGE)) \
+            and run.converged
         sigma = sigma_new
         if weights_settled:
             break
