@@ -166,3 +166,28 @@ def test_session_advice_takes_the_cameras_own_corner_noise():
         assert "a close-range session of 25 images" in advice, advice
         predicted = float(advice.split("would bring it to about ")[1].split(" mm")[0])
         assert predicted < 0.5 * c.error_budget["sigma_translation_norm_mm"], advice
+
+
+def test_session_advice_for_a_camera_that_has_a_session_file():
+    """A camera whose prior is already a session file's covariance is advised 25 more images, whose
+    information adds to its file's: the predicted 1-sigma is below its own (before, the advice
+    replaced the file's information with one predicted session's, as if it had none, and could name
+    a camera's own session as the remedy at a 1-sigma no better than it had)."""
+    from calibgraph.core.targets import thesis_board
+    from calibgraph.solver.session_plan import predict_session_covariance
+
+    sc = make_scene(cameras=ring_cameras([5.0, 5.0], presets=("d455",)), target=thesis_board(), n_poses=40,
+                    pixel_sigma_px=0.02, seed=3, workspace_half_extent_m=(0.4, 0.4, 0.4),
+                    fk_sigma_translation_m=5e-5, fk_sigma_rotation_rad=np.radians(0.005))
+    # each camera given its true values with the covariance a session with 0.05 px corners would give
+    true = sc.truth.intrinsics
+    files = _with(sc.problem, lambda i, n, c: replace(true[n], source="calibration", covariance=predict_session_covariance(
+        true[n], thesis_board(), pixel_sigma_px=0.05, size=9)))
+    r = solve(files)
+    for n, c in r.cameras.items():
+        advice = c.error_budget["advice"]
+        # these files' corners (0.05 px) are worse than the cameras' own (0.02 px): more images pay
+        assert "25 more close-range images" in advice and "a close-range session of 25 images" not in advice, advice
+        predicted = float(advice.split("would bring it to about ")[1].split(" mm")[0])
+        assert predicted < c.error_budget["sigma_translation_norm_mm"], advice
+        assert _z2(c, sc.truth.T_ref_cam[n]) < CHI2_6_9999, n

@@ -91,12 +91,17 @@ def intrinsics_estimated(intr: Intrinsics, options: "SolverOptions") -> bool:
     return options.intrinsics == "estimate" or intrinsics_source(intr, options) != "exact"
 
 
+def uses_file_covariance(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> bool:
+    """True when a camera's prior is the covariance its intrinsics came with (a calibration file's)."""
+    return intr.covariance is not None and not wide and intr.known and options.intrinsics == "auto"
+
+
 def intrinsics_prior_covariance(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
     """Covariance of the prior on a camera's intrinsics vector: the covariance its intrinsics came
     with (a calibration file's: over [fx, fy, cx, cy, k1, k2] and, when it covers them, [p1, p2
     [, k3]]), else the diagonal width of its source over [fx, fy, cx, cy, k1, k2]. Its size is the
     size of the vector the solver estimates."""
-    if intr.covariance is not None and not wide and intr.known and options.intrinsics == "auto":
+    if uses_file_covariance(intr, options, wide):
         return intr.covariance
     return np.diag(intrinsics_prior_sigmas(intr, options, wide) ** 2)
 
@@ -104,7 +109,7 @@ def intrinsics_prior_covariance(intr: Intrinsics, options: "SolverOptions", wide
 def intrinsics_prior_sigmas(intr: Intrinsics, options: "SolverOptions", wide: bool = False) -> np.ndarray:
     """1-sigma of the prior on a camera's intrinsics vector (see ``SolverOptions.intrinsics`` and
     :func:`intrinsics_prior_covariance`), without the correlations of a calibration file's covariance."""
-    if intr.covariance is not None and not wide and intr.known and options.intrinsics == "auto":
+    if uses_file_covariance(intr, options, wide):
         return np.sqrt(np.diag(intr.covariance))
     if options.intrinsics == "estimate" and intr.known:
         return np.array([options.intrinsics_sigma_px] * 4 + [options.distortion_sigma] * 2)

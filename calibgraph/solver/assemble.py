@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibgraph.core.errors import CalibgraphError, ObservabilityError
-from calibgraph.core.problem import Problem
+from calibgraph.core.problem import Problem, uses_file_covariance
 from calibgraph.core.transforms import inv
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.budget import advice, budgets, doubled_information
@@ -58,7 +58,9 @@ def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
         sigma_n = camera_pixel_sigma(group, n)
         size = intrinsics_size(problem, n, est) if keys[n][1] is not None else 6
         session = _session_information(problem, est, n, sigma_n, size)
-        out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=session,
+        filed = keys[n][1] is not None and uses_file_covariance(
+            problem.cameras[n], problem.options, wide=n in est.wide_intrinsics or n in est.free_intrinsics)
+        out[n] = b.to_dict(advice(n, b, lin, *keys[n], session_info=session, has_session=filed,
                                   doubled=doubled, doubled_cov=doubled_cov))
     return out
 

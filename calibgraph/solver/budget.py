@@ -75,7 +75,7 @@ def doubled_information(L: Linear) -> np.ndarray:
 
 
 def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_info=None,
-           doubled: np.ndarray | None = None, doubled_cov: np.ndarray | None = None) -> str:
+           doubled: np.ndarray | None = None, doubled_cov: np.ndarray | None = None, has_session: bool = False) -> str:
     """One line with numbers: what would shrink camera ``name``'s 1-sigma most, judged by what the
     camera's 1-sigma would become after each remedy: a close-range intrinsics session, twice the
     poses, the board's scale measured.
@@ -85,7 +85,9 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
     close-range session of 25 images gives (or a callable returning it, called only when a session
     could be the best remedy); without it, the intrinsics known exactly, the best any session can do.
     ``doubled``: :func:`doubled_information` of ``L`` (computed here when not given; one per graph
-    serves every camera); ``doubled_cov``: its inverse, when the caller has it."""
+    serves every camera); ``doubled_cov``: its inverse, when the caller has it. ``has_session``: the
+    camera's intrinsics prior is already a calibration file's covariance: the remedy is then 25 more
+    close-range images, whose information adds to the file's rather than replacing it."""
     top = max(b.shares, key=b.shares.get)
     head = f"{name}: {100 * b.shares[top]:.0f} % of its {b.sigma_mm:.2f} mm 1σ is " + {
         "corners": "corner noise", "intrinsics": "the intrinsics' prior" if b.own_intrinsics < 0.5 * b.shares["intrinsics"]
@@ -105,12 +107,14 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
     if has_K and min(options, key=options.get) == "session" and session_info is not None:
         info = session_info() if callable(session_info) else session_info
         if info is not None:  # what a real session would give, instead of the bound
-            options["session"] = sigma_with(L, cam_key, add_info={own_K_key: info - L.prior_K[own_K_key]})
+            options["session"] = sigma_with(L, cam_key, add_info={own_K_key: info if has_session
+                                                                 else info - L.prior_K[own_K_key]})
             realistic = True
     best = min(options, key=options.get)
     s = options[best]
     if best == "session":
-        how, bound = (("a close-range session of 25 images", "") if realistic
+        how, bound = ((("25 more close-range images, calibrated together with its first session's" if has_session
+                        else "a close-range session of 25 images"), "") if realistic
                       else ("a close-range intrinsics session", " at best (its intrinsics then known exactly)"))
         return (f"{head}; {how} (calibgraph intrinsics, then --intrinsics {name}=CAM.yaml) would bring it to about "
                 f"{s:.2f} mm{bound}")
