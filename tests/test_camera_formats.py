@@ -82,3 +82,17 @@ def test_unsupported_files_are_one_line(tmp_path, doc):
         read_camera_file(f)
     msg = str(e.value)
     assert str(f) in msg and len(msg.splitlines()) == 1, msg
+
+
+@pytest.mark.parametrize("raw", [
+    b'<?xml version="1.0"?>\n<foo><bar>1</bar></foo>\n',
+    b"%YAML:1.0\ncamera_matrix: !!opencv-matrix\n   rows: 2\n   cols: 2\n   dt: d\n   data: [ 1., 0., 0., 1. ]\n",
+    bytes(range(200, 256)) * 4,
+], ids=["xml_not_opencv", "opencv_2x2", "binary"])
+def test_malformed_files_are_one_line(tmp_path, raw):
+    f = tmp_path / "bad.yaml"
+    f.write_bytes(raw)
+    with pytest.raises(InputError) as e:
+        read_camera_file(f)
+    msg = str(e.value)
+    assert str(f) in msg and len(msg.splitlines()) == 1, msg

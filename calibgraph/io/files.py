@@ -72,6 +72,14 @@ def is_opencv_storage(raw: bytes) -> bool:
     return head.startswith((b"%YAML:", b"<?xml", b"<opencv_storage>")) or b"!!opencv-" in raw
 
 
+def _error_line(e: BaseException) -> str:
+    """The last line of an exception's message (of its cause when it wraps one), without OpenCV's
+    source location."""
+    cause = e.__cause__ or e
+    text = str(cause).strip()
+    return text.splitlines()[-1].split(" error: ")[-1] if text else type(cause).__name__
+
+
 def read_opencv_storage(path, what: str, raw: bytes | None = None) -> dict:
     """The top-level nodes of an OpenCV FileStorage file (YAML or XML) as a dict: strings, ints,
     reals, and matrices as numpy arrays. ``raw``: its bytes when already read."""
@@ -81,9 +89,8 @@ def read_opencv_storage(path, what: str, raw: bytes | None = None) -> dict:
     raw = read_input_bytes(p, what) if raw is None else raw
     try:
         fs = cv2.FileStorage(raw.decode("utf-8"), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except (cv2.error, UnicodeDecodeError) as e:
-        raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file: "
-                         f"{str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__}") from None
+    except (cv2.error, SystemError, UnicodeDecodeError) as e:  # OpenCV 5 wraps its parse error in a SystemError
+        raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file: {_error_line(e)}") from None
     if not fs.isOpened():
         raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file.")
     out = {}
@@ -100,6 +107,8 @@ def read_opencv_storage(path, what: str, raw: bytes | None = None) -> dict:
                 out[key] = [node.at(i).real() for i in range(node.size())]
             else:  # a matrix (None for anything else)
                 out[key] = node.mat()
+    except (cv2.error, SystemError) as e:
+        raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file: {_error_line(e)}") from None
     finally:
         fs.release()
     return out
