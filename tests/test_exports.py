@@ -86,6 +86,11 @@ def test_opencv_filestorage_round_trip(tmp_path):
         assert back["frame_parent"] == "base" and back["frame_child"] == f"{n}_optical_frame"
         text = p.read_text()
         assert text.startswith("%YAML") and "metres" in text and "optical" in text
+        # and it is a camera file for --intrinsics: the intrinsics the calibration used, the pose's
+        # covariance not taken for theirs
+        from calibgraph.io.camera_file import read_camera_file
+        cam = read_camera_file(p)
+        assert np.array_equal(cam.K, intr.K) and np.array_equal(cam.dist, intr.dist) and cam.covariance is None
 
 
 def test_opencv_yaml_without_intrinsics_says_so(tmp_path):

@@ -27,7 +27,7 @@ solver's prior for their source, ``--intrinsics-source``, applies):
   (``width``, ``height``, ``k``, ``d``, ``distortion_model``);
 - an OpenCV FileStorage file (``%YAML:1.0`` or XML: ``camera_matrix``, ``distortion_coefficients``,
   ``image_width``, ``image_height``), as OpenCV's calibration samples and ``calibgraph export
-  --format opencv`` write;
+  --format opencv-yaml`` write;
 - a Kalibr camchain or camera YAML with one pinhole camera (``intrinsics: [fu, fv, pu, pv]``,
   ``distortion_model: radtan | none``, ``distortion_coeffs``, ``resolution: [w, h]``).
 
