@@ -9,6 +9,7 @@ import yaml
 from helpers import make_sim_result
 
 from calibgraph.core.camera import Intrinsics
+from calibgraph.core.errors import InputError
 from calibgraph.core.transforms import exp_so3, quat_xyzw_to_R
 from calibgraph.report.exports import (
     R_to_rpy,
@@ -91,6 +92,26 @@ def test_opencv_filestorage_round_trip(tmp_path):
         from calibgraph.io.camera_file import read_camera_file
         cam = read_camera_file(p)
         assert np.array_equal(cam.K, intr.K) and np.array_equal(cam.dist, intr.dist) and cam.covariance is None
+
+
+def test_ros_camera_info_round_trip(tmp_path):
+    """export --format camera-info: one ROS camera_info YAML per camera, read back by the camera-file
+    reader (and so by --intrinsics) as the intrinsics the calibration used."""
+    from calibgraph.io.camera_file import read_camera_file
+
+    d, *_ = make_sim_result()
+    paths = export(d, "camera-info", tmp_path)
+    assert len(paths) == len(d.cameras)
+    for p in paths:
+        doc = yaml.safe_load(p.read_text())
+        intr = Intrinsics.from_dict(d.cameras[doc["camera_name"]].intrinsics)
+        assert doc["distortion_model"] == "plumb_bob" and doc["projection_matrix"]["cols"] == 4
+        back = read_camera_file(p)
+        assert np.allclose(back.K, intr.K, rtol=0, atol=1e-12) and np.allclose(back.dist8, intr.dist8, atol=1e-15)
+        assert (back.width_px, back.height_px) == (intr.width_px, intr.height_px)
+    without, *_ = make_sim_result(intrinsics=False)
+    with pytest.raises(InputError, match="camera-info needs cameras with known intrinsics"):
+        export(without, "camera-info", tmp_path / "none")
 
 
 def test_opencv_yaml_without_intrinsics_says_so(tmp_path):

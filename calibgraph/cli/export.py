@@ -1,4 +1,4 @@
-"""``calibgraph export RESULT --format urdf|ros2-launch|opencv-yaml|yaml|json|robot --out DIR``, and
+"""``calibgraph export RESULT --format urdf|ros2-launch|opencv-yaml|camera-info|yaml|json|robot --out DIR``, and
 ``calibgraph export DATASET --format mchec --out DIR`` (a dataset in the Multi-Camera-Hand-Eye-
 Calibration layout, for moving data between the two tools).
 
@@ -14,7 +14,8 @@ from calibgraph.report.exports import FORMATS
 
 
 def add_parser(sub):
-    p = sub.add_parser("export", help="write the result for a robot stack (URDF, ROS 2 launch, OpenCV YAML, YAML)",
+    p = sub.add_parser("export", help="write the result for a robot stack (URDF, ROS 2 launch, OpenCV YAML, ROS "
+                                      "camera_info, YAML)",
                        description="Export camera poses (and intrinsics when known) in standard formats. "
                                    "Frames and units are stated in every file.")
     p.add_argument("result", type=Path, help="result.json or result.yaml written by `calibgraph solve` "
@@ -24,7 +25,7 @@ def add_parser(sub):
                         "result solved with --estimate-kinematics; urdf writes them too)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--dataset", type=Path, default=None,
-                   help="dataset folder for intrinsics when the result has none (opencv-yaml)")
+                   help="dataset folder for intrinsics when the result has none (opencv-yaml, camera-info)")
     p.add_argument("--parent", default=None,
                    help="parent frame/link name (default base_link, or flange for eye-in-hand)")
     return p

@@ -11,6 +11,9 @@ one from result.json; a result dict is converted), so they work from the file al
   ``static_transform_publisher`` per camera (translation + quaternion x y z w);
 - :func:`write_opencv_yaml` -- one OpenCV FileStorage YAML per camera with ``camera_matrix``,
   ``distortion_coefficients``, ``image_width/height``, ``T_<ref>_cam`` and its sigmas/covariance.
+- :func:`write_camera_info` -- one ROS camera_info YAML per camera (``camera_calibration``'s format,
+  which ``camera_info_manager`` loads from a driver's ``camera_info_url``): the intrinsics the camera
+  was solved with.
 
 - :func:`write_robot_exports` -- when the result has a ``robot`` section (solved with
   ``--estimate-kinematics joint-offsets``): ``<model>_corrected.urdf``, the arm's URDF with each joint
@@ -45,7 +48,7 @@ from calibgraph.io.layouts import as_dataset
 from calibgraph.solver.kinematics import load_chain
 from calibgraph.solver.result import as_result
 
-FORMATS = ("urdf", "ros2-launch", "opencv-yaml", "yaml", "json", "robot")
+FORMATS = ("urdf", "ros2-launch", "opencv-yaml", "camera-info", "yaml", "json", "robot")
 
 DEFAULT_PARENT = {"base": "base_link", "flange": "flange"}
 RESERVED_FILE_STEMS = ("result", "joint_offsets")  # file names other exports write into the same folder
@@ -309,6 +312,43 @@ def _write_opencv_camera(tmp: Path, result, name: str, ident: str, intr) -> None
     fs.release()
 
 
+def write_camera_info(result, out_dir, dataset=None) -> list:
+    """One ROS camera_info YAML per calibrated camera with known intrinsics
+    (``<out_dir>/<camera>_camera_info.yaml``): ``image_width``, ``image_height``, ``camera_name``,
+    ``camera_matrix``, ``distortion_model`` (``plumb_bob`` for up to 5 coefficients,
+    ``rational_polynomial`` for 8), ``distortion_coefficients``, ``rectification_matrix`` (identity)
+    and ``projection_matrix`` ([K | 0]: a monocular camera). Returns the paths; a camera without known
+    intrinsics gets no file (and a result with none is refused)."""
+    import yaml
+
+    result = as_result(result, "export")
+    out = output_folder(out_dir, "export folder")
+    ids = export_names(result)
+    paths = []
+    for name in result.calibrated:
+        intr = camera_intrinsics(result, name, dataset)
+        if intr is None:
+            continue
+        dist = intr.dist8 if intr.dist.size > 5 else intr.dist8[:5]
+        K = [float(v) for v in intr.K.ravel()]
+        P = np.hstack([intr.K, np.zeros((3, 1))])
+        doc = {"image_width": int(intr.width_px), "image_height": int(intr.height_px), "camera_name": ids[name],
+               "camera_matrix": {"rows": 3, "cols": 3, "data": K},
+               "distortion_model": "rational_polynomial" if dist.size == 8 else "plumb_bob",
+               "distortion_coefficients": {"rows": 1, "cols": int(dist.size), "data": [float(v) for v in dist]},
+               "rectification_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in np.eye(3).ravel()]},
+               "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in P.ravel()]}}
+        head = "".join(f"# {line}\n" for line in _header_lines(result)[:1]) + (
+            "# ROS camera_info (camera_calibration format): the intrinsics calibgraph solved this camera with\n")
+        p = out / f"{ids[name]}_camera_info.yaml"
+        atomic_write_text(p, head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120))
+        paths.append(p)
+    if not paths:
+        raise InputError("export: --format camera-info needs cameras with known intrinsics; the result records none "
+                         "(give the dataset with --dataset).")
+    return paths
+
+
 def read_opencv_yaml(path) -> dict:
     """Read back a file written by :func:`write_opencv_yaml` (matrices as numpy arrays)."""
     return read_opencv_storage(path, "OpenCV YAML")
@@ -331,6 +371,8 @@ def export(result, fmt: str, out_dir, dataset=None, parent: str | None = None) -
         return [write_ros2_launch(result, out / "calibgraph_cameras.launch.py", parent=parent)]
     if fmt == "opencv-yaml":
         return write_opencv_yaml(result, out, dataset=dataset)
+    if fmt == "camera-info":
+        return write_camera_info(result, out, dataset=dataset)
     if fmt == "yaml":
         return [write_result(result, out / "result.yaml")]
     if fmt == "json":
