@@ -87,14 +87,11 @@ def read_opencv_storage(path, what: str, raw: bytes | None = None) -> dict:
 
     p = Path(path)
     raw = read_input_bytes(p, what) if raw is None else raw
+    out, fs = {}, None
     try:
         fs = cv2.FileStorage(raw.decode("utf-8"), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except (cv2.error, SystemError, UnicodeDecodeError) as e:  # OpenCV 5 wraps its parse error in a SystemError
-        raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file: {_error_line(e)}") from None
-    if not fs.isOpened():
-        raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file.")
-    out = {}
-    try:
+        if not fs.isOpened():
+            raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file.")
         for key in fs.root().keys():
             node = fs.getNode(key)
             if node.isString():
@@ -107,10 +104,11 @@ def read_opencv_storage(path, what: str, raw: bytes | None = None) -> dict:
                 out[key] = [node.at(i).real() for i in range(node.size())]
             else:  # a matrix (None for anything else)
                 out[key] = node.mat()
-    except (cv2.error, SystemError) as e:
+    except (cv2.error, SystemError, UnicodeDecodeError) as e:  # OpenCV 5 wraps its parse error in a SystemError
         raise InputError(f"{p}: cannot read {what} as an OpenCV FileStorage file: {_error_line(e)}") from None
     finally:
-        fs.release()
+        if fs is not None:
+            fs.release()
     return out
 
 

@@ -267,16 +267,22 @@ def write_opencv_yaml(result, out_dir, dataset=None) -> list:
     be the name of another export: result, joint_offsets).
     """
     result = as_result(result, "export")
-    out = output_folder(out_dir, "export folder")
-    ids = export_names(result)
     paths = []
-    for name in result.calibrated:
-        intr = camera_intrinsics(result, name, dataset)
-        stem = ids[name] if ids[name] not in RESERVED_FILE_STEMS else f"camera_{ids[name]}"
+    for out, name, ident, intr in _calibrated_cameras(result, out_dir, dataset):
+        stem = ident if ident not in RESERVED_FILE_STEMS else f"camera_{ident}"
         p = out / f"{stem}.yaml"
-        atomic_write_via(p, lambda tmp: _write_opencv_camera(tmp, result, name, ids[name], intr), tmp_suffix=".yaml")
+        atomic_write_via(p, lambda tmp: _write_opencv_camera(tmp, result, name, ident, intr), tmp_suffix=".yaml")
         paths.append(p)
     return paths
+
+
+def _calibrated_cameras(result, out_dir, dataset=None):
+    """(export folder, camera name, its export identifier, its intrinsics or None) of each calibrated
+    camera of ``result`` (a :class:`~calibgraph.solver.result.Result`), the folder made first."""
+    out = output_folder(out_dir, "export folder")
+    ids = export_names(result)
+    for name in result.calibrated:
+        yield out, name, ids[name], camera_intrinsics(result, name, dataset)
 
 
 def _write_opencv_camera(tmp: Path, result, name: str, ident: str, intr) -> None:
@@ -322,31 +328,31 @@ def write_camera_info(result, out_dir, dataset=None) -> list:
     import yaml
 
     result = as_result(result, "export")
-    out = output_folder(out_dir, "export folder")
-    ids = export_names(result)
     paths = []
-    for name in result.calibrated:
-        intr = camera_intrinsics(result, name, dataset)
+    for out, name, ident, intr in _calibrated_cameras(result, out_dir, dataset):
         if intr is None:
             continue
         dist = intr.dist8 if intr.dist.size > 5 else intr.dist8[:5]
-        K = [float(v) for v in intr.K.ravel()]
-        P = np.hstack([intr.K, np.zeros((3, 1))])
-        doc = {"image_width": int(intr.width_px), "image_height": int(intr.height_px), "camera_name": ids[name],
-               "camera_matrix": {"rows": 3, "cols": 3, "data": K},
+        doc = {"image_width": int(intr.width_px), "image_height": int(intr.height_px), "camera_name": ident,
+               "camera_matrix": _ros_matrix(intr.K),
                "distortion_model": "rational_polynomial" if dist.size == 8 else "plumb_bob",
-               "distortion_coefficients": {"rows": 1, "cols": int(dist.size), "data": [float(v) for v in dist]},
-               "rectification_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in np.eye(3).ravel()]},
-               "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in P.ravel()]}}
+               "distortion_coefficients": _ros_matrix(dist.reshape(1, -1)),
+               "rectification_matrix": _ros_matrix(np.eye(3)),
+               "projection_matrix": _ros_matrix(np.hstack([intr.K, np.zeros((3, 1))]))}
         head = "".join(f"# {line}\n" for line in _header_lines(result)[:1]) + (
             "# ROS camera_info (camera_calibration format): the intrinsics calibgraph solved this camera with\n")
-        p = out / f"{ids[name]}_camera_info.yaml"
+        p = out / f"{ident}_camera_info.yaml"
         atomic_write_text(p, head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120))
         paths.append(p)
     if not paths:
         raise InputError("export: --format camera-info needs cameras with known intrinsics; the result records none "
                          "(give the dataset with --dataset).")
     return paths
+
+
+def _ros_matrix(M: np.ndarray) -> dict:
+    """A matrix as ROS camera_info YAML writes one: ``{rows, cols, data}`` (row-major)."""
+    return {"rows": int(M.shape[0]), "cols": int(M.shape[1]), "data": [float(v) for v in M.ravel()]}
 
 
 def read_opencv_yaml(path) -> dict:
