@@ -230,3 +230,84 @@ def test_a_camera_that_was_not_calibrated_round_trips_and_is_reported(tmp_path):
 
     vr = verify(make_scene(n_poses=6, pixel_sigma_px=0.3, seed=14, shared_fraction=0.6, reported_intrinsics="exact").problem, r)
     assert "cam1" not in vr.cameras and any("cam1 was not calibrated" in n for n in vr.notes), vr.notes
+
+
+# -- provenance of the intrinsics, notes that name their camera (issue 35) ---------------------------
+def _provenance_scene():
+    from calibgraph.core.camera import Intrinsics
+
+    sc = make_scene(n_poses=30, seed=4, reported_intrinsics="exact")
+    cams = dict(sc.problem.cameras)
+    cams["cam0"] = replace(cams["cam0"], source="factory")  # stated with the camera
+    cams["cam1"] = replace(cams["cam1"], source="")  # not stated: the solver's default applies
+    cams["cam2"] = Intrinsics.unknown(cams["cam2"].width_px, cams["cam2"].height_px)
+    return sc.problem.with_(cameras=cams)
+
+
+def test_intrinsics_provenance_per_camera(tmp_path):
+    """result.json says per camera where the given intrinsics came from (stated, or the default)
+    and how the solver used them, with the prior's width; the settings no longer claim one source
+    for every camera; a result written before (no such keys) still says what it can."""
+    from calibgraph.solver.result import intrinsics_provenance
+
+    prob = _provenance_scene()
+    res = cg.solve(prob)
+    d = json.loads(res.save(tmp_path / "r.json").read_text())
+    cams = d["cameras"]
+    got = {n: (c["intrinsics"]["source_given"], c["intrinsics"]["source_stated"], c["intrinsics"]["source_used"])
+           for n, c in cams.items()}
+    assert got == {"cam0": ("factory", True, "factory"), "cam1": ("calibration", False, "calibration"),
+                   "cam2": ("unknown", True, "own-views")}, got
+    fx = {n: prob.cameras[n].K[0, 0] for n in ("cam0", "cam1")}
+    assert np.isclose(cams["cam0"]["intrinsics"]["prior_sigma"]["fx"], 0.02 * fx["cam0"])  # factory: f 2 %
+    assert np.isclose(cams["cam1"]["intrinsics"]["prior_sigma"]["fx"], 0.003 * fx["cam1"])  # calibration: f 0.3 %
+    assert set(cams["cam2"]["intrinsics"]["prior_sigma"]) == set(cams["cam2"]["intrinsics"]["sigma"])
+    settings = d["solver"]["settings"]
+    assert "intrinsics_source" not in settings and settings["intrinsics_source_default"] == "calibration"
+    back = cg.load_result(tmp_path / "r.json")
+    assert back == res and {n: tuple(intrinsics_provenance(c, back.settings).values())
+                            for n, c in back.cameras.items()} == got
+    # the same cameras with the default set to factory, and held as given
+    o = prob.options
+    res_f = cg.solve(prob.with_(options=replace(o, intrinsics_source="factory", intrinsics="fixed")))
+    used = {n: (c.intrinsics["source_given"], c.intrinsics["source_used"], "prior_sigma" in c.intrinsics)
+            for n, c in res_f.cameras.items()}
+    assert used == {"cam0": ("factory", "held", False), "cam1": ("factory", "held", False),
+                    "cam2": ("unknown", "own-views", True)}, used
+    # a result.json of an earlier calibgraph: the camera's own source, else the settings' one source
+    old = json.loads(json.dumps(d))
+    for c in old["cameras"].values():
+        for k in ("source_given", "source_stated", "source_used", "prior_sigma"):
+            c["intrinsics"].pop(k)
+    old["solver"]["settings"]["intrinsics_source"] = old["solver"]["settings"].pop("intrinsics_source_default")
+    old_res = Result.from_dict(old)
+    assert {n: tuple(intrinsics_provenance(c, old_res.settings).values()) for n, c in old_res.cameras.items()} == got
+
+
+def test_notes_name_the_camera_they_concern(tmp_path):
+    from calibgraph.solver.result import note_camera
+
+    names = ["cam1", "cam10", "left", "left cam"]
+    assert note_camera("camera cam1: principal point cx estimated", names) == "cam1"
+    assert note_camera("camera cam10: focal length", names) == "cam10"
+    assert note_camera("camera cam1 moved during capture, between captures 3 and 4", names) == "cam1"
+    assert note_camera("camera cam1 (before the move): focal length", names) == "cam1"
+    assert note_camera("camera left cam: its residuals move whole boards", names) == "left cam"
+    assert note_camera("camera left: its residuals", names) == "left"
+    assert note_camera("camera cam3: unknown", names) is None
+    assert note_camera("robot: the fitted flange poses depart", names) is None
+    assert note_camera("the board is +0.30 % (± 0.05 %) the size", names) is None
+    res = _provenance_scene_result()
+    d = json.loads(res.save(tmp_path / "r.json").read_text())
+    assert len(d["note_cameras"]) == len(d["notes"]) > 0
+    for note, cam in zip(d["notes"], d["note_cameras"]):
+        assert (cam is not None) == note.startswith("camera "), (note, cam)
+        if cam is not None:
+            assert note.startswith(f"camera {cam}") and note in res.camera_notes(cam)
+    # cam2's intrinsics were found from its views: the solver's note on it is cam2's
+    assert any("no intrinsics were given" in t for t in res.camera_notes("cam2"))
+
+
+@lru_cache(maxsize=1)
+def _provenance_scene_result():
+    return cg.solve(_provenance_scene())

@@ -10,6 +10,7 @@ import numpy as np
 
 from calibgraph.core.problem import mode_frames, option_flags
 from calibgraph.solver.build import build_problem
+from calibgraph.solver.result import given_intrinsics_source
 
 
 EXIT_NOT_CALIBRATED = 3  # the result is written, but a camera could not be calibrated from its views
@@ -88,9 +89,8 @@ def oracle_label(result) -> str:
     """'' or ' (true intrinsics held: oracle)' (naming the cameras when not all): a result whose
     cameras' intrinsics were a simulation's true ones ('exact') and held, not estimated, is an
     oracle's, and every figure shown from it must say so."""
-    default = (getattr(result, "settings", None) or {}).get("intrinsics_source")
     held = [n for n, c in result.cameras.items() if not (c.intrinsics or {}).get("estimated")
-            and ((c.intrinsics or {}).get("source") or default) == "exact"]
+            and given_intrinsics_source(c, getattr(result, "settings", None)) == "exact"]
     if not held:
         return ""
     return f" ({ORACLE})" if len(held) == len(result.cameras) else f" ({', '.join(held)}: {ORACLE})"

@@ -122,6 +122,9 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
         robot, robot_notes = robot_result(problem, ks, groups[0])
         notes += robot_notes
     settings = {k: getattr(problem.options, k) for k in problem.options.__dataclass_fields__}
+    # the default applies only to cameras whose intrinsics do not state a source: each camera's own
+    # provenance is in its intrinsics record (source_given, source_stated, source_used)
+    settings["intrinsics_source_default"] = settings.pop("intrinsics_source")
     settings["formulation_used"] = groups[0].est.formulation
     fk_ratio = groups[0].est.fk_ratio if len(groups) == 1 else None
     return Result(

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibgraph.core.errors import ObservabilityError
-from calibgraph.core.problem import Problem, intrinsics_source
+from calibgraph.core.problem import Problem, intrinsics_source, uses_file_covariance
 from calibgraph.solver.factors import intrinsics_vector
 from calibgraph.core.camera import intrinsics_names
 from calibgraph.solver.graph import Estimate, estimates_intrinsics, intrinsics_prior
@@ -130,19 +130,54 @@ def board_scale(problem: Problem, groups: list, robot_suspect: bool = False) -> 
                       + "; the calibration accounts for it — check the print with a ruler and fix the target spec"]
 
 
+# how the solver used a camera's given intrinsics (result.json ``intrinsics.source_used``)
+INTRINSICS_USES = {
+    "held": "held as given, not estimated",
+    "factory": "estimated under the factory prior",
+    "calibration": "estimated under the calibration prior",
+    "file-covariance": "estimated under the covariance its file came with",
+    "wide": "estimated under a wide prior: the data disagreed with the given values",
+    "refine": "estimated under the --refine-intrinsics prior",
+    "own-views": "none given: found from its own views",
+}
+
+
+def intrinsics_use(problem: Problem, name: str, est: Estimate) -> str:
+    """How the solver used camera ``name``'s given intrinsics (a key of :data:`INTRINSICS_USES`)."""
+    intr, o = problem.cameras[name], problem.options
+    if not intr.known:
+        return "own-views"
+    if not estimates_intrinsics(problem, name, est):
+        return "held"
+    if name in est.wide_intrinsics or name in est.free_intrinsics:
+        return "wide"
+    if o.intrinsics == "estimate":
+        return "refine"
+    return "file-covariance" if uses_file_covariance(intr, o) else intrinsics_source(intr, o)
+
+
 def intrinsics_record(problem: Problem, name: str, est: Estimate) -> dict:
-    """The camera's intrinsics as result.json records them: the model solved with and, when
-    estimated, ``estimated``, ``prior`` (its source, or 'wide'), ``sigma`` and ``given`` (over fx, fy,
-    cx, cy, k1, k2, and p1, p2 (, k3) when a calibration file's covariance brought them in)."""
+    """The camera's intrinsics as result.json records them: the model solved with; their provenance
+    (``source_given``: the source they came with, the solver's default when the camera's own did
+    not say, ``source_stated``: whether it did, ``source_used``: :func:`intrinsics_use`); and, when
+    estimated, ``estimated``, ``prior`` (its source, or 'wide'), ``prior_sigma`` (the prior's 1-sigma),
+    ``sigma`` and ``given`` (over fx, fy, cx, cy, k1, k2, and p1, p2 (, k3) when a calibration file's
+    covariance brought them in, or the full model of a camera of unknown intrinsics)."""
+    intr, o = problem.cameras[name], problem.options
     d = est.camera_model(name, problem.cameras).to_dict()
+    d["source_given"] = intrinsics_source(intr, o)
+    d["source_stated"] = bool(intr.source)
+    d["source_used"] = intrinsics_use(problem, name, est)
     if est.marginals is None or not estimates_intrinsics(problem, name, est):
         return d
     sig = np.sqrt(np.clip(np.diag(est.marginals.marginalCovariance(K(est.slots[name]))), 0, None))
     wide = name in est.wide_intrinsics or name in est.free_intrinsics
     d["estimated"] = True
-    d["prior"] = "wide" if wide else intrinsics_source(problem.cameras[name], problem.options)
+    d["prior"] = "wide" if wide else intrinsics_source(intr, o)
+    d["prior_sigma"] = dict(zip(intrinsics_names(sig.size),
+                                np.sqrt(np.clip(np.diag(intrinsics_prior(problem, name, est)), 0, None)).tolist()))
     d["sigma"] = dict(zip(intrinsics_names(sig.size), sig.tolist()))
-    d["given"] = dict(zip(intrinsics_names(sig.size), intrinsics_vector(problem.cameras[name], sig.size).tolist()))
+    d["given"] = dict(zip(intrinsics_names(sig.size), intrinsics_vector(intr, sig.size).tolist()))
     return d
 
 

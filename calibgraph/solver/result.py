@@ -16,8 +16,9 @@ round-trip it exactly (every number, array and note), in JSON or YAML.
   axes: rotation vector of ``R_est R_true^T`` and camera-centre offset), ``reprojection_rms_px``,
   ``reprojection_max_px``, ``pixel_sigma_px`` (the a posteriori sigma of its corners, px per
   axis: each camera's own), ``views_used``, ``views_rejected`` (list of {capture, reason}),
-  ``corners_used``, ``corners_rejected``, ``intrinsics`` (K, dist, width_px, height_px used; with
-  ``sigma`` and ``given`` when they were estimated), ``corner_noise``, ``error_budget`` (what the
+  ``corners_used``, ``corners_rejected``, ``intrinsics`` (K, dist, width_px, height_px used; their
+  provenance ``source_given``, ``source_stated``, ``source_used``; with ``prior_sigma``, ``sigma`` and
+  ``given`` when they were estimated), ``corner_noise``, ``error_budget`` (what the
   1-sigma is made of); ``moved`` when the camera moved during capture (the pose above is the one
   after the move): ``capture`` (first capture after it), ``last_capture_before``,
   ``views_before``/``views_after``, ``displacement_mm``, ``sigma_displacement_mm``, ``rotation_deg``,
@@ -27,8 +28,11 @@ round-trip it exactly (every number, array and note), in JSON or YAML.
   ``sigma_rotation_deg`` and ``covariance`` (6x6, rotation first, in frame a's axes).
 - ``board_mount``: covariance and sigmas of the board mount.
 - ``board_scale``: {scale, sigma} of the printed board against its spec (sigma null: not estimated).
-- ``solver``: converged, iterations, final cost, pixel sigma used, time, settings.
-- ``notes``: what the solver noticed and did, one line each.
+- ``solver``: converged, iterations, final cost, pixel sigma used, time, settings (the options;
+  ``intrinsics_source_default``, the source of cameras whose intrinsics state none).
+- ``notes``: what the solver noticed and did, one line each; ``note_cameras``: per note, the camera
+  it concerns (null: the whole cell), for readers (derived from the notes, which name their camera
+  first; not read back).
 - ``fk_noise``: the stated FK accuracy against the fit, when it was checked.
 - ``robot`` (with kinematics='joint-offsets'): ``joint_offsets_rad`` (n; physical angle = reported +
   offset), ``joint_offsets_sigma_rad`` (None for fixed joints), ``fixed`` ({joint, reason}),
@@ -263,6 +267,21 @@ class Result:
         return {n: c.why for n, c in self.cameras.items() if not c.calibrated}
 
     @property
+    def note_cameras(self) -> tuple:
+        """Per note, the camera it concerns, or None for a note on the whole cell (board, robot):
+        the solver's notes on one camera begin with 'camera NAME' (:func:`note_camera`)."""
+        return tuple(note_camera(n, self.cameras) for n in self.notes)
+
+    def camera_notes(self, name: str) -> list:
+        """The notes that concern camera ``name``."""
+        return [n for n, c in zip(self.notes, self.note_cameras) if c == name]
+
+    @property
+    def cell_notes(self) -> list:
+        """The notes on the whole cell (no one camera's)."""
+        return [n for n, c in zip(self.notes, self.note_cameras) if c is None]
+
+    @property
     def T_flange_board(self):
         return self.T_mount_board if self.mode == "eye_to_hand" else None
 
@@ -345,6 +364,7 @@ class Result:
             },
             "board_scale": {"scale": self.board_scale, "sigma": self.board_scale_sigma},
             "notes": list(self.notes),
+            "note_cameras": list(self.note_cameras),
             **({"fk_noise": self.fk_noise} if self.fk_noise is not None else {}),
             **({"robot": self.robot} if self.robot is not None else {}),
             "rejected_views": [{"camera": v.camera, "capture": v.capture, "reason": v.reason}
@@ -482,6 +502,46 @@ def check_result_dict(d, where: str = "result") -> None:
             raise InputError(f"{where}: result format {fmt!r} is newer than this calibgraph "
                              f"({d.get('calibgraph_version', '?')} wrote it) reads ({RESULT_FORMAT}); upgrade calibgraph.")
         raise InputError(f"{where}: format {fmt!r} is not a calibgraph result ({RESULT_FORMAT}).")
+
+
+def note_camera(note: str, names) -> str | None:
+    """The camera of ``names`` a solver note concerns: the longest name that follows its opening
+    'camera ' and ends there or at a space or colon (so 'cam1' is not 'cam10', and a camera that
+    moved keeps the notes its views before the move got as '<name> (before the move)'); None
+    for a note on the whole cell."""
+    if not note.startswith("camera "):
+        return None
+    rest = note[len("camera "):]
+    hits = [n for n in names if rest.startswith(n) and rest[len(n):len(n) + 1] in ("", " ", ":")]
+    return max(hits, key=len) if hits else None
+
+
+def intrinsics_provenance(camera: CameraResult, settings: dict | None = None) -> dict:
+    """Where a camera's intrinsics came from and how they were used: ``{'given', 'stated', 'used'}``
+    (``source_given``, ``source_stated``, ``source_used`` of its record). A result written before
+    they were recorded gives what its record and ``settings`` imply: the camera's own ``source``, else
+    the solver's default; the use from ``estimated`` and ``prior``. Empty strings when unknown."""
+    d, settings = camera.intrinsics or {}, settings or {}
+    if "source_used" in d:
+        return {"given": str(d.get("source_given") or ""), "stated": bool(d.get("source_stated")),
+                "used": str(d["source_used"])}
+    default = settings.get("intrinsics_source_default", settings.get("intrinsics_source")) or ""
+    given = str(d.get("source") or default)
+    if not d:
+        used = ""
+    elif not d.get("estimated"):
+        used = "held"
+    elif d.get("prior") in ("wide", "unknown"):
+        used = "wide" if d["prior"] == "wide" else "own-views"
+    else:
+        used = "refine" if settings.get("intrinsics") == "estimate" else str(d.get("prior") or "")
+    return {"given": given, "stated": bool(d.get("source")), "used": used}
+
+
+def given_intrinsics_source(camera: CameraResult, settings: dict | None = None) -> str:
+    """The source a camera's given intrinsics came with ('factory', 'calibration', 'exact',
+    'unknown'; '' when the result does not say), see :func:`intrinsics_provenance`."""
+    return intrinsics_provenance(camera, settings)["given"]
 
 
 def solved_target(result: Result) -> Target | None:
