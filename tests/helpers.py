@@ -1,4 +1,5 @@
-"""Helpers shared by the tests (not a test module): the simulator gate, the hardware-SDK gate, one
+"""Helpers shared by the tests (not a test module): the simulator gate, the hardware-SDK gate, the
+browser gate (headless Chromium), one
 simulated-world fixture factory, and a solved simulated cell with injected outliers for the report,
 viewer and export tests."""
 
@@ -75,6 +76,43 @@ def require_realsense():
     return drv._rs
 
 
+# -- a real browser ------------------------------------------------------------------------------
+def chromium_binary():
+    """The path of a Chromium (or Chrome) on PATH, or None."""
+    import shutil
+
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+def require_chromium() -> str:
+    """The Chromium binary; without one, skip with the reason, or fail when
+    CALIBGRAPH_BROWSER_REQUIRED=1 (CI, whose .ci/run installs it)."""
+    exe = chromium_binary()
+    if exe is None:
+        msg = "chromium not installed (apt-get install chromium)"
+        if os.environ.get("CALIBGRAPH_BROWSER_REQUIRED") == "1":
+            pytest.fail(msg + " and CALIBGRAPH_BROWSER_REQUIRED=1", pytrace=False)
+        pytest.skip(msg)
+    return exe
+
+
+def run_chromium(args: list, timeout_s: float = 60.0):
+    """Headless Chromium with a fresh profile, no network chatter, as root-safe flags."""
+    import subprocess
+    import tempfile
+
+    exe = require_chromium()
+    with tempfile.TemporaryDirectory() as prof:
+        cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+               "--disable-background-networking", "--disable-component-update", "--disable-sync",
+               "--hide-scrollbars", f"--user-data-dir={prof}", *args]
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+
+
 def sim_world_fixture(make_cell):
     """A module-scoped pytest fixture yielding a :class:`~calibgraph.sim.render.SimWorld` of the cell
     ``make_cell()`` returns (skipped without the simulator), closed after the module."""
@@ -127,6 +165,17 @@ def make_sim_result(seed: int = 0, mode: str = "eye_to_hand", intrinsics: bool =
         if not intrinsics:
             c.pop("intrinsics")
     return Result.from_dict(d), scene, prob, res
+
+
+@lru_cache(maxsize=1)
+def knocked_result():
+    """The solved Result of a simulated 3-camera cell (36 poses, FK noise 0.1 mm / 0.01 deg) whose
+    cam0 was knocked 5 mm after capture 18: a moved camera, its notes, each camera's budget."""
+    from calibgraph.sim.synthetic_corners import bump_camera
+
+    scene = make_scene(n_poses=36, seed=0, fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01))
+    prob, _ = bump_camera(scene, "cam0", 18, 0.005, seed=0)
+    return solve(prob)
 
 
 def write_sim_dataset(root: Path, prob) -> Path:

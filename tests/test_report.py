@@ -5,16 +5,13 @@ rendered in headless Chromium.
 
 import html.parser
 import json
-import os
-import shutil
-import subprocess
-import tempfile
 
 import numpy as np
 import pytest
-from helpers import make_sim_result, write_sim_dataset
+from helpers import knocked_result, make_sim_result, run_chromium, write_sim_dataset
 
 from calibgraph.io.layouts import load_dataset
+from calibgraph.report.findings import advice_for
 from calibgraph.report.html import (
     compute_residuals,
     load_tolerances,
@@ -158,26 +155,6 @@ def test_cli_report(tmp_path):
 
 
 # -- real browser --------------------------------------------------------------------------------------
-def chromium_binary():
-    for name in ("chromium", "chromium-browser", "google-chrome"):
-        p = shutil.which(name)
-        if p:
-            return p
-    return None
-
-
-def run_chromium(args: list, timeout_s: float = 60.0) -> subprocess.CompletedProcess:
-    """Headless Chromium with a fresh profile, no network chatter, as root-safe flags."""
-    exe = chromium_binary()
-    with tempfile.TemporaryDirectory() as prof:
-        cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-               "--disable-background-networking", "--disable-component-update", "--disable-sync",
-               "--hide-scrollbars", f"--user-data-dir={prof}", *args]
-        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
-
-
-@pytest.mark.skipif(chromium_binary() is None and os.environ.get("CALIBGRAPH_SHARED_REQUIRED") != "1",
-                    reason="chromium not installed (apt-get install chromium)")
 def test_report_renders_in_headless_chromium(tmp_path):
     d, *_ = make_sim_result()
     out = write_report(d, tmp_path / "report.html")
@@ -241,3 +218,83 @@ def test_a_dataset_that_is_not_the_results_is_named(tmp_path):
     with pytest.raises(InputError, match="not the dataset this result was solved from"):
         write_report(more, tmp_path / "r.html", dataset=ds)
     assert not (tmp_path / "r.html").exists()
+
+
+# -- what the solver knows: budget, advice, notes, intrinsics, moves (issue 35) ------------------------
+def _report_text_of(fragment: str) -> str:
+    """The text of an HTML fragment as a reader sees it (tags dropped, entities decoded, whitespace folded)."""
+    import html as _html
+    import re
+
+    return re.sub(r"\s+", " ", _html.unescape(re.sub(r"<[^>]+>", " ", fragment)))
+
+
+def _report_text(path) -> str:
+    """The report's text, without the result JSON it embeds."""
+    return _report_text_of(path.read_text().split('<script type="application/json"')[0])
+
+
+def test_report_says_budget_advice_notes_intrinsics_and_a_move(tmp_path):
+    """Per camera: the error budget's shares (every labelled set, a second one included), its advice,
+    its notes, its intrinsics' source and given -> estimated values; a moved camera's displacement
+    with its 1-sigma, before and after; a box of advice at the top; the cell's notes apart."""
+    from dataclasses import replace
+
+    res = knocked_result()
+    # a budget with a second labelled set of shares (as a later budget may carry) is shown too
+    b1 = dict(res.cameras["cam1"].error_budget)
+    b1["shares_by_parameter"] = {"cam1 pose": 0.5, "intrinsics of cam1": 0.3, "flange poses": 0.2}
+    # and labelled sets of shares that overlap (not adding up to 1: not stacked)
+    b1["share_sets"] = {"gone were it known exactly": {"corners": 0.6, "intrinsics": 0.7}}
+    res = replace(res, cameras={**res.cameras, "cam1": replace(res.cameras["cam1"], error_budget=b1)})
+    out = write_report(res, tmp_path / "report.html")
+    text = _report_text(out)
+    page = out.read_text()
+    assert "What would improve this calibration" in text.split("Summary")[0]
+    for n, c in res.cameras.items():
+        sec = page.split(f'id="cam-{n}"')[1].split('<div class="cam"')[0]
+        sec_text = _report_text_of(sec)
+        assert c.error_budget["advice"] in sec_text and advice_for(n, c) in text.split("Summary")[0]
+        for src, share in c.error_budget["shares"].items():
+            assert f'data-source="{src}"' in sec and f'data-value="{share!r}"' in sec
+        assert "by noise source" in sec_text
+        for note in res.camera_notes(n):
+            assert note in sec_text
+        assert "source: factory values (device or datasheet), as stated with the camera" in sec_text
+        assert "used: estimated under the factory prior" in sec_text
+        for k in ("fx", "fy", "cx", "cy", "k1", "k2"):
+            assert f'data-param="{k}"' in sec
+            assert f'data-value="{c.intrinsics["given"][k]!r}"' in sec and f'data-value="{c.intrinsics["sigma"][k]!r}"' in sec
+    cam1 = page.split('id="cam-cam1"')[1].split('<div class="cam"')[0]
+    assert "by parameter" in _report_text_of(cam1) and 'data-source="flange poses"' in cam1
+    overlap = cam1.split('data-set="gone were it known exactly"')[1].split('<div class="shareset"')[0]
+    assert overlap.count('class="bar one"') == 2 and "they overlap" in overlap and "70 %" in overlap
+    by_parameter = cam1.split('data-set="by parameter"')[1].split('<div class="shareset"')[0]
+    assert 'class="bar"' in by_parameter and "bar one" not in by_parameter  # adding up to 1: one stacked bar
+    m = res.cameras["cam0"].moved
+    sec0 = _report_text_of(page.split('id="cam-cam0"')[1].split('<div class="cam"')[0])
+    assert "Moved during capture" in sec0 and f"between captures {m['last_capture_before']} and {m['capture']}" in sec0
+    assert f"{m['displacement_mm']:.1f} ± {m['sigma_displacement_mm']:.1f} mm (1σ)" in sec0
+    assert "before the move" in sec0 and "after the move (the pose reported)" in sec0
+    cell = text.split("Notes on the whole cell")[1].split("Cameras")[0]
+    for note in res.cell_notes:
+        assert note in cell
+    assert not any(note in cell for n in res.cameras for note in res.camera_notes(n))
+
+
+def test_a_camera_not_calibrated_says_why_and_has_its_notes(tmp_path):
+    from calibgraph import solve
+    from calibgraph.sim.synthetic_corners import bump_camera, make_scene
+
+    scene = make_scene(n_poses=30, seed=1, fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01))
+    caps = sorted(d.capture for d in scene.problem.detections if d.camera == "cam0")
+    prob, _ = bump_camera(scene, "cam0", caps[-2], 0.02, seed=1)
+    res = solve(prob)
+    assert not res.cameras["cam0"].calibrated
+    page = write_report(res, tmp_path / "report.html").read_text()
+    top = _report_text_of(page.split("<h2>Summary</h2>")[0])
+    assert f"cam0 : not calibrated — {res.cameras['cam0'].why}" in top
+    sec = _report_text_of(page.split('id="cam-cam0"')[1].split('<div class="cam"')[0])
+    assert "Not calibrated" in sec and res.cameras["cam0"].why in sec and "Moved during capture" in sec
+    assert sec.split("after the move (the pose reported)")[1].lstrip().startswith("not calibrated")
+    assert res.camera_notes("cam0") and all(t in sec for t in res.camera_notes("cam0"))

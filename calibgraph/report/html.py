@@ -7,8 +7,10 @@ the result's (other cameras, captures, target or corners) is refused, since the 
 calibrations.
 
 The page: the verdict banner (each camera against the tolerances of
-:mod:`calibgraph.report.tolerances`), the summary table, one section per camera
-(:mod:`calibgraph.report.sections`), camera pairs, the robot's joint offsets, residual plots
+:mod:`calibgraph.report.tolerances`), a box of what would improve the calibration (each camera's
+advice), the summary table, the solver's notes on the whole cell, one section per camera
+(:mod:`calibgraph.report.sections`: its error budget and advice, its notes, its intrinsics' provenance
+with given -> estimated values, a move during capture, pose, checks), camera pairs, the robot's joint offsets, residual plots
 (:mod:`calibgraph.report.residual_plots`), workspace uncertainty maps
 (:mod:`calibgraph.report.workspace`), the convergence of an autonomous run and the provenance.
 Plots are inline SVG (:mod:`calibgraph.report.svgplot`).
@@ -31,7 +33,16 @@ from calibgraph.report.convergence import convergence_section
 from calibgraph.report.markup import CSS, esc
 from calibgraph.report.residual_plots import residuals_html
 from calibgraph.report.residuals import compute_residuals, dataset_mismatch, observations, report_residuals
-from calibgraph.report.sections import banner_html, camera_html, pairs_html, provenance_html, robot_html, summary_html
+from calibgraph.report.sections import (
+    banner_html,
+    camera_html,
+    cell_notes_html,
+    improve_html,
+    pairs_html,
+    provenance_html,
+    robot_html,
+    summary_html,
+)
 from calibgraph.report.tolerances import camera_verdict, load_tolerances
 from calibgraph.report.workspace import workspace_maps
 from calibgraph.solver.result import as_result
@@ -72,7 +83,9 @@ def write_report(result, out_html, config=None, dataset=None, result_path=None) 
     title = f"calibgraph commissioning report — {len(names)} camera{'s' if len(names) != 1 else ''}, {result.mode}"
     parts = [
         banner_html(result, title, c["verdicts"]),
+        improve_html(result),
         summary_html(result, c["verdicts"]),
+        cell_notes_html(result),
         "<h2>Cameras</h2>",
         *(camera_html(result, n, c["intr"][n], c["verdicts"][n], c["residuals"].get(n, {}), c["ws"]) for n in names),
         pairs_html(result),

@@ -53,4 +53,19 @@ table.mat td{border:none;padding:1px 8px;font-family:monospace;font-size:12px}
 .plots{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}
 .note{color:#555;font-size:13px} .cam{border:1px solid #ddd;border-radius:6px;padding:8px 14px;margin:14px 0}
 code{background:#f4f4f4;padding:0 3px}
+.improve{border:2px solid #1f77b4;background:#f3f8fd;border-radius:6px;padding:8px 14px;margin:12px 0}
+.improve ul{margin:6px 0;padding-left:20px} .improve li{margin:3px 0}
+.budget,.intrinsics,.notes,.moved{margin:8px 0 10px}
+.shareset{display:flex;align-items:center;gap:10px;margin:4px 0;flex-wrap:wrap}
+.setlabel{min-width:120px;font-size:13px;color:#555}
+.bar{display:flex;width:360px;height:16px;border:1px solid #999;border-radius:3px;overflow:hidden;background:#eee}
+.bar span{display:block;height:100%}
+.bars{display:flex;flex-direction:column;gap:2px} .bar.one{height:7px}
+.legend{font-size:13px} .legend .key{margin-right:12px;white-space:nowrap}
+.legend i{display:inline-block;width:10px;height:10px;margin-right:4px;vertical-align:middle}
+.advice{background:#fff8e1;padding:2px 4px} p.advice{margin:6px 0;padding:4px 8px;border-left:4px solid #f9a825}
+.notes ul{margin:4px 0;padding-left:20px} .notes li{font-size:13px;margin:3px 0}
+.notes.cell{border-left:4px solid #c62828;padding-left:8px}
+.moved{border-left:4px solid #c62828;padding-left:8px} .why{color:#c62828}
+.provenance{font-size:14px}
 """

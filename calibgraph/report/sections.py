@@ -13,11 +13,12 @@ import numpy as np
 
 from calibgraph.core.transforms import R_to_quat_xyzw
 from calibgraph.core.version import __version__
+from calibgraph.report import findings
 from calibgraph.report.exports import R_to_rpy
 from calibgraph.report.markup import badge, esc, matrix, num, vec
 from calibgraph.report.tolerances import DEFAULT_TOLERANCES, covariance_problem
 from calibgraph.report.workspace import coverage_plot
-from calibgraph.solver.result import FRAME_CONVENTION, RESULT_FORMAT, sigmas_from_cov
+from calibgraph.solver.result import FRAME_CONVENTION, RESULT_FORMAT, intrinsics_provenance, sigmas_from_cov
 from calibgraph.solver.uncertainty import weakest_directions
 
 
@@ -70,9 +71,12 @@ def camera_html(result, n: str, intr, verdict: dict, residuals: dict, ws: dict) 
     c = result.cameras[n]
     if not c.calibrated:
         return "\n".join([f'<div class="cam" id="cam-{esc(n)}"><h3>{esc(n)} {badge(False)}</h3>',
-                          f"<p><b>Not calibrated</b>: {esc(c.why)}</p>", _rejected_views_html(c), "</div>"])
+                          f'<p class="why"><b>Not calibrated</b>: {esc(c.why)}</p>', moved_html(result, n),
+                          camera_notes_html(result, n), _rejected_views_html(c), "</div>"])
     ref, T = result.ref_frame, c.T_ref_cam
-    h = [f'<div class="cam" id="cam-{esc(n)}"><h3>{esc(n)} {badge(verdict["pass"])}</h3>', '<div class="plots"><div>',
+    h = [f'<div class="cam" id="cam-{esc(n)}"><h3>{esc(n)} {badge(verdict["pass"])}</h3>',
+         budget_html(c), moved_html(result, n), camera_notes_html(result, n), intrinsics_html(result, n, intr),
+         '<div class="plots"><div>',
          f"<b>T_{ref}_cam</b> (maps camera optical-frame points to the {ref} frame, metres){matrix(T)}",
          f"<p>quaternion (x, y, z, w): {vec(R_to_quat_xyzw(T[:3, :3]), '.6f')}<br>roll, pitch, yaw: "
          f"{vec(np.degrees(R_to_rpy(T[:3, :3])), '.3f', 'deg')}</p>",
@@ -95,9 +99,6 @@ def camera_html(result, n: str, intr, verdict: dict, residuals: dict, ws: dict) 
              f"rejected {num(c.corners_rejected, '.0f')}<br>views used {num(c.views_used, '.0f')}, "
              f"rejected {num(len(c.views_rejected), '.0f')}</p>")
     h.append(_rejected_views_html(c))
-    if intr is not None:
-        h.append(f'<p class="note">intrinsics: {intr.width_px}×{intr.height_px} px, fx {intr.K[0, 0]:.1f}, fy {intr.K[1, 1]:.1f}, '
-                 f"cx {intr.K[0, 2]:.1f}, cy {intr.K[1, 2]:.1f}, dist {np.round(intr.dist, 4).tolist()}</p>")
     h.append("</div></div>")
     h.append('<div class="plots">')
     h.append(coverage_plot(n, residuals, intr))
@@ -196,6 +197,8 @@ def provenance_html(result, ds, result_path, tol: dict, config) -> str:
         ("tolerances", f"{config}" if config is not None and not isinstance(config, dict) else
          ("given as a dict" if isinstance(config, dict) else f"defaults ({DEFAULT_TOLERANCES.name})")),
     ]
+    rows += [(f"intrinsics of {n}", findings.provenance_text(c, result.settings)) for n, c in result.cameras.items()
+             if c.intrinsics]
     if ds is not None:
         t = ds.target
         rows += [("dataset folder", str(ds.root)), ("captures in dataset", len(ds.captures)),
@@ -219,3 +222,151 @@ def _sha256(path) -> str:
         return hashlib.sha256(Path(path).read_bytes()).hexdigest()
     except OSError:
         return "unreadable"
+
+
+# -- what the solver knows: advice, error budget, intrinsics, moves, notes ---------------------------------
+BUDGET_COLOURS = {"corners": "#1f77b4", "intrinsics": "#ff7f0e", "robot_fk": "#2ca02c", "board": "#9467bd"}
+OTHER_COLOURS = ("#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f", "#d62728")
+
+
+def improve_html(result) -> str:
+    """The box at the top: what would improve this calibration, each camera's advice with its
+    numbers (its 1σ now, what the remedy would bring it to), the cameras not calibrated and why,
+    and how many notes the page carries."""
+    items = []
+    for n, c in result.cameras.items():
+        link = f'<a href="#cam-{esc(n)}">{esc(n)}</a>'
+        if not c.calibrated:
+            items.append(f'<li data-camera="{esc(n)}">{link}: <b>not calibrated</b> — {esc(c.why)}</li>')
+        elif findings.advice(c):
+            items.append(f'<li data-camera="{esc(n)}">{link}: <span class="advice">{esc(findings.advice_for(n, c))}</span></li>')
+    n_notes = len(result.notes)
+    if not items and not n_notes:
+        return ""
+    h = ['<div class="improve" id="improve"><b>What would improve this calibration</b>']
+    h.append("<ul>" + "".join(items) + "</ul>" if items else
+             '<p class="note">The result carries no advice (written before calibgraph gave it).</p>')
+    if n_notes:
+        cell = len(result.cell_notes)
+        h.append(f'<p class="note">The solver left {n_notes} note{"s" if n_notes != 1 else ""}: '
+                 f"{n_notes - cell} under the camera{'s' if n_notes - cell != 1 else ''} they concern, {cell} in "
+                 f'<a href="#cell-notes">notes on the whole cell</a>.</p>')
+    h.append("</div>")
+    return "\n".join(h)
+
+
+def budget_html(c) -> str:
+    """The camera's error budget: a bar of shares per labelled share set, its numbers, the advice."""
+    b = c.error_budget
+    if not b:
+        return ""
+    s = findings.sigma_norm_mm(c)
+    h = ['<div class="budget"><b>What the 1σ is made of</b>'
+         + (f" (1σ translation, norm of x, y, z: {num(s, '.3f', ' mm')})" if s is not None else "")]
+    for label, shares in findings.share_sets(b):
+        h.append(f'<div class="shareset" data-set="{esc(label)}"><span class="setlabel">{esc(label)}</span>'
+                 + _bar(shares) + "</div>")
+    extra = [(lab, v, unit) for lab, v, unit in findings.budget_scalars(b) if not lab.startswith("1σ translation")]
+    if extra:
+        h.append('<p class="note">' + "; ".join(
+            f"{esc(lab)}: " + (esc(findings.percent(v)) if unit == "share" else num(v, ".4g", f" {unit}" if unit else ""))
+            for lab, v, unit in extra) + "</p>")
+    for key, text in findings.budget_texts(b):
+        cls = "advice" if key == "advice" else "note"
+        h.append(f'<p class="{cls}"><b>{"Advice" if key == "advice" else esc(findings.humanise(key))}:</b> {esc(text)}</p>')
+    h.append("</div>")
+    return "\n".join(h)
+
+
+def _bar(shares: dict) -> str:
+    """The shares as bars (CSS, no assets) with a legend giving each in words: one stacked bar when
+    they add up to 1 (parts of the variance), else one bar per source (e.g. the fraction of the
+    variance that would go were that source known exactly: these overlap, so they are not stacked)."""
+    colours = {k: BUDGET_COLOURS.get(k) or OTHER_COLOURS[i % len(OTHER_COLOURS)] for i, k in enumerate(shares)}
+    order = sorted(shares.items(), key=lambda kv: -kv[1])
+    legend = "".join(f'<span class="key" data-source="{esc(k)}"><i style="background:{colours[k]}"></i>'
+                     f'{esc(findings.source_label(k))} <span class="num" data-value="{float(v)!r}">'
+                     f"{esc(findings.percent(v))}</span></span>" for k, v in order)
+
+    def seg(k, v):
+        w = min(max(100.0 * v, 0.0), 100.0)
+        title = esc(f"{findings.source_label(k)} {findings.percent(v)}")
+        return f'<span style="width:{w:.2f}%;background:{colours[k]}" title="{title}"></span>' if w > 0 else ""
+
+    if abs(sum(shares.values()) - 1.0) <= 0.02:
+        return f'<div class="bar">{"".join(seg(k, v) for k, v in order)}</div><div class="legend">{legend}</div>'
+    bars = "".join(f'<div class="bar one">{seg(k, v)}</div>' for k, v in order)
+    return f'<div class="bars">{bars}</div><div class="legend">{legend} (each of 100 %; they overlap)</div>'
+
+
+def intrinsics_html(result, n: str, intr) -> str:
+    """Where the camera's intrinsics came from and how they were used, with given -> estimated,
+    1σ and the prior's width per parameter."""
+    c = result.cameras[n]
+    if not c.intrinsics:
+        if intr is None:
+            return ""
+        return (f'<p class="note">intrinsics (from the dataset; the result does not record them): {intr.width_px}×'
+                f"{intr.height_px} px, fx {intr.K[0, 0]:.1f}, fy {intr.K[1, 1]:.1f}, cx {intr.K[0, 2]:.1f}, "
+                f"cy {intr.K[1, 2]:.1f}, dist {np.round(intr.dist, 4).tolist()}</p>")
+    d = c.intrinsics
+    p = intrinsics_provenance(c, result.settings)
+    h = [f'<div class="intrinsics" data-source-given="{esc(p["given"])}" data-source-used="{esc(p["used"])}">'
+         f'<b>Intrinsics</b> ({d.get("width_px")}×{d.get("height_px")} px) — '
+         f'<span class="provenance">{esc(findings.provenance_text(c, result.settings))}</span>']
+    rows = findings.intrinsics_rows(c)
+    estimated = any(r[3] is not None for r in rows)
+    if estimated:
+        h.append('<table class="intr"><tr><th class="l">parameter</th><th>given</th><th>estimated</th><th>1σ</th>'
+                 "<th>estimated − given</th><th>prior 1σ</th></tr>")
+        for name, given, est, sg, prior in rows:
+            fmt = findings.fmt(name)
+            diff = "—" if given is None else num(est - given, "+" + fmt)
+            h.append(f'<tr data-param="{esc(name)}"><td class="l">{esc(name)}</td>'
+                     f'<td>{"—" if given is None else num(given, fmt)}</td><td>{num(est, fmt)}</td>'
+                     f'<td>{num(sg, fmt)}</td><td>{diff}</td><td>{"—" if prior is None else num(prior, fmt)}</td></tr>')
+        h.append("</table>")
+        if p["used"] == "own-views":
+            h.append('<p class="note">No intrinsics were given: they were found from its own views (the prior is '
+                     "wide, around a first estimate from those views).</p>")
+    else:
+        h.append('<p class="note">held as given: ' + ", ".join(f"{esc(k)} {num(v, findings.fmt(k))}" for k, _g, v, _s, _p in rows)
+                 + "</p>")
+    h.append("</div>")
+    return "\n".join(h)
+
+
+def moved_html(result, n: str) -> str:
+    """A camera that moved during capture: where, by how much (± 1σ), its pose before and after."""
+    c = result.cameras[n]
+    mv = findings.moved_summary(c, result.ref_frame)
+    if mv is None:
+        return ""
+    ref = result.ref_frame
+    h = [f'<div class="moved"><b>Moved during capture</b>, {esc(mv["where"])}: '
+         f'{num(mv["displacement_mm"], ".1f")} ± {num(mv["sigma_mm"], ".1f")} mm (1σ), '
+         f'{num(mv["rotation_deg"], ".2f")} deg',
+         f'<table class="movedt"><tr><th class="l"></th><th>position in {esc(ref)} (m)</th><th>views</th></tr>'
+         f'<tr><td class="l">before the move</td><td>{"not solved (too few views)" if mv["t_before_m"] is None else vec(mv["t_before_m"], ".4f")}</td>'
+         f'<td>{num(mv["views_before"], ".0f")}</td></tr>'
+         f'<tr><td class="l">after the move (the pose reported)</td><td>{"not calibrated" if mv["t_after_m"] is None else vec(mv["t_after_m"], ".4f")}</td>'
+         f'<td>{num(mv["views_after"], ".0f")}</td></tr></table></div>']
+    return "\n".join(h)
+
+
+def camera_notes_html(result, n: str) -> str:
+    """Every note of the solver that concerns camera ``n``."""
+    notes = result.camera_notes(n)
+    if not notes:
+        return ""
+    return ('<div class="notes"><b>Notes</b><ul>' + "".join(f"<li>{esc(t)}</li>" for t in notes) + "</ul></div>")
+
+
+def cell_notes_html(result) -> str:
+    """The notes on the whole cell (board scale, robot forward kinematics, joint offsets)."""
+    notes = result.cell_notes
+    if not notes:
+        return ('<h2 id="cell-notes">Notes on the whole cell</h2>\n<p class="note">None: the solver found nothing to '
+                "say about the board or the robot.</p>")
+    body = "<ul>" + "".join(f"<li>{esc(t)}</li>" for t in notes) + "</ul>"
+    return f'<h2 id="cell-notes">Notes on the whole cell</h2>\n<div class="notes cell">{body}</div>'
