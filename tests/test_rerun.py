@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from helpers import make_sim_result, write_sim_dataset
+from helpers import knocked_result, make_sim_result, write_sim_dataset
 
 rr = pytest.importorskip("rerun", reason="rerun-sdk not installed (pip install calibgraph[viz])")
 
@@ -187,3 +187,37 @@ def test_rrd_shows_the_plan_of_an_autonomous_run(tmp_path):
     assert ("/world/plan/candidates", 0) not in got  # a survey step has no candidates (cleared)
     assert np.allclose(got["/world/plan/chosen", 0][0], [[0.5, 0.0, 0.4]])
     assert _series(ch, "/plan/sigma_mm/cam0") == {1: 1.0, 2: 0.5} and "/plan/log" in ch
+
+
+def _summary_text(path) -> str:
+    from rerun.chunk import RrdReader
+
+    for ch in RrdReader(str(path)).stream():
+        if ch.entity_path == "/summary":
+            return ch.to_record_batch().column("TextDocument:text").to_pylist()[0][0]
+    raise AssertionError("no /summary in the recording")
+
+
+def test_summary_carries_each_cameras_budget_advice_and_notes(tmp_path):
+    """The recording's summary says per camera what the report says: its error budget's shares, its
+    advice, its intrinsics' provenance, a move during capture, the notes on it; and the cell's notes."""
+    from calibgraph.report import findings
+    from calibgraph.report.rerun_view import write_rrd
+
+    res = knocked_result()  # cam0 knocked 5 mm after capture 18
+    path = write_rrd(res, None, tmp_path / "cal.rrd")
+    _verify(path)
+    text = _summary_text(path)
+    assert "## What would improve this calibration" in text and "## Notes on the whole cell" in text
+    improve = text.split("## What would improve this calibration")[1].split("## Cameras")[0]
+    names = list(res.cameras)
+    for i, n in enumerate(names):
+        c = res.cameras[n]
+        sec = text.split(f"### {n}")[1].split(f"### {names[i + 1]}" if i + 1 < len(names) else "## Notes on the whole")[0]
+        assert c.error_budget["advice"] in improve and f"**advice**: {c.error_budget['advice']}" in sec
+        assert findings.shares_text(c.error_budget["shares"]) in sec
+        assert findings.provenance_text(c, res.settings) in sec
+        assert res.camera_notes(n) == [x[len("- note: "):] for x in sec.splitlines() if x.startswith("- note: ")]
+    assert "moved between captures" in text.split("### cam0")[1].split("### cam1")[0]
+    cell = text.split("## Notes on the whole cell")[1]
+    assert all(f"- {t}" in cell for t in res.cell_notes)

@@ -17,7 +17,10 @@
     .../image/outliers                       rejected corners (red, large) and rejected views (orange)
     residuals/<cam>/rms_px, max_px           per-capture residual time series (timeline "capture")
     residuals/<cam>/rejected                 captures whose view was rejected (red points)
-    summary                                  a text table of the result
+    summary                                  a text table of the result, then what would improve it
+                                             (each camera's advice), each camera's error budget,
+                                             advice, intrinsics' provenance, move and notes, and
+                                             the notes on the whole cell (report.findings)
 
 and, for an autonomous run (the dataset's ``plan_log.json``, :mod:`calibgraph.acquire.auto`), per
 step on the same "capture" timeline (step k is capture k)::
@@ -40,6 +43,7 @@ import numpy as np
 
 from calibgraph.core.errors import InputError
 from calibgraph.io.files import atomic_write_via
+from calibgraph.report.findings import summary_markdown
 from calibgraph.report.residuals import observations, report_residuals
 from calibgraph.report.svgplot import colormap
 from calibgraph.solver.result import as_result
@@ -149,6 +153,7 @@ def log_result(rec, result, source=None) -> None:
                      f"{np.round(c.sigma_rotation_deg, 4).tolist()} | {c.reprojection_rms_px:.3f} | "
                      f"{c.views_used} used, {len(c.views_rejected)} rejected |")
     lines += [f"| {n} | not calibrated: {why} | | | | |" for n, why in result.not_calibrated.items()]
+    lines += ["", *summary_markdown(result)]
     rec.log("summary", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN), static=True)
 
 
