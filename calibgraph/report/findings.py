@@ -17,7 +17,7 @@ import numpy as np
 from calibgraph.core.camera import INTRINSICS_FULL, Intrinsics
 from calibgraph.solver.camera_model import INTRINSICS_USES
 from calibgraph.solver.factors import intrinsics_vector
-from calibgraph.solver.result import intrinsics_provenance
+from calibgraph.solver.result import intrinsics_provenance, sigmas_from_cov
 
 # the budget's sources, in words
 SOURCE_LABELS = {"corners": "corner noise", "intrinsics": "intrinsics", "robot_fk": "robot forward kinematics",
@@ -141,7 +141,8 @@ def fmt(name: str) -> str:
 
 def moved_summary(c, ref: str) -> dict | None:
     """A camera that moved during capture: {'where', 'displacement_mm', 'sigma_mm', 'rotation_deg',
-    'views_before', 'views_after', 't_before_m', 't_after_m', 'text'} (None when it did not move)."""
+    'views_before', 'views_after', 't_before_m', 't_after_m', 'sigma_before_mm', 'sigma_after_mm' (per
+    axis; None: not solved), 'text'} (None when it did not move)."""
     m = c.moved
     if not m:
         return None
@@ -152,7 +153,10 @@ def moved_summary(c, ref: str) -> dict | None:
            "rotation_deg": float(m.get("rotation_deg", np.nan)),
            "views_before": m.get("views_before"), "views_after": m.get("views_after"),
            "t_before_m": None if before is None else np.asarray(before, float)[:3, 3],
-           "t_after_m": None if c.T_ref_cam is None else np.asarray(c.T_ref_cam, float)[:3, 3]}
+           "t_after_m": None if c.T_ref_cam is None else np.asarray(c.T_ref_cam, float)[:3, 3],
+           "sigma_before_mm": None if m.get("covariance_before") is None else
+           sigmas_from_cov(np.asarray(m["covariance_before"], float))[0],
+           "sigma_after_mm": None if c.covariance is None else c.sigma_translation_mm}
     out["text"] = (f"moved {out['where']}: {out['displacement_mm']:.1f} ± {out['sigma_mm']:.1f} mm (1σ), "
                    f"{out['rotation_deg']:.2f} deg; {out['views_before']} views before, {out['views_after']} after; "
                    + ("the pose reported is the one after the move" if c.calibrated else "not calibrated after it"))

@@ -54,7 +54,7 @@ table.mat td{border:none;padding:1px 8px;font-family:monospace;font-size:12px}
 .note{color:#555;font-size:13px} .cam{border:1px solid #ddd;border-radius:6px;padding:8px 14px;margin:14px 0}
 code{background:#f4f4f4;padding:0 3px}
 .improve{border:2px solid #1f77b4;background:#f3f8fd;border-radius:6px;padding:8px 14px;margin:12px 0}
-.improve ul{margin:6px 0;padding-left:20px} .improve li{margin:3px 0}
+.improve ul{margin:6px 0;padding-left:20px} .improve li{margin:3px 0} .improve .advice{background:none;padding:0}
 .budget,.intrinsics,.notes,.moved{margin:8px 0 10px}
 .shareset{display:flex;align-items:center;gap:10px;margin:4px 0;flex-wrap:wrap}
 .setlabel{min-width:120px;font-size:13px;color:#555}

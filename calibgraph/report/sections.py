@@ -36,8 +36,15 @@ def banner_html(result, title: str, verdicts: dict) -> str:
          f'{esc(why)}' + (f" — failing: {esc(', '.join(failed))}" if failed else "") + "</div>"]
     if failed:
         h.append('<ul id="failing-reasons">' + "".join(
-            f"<li>{esc(n)}: {esc('; '.join(verdicts[n]['reasons']))}</li>" for n in failed) + "</ul>")
+            f"<li>{esc(n)}: {esc('; '.join(verdicts[n]['reasons']))}{_notes_link(result, n)}</li>" for n in failed)
+                 + "</ul>")
     return "\n".join(h)
+
+
+def _notes_link(result, n: str) -> str:
+    """' — the solver's notes on it (k)' linking to the camera's section, when it has notes."""
+    k = len(result.camera_notes(n))
+    return f' — <a href="#cam-{esc(n)}">the solver\'s note{"s" if k != 1 else ""} on it ({k})</a>' if k else ""
 
 
 def summary_html(result, verdicts: dict) -> str:
@@ -343,15 +350,17 @@ def moved_html(result, n: str) -> str:
     if mv is None:
         return ""
     ref = result.ref_frame
-    h = [f'<div class="moved"><b>Moved during capture</b>, {esc(mv["where"])}: '
-         f'{num(mv["displacement_mm"], ".1f")} ± {num(mv["sigma_mm"], ".1f")} mm (1σ), '
-         f'{num(mv["rotation_deg"], ".2f")} deg',
-         f'<table class="movedt"><tr><th class="l"></th><th>position in {esc(ref)} (m)</th><th>views</th></tr>'
-         f'<tr><td class="l">before the move</td><td>{"not solved (too few views)" if mv["t_before_m"] is None else vec(mv["t_before_m"], ".4f")}</td>'
-         f'<td>{num(mv["views_before"], ".0f")}</td></tr>'
-         f'<tr><td class="l">after the move (the pose reported)</td><td>{"not calibrated" if mv["t_after_m"] is None else vec(mv["t_after_m"], ".4f")}</td>'
-         f'<td>{num(mv["views_after"], ".0f")}</td></tr></table></div>']
-    return "\n".join(h)
+    rows = []
+    for label, t, sg, views, missing in (("before the move", mv["t_before_m"], mv["sigma_before_mm"], mv["views_before"],
+                                          "not solved (too few views)"),
+                                         ("after the move (the pose reported)", mv["t_after_m"], mv["sigma_after_mm"],
+                                          mv["views_after"], "not calibrated")):
+        where = f'<td class="l" colspan="2">{missing}</td>' if t is None else (f"<td>{vec(t, '.4f')}</td><td>{'—' if sg is None else vec(sg, '.3f')}</td>")
+        rows.append(f'<tr><td class="l">{label}</td>{where}<td>{num(views, ".0f")}</td></tr>')
+    return (f'<div class="moved"><b>Moved during capture</b>, {esc(mv["where"])}: '
+            f'{num(mv["displacement_mm"], ".1f")} ± {num(mv["sigma_mm"], ".1f")} mm (1σ), {num(mv["rotation_deg"], ".2f")} deg'
+            f'<table class="movedt"><tr><th class="l"></th><th>position in {esc(ref)} (m)</th>'
+            f"<th>1σ x, y, z (mm)</th><th>views</th></tr>{''.join(rows)}</table></div>")
 
 
 def camera_notes_html(result, n: str) -> str:
