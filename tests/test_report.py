@@ -294,6 +294,9 @@ def test_a_camera_not_calibrated_says_why_and_has_its_notes(tmp_path):
     page = write_report(res, tmp_path / "report.html").read_text()
     top = _report_text_of(page.split("<h2>Summary</h2>")[0])
     assert f"cam0 : not calibrated — {res.cameras['cam0'].why}" in top
+    k = len(res.camera_notes("cam0"))
+    banner = page.split('id="failing-reasons"')[1].split("</ul>")[0]
+    assert f'<a href="#cam-cam0">the solver\'s note{"s" if k != 1 else ""} on it ({k})</a>' in banner
     sec = _report_text_of(page.split('id="cam-cam0"')[1].split('<div class="cam"')[0])
     assert "Not calibrated" in sec and res.cameras["cam0"].why in sec and "Moved during capture" in sec
     assert sec.split("after the move (the pose reported)")[1].lstrip().startswith("not calibrated")
