@@ -61,6 +61,7 @@ code{background:#f4f4f4;padding:0 3px}
 .bar{display:flex;width:360px;height:16px;border:1px solid #999;border-radius:3px;overflow:hidden;background:#eee}
 .bar span{display:block;height:100%}
 .bars{display:flex;flex-direction:column;gap:2px} .bar.one{height:7px}
+.bar span,.legend i,.pass,.fail,.banner{-webkit-print-color-adjust:exact;print-color-adjust:exact}
 .legend{font-size:13px} .legend .key{margin-right:12px;white-space:nowrap}
 .legend i{display:inline-block;width:10px;height:10px;margin-right:4px;vertical-align:middle}
 .advice{background:#fff8e1;padding:2px 4px} p.advice{margin:6px 0;padding:4px 8px;border-left:4px solid #f9a825}
