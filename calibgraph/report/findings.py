@@ -139,7 +139,7 @@ def fmt(name: str) -> str:
     return ".2f" if name in ("fx", "fy", "cx", "cy") else ".5f"
 
 
-def moved_summary(c, ref: str) -> dict | None:
+def moved_summary(c) -> dict | None:
     """A camera that moved during capture: {'where', 'displacement_mm', 'sigma_mm', 'rotation_deg',
     'views_before', 'views_after', 't_before_m', 't_after_m', 'sigma_before_mm', 'sigma_after_mm' (per
     axis; None: not solved), 'text'} (None when it did not move)."""
@@ -182,7 +182,7 @@ def camera_markdown(result, n: str) -> list:
         est = [f"{k} {v:{fmt(k)}} ± {sg:{fmt(k)}}" for k, _g, v, sg, _p in rows if sg is not None]
         if est:
             lines.append("  - estimated: " + ", ".join(est))
-    mv = moved_summary(c, result.ref_frame)
+    mv = moved_summary(c)
     if mv:
         lines.append(f"- {mv['text']}")
     lines += [f"- note: {t}" for t in result.camera_notes(n)]

@@ -346,7 +346,7 @@ def intrinsics_html(result, n: str, intr) -> str:
 def moved_html(result, n: str) -> str:
     """A camera that moved during capture: where, by how much (± 1σ), its pose before and after."""
     c = result.cameras[n]
-    mv = findings.moved_summary(c, result.ref_frame)
+    mv = findings.moved_summary(c)
     if mv is None:
         return ""
     ref = result.ref_frame
