@@ -311,3 +311,28 @@ def test_notes_name_the_camera_they_concern(tmp_path):
 @lru_cache(maxsize=1)
 def _provenance_scene_result():
     return cg.solve(_provenance_scene())
+
+
+def test_intrinsics_used_under_refine_and_a_files_covariance():
+    """--refine-intrinsics and intrinsics that came with a covariance (a calibration file's) are named
+    as used, with the prior's width the solver applied."""
+    from calibgraph.core.problem import intrinsics_prior_sigmas
+
+    prob = make_scene(n_poses=24, seed=2, reported_intrinsics="exact").problem
+    cams = dict(prob.cameras)
+    c0 = cams["cam0"]
+    sig = np.array([0.5, 0.5, 0.4, 0.4, 0.002, 0.004])
+    cams["cam0"] = replace(c0, source="calibration", covariance=np.diag(sig ** 2))
+    cams["cam1"] = replace(cams["cam1"], source="factory")
+    res = cg.solve(prob.with_(cameras=cams))
+    d0 = res.cameras["cam0"].intrinsics
+    assert (d0["source_given"], d0["source_used"]) == ("calibration", "file-covariance")
+    assert np.allclose([d0["prior_sigma"][k] for k in ("fx", "fy", "cx", "cy", "k1", "k2")], sig)
+    assert res.cameras["cam1"].intrinsics["source_used"] == "factory"
+    refine = prob.with_(cameras=cams, options=replace(prob.options, intrinsics="estimate"))
+    res_r = cg.solve(refine)
+    for n, c in res_r.cameras.items():
+        d = c.intrinsics
+        assert d["source_used"] == "refine", (n, d["source_used"])
+        want = intrinsics_prior_sigmas(refine.cameras[n], refine.options)
+        assert np.allclose([d["prior_sigma"][k] for k in ("fx", "fy", "cx", "cy", "k1", "k2")], want[:6])
