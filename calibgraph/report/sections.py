@@ -38,6 +38,10 @@ def banner_html(result, title: str, verdicts: dict) -> str:
         h.append('<ul id="failing-reasons">' + "".join(
             f"<li>{esc(n)}: {esc('; '.join(verdicts[n]['reasons']))}{_notes_link(result, n)}</li>" for n in failed)
                  + "</ul>")
+        k = len(result.cell_notes)
+        if k:
+            h.append(f'<p class="note">The solver also left <a href="#cell-notes">{k} note{"s" if k != 1 else ""} on the '
+                     "whole cell</a> (board, robot) that bear on every camera.</p>")
     return "\n".join(h)
 
 
