@@ -29,7 +29,8 @@ import numpy as np
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import DetectionError, InputError
 from calibgraph.core.targets import Target
-from calibgraph.detect.board_fit import refine_charuco, refine_checkerboard
+from calibgraph.detect.board_fit import refine_charuco, refine_checkerboard, refine_marker_checkerboard
+from calibgraph.detect.board_look import marker_side
 from calibgraph.detect.charuco import find_charuco
 from calibgraph.detect.chessboard import find_checkerboard
 from calibgraph.detect.circles import find_circles
@@ -193,7 +194,10 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
     n_refined = 0
     if s.refine and target.kind == "checkerboard" and ids.size:
         # On the original pixels whatever the search scale: interpolation adds its own shift.
-        fit = refine_checkerboard(grey, target, ids, uv)
+        # Markers in the white squares (a ChArUco board declared a checkerboard) enter the model.
+        side = marker_side(grey, target, ids, uv)
+        fit = refine_checkerboard(grey, target, ids, uv) if side is None else refine_marker_checkerboard(
+            grey, target, ids, uv, side, blur_px=edge_sigma_px(grey, uv, max(_pitch(ids, uv, target), 4.0)))
         uv, n_refined = fit.uv_px, int(fit.refined.sum())
     elif s.refine and target.kind == "charuco" and ids.size >= 4:
         blur_px = edge_sigma_px(grey, uv, max(_pitch(ids, uv, target), 4.0))
