@@ -61,6 +61,8 @@ def run(args) -> int:
     print(f"{ds.root}: target {ds.target.kind} {ds.target.rows}x{ds.target.cols} points, {len(ds.cameras)} camera(s), "
           f"{len(ds.captures)} captures")
     print(summarise(ds, results))
+    for note in det.notes:
+        print(note)
     problems = list(ds.problems) + list(det.problems)
     if problems:
         print(f"problems ({len(problems)}):", file=sys.stderr)

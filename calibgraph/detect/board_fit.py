@@ -166,9 +166,15 @@ def _charuco_parity(target: Target) -> int:
     return 1 if img[20, 20] < 128 else -1
 
 
-def _pattern(target: Target) -> _Pattern:
-    """The :class:`_Pattern` of a checkerboard or ChArUco target."""
-    if target.kind == "checkerboard":
+def _pattern(target: Target, marker_frac: float | None = None, marker_bits: int = 7) -> _Pattern:
+    """The :class:`_Pattern` of a checkerboard or ChArUco target; a checkerboard with
+    ``marker_frac`` has markers of that side (in squares) in its white squares, ``marker_bits``
+    data bits a side (:func:`refine_marker_checkerboard`)."""
+    if target.kind == "checkerboard" and marker_frac:
+        inset = 0.5 * (1.0 - marker_frac)
+        data_lo = inset + marker_frac / (marker_bits + 2)  # one black border bit
+        parity, offsets = 1, (0.0, inset, -inset)
+    elif target.kind == "checkerboard":
         inset, parity, data_lo, offsets = None, 1, None, (0.0,)
     elif target.kind == "charuco":
         import cv2
@@ -525,7 +531,11 @@ def refine_charuco(grey: np.ndarray, target: Target, ids: np.ndarray, uv_px: np.
     Returns:
         :class:`BoardFit`.
     """
-    pat = _pattern(target)
+    return _refine_masked(grey, target, ids, uv_px, max_iterations, _pattern(target), blur_px)
+
+
+def _refine_masked(grey, target, ids, uv_px, max_iterations, pat, blur_px) -> BoardFit:
+    """The fit of a board with markers, the pixels within a margin of the data bits left out."""
     guess = 1.5 if blur_px is None or not np.isfinite(blur_px) else max(float(blur_px), 0.5)
     fit = _refine(grey, target, ids, uv_px, max_iterations, pat, DATA_MARGIN_SIGMAS * guess, CHARUCO_WINDOW_PX)
     if fit.refined.any():
@@ -534,6 +544,18 @@ def refine_charuco(grey: np.ndarray, target: Target, ids: np.ndarray, uv_px: np.
         if sigma > 1.25 * guess:
             fit = _refine(grey, target, ids, uv_px, max_iterations, pat, DATA_MARGIN_SIGMAS * sigma, CHARUCO_WINDOW_PX)
     return fit
+
+
+def refine_marker_checkerboard(grey: np.ndarray, target: Target, ids: np.ndarray, uv_px: np.ndarray,
+                               marker_frac: float, blur_px: float | None = None, max_iterations: int = 20) -> BoardFit:
+    """Refine the corners of a checkerboard with markers in its white squares (a ChArUco board
+    declared as a checkerboard) as :func:`refine_charuco` does: each marker the solid black square
+    of side ``marker_frac`` (squares) its border bit makes, the pixels near its data bits left out.
+    The dictionary is not known, so the data bits are taken to start one bit of the densest
+    predefined dictionary (7 x 7) inside the marker's edge: the fit then leaves out part of a
+    coarser marker's border too, never a data bit. Without it the markers pull the corners by
+    0.1-0.4 px RMS (up to 1 px) on rendered views, and the solver rejects those views."""
+    return _refine_masked(grey, target, ids, uv_px, max_iterations, _pattern(target, marker_frac, 7), blur_px)
 
 
 def _fill_neighbours(target: Target, ids: np.ndarray, uv0: np.ndarray):
@@ -602,7 +624,7 @@ def _refine(grey, target, ids, uv_px, max_iterations, pat, margin_px, window_px)
                 continue
             uv[n], ok[n], sigma[n], rms[n] = (a[0] for a in one)
     typical = None
-    if target.kind == "charuco" and ok.sum() >= 4:
+    if pat.data_lo is not None and ok.sum() >= 4:
         # Marker edges offer the fit other minima: a corner whose fit explains its window far
         # worse than the others explain theirs (the same noise and, nearly, the same blur over
         # one board) is not trusted and is started again below.

@@ -21,6 +21,7 @@ import numpy as np
 
 from calibgraph.core.errors import DetectionError, InputError
 from calibgraph.detect.blind import look_blind
+from calibgraph.detect.board_look import dataset_board_notes, explain_wrong_spec
 from calibgraph.detect.detection import ImageDetection, failed_detection
 from calibgraph.detect.image import Frame
 from calibgraph.detect.spec_check import FIRST_FRAMES, BoardSpecCheck
@@ -28,7 +29,7 @@ from calibgraph.detect.stream import OrderedPool
 from calibgraph.io.files import atomic_write_text
 
 # Part of the cache key: bump when a change can move detected points.
-DETECTOR_VERSION = "4"
+DETECTOR_VERSION = "5"
 
 
 def cache_path(dataset, cache_dir=None, **options) -> Path:
@@ -178,6 +179,8 @@ class DatasetDetector:
             target was found nowhere.
         results: (camera, capture) -> :class:`ImageDetection`.
         problems: (file, message) for every image that could not be used; the CLI prints them.
+        notes: what the images show beside the spec, in words (markers in a checkerboard's white
+            squares: :mod:`calibgraph.detect.board_look`); the CLI prints them.
     """
 
     dataset: object
@@ -191,6 +194,7 @@ class DatasetDetector:
     fail_fast: bool = False
     results: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
     _done: bool = False
     _unreadable: set = field(default_factory=set)
 
@@ -248,6 +252,8 @@ class DatasetDetector:
                     elif check is not None and check.settled and deferred:
                         again.extend(deferred)
                         deferred.clear()
+        except InputError as e:  # a wrong spec: a ChArUco board's markers may name the right dictionary
+            raise explain_wrong_spec(e, ds) from None
         finally:
             if bar is not None:
                 bar.close()
@@ -257,6 +263,7 @@ class DatasetDetector:
                 self.problems.append((det.image or f"camera {cam}, capture {cap}", det.reason))
         if self.detect_view is None:
             self.problems += wrong_spec_everywhere(ds, self.results)
+            self.notes += dataset_board_notes(ds, self.results)
         self._done = True
         return self.results
 

@@ -29,7 +29,8 @@ import numpy as np
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import DetectionError, InputError
 from calibgraph.core.targets import Target
-from calibgraph.detect.board_fit import refine_charuco, refine_checkerboard
+from calibgraph.detect.board_fit import refine_charuco, refine_checkerboard, refine_marker_checkerboard
+from calibgraph.detect.board_look import marker_side
 from calibgraph.detect.charuco import find_charuco
 from calibgraph.detect.chessboard import find_checkerboard
 from calibgraph.detect.circles import find_circles
@@ -130,10 +131,10 @@ def _check_options(method: str, upscale):
     return upscale
 
 
-def _raw_detect(s: _Search, img: np.ndarray, scale: float, fast=None):
-    """Raw detection on ``img`` (the original image or an up-scaled region): (ids, uv, method,
-    note) or None; DetectionError for orientation problems. ``fast=True`` is a quick probe:
-    OpenCV's fast check, no SB."""
+def _raw_detect(s: _Search, img: np.ndarray, scale: float, fast=None, offset=(0, 0)):
+    """Raw detection on ``img`` (the original image, or a region at ``offset`` up-scaled by
+    ``scale``): (ids, uv, method, note) or None; DetectionError for orientation problems.
+    ``fast=True`` is a quick probe: OpenCV's fast check, no SB."""
     target = s.target
     if target.kind == "checkerboard":
         return find_checkerboard(img, target, s.method, s.allow_symmetric, scale=scale,
@@ -141,7 +142,21 @@ def _raw_detect(s: _Search, img: np.ndarray, scale: float, fast=None):
     if target.kind == "charuco":
         r, _ = find_charuco(img, target, s.intrinsics, scale)
         return r
-    return find_circles(img, target, s.method, s.allow_symmetric)
+    return find_circles(img, target, s.method, s.allow_symmetric, accept=_passes_filter(s, scale, offset))
+
+
+def _passes_filter(s: _Search, scale: float, offset):
+    """``(ids, uv) -> bool``: the grid filter :func:`_finish` applies, on points found in a
+    region at ``offset`` up-scaled by ``scale`` (None when the search does not filter): a finder
+    that has more than one grid to offer keeps looking past a refused one."""
+    if not s.filter:
+        return None
+    t = s.target
+
+    def accept(ids, uv):
+        uv = (uv + 0.5) / scale - 0.5 + np.asarray(offset, float)
+        return check_grid(uv, t.line_ij[ids], t.points_board_m[ids], intrinsics=s.intrinsics).ok
+    return accept
 
 
 def _detect_in_roi(s: _Search, roi, k: int, fast=None):
@@ -154,7 +169,7 @@ def _detect_in_roi(s: _Search, roi, k: int, fast=None):
     if crop.shape[0] < 8 or crop.shape[1] < 8:
         return None
     big = crop if k == 1 else cv2.resize(crop, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC)
-    r = _raw_detect(s, big, float(k), fast=(False if k == 1 else None) if fast is None else fast)
+    r = _raw_detect(s, big, float(k), fast=(False if k == 1 else None) if fast is None else fast, offset=(x0, y0))
     if r is None:
         return None
     ids, uv, m, note = r
@@ -179,7 +194,10 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
     n_refined = 0
     if s.refine and target.kind == "checkerboard" and ids.size:
         # On the original pixels whatever the search scale: interpolation adds its own shift.
-        fit = refine_checkerboard(grey, target, ids, uv)
+        # Markers in the white squares (a ChArUco board declared a checkerboard) enter the model.
+        side = marker_side(grey, target, ids, uv)
+        fit = refine_checkerboard(grey, target, ids, uv) if side is None else refine_marker_checkerboard(
+            grey, target, ids, uv, side, blur_px=edge_sigma_px(grey, uv, max(_pitch(ids, uv, target), 4.0)))
         uv, n_refined = fit.uv_px, int(fit.refined.sum())
     elif s.refine and target.kind == "charuco" and ids.size >= 4:
         blur_px = edge_sigma_px(grey, uv, max(_pitch(ids, uv, target), 4.0))

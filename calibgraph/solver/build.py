@@ -37,10 +37,11 @@ from collections import Counter, deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from calibgraph.core.errors import CalibgraphError
+from calibgraph.core.errors import CalibgraphError, InputError
 from calibgraph.core.problem import Problem, SolverOptions, mode_frames
 from calibgraph.core.transforms import inv
 from calibgraph.detect.blind import look_blind
+from calibgraph.detect.board_look import dataset_board_notes, explain_wrong_spec
 from calibgraph.detect.dataset import (DetectionCache, dataset_detector, open_frame, progress_bar, spread, unusable,
                                        view_points, wrong_spec_everywhere)
 from calibgraph.detect.guided import GUIDED_MIN_PITCH_PX, ViewHint, detect_with_hint, predict_view
@@ -108,11 +109,15 @@ class GuidedDatasetDetector:
         if self._done:
             return self.results
         run = _GuidedRun(self)
-        run.execute()
+        try:
+            run.execute()
+        except InputError as e:  # a wrong spec: a ChArUco board's markers may name the right dictionary
+            raise explain_wrong_spec(e, self.dataset) from None
         self.problems = run.cache_problems + [(d.image or f"camera {c}, capture {k}", d.reason)
                                               for (c, k), d in sorted(self.results.items()) if not d.ok]
         self.problems += wrong_spec_everywhere(self.dataset, self.results)
         self.notes.append(run.summary())
+        self.notes += dataset_board_notes(self.dataset, self.results)
         self._done = True
         return self.results
 
