@@ -116,11 +116,14 @@ def dataset_lock(folder, mode: str, log=None):
     process has it. A folder this user cannot write is not locked (nothing can be written there,
     by this process or another of this user)."""
     out = Path(folder)
-    if not os.access(out, os.W_OK | os.X_OK):
-        yield
-        return
-    fd = lock_folder(out, mode, log)
+    fd = None
+    if os.access(out, os.W_OK | os.X_OK):
+        try:
+            fd = lock_folder(out, mode, log)
+        except PermissionError:  # writable by its mode bits, yet not here (a read-only mount, an ACL)
+            fd = None
     try:
         yield
     finally:
-        unlock_folder(out, fd)
+        if fd is not None:
+            unlock_folder(out, fd)
