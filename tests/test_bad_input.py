@@ -362,14 +362,16 @@ def test_output_paths(ds, tmp_path):
     check("target print --out a device (/dev/null)", ["target", "print", spec, "--out", "/dev/null"], 2,
           "not a regular file", watch=watch + [spec])
     check("view --rrd a folder", ["view", res, "--rrd", folder], 2, "is a folder", watch=watch, tmp=tmp_path)
-    # a symlink is written through: the file it points to gets the new result, the link stays a link
+    # a symlink is written through: the file it points to (an earlier result) gets the new result and is
+    # kept beside it, the link stays a link
     link = tmp_path / "link.json"
     target = tmp_path / "target.json"
-    target.write_text("{}")
+    shutil.copy(res, target)
     link.symlink_to(target)
-    check("solve --out a symlink (written through)", ["solve", ds, "--out", link], 0, "wrote", watch=watch,
-          tmp=tmp_path)
+    check("solve --out a symlink to a result (written through)", ["solve", ds, "--out", link], 0, "wrote",
+          watch=watch, tmp=tmp_path, new_ok=[target])
     assert link.is_symlink() and json.loads(target.read_text())["format"] == "calibgraph-result/1"
+    assert (tmp_path / "target.1.json").read_bytes() == res.read_bytes()
     assert not list(folder.iterdir())
 
 
@@ -739,3 +741,262 @@ def test_readme_auto_dry_run_on_the_shipped_default_workcell(tmp_path):
     assert rc == 0, err
     assert "survey stops pass the checks" in out and "nothing moved" in out and "Traceback" not in err
     assert not (tmp_path / "d").exists()
+
+
+# ======================================================================================================
+# issue 34 parts 1, 2, 6 and issue 35 part 6 (branch i34a): the output guard, solve's lock, inputs that
+# are not regular files, and a replaced result kept. Every refusal: exit 2, the cause named, every file of
+# the user unchanged (SHA-256) and nothing added.
+# ======================================================================================================
+def _user_files(tmp_path: Path) -> dict:
+    """A dataset with what a user keeps in it (ground truth, an image) and files of the user beside it."""
+    import cv2
+
+    d = tmp_path / "user"
+    d.mkdir()
+    precious = d / "precious.txt"
+    precious.write_text("the user's notes\n")
+    images = d / "images"
+    images.mkdir()
+    cv2.imwrite(str(images / "000000.png"), np.full((48, 64), 128, np.uint8))
+    _yaml(images / "target.yaml", {"target": {"kind": "checkerboard", "rows": 6, "cols": 9, "pitch_m": 0.025}})
+    return {"dir": d, "precious": precious, "images": images}
+
+
+def _files_of(*roots) -> set:
+    return {p for r in roots for p in ([Path(r)] if Path(r).is_file() else Path(r).rglob("*"))}
+
+
+def _with_user_data(ds: Path) -> Path:
+    """The dataset copy with a ground truth file and an image, as a simulated capture has."""
+    import cv2
+
+    from calibgraph.io.ground_truth import write_ground_truth_file
+
+    write_ground_truth_file(ds, {"cameras": {}, "captures": {}, "T_flange_board": np.eye(4).tolist()})
+    (ds / "images" / "cam0").mkdir(parents=True)
+    cv2.imwrite(str(ds / "images" / "cam0" / "000003.png"), np.full((48, 64), 128, np.uint8))
+    return ds
+
+
+def test_guard_solve_report_verify_intrinsics_never_write_over_a_dataset_or_a_user_file(ds, tmp_path):
+    ds = _with_user_data(ds)
+    user = _user_files(tmp_path)
+    res = ds / "result.json"
+    fresh = tmp_path / "fresh"
+    shutil.copytree(ds, fresh)
+    watch = [ds, fresh, user["dir"]]
+    files = _files_of(*watch)
+    for case, argv, cause in (
+            ("solve --out DS/dataset.yaml", ["solve", ds, "--out", ds / "dataset.yaml"],
+             ["dataset.yaml", "is a calibgraph dataset header", "never writes over a file it did not make"]),
+            ("solve --out DS/captures/000001.json", ["solve", ds, "--out", ds / "captures" / "000001.json"],
+             ["000001.json", "is a capture file", "not a calibgraph result"]),
+            ("solve --out a new file in DS/captures/", ["solve", ds, "--out", ds / "captures" / "999999.json"],
+             ["is inside the dataset", "captures/999999.json", "not its top folder"]),
+            ("solve --out DS/ground_truth.json", ["solve", ds, "--out", ds / "ground_truth.json"],
+             ["ground_truth.json", "is a ground truth file", "not a calibgraph result"]),
+            ("solve --out DS/images/cam0/000003.png", ["solve", ds, "--out", ds / "images" / "cam0" / "000003.png"],
+             ["000003.png", "is an image", "not a calibgraph result"]),
+            ("solve --out precious.txt (a user's file)", ["solve", ds, "--out", user["precious"]],
+             ["precious.txt", "a file calibgraph did not write", "choose another path"]),
+            ("solve --out another dataset's top folder", ["solve", ds, "--out", fresh / "result2.json"],
+             ["is inside the dataset", "not the dataset this command works on"]),
+            ("solve --out its own --intrinsics camera file",
+             ["solve", ds, "--intrinsics", f"cam0={user['dir'] / 'cam0.yaml'}", "--out", user["dir"] / "cam0.yaml"],
+             ["cam0.yaml", "is an input of this command"]),
+            ("solve --rrd DS/captures/x.rrd", ["solve", ds, "--out", tmp_path / "r.json", "--rrd",
+                                              ds / "captures" / "x.rrd"], ["is inside the dataset", "captures/x.rrd"]),
+            ("report --out DS/dataset.yaml", ["report", res, "--out", ds / "dataset.yaml"],
+             ["is a calibgraph dataset header", "not a calibgraph report"]),
+            ("report --out the result it reports", ["report", res, "--out", res],
+             ["is an input of this command"]),
+            ("report --out precious.txt", ["report", res, "--out", user["precious"]],
+             ["a file calibgraph did not write", "not a calibgraph report"]),
+            ("verify --verdict FRESH/dataset.yaml", ["verify", "--result", res, fresh, "--verdict", fresh / "dataset.yaml"],
+             ["is a calibgraph dataset header", "not a calibgraph verdict"]),
+            ("verify --verdict the stored result", ["verify", "--result", res, fresh, "--verdict", res],
+             ["is an input of this command"]),
+            ("verify --verdict into another dataset", ["verify", "--result", res, fresh, "--verdict",
+                                                       ds / "verify.json"],
+             ["is inside the dataset", "not the dataset this command works on"]),
+            ("intrinsics IMAGES --out DS/dataset.yaml", ["intrinsics", user["images"], "--out", ds / "dataset.yaml"],
+             ["is a calibgraph dataset header", "not a calibgraph camera file"]),
+            ("intrinsics --out precious.txt", ["intrinsics", user["images"], "--out", user["precious"]],
+             ["a file calibgraph did not write", "not a calibgraph camera file"]),
+            ("intrinsics --out one of its images", ["intrinsics", user["images"], "--out", user["images"] / "000000.png"],
+             ["is an input of this command"]),
+            ("intrinsics --out its target file", ["intrinsics", user["images"], "--out", user["images"] / "target.yaml"],
+             ["is an input of this command"]),
+            ("view --rrd DS/dataset.yaml", ["view", res, "--rrd", ds / "dataset.yaml"], ["not a calibgraph recording"]),
+            ("target print --out precious.txt", ["target", "print", user["images"] / "target.yaml", "--out",
+                                                 user["precious"]], ["not a calibgraph PDF"])):
+        if "--intrinsics" in argv:  # a ROS camera_info of the user's as the camera file
+            _yaml(user["dir"] / "cam0.yaml", {"image_width": 1920, "image_height": 1080, "camera_name": "cam0",
+                                              "camera_matrix": {"rows": 3, "cols": 3, "data": [1400, 0, 960, 0, 1400,
+                                                                                               540, 0, 0, 1]},
+                                              "distortion_model": "plumb_bob",
+                                              "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0] * 5}})
+            files = _files_of(*watch)
+        check(case, argv, 2, cause, watch=watch, tmp=tmp_path)
+        assert _files_of(*watch) == files, f"{case}: files were added or removed"
+
+
+def test_guard_a_result_or_camera_file_replaced_is_kept(ds, tmp_path):
+    """Issue 35 part 6: a solve that replaces an earlier result.json keeps it as result.1.json (then
+    result.2.json ...) and says so; the dataset's own report may be replaced (a calibgraph report)."""
+    res = ds / "result.json"
+    first = res.read_bytes()
+    text = check("solve over an earlier result (kept)", ["solve", ds, "--quiet"], 0,
+                 ["kept the previous result as", "result.1.json"], watch=[ds], new_ok=[res])
+    assert (ds / "result.1.json").read_bytes() == first and "wrote" not in text
+    second = res.read_bytes()
+    check("solve over two earlier results (kept as .2)", ["solve", ds, "--quiet"], 0, "result.2.json", watch=[ds],
+          new_ok=[res])
+    assert (ds / "result.2.json").read_bytes() == second and (ds / "result.1.json").read_bytes() == first
+    check("report into the dataset's own top folder", ["report", res], 0, "wrote", watch=[ds])
+    check("report over the dataset's own report", ["report", res], 0, "wrote", watch=[ds], new_ok=[ds / "report.html"])
+    # an exported result replaced is kept too; the other exported files are replaced (calibgraph's own)
+    out = tmp_path / "exp"
+    check("export json+urdf into a new folder", ["export", res, "--format", "json", "--format", "urdf", "--out", out],
+          0, "wrote")
+    exported = (out / "result.json").read_bytes()
+    check("export again over its own files", ["export", res, "--format", "json", "--format", "urdf", "--out", out], 0,
+          ["kept the previous result.json as"], watch=[ds], new_ok=[out / "result.json"])
+    assert (out / "result.1.json").read_bytes() == exported
+    # a failed solve keeps nothing twice: the earlier result stays where it was, no extra copy
+    n = len(list(ds.glob("result*.json")))
+    _edit_captures(ds, _mm)
+    check("failed solve over a kept result", ["solve", ds, "--quiet"], 2, "millimetres", watch=[ds])
+    assert len(list(ds.glob("result*.json"))) == n
+
+
+def test_guard_export_and_folder_writers_never_write_into_a_dataset_or_over_a_file(ds, tmp_path):
+    user = _user_files(tmp_path)
+    res = ds / "result.json"
+    rct = tmp_path / "rct"  # a peer layout's dataset (industrial_calibration): cal_data.yaml marks it
+    rct.mkdir()
+    (rct / "cal_data.yaml").write_text("data: []\n")
+    exp = tmp_path / "exp"
+    exp.mkdir()
+    (exp / "calibgraph_cameras.urdf.xacro").write_text("<robot name='mine'/>\n")  # the user's own URDF there
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    cell = _yaml(tmp_path / "cell.yaml", CELL)
+    traj = _fake_capture(tmp_path / "traj") / "trajectory.yaml"
+    demo_dir = tmp_path / "demo"
+    demo_dir.mkdir()
+    (demo_dir / "report.html").write_text("<html>the user's page</html>\n")
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    shutil.copy(res, plain / "result.json")
+    watch = [ds, user["dir"], rct, exp, bag, demo_dir, tmp_path / "traj", plain]
+    files = _files_of(*watch)
+    cap = ["capture", "--workcell", cell, "--trajectory", traj, "--out"]
+    for case, argv, cause in (
+            ("export --out inside a dataset", ["export", res, "--format", "json", "--out", ds / "exports"],
+             ["is inside the dataset", "outside any dataset"]),
+            ("export --out a dataset folder", ["export", res, "--format", "urdf", "--out", ds],
+             ["holds a dataset", "must not be a dataset folder"]),
+            ("export --out a peer layout's dataset", ["export", res, "--format", "urdf", "--out", rct],
+             ["holds a dataset"]),
+            ("export over the user's file of the same name", ["export", res, "--format", "urdf", "--out", exp],
+             ["calibgraph_cameras.urdf.xacro", "a file calibgraph did not write", "not a calibgraph export"]),
+            ("export --format json into the folder of the result it exports (its input)",
+             ["export", plain / "result.json", "--format", "json", "--out", plain], ["is an input of this command"]),
+            ("export --format mchec --out inside a dataset", ["export", ds, "--format", "mchec", "--out",
+                                                              ds / "images" / "m"], ["is inside the dataset"]),
+            ("sim --out an existing dataset", ["sim", "--out", ds], ["a dataset already exists here"]),
+            ("sim --out inside a dataset", ["sim", "--out", ds / "captures" / "more"], ["is inside the dataset"]),
+            ("sim --out a user's file", ["sim", "--out", user["precious"]], ["is a file, not a folder"]),
+            ("sim --out a peer layout's dataset", ["sim", "--out", rct], ["holds a dataset"]),
+            ("sim --intrinsics-session --out inside a dataset", ["sim", "--intrinsics-session", "2", "--out",
+                                                                 ds / "session"], ["is inside the dataset"]),
+            ("capture --out an existing dataset", cap + [ds], ["a dataset already exists here", "--resume"]),
+            ("capture --out inside a dataset", cap + [ds / "images" / "new"], ["is inside the dataset"]),
+            ("capture --out a user's file", cap + [user["precious"]], ["is a file, not a folder"]),
+            ("import --out an existing dataset", ["import", "rosbag2", bag, "--out", ds], ["a dataset already exists"]),
+            ("import --out inside a dataset", ["import", "rosbag2", bag, "--out", ds / "captures" / "b"],
+             ["is inside the dataset"]),
+            ("import --out a user's file", ["import", "rosbag2", bag, "--out", user["precious"]],
+             ["is a file, not a folder"]),
+            ("import --out a peer layout's dataset", ["import", "rosbag2", bag, "--out", rct], ["holds a dataset"]),
+            ("demo --out an existing dataset", ["demo", "--out", ds], ["holds a dataset"]),
+            ("demo --out inside a dataset", ["demo", "--out", ds / "demo"], ["is inside the dataset"]),
+            ("demo --out a user's file", ["demo", "--out", user["precious"]], ["is a file, not a folder"]),
+            ("demo --out a folder with the user's report.html", ["demo", "--out", demo_dir],
+             ["report.html", "a file calibgraph did not write", "not a calibgraph report"])):
+        check(case, argv, 2, cause, watch=watch, tmp=tmp_path)
+        assert _files_of(*watch) == files, f"{case}: files were added or removed"
+
+
+def test_guard_solve_holds_the_dataset_lock_and_names_the_holder(ds, tmp_path):
+    """Issue 34 part 2, with two processes: while one holds the dataset (as solve does), a second solve,
+    a capture --resume and an import into it are refused in one line naming the holder; nothing changes."""
+    code = ("import sys, time, contextlib\nfrom calibgraph.io.lock import dataset_lock\n"
+            "with contextlib.ExitStack() as st:\n    [st.enter_context(dataset_lock(d, 'solve')) for d in sys.argv[1:]]\n"
+            "    print('held', flush=True)\n    time.sleep(120)\n")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    cap = _fake_capture(tmp_path / "cap")  # a trajectory capture's dataset, which capture --resume continues
+    holder = subprocess.Popen([sys.executable, "-c", code, str(ds), str(cap)], stdout=subprocess.PIPE, text=True,
+                              env=env)
+    cell = _yaml(tmp_path / "cell.yaml", CELL)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        lock = json.loads((ds / ".calibgraph.lock").read_text())
+        assert lock["pid"] == holder.pid and lock["mode"] == "solve"
+        watch = [ds, cap]
+        files = _files_of(*watch)
+        for case, argv in (("second solve of a dataset being solved", ["solve", ds, "--quiet"]),
+                           ("solve --out elsewhere of a dataset being solved", ["solve", ds, "--out",
+                                                                                tmp_path / "r.json"]),
+                           ("capture --resume into a dataset being solved", ["capture", "--workcell", cell, "--resume",
+                                                                             "--out", cap])):
+            check(case, argv, 2, ["another calibgraph run is writing this dataset", f"process {holder.pid}",
+                                  "`calibgraph solve`", "nothing was changed"], watch=watch)
+            assert _files_of(*watch) == files and not (tmp_path / "r.json").exists()
+    finally:
+        holder.kill()
+        holder.wait(10)
+    # the holder killed: its lock is stale, and the next solve takes it over
+    check("solve after the lock's holder was killed", ["solve", ds, "--quiet"], 0,
+          ["taking over the lock left by", f"process {holder.pid}"], watch=[ds],
+          new_ok=[ds / "result.json", ds / ".calibgraph.lock"])
+    assert not (ds / ".calibgraph.lock").exists()
+
+
+def test_guard_two_solves_at_once_lose_no_result(ds):
+    """Two real `calibgraph solve` processes started together on one dataset: each either writes its
+    result (the earlier one kept) or is refused naming the other; every "wrote" has its file."""
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    before = set(ds.glob("result*.json"))
+    procs = [subprocess.Popen([sys.executable, "-m", "calibgraph", "solve", str(ds)], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, env=env) for _ in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    codes = [p.returncode for p in procs]
+    wrote = sum("wrote" in o for o, _ in outs)
+    refused = [e for c, (_, e) in zip(codes, outs) if c == 2]
+    assert all(c in (0, 2) for c in codes), outs
+    assert all("another calibgraph run is writing this dataset" in e and "`calibgraph solve`" in e for e in refused)
+    assert wrote == codes.count(0) >= 1
+    after = set(ds.glob("result*.json"))
+    assert len(after - before) == wrote  # result.json was there: each solve that wrote kept the one before it
+    ROWS.append(("two solves of one dataset at once", max(codes),
+                 _said(refused[0], "") if refused else f"both wrote in turn; {len(after - before)} earlier results kept"))
+
+
+def test_reads_a_fifo_in_the_dataset_or_as_camera_file_never_hangs(ds, tmp_path):
+    """Issue 34 part 6: a capture file that is a FIFO used to hang solve forever (read_text before any
+    check); now it is skipped with one warning naming it, and a FIFO given as a camera file is refused."""
+    from helpers import fails_instead_of_hanging
+
+    os.mkfifo(ds / "captures" / "000099.json")
+    cam = tmp_path / "cam0.yaml"
+    os.mkfifo(cam)
+    with fails_instead_of_hanging(120, "solve of a dataset with a FIFO"):
+        check("FIFO among the capture files (skipped)", ["solve", ds, "--quiet"], 0,
+              ["000099.json", "not a regular file", "skipped"], watch=[ds], new_ok=[ds / "result.json"])
+        check("solve --intrinsics a FIFO", ["solve", ds, "--intrinsics", f"cam0={cam}", "--out", tmp_path / "r.json"],
+              2, ["cam0.yaml", "not a regular file"], watch=[ds])
+    assert stat.S_ISFIFO(os.stat(ds / "captures" / "000099.json").st_mode)

@@ -199,6 +199,18 @@ def test_intrinsics_command_on_a_rendered_session(session, tmp_path, capsys):
     assert main(["intrinsics", str(session / "cam0"), "--out", str(tmp_path / "again.yaml"), "--quiet"]) == 0
 
 
+def test_intrinsics_over_an_earlier_camera_file_keeps_it(session, tmp_path, capsys):
+    """The output guard (issue 34): a camera file replaced by a new session's is kept as CAM.1.yaml."""
+    out = tmp_path / "cam0.yaml"
+    argv = ["intrinsics", str(session / "cam0"), "--out", str(out), "--quiet"]
+    assert main(argv) == 0
+    first = out.read_bytes()
+    capsys.readouterr()
+    assert main(argv) == 0
+    assert f"kept the previous camera file as {tmp_path / 'cam0.1.yaml'}" in capsys.readouterr().out
+    assert (tmp_path / "cam0.1.yaml").read_bytes() == first and read_camera_file(out).K[0, 0] > 0
+
+
 @pytest.mark.parametrize("case", ["no_folder", "empty", "no_board", "bad_target", "no_target", "out_is_folder"])
 def test_intrinsics_command_bad_input(case, session, tmp_path, capsys):
     images = session / "cam0"

@@ -125,14 +125,16 @@ def test_engine_does_not_import_rerun():
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
 
 
-def test_report_and_rrd_from_the_real_rct_dataset(shared_dir, tmp_path):
-    """End to end on real images: solve -> report (coverage needs the dataset's intrinsics) -> .rrd with images."""
+def test_report_and_rrd_from_the_real_rct_dataset(rct_dir, tmp_path):
+    """End to end on real images: solve -> report (coverage needs the dataset's intrinsics) -> .rrd with images.
+    Solved in a private copy (``rct_dir``): a solve writes its detection cache and lock beside the data,
+    and ../shared is never written to."""
     from calibgraph.cli.main import main
     from calibgraph.report.html import write_report
     from calibgraph.report.rerun_view import write_rrd
     from calibgraph.solver.result import load_result
 
-    ds = shared_dir / "datasets" / "rct_static_camera_charuco"
+    ds = rct_dir
     res = tmp_path / "result.json"
     assert main(["solve", str(ds), "--out", str(res), "--quiet"]) == 0
     r = load_result(res)

@@ -35,7 +35,7 @@ import numpy as np
 from calibgraph.acquire.loop import Station, Visit
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.problem import Capture, Detection
-from calibgraph.io.files import atomic_write_text
+from calibgraph.io.files import atomic_write_text, read_input_bytes
 from calibgraph.io.layouts import load_dataset
 from calibgraph.plan.active import CameraBelief, keepout_violation, motion_time_s, shortfall, sigma_norms
 from calibgraph.plan.information import intrinsics_prior
@@ -141,7 +141,7 @@ class AutoState:
     def captures_on_disk(self):
         out = []
         for f in sorted((self.out / "captures").glob("*.json")):
-            d = json.loads(f.read_text())
+            d = json.loads(read_input_bytes(f, "capture file"))
             cap = Capture(index=int(d["index"]), T_base_flange=np.asarray(d["T_base_flange"], float),
                           q_rad=None if d.get("q_rad") is None else np.asarray(d["q_rad"], float), stamp_s=d.get("stamp_s"))
             dets = []
@@ -334,7 +334,7 @@ class AutoState:
     def reload(self) -> None:
         """Resume: the journaled steps, the solver replayed from the captures on disk (a capture written
         just before a kill, before its log entry, is recovered)."""
-        d = json.loads((self.out / PLAN_LOG_NAME).read_text())
+        d = json.loads(read_input_bytes(self.out / PLAN_LOG_NAME, "plan log"))
         self.steps = list(d.get("steps", []))
         self.refuted = refuted_from_steps(self.steps)
         self.pixel_sigma_px = d.get("pixel_sigma_px")

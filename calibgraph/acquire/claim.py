@@ -34,9 +34,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import socket
-import time
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -47,20 +44,13 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.targets import Target
 from calibgraph.core.version import __version__
 from calibgraph.io.dataset import write_header
-from calibgraph.io.files import output_folder, read_yaml
-
-try:  # POSIX; elsewhere (or on a file system without flock) the holder's pid decides, see _held_by_another
-    import fcntl
-except ImportError:  # pragma: no cover - not on the platforms calibgraph runs on
-    fcntl = None
+from calibgraph.io.files import output_folder, read_input_bytes, read_yaml
+from calibgraph.io.lock import LOCK_NAME, RUN_NAMES, lock_folder, unlock_folder
 
 __all__ = ["Claim", "claim_dataset", "content_sha256", "file_sha256", "write_or_check_header", "LOCK_NAME",
            "TRAJECTORY_RUNS"]
 
-LOCK_NAME = ".calibgraph.lock"
 TRAJECTORY_RUNS = ("trajectory", "sim", "verify")  # the runs of a fixed trajectory (journal: acquisition.json)
-RUN_NAMES = {"sim": "`calibgraph sim`", "trajectory": "a trajectory capture (`calibgraph capture --trajectory`)",
-             "auto": "`calibgraph capture --auto`", "verify": "`calibgraph capture --verify`"}
 INPUT_NAMES = {"workcell_sha256": "workcell", "world_sha256": "simulated world", "trajectory_sha256": "trajectory",
                "result_sha256": "stored result"}
 JOURNALS = {"auto": "plan_log.json", "trajectory": "acquisition.json"}
@@ -84,7 +74,7 @@ def content_sha256(obj) -> str:
 
 def file_sha256(path) -> str:
     """SHA-256 of a file's bytes."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return hashlib.sha256(read_input_bytes(path, "input file")).hexdigest()
 
 
 class Claim:
@@ -145,83 +135,6 @@ def _recorded(out: Path, mode: str, accept: tuple, resume: bool) -> dict | None:
     return {str(k): v for k, v in rec.items()}
 
 
-def _holder(fd: int) -> dict:
-    try:
-        os.lseek(fd, 0, os.SEEK_SET)
-        return json.loads(os.read(fd, 4096).decode() or "{}")
-    except (OSError, ValueError):
-        return {}
-
-
-def _describe(h: dict) -> str:
-    when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(h["started_unix_s"])) if "started_unix_s" in h else "?"
-    return (f"process {h.get('pid', '?')} on {h.get('host', '?')}, {RUN_NAMES.get(h.get('mode'), 'a capture')}, "
-            f"started {when}")
-
-
-def _held_by_another(fd: int) -> bool:
-    """Take the exclusive flock on the lock file ``fd``; True when another process holds it. Where
-    flock is unavailable, the recorded holder's pid decides (held while that process lives)."""
-    if fcntl is not None:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            return False
-        except BlockingIOError:
-            return True
-        except OSError:  # a file system without flock: fall back on the pid
-            pass
-    h = _holder(fd)
-    if h.get("pid") in (None, os.getpid()):  # a new lock file, or ours
-        return False
-    if h.get("host") != socket.gethostname():  # held from another machine: whether it lives cannot be told
-        return True
-    try:
-        os.kill(int(h["pid"]), 0)
-        return True
-    except ProcessLookupError:
-        return False
-    except (OSError, ValueError):
-        return True
-
-
-def _lock(out: Path, mode: str, log) -> int:
-    """Take the dataset's lock (see the module docstring); the open descriptor that holds it."""
-    path = out / LOCK_NAME
-    for _ in range(20):
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        if _held_by_another(fd):
-            h = _holder(fd)
-            os.close(fd)
-            raise InputError(f"{out}: another calibgraph run is writing this dataset ({_describe(h)}); wait for it to "
-                             "end or stop it, then resume (nothing was changed).")
-        try:
-            same = os.stat(path).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if not same:  # the previous holder removed the file between our open and our lock: take the new one
-            os.close(fd)
-            continue
-        old = _holder(fd)
-        if old.get("pid") is not None:
-            log(f"{out}: taking over the lock left by {_describe(old)}, which is no longer running")
-        me = {"pid": os.getpid(), "host": socket.gethostname(), "mode": mode, "started_unix_s": time.time()}
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, json.dumps(me).encode(), 0)
-        os.fsync(fd)
-        return fd
-    raise InputError(f"{out}: could not take the dataset's lock {path} (it keeps being replaced); try again.")
-
-
-def _unlock(out: Path, fd: int) -> None:
-    path = out / LOCK_NAME
-    try:
-        if os.stat(path).st_ino == os.fstat(fd).st_ino:
-            path.unlink()
-    except OSError:
-        pass
-    os.close(fd)  # closing drops the flock
-
-
 @contextmanager
 def claim_dataset(out_dir, mode: str, inputs: dict | None = None, resume: bool = False, log=None,
                   accept: tuple | None = None):
@@ -247,7 +160,7 @@ def claim_dataset(out_dir, mode: str, inputs: dict | None = None, resume: bool =
     _recorded(out, mode, accept, resume)  # refuse before touching anything
     existed = out.exists()
     output_folder(out, "dataset folder")
-    fd = _lock(out, mode, log or (lambda s: None))
+    fd = lock_folder(out, mode, log or (lambda s: None))
     try:
         claim = Claim(out, mode, inputs or {}, _recorded(out, mode, accept, resume))  # again, under the lock
         _HELD[key] = claim
@@ -256,7 +169,7 @@ def claim_dataset(out_dir, mode: str, inputs: dict | None = None, resume: bool =
         finally:
             _HELD.pop(key, None)
     finally:
-        _unlock(out, fd)
+        unlock_folder(out, fd)
         if not existed:
             try:
                 out.rmdir()  # a run that wrote nothing leaves no empty folder behind

@@ -87,7 +87,7 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.targets import Target
 from calibgraph.detect.corners import detect_image
 from calibgraph.io.dataset import capture_path, image_relpath
-from calibgraph.io.files import atomic_write_bytes
+from calibgraph.io.files import atomic_write_bytes, read_input_bytes
 from calibgraph.plan.trajectory import Trajectory, load_trajectory, save_trajectory
 
 __all__ = ["AcquisitionReport", "PoseOutcome", "State", "run_acquisition", "normalise_detection", "JOURNAL_NAME",
@@ -233,7 +233,7 @@ class _Journal:
         if not p.is_file():
             return None
         try:
-            d = json.loads(p.read_text())
+            d = json.loads(read_input_bytes(p, "journal"))
         except (OSError, ValueError) as e:
             raise InputError(f"{p}: journal unreadable ({e}); move it aside to resume from the capture files alone.") from None
         j = cls(root, d.get("trajectory_sha256", ""), int(d.get("n_poses", 0)))
@@ -425,8 +425,8 @@ class _TrajectoryRun:
             if self.poses[i].capture and cp.exists():
                 done.add(i)
                 try:
-                    views = json.loads(cp.read_text()).get("views", {})
-                except (OSError, ValueError):
+                    views = json.loads(read_input_bytes(cp, "capture file")).get("views", {})
+                except (OSError, ValueError, InputError):
                     views = {}
                 for c in views:
                     st.accepted[c] = st.accepted.get(c, 0) + 1

@@ -312,6 +312,9 @@ def _claim(args, mode: str, inputs: dict, log, claim_dataset):
 
     if args.dry_run:
         return contextlib.nullcontext()
+    from calibgraph.io.output_guard import check_output_folder
+
+    check_output_folder(args.out, "dataset folder", claimed=True)  # never inside a dataset; --resume decides on one
     if getattr(args, "camera_files", None):  # a resume must use the same camera files
         from calibgraph.acquire.claim import content_sha256
 

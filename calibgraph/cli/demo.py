@@ -49,6 +49,20 @@ def _bar(total, desc):
     return tqdm(total=total, desc=desc, unit="pose", file=sys.stderr, leave=True, dynamic_ncols=True)
 
 
+def _check_outputs(args, out: Path, ds_dir: Path) -> None:
+    """The output guard on every file and folder the demo writes, before anything is simulated."""
+    from calibgraph.io.output_guard import check_output_file, check_output_folder
+
+    check_output_folder(out, "output folder")
+    check_output_folder(ds_dir, "dataset folder")
+    files = [("trajectory.yaml", "trajectory", "trajectory file")] if not args.auto else []
+    files += [("result.json", "result", "result file")] if not args.auto else []
+    files += [("report.html", "report", "report file")] if args.report and not args.auto else []
+    files += [("calibration.rrd", "recording", "rerun recording")] if args.rrd else []
+    for name, kind, what in files:
+        check_output_file(out / name, kind, what, name)
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -67,7 +81,7 @@ def run(args) -> int:
         raise InputError(f"--poses {args.poses}: the demo needs at least 6 poses (3 views per camera at the very least).")
     if (ds_dir / "dataset.yaml").exists():
         raise InputError(f"{out}: holds a previous demo; choose another --out or delete it.")
-    output_folder(out, "output folder")  # a file, a read-only folder: said now, not after simulating
+    _check_outputs(args, out, ds_dir)  # a dataset, a user's file, a read-only folder: said now, not after simulating
     if args.workcell:
         cell = load_workcell(args.workcell)
     else:

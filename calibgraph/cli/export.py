@@ -31,7 +31,22 @@ def add_parser(sub):
     return p
 
 
+def _planned(result, args) -> list:
+    """(file name, kind) of every file the export will write: the export is made first in a
+    temporary folder, so the guard judges the very files and headers it will write."""
+    import tempfile
+
+    from calibgraph.io.output_guard import output_kind
+    from calibgraph.report.exports import export
+
+    with tempfile.TemporaryDirectory(prefix="calibgraph_export_") as tmp:
+        for fmt in args.fmt:
+            export(result, fmt, tmp, dataset=args.dataset, parent=args.parent)
+        return [(p.name, output_kind(p) or "export") for p in sorted(Path(tmp).iterdir()) if not p.name.startswith(".")]
+
+
 def run(args) -> int:
+    from calibgraph.io.output_guard import check_output_file, check_output_folder, keep_previous
     from calibgraph.report.exports import export, renamed
     from calibgraph.solver.result import load_result
 
@@ -43,10 +58,19 @@ def run(args) -> int:
             raise InputError("export: --format mchec takes a dataset folder and cannot be combined with result formats.")
         if not args.result.is_dir():
             raise InputError(f"export: --format mchec needs a dataset folder, got {args.result}.")
+        check_output_folder(args.out, "export folder")
         export_mchec(args.result, args.out)
         print(f"wrote {args.out} (Multi-Camera-Hand-Eye-Calibration layout)")
         return 0
     result = load_result(args.result)
+    check_output_folder(args.out, "export folder")  # never a dataset or inside one
+    planned = _planned(result, args)
+    for name, kind in planned:  # none replaces a file calibgraph did not write as that kind, or the input
+        check_output_file(args.out / name, kind, "exported file", name, inputs=[args.result])
+    for name, _ in planned:
+        kept = keep_previous(args.out / name)  # an exported result replaced is kept beside it
+        if kept is not None:
+            print(f"kept the previous {name} as {kept}")
     for name, why in result.not_calibrated.items():
         print(f"note: camera {name!r} is not exported: it was not calibrated ({why})")
     for name, ident in renamed(result).items():

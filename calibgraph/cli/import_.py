@@ -41,6 +41,7 @@ def run(args) -> int:
 
     from calibgraph.acquire.safety import franka_fk
     from calibgraph.core.errors import InputError
+    from calibgraph.io.output_guard import check_output_folder
     from calibgraph.io.rosbag2 import import_rosbag2
     from calibgraph.io.specs import load_target
 
@@ -50,6 +51,8 @@ def run(args) -> int:
         if not sep or not name or not topic.startswith("/"):
             raise InputError(f"--camera {item!r}: expected NAME=/image/topic.")
         named[name] = topic
+    if args.bag.exists():  # a missing bag is said first
+        check_output_folder(args.out, "dataset folder (--out)", claimed=True)  # an existing dataset: refused below
     rep = import_rosbag2(args.bag, args.out, base_frame=args.base_frame, flange_frame=args.flange_frame, cameras=named,
                          target=load_target(args.target) if args.target else None,
                          fk=franka_fk, still_mm=args.still_mm, still_deg=args.still_deg, min_still_s=args.min_still_s,

@@ -58,13 +58,14 @@ def _target_path(args) -> Path:
 
 def run(args) -> int:
     from calibgraph.io.camera_file import write_camera_file
-    from calibgraph.io.files import output_file
+    from calibgraph.io.output_guard import check_output_file, write_keeping_previous
     from calibgraph.io.specs import load_target
     from calibgraph.solver.intrinsics_session import calibrate_images
 
-    out = output_file(args.out, "camera file", "camera.yaml")
     paths = _images(args.images)
-    target = load_target(_target_path(args))
+    target_path = _target_path(args)
+    out = check_output_file(args.out, "camera file", "camera file", "camera.yaml", inputs=[target_path, *paths])
+    target = load_target(target_path)
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     say(f"detecting the {target.kind} ({target.rows}x{target.cols} points of {target.pitch_m * 1e3:g} mm) in "
         f"{len(paths)} images of {args.images}")
@@ -74,7 +75,9 @@ def run(args) -> int:
             print(f"  {done}/{total} images", file=sys.stderr, flush=True)
 
     r = calibrate_images(paths, target, model=args.model, progress=progress)
-    write_camera_file(out, r.to_dict(target))
+    kept = write_keeping_previous(out, lambda: write_camera_file(out, r.to_dict(target)))
+    if kept is not None:
+        print(f"kept the previous camera file as {kept}")
     intr, s = r.intrinsics, r.sigma
     if not args.quiet:
         for name, why in r.rejected:

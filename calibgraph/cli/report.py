@@ -23,13 +23,16 @@ def add_parser(sub):
 def run(args) -> int:
     import sys
 
-    from calibgraph.io.files import output_file
     from calibgraph.io.layouts import load_dataset
+    from calibgraph.io.output_guard import check_output_file
     from calibgraph.report.html import dataset_mismatch, report_verdicts, write_report
     from calibgraph.solver.result import load_result
 
     result = load_result(args.result)
-    out = output_file(args.out or args.result.with_name("report.html"), "report file", "report.html")
+    # the report may go into the top folder of the result's own dataset (the one it names or sits in)
+    out = check_output_file(args.out or args.result.with_name("report.html"), "report", "report file", "report.html",
+                            inputs=[args.result, args.config],
+                            datasets=[result.dataset, args.dataset, args.result.parent])
     dataset = load_dataset(args.dataset) if args.dataset is not None else None
     if dataset is None and result.dataset and Path(result.dataset).is_dir():
         named = load_dataset(result.dataset)  # the dataset the result names, when it is still there and still its own

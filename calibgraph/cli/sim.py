@@ -44,8 +44,10 @@ def add_parser(sub):
 
 
 def _intrinsics_session(args, cell) -> int:
+    from calibgraph.io.output_guard import check_output_folder
     from calibgraph.sim.session import simulate_intrinsics_session
 
+    check_output_folder(args.out, "session folder", empty=True)
     say = None if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     simulate_intrinsics_session(args.out, {c.name: c.intrinsics for c in cell.cameras}, cell.target,
                                 args.intrinsics_session, realism=cell.realism, seed=args.seed, progress=say)
@@ -60,12 +62,14 @@ def run(args) -> int:
     from calibgraph.acquire.workcell import read_workcell
     from calibgraph.core.errors import InputError
     from calibgraph.io.files import output_folder
+    from calibgraph.io.output_guard import check_output_folder
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.plan.trajectory import load_trajectory
     from calibgraph.sim.render import SimWorld
     from calibgraph.sim.rendered_dataset import simulate_dataset
     from calibgraph.sim.workcell import ring_workcell, workcell_from_dict, workcell_to_dict
 
+    check_output_folder(args.out, "dataset folder", claimed=True)  # never inside a dataset; --resume decides on one
     if args.workcell:  # read once: a pipe is refused, degenerate camera geometry too
         cell = workcell_from_dict(read_workcell(args.workcell, "workcell file", hardware=False).data, str(args.workcell))
     else:

@@ -188,10 +188,27 @@ def print_problems(problems, per_kind: int = 3) -> None:
             print(f"warning: ... and {len(items) - per_kind} more images like these", file=sys.stderr)
 
 
+def camera_file_paths(items) -> list:
+    """The files of ``--intrinsics NAME=CAM.yaml`` arguments (inputs no output may replace)."""
+    return [Path(s.partition("=")[2]) for s in items if "=" in s]
+
+
 def run(args) -> int:
+    from calibgraph.io.lock import dataset_lock
+
+    if not args.dataset.is_dir():  # no such folder, or a file: load_dataset says which
+        from calibgraph.io.layouts import load_dataset
+
+        load_dataset(args.dataset)
+    # a capture, an import or a second solve of the dataset is refused meanwhile, naming this one
+    with dataset_lock(args.dataset, "solve", lambda line: print(line, file=sys.stderr)):
+        return _run(args)
+
+
+def _run(args) -> int:
     from calibgraph.io.camera_file import apply_camera_files, read_camera_file_args
-    from calibgraph.io.files import output_file
     from calibgraph.io.layouts import load_dataset
+    from calibgraph.io.output_guard import check_output_file, write_keeping_previous
     from calibgraph.solver.batch import solve
 
     out = args.out or (args.dataset / "result.json")
@@ -199,9 +216,12 @@ def run(args) -> int:
     ds = load_dataset(args.dataset)
     if files:
         ds = replace(ds, cameras=apply_camera_files(ds.cameras, files, f"dataset {args.dataset}"))
-    output_file(out, "result file")  # said now, not after solving; the previous result stays until the new one is whole
+    # said now, not after solving; the previous result stays until the new one is whole, and is kept then
+    inputs = camera_file_paths(args.intrinsics)
+    check_output_file(out, "result", "result file", "result.json", inputs=inputs, datasets=[args.dataset])
     if args.rrd:
-        output_file(args.rrd, "rerun recording", "calibgraph.rrd")
+        check_output_file(args.rrd, "recording", "rerun recording", "calibgraph.rrd", inputs=inputs + [out],
+                          datasets=[args.dataset])
     for f, msg in ds.problems:
         print(f"warning: {f}: {msg}", file=sys.stderr)
     opts = solver_options(args, ds)
@@ -220,7 +240,9 @@ def run(args) -> int:
             print(note)
     result = solve(problem)
     result = replace(result, dataset=str(args.dataset), target=ds.target.to_dict())
-    result.save(out)
+    kept = write_keeping_previous(out, lambda: result.save(out))
+    if kept is not None:
+        print(f"kept the previous result as {kept}")
     if not args.quiet:
         print(format_summary(result))
         rms_px = max((c.reprojection_rms_px / np.sqrt(2.0) for c in result.calibrated.values()), default=0.0)

@@ -25,9 +25,10 @@ def run(args) -> int:
     if args.target_command == "print":
         from calibgraph.report.pdf import write_target_pdf
 
-        from calibgraph.io.files import output_file
+        from calibgraph.io.output_guard import check_output_file
 
-        out = output_file(args.out or args.spec.with_suffix(".pdf"), "PDF file", "board.pdf")
+        out = check_output_file(args.out or args.spec.with_suffix(".pdf"), "PDF", "PDF file", "board.pdf",
+                                inputs=[args.spec])
         write_target_pdf(t, out, args.paper.upper())
         print(f"wrote {out} ({args.paper.upper()}); print at 100% scale and check the 100 mm ruler")
         return 0

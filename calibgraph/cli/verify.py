@@ -59,6 +59,7 @@ def run(args) -> int:
     from calibgraph.core.errors import InputError
     from calibgraph.io.files import atomic_write_text
     from calibgraph.io.layouts import load_dataset
+    from calibgraph.io.output_guard import check_output_file
     from calibgraph.solver.build import build_problem
     from calibgraph.solver.result import load_result
     from calibgraph.solver.verify import DEFAULT_ALPHA, check_fresh_data, verify
@@ -68,10 +69,11 @@ def run(args) -> int:
     if not dataset.captures:
         raise InputError(f"{args.dataset}: no captures to verify with.")
     check_fresh_data(stored, dataset.cameras, dataset.target, str(args.result))  # before detecting anything
+    out = check_output_file(args.verdict or (Path(args.dataset) / "verify.json"), "verdict", "verdict file",
+                            "verify.json", inputs=[args.result], datasets=[args.dataset])
     problem, _ = build_problem(dataset, progress=not args.quiet)
     vr = verify(problem, stored, alpha=DEFAULT_ALPHA if args.alpha is None else args.alpha, where=str(args.result),
                 target=dataset.target)
-    out = args.verdict or (Path(args.dataset) / "verify.json")
     d = vr.to_dict()
     d.update({"result": str(args.result), "dataset": str(args.dataset)})
     atomic_write_text(out, json.dumps(d, indent=2))

@@ -21,7 +21,7 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from calibgraph.io.files import output_file
+    from calibgraph.io.output_guard import check_output_file
     from calibgraph.report.rerun_view import rerun_cli, write_rrd
     from calibgraph.solver.result import load_result
 
@@ -29,7 +29,9 @@ def run(args) -> int:
     dataset = args.dataset
     if dataset is None and result.dataset and Path(result.dataset).is_dir():
         dataset = Path(result.dataset)
-    path = output_file(args.rrd or args.result.with_suffix(".rrd"), "recording file", "calibgraph.rrd")
+    path = check_output_file(args.rrd or args.result.with_suffix(".rrd"), "recording", "recording file",
+                             "calibgraph.rrd", inputs=[args.result],
+                             datasets=[result.dataset, args.dataset, args.result.parent])
     write_rrd(result, dataset, path)
     print(f"wrote {path}")
     if args.rrd is None:

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import InputError
+from calibgraph.core.inputs import read_input_text
 from calibgraph.core.transforms import make_T
 
 
@@ -265,7 +266,7 @@ def chain_from_urdf(path, tip_link: str | None = None, base_link: str | None = N
     Prismatic joints are refused; the joint limits are not read (the safety checks have their own)."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = read_input_text(path, "URDF")
         root = ET.fromstring(text)
     except (OSError, ET.ParseError) as e:
         raise InputError(f"{path}: cannot read the URDF ({e}).") from None

@@ -26,7 +26,7 @@ from calibgraph.detect.detection import ImageDetection, failed_detection
 from calibgraph.detect.image import Frame
 from calibgraph.detect.spec_check import FIRST_FRAMES, BoardSpecCheck
 from calibgraph.detect.stream import OrderedPool
-from calibgraph.io.files import atomic_write_text
+from calibgraph.io.files import atomic_write_text, read_input_bytes
 
 # Part of the cache key: bump when a change can move detected points.
 DETECTOR_VERSION = "5"
@@ -61,8 +61,8 @@ class DetectionCache:
         self.changed = False
         if self.path is not None and self.path.is_file():
             try:
-                self.entries = json.loads(self.path.read_text()).get("entries", {})
-            except (OSError, ValueError):
+                self.entries = json.loads(read_input_bytes(self.path, "detection cache")).get("entries", {})
+            except (OSError, ValueError, InputError):
                 self.entries = {}  # a damaged cache is only a lost speed-up
         self._stamps = {}
 

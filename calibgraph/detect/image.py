@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calibgraph.core.errors import DetectionError
+from calibgraph.core.errors import DetectionError, InputError
+from calibgraph.core.inputs import read_input_bytes
 
 
 def read_grey(path) -> np.ndarray:
@@ -29,11 +30,15 @@ def read_grey(path) -> np.ndarray:
 
 
 def _read_bytes(p: Path) -> np.ndarray:
-    if not p.is_file():
+    if not p.exists():
         raise DetectionError(f"{p}: image file not found.")
-    if p.stat().st_size == 0:
+    try:
+        data = read_input_bytes(p, "image file")  # a FIFO or a device is refused, never waited on
+    except InputError as e:
+        raise DetectionError(str(e)) from None
+    if not data:
         raise DetectionError(f"{p}: image file is empty (0 bytes); re-capture it or delete the view.")
-    return np.fromfile(str(p), np.uint8)
+    return np.frombuffer(data, np.uint8)
 
 
 def _decode(data: np.ndarray, p: Path, flags: int) -> np.ndarray:

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import InputError
+from calibgraph.io.files import image_size, read_input_bytes
 
 MAX_ROBOT_REACH_M = 10.0      # a flange farther than this from the base: the poses are not in metres
 PITCH_RATIO_LIMIT = 4.0       # board motion / robot motion beyond this (or below its inverse): pitch off
@@ -73,8 +74,8 @@ def _view_key(v, root: Path):
     if v.image:
         p = root / v.image
         try:
-            return ("img", v.camera, hashlib.sha256(p.read_bytes()).hexdigest())
-        except OSError:
+            return ("img", v.camera, hashlib.sha256(read_input_bytes(p, "image file")).hexdigest())
+        except (OSError, InputError):
             return ("img?", v.camera, v.image)
     return ("none", v.camera)
 
@@ -111,21 +112,6 @@ def _drop_duplicate_captures(ds):
                    problems=tuple(ds.problems) + tuple(warnings))
 
 
-def _image_size(path: Path):
-    """(width, height) of an image file from its header (PNG, or anything OpenCV reads), or None."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(24)
-    except OSError:
-        return None
-    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24:
-        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    return None if img is None else (img.shape[1], img.shape[0])
-
-
 def _check_image_sizes(ds) -> None:
     """The first, middle and last image to be detected of every camera must have the intrinsics' size
     (views with stored detections are checked by their corners, :func:`_check_corners_inside`)."""
@@ -135,7 +121,7 @@ def _check_image_sizes(ds) -> None:
             continue
         imgs = [v.image for v in ds.views if v.camera == cam and v.image and v.ids is None]
         for rel in dict.fromkeys(imgs[i] for i in {0, len(imgs) // 2, len(imgs) - 1} if imgs):
-            wh = _image_size(root / rel)
+            wh = image_size(root / rel)
             if wh is None or wh == (intr.width_px, intr.height_px):
                 continue
             w, h = wh

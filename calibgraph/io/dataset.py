@@ -41,7 +41,7 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
 from calibgraph.core.targets import Target
-from calibgraph.io.files import atomic_write_text, read_yaml
+from calibgraph.io.files import atomic_write_text, read_input_bytes, read_yaml
 
 FORMAT = "calibgraph-dataset/1"
 
@@ -229,7 +229,7 @@ def read_calibgraph_dataset(root) -> Dataset:
     file_of = {}
     for f in sorted((root / "captures").glob("*.json")):
         try:
-            d = json.loads(f.read_text())
+            d = json.loads(read_input_bytes(f, "capture file"))  # a FIFO is refused, never waited on
             cap = Capture(index=d["index"], T_base_flange=np.asarray(d["T_base_flange"], float),
                           q_rad=d.get("q_rad"), stamp_s=d.get("stamp_s"))
         except (OSError, ValueError, KeyError, TypeError) as e:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Callable
 
 from calibgraph.core.errors import CalibgraphError, InputError
+from calibgraph.core.inputs import read_input_bytes, read_input_text  # noqa: F401  (the one reader of input files)
 
 
 def read_yaml(path, what: str, mapping: bool = True, empty_ok: bool = False):
@@ -37,32 +38,23 @@ def parse_yaml(raw: bytes, path, what: str, mapping: bool = True, empty_ok: bool
     return d
 
 
-def read_input_bytes(path, what: str) -> bytes:
-    """The content of the input file ``path``. Only a regular file is read: a folder, a pipe (FIFO),
-    a device or a socket is refused with one :class:`InputError`, never waited on (the file is
-    opened non-blocking and checked before anything is read)."""
-    p = Path(path)
+def image_size(path):
+    """(width, height) of an image file from its header (PNG, or anything OpenCV decodes), or None
+    for a file that cannot be read or decoded (a FIFO or a device is not waited on)."""
     try:
-        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as e:
-        raise InputError(f"{p}: cannot read {what}: {e}") from None
+        head = read_input_bytes(path, "image file", limit=24)
+    except InputError:
+        return None
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24:
+        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    import cv2
+    import numpy as np
+
     try:
-        st = os.fstat(fd)
-        if stat.S_ISDIR(st.st_mode):
-            raise InputError(f"{p}: cannot read {what}: it is a folder, not a file.")
-        if not stat.S_ISREG(st.st_mode):
-            raise InputError(f"{p}: cannot read {what}: not a regular file (a pipe, a device or a socket); give the "
-                             f"{what} as a file.")
-        chunks = []
-        while True:
-            b = os.read(fd, 1 << 20)
-            if not b:
-                return b"".join(chunks)
-            chunks.append(b)
-    except OSError as e:
-        raise InputError(f"{p}: cannot read {what}: {e}") from None
-    finally:
-        os.close(fd)
+        img = cv2.imdecode(np.frombuffer(read_input_bytes(path, "image file"), np.uint8), cv2.IMREAD_UNCHANGED)
+    except (InputError, cv2.error):
+        return None
+    return None if img is None else (img.shape[1], img.shape[0])
 
 
 def is_opencv_storage(raw: bytes) -> bool:

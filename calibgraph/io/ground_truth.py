@@ -9,7 +9,7 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
-from calibgraph.io.files import atomic_write_text
+from calibgraph.io.files import atomic_write_text, read_input_bytes
 
 GT_FORMAT = "calibgraph-ground-truth/1"
 
@@ -30,8 +30,8 @@ def load_ground_truth(dataset_dir) -> dict:
     ``intrinsics_true``), "raw": dict}``."""
     p = Path(dataset_dir) / GT_NAME
     try:
-        d = json.loads(p.read_text())
-    except (OSError, ValueError) as e:
+        d = json.loads(read_input_bytes(p, "ground truth"))
+    except (OSError, ValueError, InputError) as e:
         raise InputError(f"{p}: no readable ground truth ({e}); only simulated datasets have one.") from None
     return {
         "T_flange_board": np.asarray(d["T_flange_board"], float),

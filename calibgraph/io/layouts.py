@@ -39,6 +39,11 @@ def load_dataset(root) -> Dataset:
     )
 
 
+def is_dataset_root(root) -> bool:
+    """True when the folder ``root`` holds a dataset calibgraph reads (its own layout or a peer's)."""
+    return is_calibgraph_dataset(root) or is_rct_dataset(root) or is_mchec_dataset(root)
+
+
 def as_dataset(dataset):
     """A Dataset from a Dataset, a folder path, or None (passed through)."""
     if dataset is None or isinstance(dataset, Dataset):

@@ -48,7 +48,7 @@ from calibgraph.core.problem import Capture
 from calibgraph.core.targets import Target
 from calibgraph.core.transforms import check_pose
 from calibgraph.io.dataset import Dataset, View
-from calibgraph.io.files import read_yaml
+from calibgraph.io.files import read_input_text, read_yaml
 
 INFO_NAME = "CalibrationInfo.yaml"
 INTRINSICS_NAME = "intrinsic_pars_file.yaml"
@@ -98,7 +98,7 @@ def read_mchec_pose(path: Path) -> np.ndarray:
     """A 4x4 pose from an MC-HEC csv (space or comma separated, as its Reader accepts)."""
 
     try:
-        rows = [re.split(r"[,\s]+", ln.strip()) for ln in path.read_text().splitlines() if ln.strip()]
+        rows = [re.split(r"[,\s]+", ln.strip()) for ln in read_input_text(path, "pose file").splitlines() if ln.strip()]
         T = np.array([[float(x) for x in r if x != ""] for r in rows], float)
     except (OSError, ValueError) as e:
         raise InputError(f"{path}: not a 4x4 pose csv ({e}).") from None

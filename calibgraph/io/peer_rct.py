@@ -38,7 +38,7 @@ from calibgraph.core.problem import Capture
 from calibgraph.core.targets import Target
 from calibgraph.core.transforms import check_pose, make_T, quat_xyzw_to_R
 from calibgraph.io.dataset import Dataset, View
-from calibgraph.io.files import read_yaml
+from calibgraph.io.files import image_size, read_yaml
 
 
 def is_rct_dataset(root) -> bool:
@@ -99,15 +99,6 @@ def read_rct_pose(path) -> np.ndarray:
     return check_pose(T, str(p))
 
 
-def _image_size(path: Path):
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return None
-    return img.shape[1], img.shape[0]
-
-
 def load_rct_dataset(root):
     """Read an industrial_calibration / RCT dataset folder as a :class:`calibgraph.io.dataset.Dataset`
     (one camera named ``camera``; views carry no detections, so they are detected on demand).
@@ -152,7 +143,7 @@ def load_rct_dataset(root):
 
     size = None
     for img, _ in pairs:
-        size = _image_size(root / img)
+        size = image_size(root / img)
         if size is not None:
             break
     if size is None:

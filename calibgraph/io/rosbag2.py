@@ -45,6 +45,7 @@ from calibgraph.core.targets import a4_board_54
 from calibgraph.core.transforms import inv, log_so3, make_T, quat_xyzw_to_R
 from calibgraph.io.dataset import image_relpath, write_capture, write_header
 from calibgraph.io.files import atomic_write_png, output_folder
+from calibgraph.io.lock import dataset_lock
 
 __all__ = ["import_rosbag2", "ImportReport", "BASE_FRAMES", "FLANGE_FRAMES", "camera_name_of"]
 
@@ -296,8 +297,9 @@ def import_rosbag2(bag, out, base_frame: str | None = None, flange_frame: str | 
         _remove_if_empty(out, created)
         raise InputError(f"{bag}: not a readable rosbag2 ({str(e).splitlines()[0] if str(e) else type(e).__name__}).") from None
     try:
-        return _import(reader, bag, out, base_frame, flange_frame, cameras or {}, target, fk, joint_names, still_mm,
-                       still_deg, min_still_s, robot_pose, progress or (lambda s: None))
+        with dataset_lock(out, "import"):  # a solve or a second import of this folder is refused meanwhile
+            return _import(reader, bag, out, base_frame, flange_frame, cameras or {}, target, fk, joint_names,
+                           still_mm, still_deg, min_still_s, robot_pose, progress or (lambda s: None))
     except BaseException:
         _remove_if_empty(out, created)
         raise

@@ -14,6 +14,8 @@ import html
 import json
 from pathlib import Path
 
+from calibgraph.core.errors import InputError
+from calibgraph.io.files import read_input_bytes
 from calibgraph.report.svgplot import colormap, scatter
 
 PLAN_LOG_NAME = "plan_log.json"  # as written by calibgraph.acquire.auto
@@ -42,8 +44,8 @@ def convergence_section(dataset_dir) -> str:
     if not p.is_file():
         return ""
     try:
-        log = json.loads(p.read_text())
-    except (OSError, ValueError):
+        log = json.loads(read_input_bytes(p, "plan log"))
+    except (OSError, ValueError, InputError):
         return ""
     series = convergence_series(log)
     if not series:

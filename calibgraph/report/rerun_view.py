@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import InputError
-from calibgraph.io.files import atomic_write_via
+from calibgraph.io.files import atomic_write_via, read_input_bytes
 from calibgraph.report.findings import summary_markdown
 from calibgraph.report.residuals import observations, report_residuals
 from calibgraph.report.svgplot import colormap
@@ -210,7 +210,7 @@ def _load_plan_log(plan_log) -> dict | None:
     import json
 
     try:
-        return json.loads(Path(plan_log).read_text())
+        return json.loads(read_input_bytes(plan_log, "plan log"))
     except (OSError, ValueError) as e:
         raise InputError(f"{plan_log}: cannot read the plan log ({type(e).__name__}: {e}).") from None
 

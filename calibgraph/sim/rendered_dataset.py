@@ -33,6 +33,7 @@ import numpy as np
 
 from calibgraph.acquire.run import run_acquisition
 from calibgraph.detect.corners import detect_image
+from calibgraph.io.files import read_input_bytes
 from calibgraph.io.ground_truth import write_ground_truth_file
 from calibgraph.plan.trajectory import load_trajectory
 from calibgraph.sim.devices import board_plainly_hidden, make_devices
@@ -52,7 +53,7 @@ def write_ground_truth(out_dir, cell: Workcell, world=None) -> Path:
     caps = {}
     offsets = np.asarray(cell.joint_offsets_rad, float)
     for f in sorted((out / "captures").glob("*.json")):
-        d = json.loads(f.read_text())
+        d = json.loads(read_input_bytes(f, "capture file"))
         q = d.get("q_rad")
         if q is None:
             continue

@@ -26,7 +26,7 @@ import numpy as np
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.core.targets import Target
-from calibgraph.io.files import atomic_write_png, atomic_write_text, output_folder
+from calibgraph.io.files import atomic_write_png, atomic_write_text, output_folder, read_input_bytes
 from calibgraph.sim.board_image import render_view
 from calibgraph.sim.render import degrade
 from calibgraph.sim.workcell import Realism
@@ -113,7 +113,7 @@ def load_session_truth(folder) -> SessionTruth:
     """The :class:`SessionTruth` of a session written by :func:`simulate_intrinsics_session`."""
     p = Path(folder) / "ground_truth.json"
     try:
-        d = json.loads(p.read_text())
+        d = json.loads(read_input_bytes(p, "session ground truth"))
     except (OSError, ValueError) as e:
         raise InputError(f"{p}: cannot read the session's ground truth: {e}") from None
     if d.get("format") != TRUTH_FORMAT:
