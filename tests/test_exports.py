@@ -114,6 +114,32 @@ def test_ros_camera_info_round_trip(tmp_path):
         export(without, "camera-info", tmp_path / "none")
 
 
+def test_an_old_result_exported_with_the_datasets_intrinsics_says_they_are_the_given_ones(tmp_path):
+    """Issue 34: a result that does not record the intrinsics its cameras were solved with, exported
+    with --dataset, used to write the dataset's factory K under 'the intrinsics calibgraph solved this
+    camera with'. Now each file carries the given values and says so; a result that records them
+    is exported with those, whatever the dataset says."""
+    from helpers import write_sim_dataset
+
+    from calibgraph.io.camera_file import read_camera_file
+
+    old, scene, prob, _ = make_sim_result(intrinsics=False)
+    ds = write_sim_dataset(tmp_path / "ds", prob)
+    for fmt in ("camera-info", "opencv-yaml"):
+        for p in export(old, fmt, tmp_path / fmt, dataset=ds):
+            text = p.read_text()
+            assert "GIVEN values of the dataset" in text and str(ds) in text and "solved this camera with" not in text
+            back = read_camera_file(p)
+            name = next(n for n in prob.cameras if p.name.startswith(n))
+            assert np.array_equal(back.K, prob.cameras[name].K)  # the given values, as said
+    new, *_ = make_sim_result()
+    for p in export(new, "camera-info", tmp_path / "new", dataset=ds):
+        text = p.read_text()
+        assert "solved this camera with" in text and "GIVEN" not in text
+        name = yaml.safe_load(text)["camera_name"]
+        assert np.array_equal(read_camera_file(p).K, Intrinsics.from_dict(new.cameras[name].intrinsics).K)
+
+
 def test_opencv_yaml_without_intrinsics_says_so(tmp_path):
     d, *_ = make_sim_result(intrinsics=False)
     p = write_opencv_yaml(d, tmp_path)[0]

@@ -157,6 +157,11 @@ def _one_line(e: InputError) -> str:
     return s
 
 
+def _scale_column(T: list, col: int, factor: float) -> None:
+    for row in T[:3]:
+        row[col] *= factor
+
+
 @pytest.mark.parametrize("change,said", [
     (lambda d: d.update(format="calibgraph-result/2"), ["newer than this calibgraph", "upgrade calibgraph"]),
     (lambda d: d.update(format="other-tool/1"), ["not a calibgraph result"]),
@@ -166,6 +171,12 @@ def _one_line(e: InputError) -> str:
     (lambda d: d["cameras"]["cam1"].pop("T_base_cam"), ["camera 'cam1'", "T_base_cam"]),
     (lambda d: d["cameras"]["cam1"].update(covariance=[[1.0, 2.0]]), ["camera 'cam1'", "covariance", "6x6"]),
     (lambda d: d["cameras"]["cam0"]["T_base_cam"][0].__setitem__(3, float("nan")), ["cam0", "finite"]),
+    # issue 34: a pose that is not a rigid transform was exported as another pose without a word
+    (lambda d: _scale_column(d["cameras"]["cam0"]["T_base_cam"], 0, 2.0), ["cam0", "T_base_cam", "not a rigid transform"]),
+    (lambda d: _scale_column(d["cameras"]["cam1"]["T_base_cam"], 2, -1.0), ["cam1", "not a rigid transform", "det -1"]),
+    (lambda d: d["cameras"]["cam0"]["T_base_cam"][3].__setitem__(0, 0.5), ["cam0", "not a rigid transform", "last row"]),
+    (lambda d: _scale_column(d["T_flange_board"], 1, 1.01), ["T_flange_board", "not a rigid transform"]),
+    (lambda d: d["T_flange_board"][1].__setitem__(3, float("inf")), ["T_flange_board", "finite"]),
     (lambda d: d["residuals"]["cam0"].update({"3": "garbage"}), ["residuals of capture 3"]),
     (lambda d: d.update(robot=[1, 2]), ["robot", "not a mapping"]),
     (lambda d: d["solver"].update(iterations="many"), ["not a readable calibgraph result"]),

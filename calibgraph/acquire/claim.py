@@ -52,7 +52,10 @@ __all__ = ["Claim", "claim_dataset", "content_sha256", "file_sha256", "write_or_
 
 TRAJECTORY_RUNS = ("trajectory", "sim", "verify")  # the runs of a fixed trajectory (journal: acquisition.json)
 INPUT_NAMES = {"workcell_sha256": "workcell", "world_sha256": "simulated world", "trajectory_sha256": "trajectory",
-               "result_sha256": "stored result"}
+               "result_sha256": "stored result", "camera_files_sha256": "--intrinsics camera files"}
+# inputs whose absence is a value: a run recorded without them was made without them (an --intrinsics
+# file given to a resume of a run that had none changes the cameras' intrinsics as much as another file)
+EXACT_INPUTS = ("camera_files_sha256",)
 JOURNALS = {"auto": "plan_log.json", "trajectory": "acquisition.json"}
 
 
@@ -92,8 +95,13 @@ class Claim:
         self.require(inputs)
 
     def require(self, inputs: dict) -> None:
-        """Check ``inputs`` (key -> SHA-256) against the record and add the ones it lacks."""
+        """Check ``inputs`` (key -> SHA-256) against the record and add the ones it lacks. An input of
+        ``EXACT_INPUTS`` is checked even when None (not given) against a dataset that has a record."""
         for k, v in (inputs or {}).items():
+            if k in EXACT_INPUTS and self.recorded is not None and self.recorded.get(k) != v:
+                raise InputError(f"{self.out}: {_camera_files_change(self.recorded.get(k), v)}; resume with the same "
+                                 "--intrinsics files as the run that started it, or choose a new --out (nothing was "
+                                 "changed).")
             if v is None:
                 continue
             if self.recorded and self.recorded.get(k) not in (None, v):
@@ -101,6 +109,14 @@ class Claim:
                                  f"({k} differs); resume with the original one, or choose a new --out (nothing was "
                                  "changed).")
             self.made_by.setdefault(k, v)
+
+
+def _camera_files_change(recorded, given) -> str:
+    if recorded is None:
+        return "this dataset was captured without --intrinsics camera files, and this run gives some"
+    if given is None:
+        return "this dataset was captured with --intrinsics camera files, and this run gives none"
+    return "this dataset was captured with other --intrinsics camera files (their intrinsics differ)"
 
 
 _HELD: dict = {}  # resolved dataset folder -> the Claim this process holds on it
@@ -196,8 +212,9 @@ def write_or_check_header(out: Path, target: Target, intr: dict, mode: str, clai
             new[c] = k  # a camera that was lost at the first start joins now
         elif not (np.allclose(cams[c].K, k.K, rtol=1e-6, atol=1e-6) and cams[c].width_px == k.width_px
                   and cams[c].height_px == k.height_px):
-            raise InputError(f"{head}: camera {c!r} now reports different intrinsics than when the dataset was started; "
-                             "resolution or device changed: start a new dataset.")
+            raise InputError(f"{head}: camera {c!r} now reports different intrinsics than when the dataset was started "
+                             "(another --intrinsics file than its run's, or its resolution or device changed): resume "
+                             "with what the run started with, or start a new dataset (nothing was changed).")
     if new:
         extra = {k: v for k, v in d.items() if k not in ("format", "mode", "units", "frame_convention", "target",
                                                           "cameras", "solver")}

@@ -37,6 +37,7 @@ the same kind with the same inputs, and one process at a time.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from pathlib import Path
 
@@ -132,7 +133,7 @@ def _trajectory(args, log) -> int:
     with _claim(args, "trajectory", inputs, log, claim_dataset):
         dev = _devices(args, driver, wc, wc, log, dry_run_shows="check every pose against the safety limits",
                        plans_without_robot="planning from the first pose instead of the robot's joints")
-        try:
+        with _run_on(dev, args):
             on_capture = None
             if args.incremental and not args.dry_run:
                 from calibgraph.solver.incremental import IncrementalSolver
@@ -145,10 +146,6 @@ def _trajectory(args, log) -> int:
                 dev.robot, dev.cameras, traj, args.out, target, detector=dev.detector, resume=args.resume,
                 safety=wc.safety, on_capture=on_capture, progress=log, dry_run=args.dry_run, mode=wc.mode,
                 settle_dwell_s=_dwell(args, driver)))
-        finally:
-            if not args.dry_run:
-                dev.write_ground_truth(args.out)  # a simulated capture: the true poses and intrinsics beside it
-            dev.close()
     if rep is None:
         return 130
     print(rep.summary())
@@ -197,13 +194,10 @@ def _auto(args, log) -> int:
     with _claim(args, "auto", _input_hashes(wc, world), log, claim_dataset):
         pworld = planning_world(cell)
         dev = devices(skip_hidden=True)
-        try:
+        with _run_on(dev, args):
             rep = _interruptible(args, "--auto", lambda: run_auto(
                 dev.robot, dev.cameras, cell, pworld, args.out, detector=dev.detector, safety=safety, options=opts,
                 resume=args.resume, progress=log))
-        finally:
-            dev.write_ground_truth(args.out)
-            dev.close()
     if rep is None:
         return 130
     print(rep.summary())
@@ -253,16 +247,12 @@ def _verify(args, log) -> int:
         pworld = planning_world(cell)
         dev = _devices(args, driver, wc, world, log, names=cell.camera_names, dry_run_shows="check the verify poses",
                        plans_without_robot="planning from the home posture", render_check=not args.dry_run)
-        try:
+        with _run_on(dev, args):
             rep = _interruptible(args, f"--verify --result {args.result} ...", lambda: run_verify_capture(
                 dev.robot, dev.cameras, stored, cell, pworld, args.out, detector=dev.detector, safety=safety,
                 n_poses=args.verify_poses, alpha=DEFAULT_ALPHA if args.alpha is None else args.alpha,
                 resume=args.resume, dry_run=args.dry_run, seed=args.seed, settle_dwell_s=_dwell(args, driver),
                 progress=log, where=str(args.result)))
-        finally:
-            if not args.dry_run:
-                dev.write_ground_truth(args.out)
-            dev.close()
     if rep is None:
         return 130
     print(rep.acquisition.summary())
@@ -306,20 +296,40 @@ def _dwell(args, driver: str) -> float:
     return args.settle_dwell_s if args.settle_dwell_s is not None else (0.3 if driver != "sim" else 0.0)
 
 
+@contextlib.contextmanager
+def _run_on(dev, args):
+    """The run on its devices ``dev``, closed when it ends. A simulated run's ground truth (the true
+    poses and intrinsics) is written beside its captures then, after a crash or Ctrl-C too, but not
+    after a refusal (an InputError, e.g. a resume whose cameras report other intrinsics): a refused
+    run writes nothing."""
+    from calibgraph.core.errors import InputError
+
+    refused = False
+    try:
+        yield dev
+    except InputError:
+        refused = True
+        raise
+    finally:
+        try:
+            if not (args.dry_run or refused):
+                dev.write_ground_truth(args.out)
+        finally:
+            dev.close()
+
+
 def _claim(args, mode: str, inputs: dict, log, claim_dataset):
     """The dataset claim of a run (nothing to claim in a dry run, which writes nothing)."""
-    import contextlib
-
     if args.dry_run:
         return contextlib.nullcontext()
     from calibgraph.io.output_guard import check_output_folder
 
     check_output_folder(args.out, "dataset folder", claimed=True)  # never inside a dataset; --resume decides on one
-    if getattr(args, "camera_files", None):  # a resume must use the same camera files
-        from calibgraph.acquire.claim import content_sha256
+    from calibgraph.acquire.claim import content_sha256
 
-        inputs = {**inputs, "camera_files_sha256": content_sha256(
-            {n: i.to_dict() for n, i in sorted(args.camera_files.items())})}
+    files = getattr(args, "camera_files", None)  # a resume must use the same camera files (or none, as its run)
+    inputs = {**inputs, "camera_files_sha256": content_sha256(
+        {n: i.to_dict() for n, i in sorted(files.items())}) if files else None}
     return claim_dataset(args.out, mode, inputs, args.resume, log)
 
 

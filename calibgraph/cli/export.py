@@ -8,6 +8,7 @@ and ``joint_offsets.yaml`` for the controller."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from calibgraph.report.exports import FORMATS
@@ -75,6 +76,11 @@ def run(args) -> int:
         print(f"note: camera {name!r} is not exported: it was not calibrated ({why})")
     for name, ident in renamed(result).items():
         print(f"note: camera {name!r} is exported as {ident} (its sanitised name is shared with another camera)")
+    if args.dataset is not None and {"opencv-yaml", "camera-info"} & set(args.fmt):
+        given = [n for n, c in result.calibrated.items() if c.solved_intrinsics is None]
+        if given:
+            print(f"warning: the result does not record the intrinsics {', '.join(given)} were solved with; their "
+                  f"files carry the dataset's given intrinsics ({args.dataset}), and say so", file=sys.stderr)
     for fmt in args.fmt:
         for p in export(result, fmt, args.out, dataset=args.dataset, parent=args.parent):
             print(f"wrote {p}")

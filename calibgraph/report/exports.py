@@ -27,7 +27,8 @@ z forward), which is what ROS calls ``<camera>_optical_frame``. Every file state
 and units in comments or fields.
 
 Intrinsics are those the camera was solved with when the result records them, else the dataset's
-given with ``dataset=``. Camera names become ROS/URDF identifiers (:func:`export_names`): unique
+given with ``dataset=``, and then every file says so (:func:`given_intrinsics_note`: an old result
+does not say which intrinsics its pose was solved with, and estimated ones differ). Camera names become ROS/URDF identifiers (:func:`export_names`): unique
 even when two names sanitise alike, so no link, joint or file is written twice.
 """
 
@@ -114,6 +115,18 @@ def camera_intrinsics(result, name: str, dataset=None):
     if ds is not None and name in ds.cameras:
         return ds.cameras[name]
     return None
+
+
+def given_intrinsics_note(result, name: str, dataset) -> str:
+    """'' when camera ``name``'s exported intrinsics are those the result records it was solved
+    with; else the line every file that carries the dataset's instead says (the result predates
+    their record, so what the pose was solved with is not known: estimated ones differ)."""
+    if result.cameras[name].solved_intrinsics is not None:
+        return ""
+    where = dataset if isinstance(dataset, (str, Path)) else getattr(dataset, "root", "given")
+    return (f"these intrinsics are the GIVEN values of the dataset {where} (its dataset.yaml), not intrinsics this "
+            "result records: the result does not say which intrinsics its pose was solved with (if they were "
+            "estimated, they differ from these); re-solve the dataset to export the ones it used")
 
 
 def _header_lines(result) -> list:
@@ -268,24 +281,27 @@ def write_opencv_yaml(result, out_dir, dataset=None) -> list:
     """
     result = as_result(result, "export")
     paths = []
-    for out, name, ident, intr in _calibrated_cameras(result, out_dir, dataset):
+    for out, name, ident, intr, given in _calibrated_cameras(result, out_dir, dataset):
         stem = ident if ident not in RESERVED_FILE_STEMS else f"camera_{ident}"
         p = out / f"{stem}.yaml"
-        atomic_write_via(p, lambda tmp: _write_opencv_camera(tmp, result, name, ident, intr), tmp_suffix=".yaml")
+        atomic_write_via(p, lambda tmp: _write_opencv_camera(tmp, result, name, ident, intr, given),
+                         tmp_suffix=".yaml")
         paths.append(p)
     return paths
 
 
 def _calibrated_cameras(result, out_dir, dataset=None):
-    """(export folder, camera name, its export identifier, its intrinsics or None) of each calibrated
-    camera of ``result`` (a :class:`~calibgraph.solver.result.Result`), the folder made first."""
+    """(export folder, camera name, its export identifier, its intrinsics or None, '' or the
+    :func:`given_intrinsics_note` when they are the dataset's) of each calibrated camera of
+    ``result`` (a :class:`~calibgraph.solver.result.Result`), the folder made first."""
     out = output_folder(out_dir, "export folder")
     ids = export_names(result)
     for name in result.calibrated:
-        yield out, name, ids[name], camera_intrinsics(result, name, dataset)
+        intr = camera_intrinsics(result, name, dataset)
+        yield out, name, ids[name], intr, given_intrinsics_note(result, name, dataset) if intr is not None else ""
 
 
-def _write_opencv_camera(tmp: Path, result, name: str, ident: str, intr) -> None:
+def _write_opencv_camera(tmp: Path, result, name: str, ident: str, intr, given: str = "") -> None:
     """One camera's OpenCV FileStorage YAML (pose, 1-sigma, covariance, intrinsics) written to ``tmp``."""
     import cv2
 
@@ -300,6 +316,8 @@ def _write_opencv_camera(tmp: Path, result, name: str, ident: str, intr) -> None
     fs.write("frame_parent", ref)
     fs.write("frame_child", f"{ident}_optical_frame")
     if intr is not None:
+        if given:
+            fs.writeComment(f"NOTE: {given}.")
         fs.writeComment("camera_matrix in pixels; distortion OpenCV order k1 k2 p1 p2 [k3 [k4 k5 k6]]")
         fs.write("image_width", int(intr.width_px))
         fs.write("image_height", int(intr.height_px))
@@ -329,7 +347,7 @@ def write_camera_info(result, out_dir, dataset=None) -> list:
 
     result = as_result(result, "export")
     paths = []
-    for out, name, ident, intr in _calibrated_cameras(result, out_dir, dataset):
+    for out, name, ident, intr, given in _calibrated_cameras(result, out_dir, dataset):
         if intr is None:
             continue
         dist = intr.dist8 if intr.dist.size > 5 else intr.dist8[:5]
@@ -340,6 +358,7 @@ def write_camera_info(result, out_dir, dataset=None) -> list:
                "rectification_matrix": _ros_matrix(np.eye(3)),
                "projection_matrix": _ros_matrix(np.hstack([intr.K, np.zeros((3, 1))]))}
         head = "".join(f"# {line}\n" for line in _header_lines(result)[:1]) + (
+            f"# ROS camera_info (camera_calibration format): {given}\n" if given else
             "# ROS camera_info (camera_calibration format): the intrinsics calibgraph solved this camera with\n")
         p = out / f"{ident}_camera_info.yaml"
         atomic_write_text(p, head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120))

@@ -258,11 +258,11 @@ def _make_eye_in_hand(cameras, target, n_poses, pixel_sigma_px, fk_t, fk_r, T_ba
 
 
 def bump_camera(scene, camera: str, at_capture: int, shift_m: float, rot_deg: float = 0.0, seed: int = 0,
-                pixel_sigma_px: float = 0.3):
+                pixel_sigma_px: float = 0.3, back_at_capture: int | None = None):
     """A synthetic scene whose camera ``camera`` was knocked before capture ``at_capture``: its views
-    from then on are projected from a pose whose centre moved by ``shift_m`` (random direction) and
-    which turned by ``rot_deg`` about its centre (random axis), with fresh pixel noise. Returns
-    (problem, T_base_cam after the move)."""
+    from then on (until ``back_at_capture``, when it is put back where it was) are projected from a
+    pose whose centre moved by ``shift_m`` (random direction) and which turned by ``rot_deg`` about
+    its centre (random axis), with fresh pixel noise. Returns (problem, T_base_cam after the move)."""
     rng = np.random.default_rng(seed)
     prob, truth = scene.problem, scene.truth
     u, w = rng.normal(size=3), rng.normal(size=3)
@@ -272,7 +272,7 @@ def bump_camera(scene, camera: str, at_capture: int, shift_m: float, rot_deg: fl
     intr = (truth.intrinsics or prob.cameras)[camera]
     dets = []
     for d in prob.detections:
-        if d.camera == camera and d.capture >= at_capture:
+        if d.camera == camera and d.capture >= at_capture and (back_at_capture is None or d.capture < back_at_capture):
             T_cb = inv(T_after) @ truth.T_base_flange_true[d.capture] @ truth.T_mount_board
             p = prob.points_board_m[d.ids]
             uv = intr.project(p @ T_cb[:3, :3].T + T_cb[:3, 3])

@@ -21,6 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.problem import Problem
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.assemble import (
@@ -68,13 +69,41 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
 def solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, timings: dict | None = None) -> Result:
     """One solve of ``problem``, without the moved-camera test (see :func:`solve`)."""
     t0 = time.perf_counter()
-    problem = initial_intrinsics(problem)
-    with timed(timings, "candidates"):
-        views, cands, rejected = usable_views(problem)
-    check_before_solve(problem, captures_by_camera(views))
+    given, aside = problem, {}
+    while True:  # a camera too few of whose views are usable is not calibrated; the others are solved
+        try:
+            problem = initial_intrinsics(given if not aside else given.with_(
+                cameras={n: c for n, c in given.cameras.items() if n not in aside},
+                detections=tuple(d for d in given.detections if d.camera not in aside)))
+            with timed(timings, "candidates"):
+                views, cands, rejected = usable_views(problem)
+            check_before_solve(problem, captures_by_camera(views))
+            break
+        except ObservabilityError as e:
+            if e.camera not in given.cameras or e.camera in aside or len(given.cameras) - len(aside) < 2:
+                raise
+            aside[e.camera] = _why_not_solved(str(e), e.camera)
     starts = initial_values(problem, views, cands, seed, initial, timings)
     groups, notes = _optimise(problem, views, starts, timings)
-    return _assemble(problem, groups, rejected, notes, time.perf_counter() - t0)
+    result = _assemble(problem, groups, rejected, notes, time.perf_counter() - t0)
+    return _with_set_aside(given, result, aside, rejected) if aside else result
+
+
+def _why_not_solved(message: str, name: str) -> str:
+    """The refusal of camera ``name`` as the why of a camera not calibrated (its name said once)."""
+    if message.startswith(f"camera {name!r}: "):
+        return message[len(f"camera {name!r}: "):]
+    return "it " + message[len(f"camera {name!r} "):] if message.startswith(f"camera {name!r} ") else message
+
+
+def _with_set_aside(problem: Problem, result: Result, aside: dict, rejected: list) -> Result:
+    """``result`` with the cameras of ``aside`` (name -> why) reported not calibrated, in the
+    problem's camera order, each with a note."""
+    cams = {**result.cameras, **{n: not_calibrated(problem, n, why, rejected) for n, why in aside.items()}}
+    cams = {n: cams[n] for n in problem.cameras if n in cams}
+    notes = [*result.notes, *(f"camera {n} is NOT calibrated: {why}" for n, why in aside.items())]
+    return replace(result, cameras=cams, notes=tuple(notes),
+                   rejected_views=tuple(rv for c in cams.values() for rv in c.views_rejected))
 
 
 def _optimise(problem: Problem, views: list, starts: list, timings: dict | None) -> tuple[list, list]:

@@ -20,6 +20,18 @@ views' scatter about their mean exactly as they scale the split (a view's six po
 its six low-order image modes). The split is a move when ``F`` passes ``F_LIMIT``, each side is
 consistent on its own (no side a mixture of its own) and the two poses leave the camera's corners at
 about the solve's pixel noise (a model error that is not a move is not explained by a cut in time).
+Two more shapes of a move are tested beside the single cut:
+
+- a move just before the camera's *last* view (``min_after=1``, what the solve asks): one view
+  after a cut cannot be told from one bad view, but answering it with the old pose would report
+  where the camera no longer stands; the solve then reports the camera not calibrated, asking
+  "moved after capture k?" (:mod:`calibgraph.solver.moved`);
+- a camera moved and **moved back** (knocked and sprung back, or taken off and put back): the
+  views of a span ``[i, j)`` against the views before and after it together. The span has one more
+  cut than a single split, so it is taken only when that second cut is itself significant
+  (``(glr_span - glr_cut) / 6`` over the span model's scatter passes ``F_LIMIT``) and the split it
+  gives passes the same tests as a cut.
+
 Linear algebra on 6x6 blocks with prefix sums: all splits of all cameras cost about one
 linearisation of the views, not a solve per camera.
 """
@@ -83,6 +95,7 @@ class Split:
     rotation_deg: float
     sigma_displacement_mm: float
     rms_two_sigma: float  # RMS of the camera's corner residuals with the two poses, in pixel sigmas
+    captures_back: tuple = ()  # moved and moved back: the captures after the span (``T_before`` again)
 
     @property
     def consistent(self) -> bool:
@@ -215,7 +228,7 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
     sigma_v = sigma_px * np.array([v.sigma_scale for v in mine])  # each view's own corner sigma
     for _ in range(3):
         ok, zeta, info, rss, n_obs = _view_tangents(padded, T_lin, T_F, est, intr, sigma_v, A, d, problem.options)
-        if ok.sum() < 2 * MIN_GROUP_VIEWS:
+        if ok.sum() < MIN_GROUP_VIEWS + 1:  # too few for any split
             return None
         zeta, info = zeta[ok], info[ok]
         mean = np.linalg.solve(info.sum(axis=0), np.einsum("nij,nj->i", info, zeta))
@@ -226,11 +239,22 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
     return ViewPoses(name, caps, zeta, info, np.asarray(T_lin), rss[ok].astype(float), n_obs[ok].astype(float))
 
 
-def best_split(vp: ViewPoses, min_side: int = MIN_GROUP_VIEWS) -> Split | None:
+def _fits(L: np.ndarray, e: np.ndarray, sq: np.ndarray) -> tuple:
+    """(means (..., 6), residual sums (...)) of groups of views given by their summed information
+    ``L`` (..., 6, 6), information-weighted tangents ``e`` (..., 6) and weighted squares ``sq`` (...)."""
+    m = np.linalg.solve(L, e[..., None])[..., 0]
+    return m, sq - np.einsum("...i,...i->...", e, m)
+
+
+def best_split(vp: ViewPoses, min_side: int = MIN_GROUP_VIEWS, min_after: int | None = None,
+               span: bool = True) -> Split | None:
     """The split of ``vp``'s views in capture order that two poses explain best (None when there
-    are too few views for two sides)."""
+    are too few views for two sides): one cut (``min_side`` views before it, ``min_after`` after
+    it, default ``min_side``), or, with ``span``, a span of views that moved and moved back (at least
+    ``min_side`` views in it and one on each side) when its second cut is significant on its own."""
     n = len(vp.captures)
-    if n < 2 * min_side:
+    min_after = min_side if min_after is None else min_after
+    if n < min_side + min_after:
         return None
     L, z = vp.info, vp.zeta
     eta = np.einsum("nij,nj->ni", L, z)
@@ -238,24 +262,39 @@ def best_split(vp: ViewPoses, min_side: int = MIN_GROUP_VIEWS) -> Split | None:
     cL = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(L, axis=0)])
     ce = np.concatenate([np.zeros((1, 6)), np.cumsum(eta, axis=0)])
     cs = np.concatenate([np.zeros(1), np.cumsum(s)])
-
-    def fit(Lk, ek, sk):
-        m = np.linalg.solve(Lk, ek)
-        return m, float(sk - ek @ m)
-
-    _, rss_one = fit(cL[-1], ce[-1], cs[-1])
-    best = None
-    for k in range(min_side, n - min_side + 1):
-        ma, ra = fit(cL[k], ce[k], cs[k])
-        mb, rb = fit(cL[-1] - cL[k], ce[-1] - ce[k], cs[-1] - cs[k])
-        glr = rss_one - ra - rb
-        if best is None or glr > best[1]:
-            best = (k, glr, ma, mb, ra, rb)
-    k, glr, ma, mb, ra, rb = best
+    _, rss_one = _fits(cL[-1], ce[-1], cs[-1])
     dof_two = 6 * n - 12
+    # one cut at k: views [0, k) and [k, n)
+    ks = np.arange(min_side, n - min_after + 1)
+    _, ra = _fits(cL[ks], ce[ks], cs[ks])
+    _, rb = _fits(cL[-1] - cL[ks], ce[-1] - ce[ks], cs[-1] - cs[ks])
+    glr = rss_one - ra - rb
+    best = int(np.argmax(glr))
+    k, cut_glr = int(ks[best]), float(glr[best])
+    inner = (k, n)  # the views of the second pose: [i, j)
+    if span and n >= min_side + 2:
+        i, j = np.triu_indices(n + 1, k=min_side)
+        keep = (i >= 1) & (j <= n - 1)
+        i, j = i[keep], j[keep]
+        if len(i):
+            L_in, e_in, s_in = cL[j] - cL[i], ce[j] - ce[i], cs[j] - cs[i]
+            _, r_in = _fits(L_in, e_in, s_in)
+            _, r_out = _fits(cL[-1] - L_in, ce[-1] - e_in, cs[-1] - s_in)
+            g = rss_one - r_in - r_out
+            b = int(np.argmax(g))
+            second = (g[b] - cut_glr) / 6.0 / max((r_in[b] + r_out[b]) / dof_two, 1e-300)
+            if second >= F_LIMIT:
+                inner = (int(i[b]), int(j[b]))
+    a, b = inner
+    idx_in = np.arange(a, b)
+    idx_out = np.r_[0:a, b:n]
+    L_out, e_out, s_out = cL[-1] - (cL[b] - cL[a]), ce[-1] - (ce[b] - ce[a]), cs[-1] - (cs[b] - cs[a])
+    ma, ra = _fits(L_out, e_out, s_out)
+    mb, rb = _fits(cL[b] - cL[a], ce[b] - ce[a], cs[b] - cs[a])
+    glr = float(rss_one - ra - rb)
     pooled = (ra + rb) / dof_two
     f = (glr / 6.0) / max(pooled, 1e-300)
-    cov_a, cov_b = np.linalg.inv(cL[k]), np.linalg.inv(cL[-1] - cL[k])
+    cov_a, cov_b = np.linalg.inv(L_out), np.linalg.inv(cL[b] - cL[a])
     T_a = (_pose(vp.T_lin) * gtsam.Pose3.Expmap(ma)).matrix()
     T_b = (_pose(vp.T_lin) * gtsam.Pose3.Expmap(mb)).matrix()
     d_m, d_deg = pose_error(T_a, T_b)
@@ -264,30 +303,33 @@ def best_split(vp: ViewPoses, min_side: int = MIN_GROUP_VIEWS) -> Split | None:
     c_ab = R @ (mb[3:] - ma[3:])
     u = c_ab / max(np.linalg.norm(c_ab), 1e-12)
     var = float(u @ R @ (cov_a[3:, 3:] + cov_b[3:, 3:]) @ R.T @ u) * max(pooled, 1.0)
-    return Split(vp.camera, k, tuple(int(c) for c in vp.captures[:k]), tuple(int(c) for c in vp.captures[k:]),
-                 float(f), float(glr),
-                 (rss_one / (6 * n - 6), ra / max(6 * k - 6, 1), rb / max(6 * (n - k) - 6, 1), pooled),
+    n_out, n_in = len(idx_out), len(idx_in)
+    caps = [int(c) for c in vp.captures]
+    return Split(vp.camera, a, tuple(caps[:a]), tuple(caps[a:b]), float(f), glr,
+                 (rss_one / (6 * n - 6), ra / max(6 * n_out - 6, 1), rb / max(6 * n_in - 6, 1), pooled),
                  T_a, T_b, cov_a, cov_b, 1e3 * d_m, d_deg, 1e3 * np.sqrt(max(var, 0.0)),
-                 float(np.sqrt((vp.own_rss.sum() + ra + rb) / max(vp.n_obs.sum(), 1))))
+                 float(np.sqrt((vp.own_rss.sum() + ra + rb) / max(vp.n_obs.sum(), 1))), tuple(caps[b:]))
 
 
-def camera_splits(problem, views: list, est, sigma_px: float, names, start: dict | None = None) -> dict:
+def camera_splits(problem, views: list, est, sigma_px: float, names, start: dict | None = None,
+                  min_after: int = MIN_GROUP_VIEWS) -> dict:
     """camera -> its best :class:`Split` for every camera of ``names`` with enough views.
 
     ``views``: every view of the solve (active or not; the active ones of the other cameras hold
     the robot poses); ``est``: the estimate to judge against (the robust rounds'), ``start``:
-    camera -> pose to linearise a camera at that ``est`` lacks (one left out of the graph)."""
+    camera -> pose to linearise a camera at that ``est`` lacks (one left out of the graph);
+    ``min_after``: views after a cut (1: a move before the last view is tested too)."""
     per_capture, per_view = _robot_pose_terms(problem, views, est, sigma_px)
     out = {}
     for name in names:
         T_lin = est.T_ref_cam.get(name, (start or {}).get(name))
         mine = [v for v in views if v.camera == name]
-        if T_lin is None or len(mine) < 2 * MIN_GROUP_VIEWS:
+        if T_lin is None or len(mine) < MIN_GROUP_VIEWS + min_after:
             continue
         try:
             with np.errstate(all="ignore"):
                 vp = view_poses(problem, name, mine, est, T_lin, sigma_px, per_capture, per_view)
-                split = best_split(vp) if vp is not None else None
+                split = best_split(vp, min_after=min_after) if vp is not None else None
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             continue  # a degenerate camera (absurd intrinsics, views behind it): nothing to say about a move
         if split is not None and np.isfinite(split.f_stat):

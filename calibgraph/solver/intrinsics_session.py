@@ -4,8 +4,10 @@ The stage reads top to bottom (:func:`calibrate_views`):
 
 1. views with too few corners are set aside; initial intrinsics come from the board homographies
    (Zhang's method, OpenCV's ``calibrateCamera``), first with k1, k2 only, then the full model;
-2. a view whose board pose is ambiguous (the planar pose's mirror solution fits its corners nearly
-   as well: a board seen almost face-on from afar) is rejected with the reason;
+2. a view whose board pose is ambiguous (the planar pose's mirror solution, another pose more than
+   ``MIRROR_APART_DEG`` away, fits its corners nearly as well: a tilted board seen from afar) is
+   rejected with the reason; a board square to the camera, whose mirror solution is nearly the same
+   pose, is not;
 3. Levenberg-Marquardt refines every view's pose and the intrinsics (fx, fy, cx, cy and the
    model's distortion coefficients) with the view poses eliminated at each step (their Schur
    complement); a view whose residuals are far beyond the others' (RMS above
@@ -51,6 +53,8 @@ MIN_CORNERS = 6  # a view's pose takes 6 of its residuals; fewer corners leave i
 MIN_VIEWS = 6  # Zhang's method needs 3 views of a plane; a full distortion model wants more
 REJECT_RMS_RATIO = 3.0  # a view whose RMS is this many times the median view's is rejected
 AMBIGUITY_RATIO = 4.0  # a view whose mirror pose fits within this many times the typical RMS is ambiguous
+MIRROR_APART_DEG = 5.0  # ... when that mirror is another pose: a board square to the camera has its mirror
+                         # within twice its tilt (the two merge face-on), the same pose for the fit, not a trap
 MIN_RMS_PX = 0.02  # floor of the typical view RMS in the tests above (perfect synthetic corners)
 WEAK_TILT_DEG = 15.0  # no view tilted more than this: the focal length is weakly known
 GRID_COLS = 8  # coverage cells across the image width (rows follow its aspect)
@@ -81,7 +85,8 @@ class Coverage:
     ``cells_fraction``: share of a ``GRID_COLS``-wide grid of image cells holding a corner;
     ``corners_reached``: which of the four corner cells ('top-left', ...) did; ``radius_fraction``:
     the largest distance of a corner from the principal point over the half diagonal;
-    ``max_tilt_deg``: the largest angle between a board's normal and its line of sight;
+    ``max_tilt_deg``: the largest angle between a board's normal and the optical axis (its tilt
+    against the image plane, which is what tells the focal length);
     ``warnings``: one line for each weakness.
     """
 
@@ -222,13 +227,14 @@ def initial_intrinsics(views: list, target: Target, width_px: int, height_px: in
 
 
 def _pnp(intr: Intrinsics, p_board_m: np.ndarray, uv_px: np.ndarray):
-    """(best T_cam_board, best RMS px, mirror solution's RMS px) of a planar view (IPPE, both solutions)."""
+    """(best T_cam_board, best RMS px, mirror solution's RMS px, angle between the two solutions'
+    rotations in degrees) of a planar view (IPPE, both solutions)."""
     import cv2
 
     ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(p_board_m.astype(np.float64), uv_px.astype(np.float64), intr.K,
                                                  intr.dist, flags=cv2.SOLVEPNP_IPPE)
     if not ok or len(rvecs) == 0:
-        return None, np.inf, np.inf
+        return None, np.inf, np.inf, 0.0
     rms = []
     Ts = []
     for r, t in zip(rvecs, tvecs):
@@ -237,7 +243,11 @@ def _pnp(intr: Intrinsics, p_board_m: np.ndarray, uv_px: np.ndarray):
         rms.append(float(np.sqrt(np.nanmean(np.sum((uv - uv_px) ** 2, axis=1)))) if np.all(np.isfinite(uv)) else np.inf)
         Ts.append(T)
     order = np.argsort(rms)
-    return Ts[order[0]], rms[order[0]], (rms[order[1]] if len(rms) > 1 else np.inf)
+    if len(rms) < 2:
+        return Ts[order[0]], rms[order[0]], np.inf, 0.0
+    a, b = Ts[order[0]], Ts[order[1]]
+    cos = np.clip((np.trace(a[:3, :3].T @ b[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return a, rms[order[0]], rms[order[1]], float(np.degrees(np.arccos(cos)))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -423,12 +433,10 @@ def coverage(views: list, poses: list, intr: Intrinsics, target: Target) -> Cove
     reached = tuple(n for n, (r, c) in names.items() if hit[r, c])
     half_diag = 0.5 * np.hypot(W, H)
     radius = float(np.max(np.hypot(uv[:, 0] - intr.K[0, 2], uv[:, 1] - intr.K[1, 2])) / half_diag)
-    centre_b = target.points_board_m.mean(axis=0)
-    tilts = []
-    for T in poses:
-        los = T[:3, :3] @ centre_b + T[:3, 3]
-        c = abs(T[:3, 2] @ los) / np.linalg.norm(los)
-        tilts.append(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    # tilt against the image plane (the board's normal against the optical axis): a board square to the
+    # image plane gives a homography of scale and shift wherever it is, which says nothing of the focal
+    # length; against the line of sight, such a board at the image's edge read 25-40 degrees "tilted"
+    tilts = [np.degrees(np.arccos(np.clip(abs(T[2, 2]), 0.0, 1.0))) for T in poses]
     max_tilt = float(max(tilts)) if tilts else 0.0
     warn = []
     if not reached:
@@ -442,7 +450,7 @@ def coverage(views: list, poses: list, intr: Intrinsics, target: Target) -> Cove
         warn.append(f"the board's corners covered only {100 * frac:.0f} % of the image (cells of {W // cols}x{H // rows} px): "
                     "move it over the whole frame")
     if max_tilt < WEAK_TILT_DEG:
-        warn.append(f"the board was never tilted more than {max_tilt:.0f} degrees from facing the camera: the focal "
+        warn.append(f"the board was never tilted more than {max_tilt:.0f} degrees from square to the image plane: the focal "
                     "length is weakly known; tilt it by 30-45 degrees in some images")
     return Coverage(frac, reached, radius, max_tilt, tuple(warn))
 
@@ -482,10 +490,10 @@ def calibrate_views(views: list, target: Target, width_px: int, height_px: int, 
     pnp = [_pnp(intr, target.points_board_m[v.ids], v.uv_px) for v in usable]
     typical = max(float(np.median([p[1] for p in pnp])), MIN_RMS_PX)
     keep = []
-    for v, (T, rms, rms_alt) in zip(usable, pnp):
+    for v, (T, rms, rms_alt, apart_deg) in zip(usable, pnp):
         if T is None:
             rejected.append((v.name, "no board pose fits its corners"))
-        elif rms_alt < AMBIGUITY_RATIO * typical:
+        elif rms_alt < AMBIGUITY_RATIO * typical and apart_deg > MIRROR_APART_DEG:
             rejected.append((v.name, f"board pose ambiguous: its mirror pose fits within {rms_alt:.2f} px "
                                      f"(typical view {typical:.2f} px); tilt the board more or bring it closer"))
         else:

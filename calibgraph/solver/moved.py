@@ -59,8 +59,20 @@ class Move:
     def first_after(self) -> int:
         return self.split.captures_after[0]
 
+    @property
+    def back(self) -> bool:
+        """Moved and moved back: its views after the span (``split.captures_back``) are where it was."""
+        return bool(self.split.captures_back)
+
     def where(self) -> str:
-        return f"between captures {self.last_before} and {self.first_after}"
+        w = f"between captures {self.last_before} and {self.first_after}"
+        if self.back:
+            w += f" and back between captures {self.split.captures_after[-1]} and {self.split.captures_back[0]}"
+        return w
+
+    def span(self) -> str:
+        """The captures of the views while it was moved (a moved-and-back camera)."""
+        return f"captures {self.first_after}-{self.split.captures_after[-1]}"
 
 
 @dataclass
@@ -93,7 +105,8 @@ def check_after_rounds(problem, views: list, start, rounds) -> None:
     if watch is None or not watch.active:
         return
     names = [n for n in dict.fromkeys(v.camera for v in views) if n not in watch.skip]
-    splits = camera_splits(problem, views, rounds.est, rounds.sigma_px, names, start.T_ref_cam)
+    # min_after=1: a move before a camera's last view is never answered with the pose before it
+    splits = camera_splits(problem, views, rounds.est, rounds.sigma_px, names, start.T_ref_cam, min_after=1)
     moves = sorted((s for s in splits.values() if s.is_move), key=lambda s: -s.f_stat)
     if moves:
         raise CameraMoved(Move(moves[0].camera, moves[0]))
@@ -183,11 +196,20 @@ def solve_minding_moves(problem, resolve) -> object:
 
 def _split(problem, m: Move):
     """(the problem with camera ``m.camera``'s views before the move under a camera of their own, or
-    set aside / the camera taken out when a side is too small to solve; ``m`` with its pseudo name)."""
+    set aside / the camera taken out when a side is too small to solve; ``m`` with its pseudo name).
+    A camera moved and moved back keeps its views before and after the span; the span's are set aside."""
     need = problem.options.min_views_per_camera
     before, after = set(m.split.captures_before), set(m.split.captures_after)
     name, pseudo = m.camera, m.camera + BEFORE
     cams, dets = dict(problem.cameras), []
+    if m.back:
+        keep = len(before) + len(m.split.captures_back) >= need
+        dets = [d for d in problem.detections if d.camera != name or (keep and d.capture not in after)]
+        if not keep:
+            del cams[name]
+        if not cams:
+            raise ObservabilityError(f"{_headline(m)}; {_too_few_after(m, need)}", camera=name)
+        return problem.with_(cameras=cams, detections=tuple(dets)), m
     keep_before = len(before) >= need
     keep_after = len(after) >= need
     for d in problem.detections:
@@ -214,8 +236,18 @@ def _headline(m: Move) -> str:
 
 
 def _too_few_after(m: Move, need: int) -> str:
-    return (f"only {len(m.split.captures_after)} of its views are from after the move (at least {need} needed): it "
-            "cannot be calibrated as it now stands; fix its mount and capture more views of it")
+    """Why a camera that moved cannot be calibrated as it now stands."""
+    s = m.split
+    if m.back:
+        n = len(s.captures_before) + len(s.captures_back)
+        return (f"only {n} of its views are from before and after the span ({need} needed): it cannot be calibrated; "
+                "fix its mount and capture more views of it")
+    n, caps = len(s.captures_after), ", ".join(str(c) for c in s.captures_after)
+    pl = "s" if n != 1 else ""
+    return (f"moved after capture {m.last_before}? only {n} view{pl} after (capture{pl} {caps}) and at least {need} "
+            "needed: it cannot be calibrated as it now stands, and its pose before is not where it stands. If it did "
+            f"not move, the view{pl} of capture{pl} {caps} {'are' if n != 1 else 'is'} bad: remove "
+            f"{'them' if n != 1 else 'it'} and solve again; else fix its mount and capture more views of it")
 
 
 def _moved_record(result, m: Move, pseudo_cam: CameraResult | None, after_cam: CameraResult | None) -> dict:
@@ -226,6 +258,9 @@ def _moved_record(result, m: Move, pseudo_cam: CameraResult | None, after_cam: C
            "displacement_mm": s.displacement_mm, "rotation_deg": s.rotation_deg,
            "sigma_displacement_mm": s.sigma_displacement_mm, "f_stat": s.f_stat,
            "T_before": None, "covariance_before": None}
+    if m.back:  # the pose reported is the one before and after the span; the span's views were set aside
+        rec.update(back_capture=s.captures_back[0], last_capture_moved=s.captures_after[-1],
+                   views_after=len(s.captures_back), views_while_moved=len(s.captures_after))
     if pseudo_cam is not None and pseudo_cam.calibrated:
         rec["T_before"], rec["covariance_before"] = pseudo_cam.T_ref_cam, pseudo_cam.covariance
         if after_cam is not None and after_cam.calibrated:
@@ -248,11 +283,17 @@ def _moved_record(result, m: Move, pseudo_cam: CameraResult | None, after_cam: C
 
 def _note(m: Move, rec: dict, after_cam: CameraResult | None, need: int) -> str:
     head = (f"camera {m.camera} moved during capture, {m.where()}, by {rec['displacement_mm']:.1f} mm "
-            f"(1-sigma {rec['sigma_displacement_mm']:.1f} mm) and {rec['rotation_deg']:.2f} deg: its views before and "
-            f"after disagree (F {m.split.f_stat:.0f} against the other cameras)")
+            f"(1-sigma {rec['sigma_displacement_mm']:.1f} mm) and {rec['rotation_deg']:.2f} deg: its views "
+            + ("in that span and outside it" if m.back else "before and after") +
+            f" disagree (F {m.split.f_stat:.0f} against the other cameras)")
     if after_cam is None or not after_cam.calibrated:
         return f"{head}; it is NOT calibrated: {_too_few_after(m, need)}."
     nb = rec["views_before"]
+    if m.back:
+        return (f"{head}; its {rec['views_while_moved']} views in between ({m.span()}) were set aside. Calibrated "
+                f"from the {nb + rec['views_after']} views before and after that span, where it stands again (never "
+                "averaged with the span's). Check the camera's mount: it was knocked and sprang back, or was moved "
+                "and put back.")
     before = (f"its pose before the move, from the {nb} views before it, is reported beside it" if rec["T_before"]
               is not None else f"the {nb} views before the move were set aside (too few to solve that pose)")
     return (f"{head}. Calibrated as it stood after the move, from the {rec['views_after']} views after it; {before} "
@@ -268,13 +309,17 @@ def _fold(problem, result, moves: list):
         pseudo_cam = cams.pop(m.pseudo, None) if m.pseudo else None
         after_cam = cams.get(m.camera)
         rec = _moved_record(result, m, pseudo_cam, after_cam)
-        aside = tuple(RejectedView(m.camera, c, f"camera moved {m.where()}: this view is from before the move, too few "
-                                   "of those to solve that pose, and was set aside") for c in m.split.captures_before
-                      ) if pseudo_cam is None else ()
+        if m.back:
+            aside = tuple(RejectedView(m.camera, c, f"camera moved {m.where()}: this view is from while it was moved, "
+                                       "and was set aside") for c in m.split.captures_after)
+        else:
+            aside = tuple(RejectedView(m.camera, c, f"camera moved {m.where()}: this view is from before the move, too "
+                                       "few of those to solve that pose, and was set aside")
+                          for c in m.split.captures_before) if pseudo_cam is None else ()
         if pseudo_cam is not None:
             aside += tuple(replace(rv, camera=m.camera) for rv in pseudo_cam.views_rejected)
         if after_cam is None:
-            why = f"{_headline(m)}; {_too_few_after(m, need)}"
+            why = f"{_too_few_after(m, need)}. {_headline(m)}"
             after_cam = CameraResult(name=m.camera, ref_frame="base" if problem.mode == "eye_to_hand" else "flange",
                                      T_ref_cam=None, covariance=None, reprojection_rms_px=float("nan"),
                                      reprojection_max_px=float("nan"), views_used=0, calibrated=False, why=why)

@@ -37,6 +37,22 @@ def _motion_problem(A_list) -> str | None:
     return None
 
 
+def too_few_views(n: int, need: int, frame_word: str = "board", detected: int | None = None) -> str:
+    """Why ``n`` usable views cannot calibrate a camera ('' when they can), worded to follow 'camera X '
+    (``detected``: its detections, usable or not, when more than ``n``)."""
+    if n == 0 and detected:
+        return (f"has none of its {detected} view(s) of the {frame_word} usable (too few corners, or no pose "
+                "explains them: corners degenerate or ids wrong); check its detections and intrinsics.")
+    if n == 0:
+        return (f"never saw the {frame_word} (0 usable detections): check it is connected and pointed at the "
+                "workspace, add poses that present the board to it, or remove it from the dataset.")
+    if n < need:
+        return (f"saw the {frame_word} in {n} capture(s)" + (f" ({detected - n} more view(s) unusable)" if detected
+                                                             and detected > n else "")
+                + f"; at least {need} with varied tilt are needed.")
+    return ""
+
+
 def check_before_solve(problem, views_by_cam: dict, frame_word: str = "board") -> None:
     """Raise ObservabilityError naming the camera and the missing motion.
 
@@ -44,18 +60,14 @@ def check_before_solve(problem, views_by_cam: dict, frame_word: str = "board") -
     """
     opts = problem.options
     caps = problem.capture_by_index
+    detected = {}
+    for d in problem.detections:
+        detected[d.camera] = detected.get(d.camera, 0) + 1
     for name in problem.cameras:
         n = len(views_by_cam.get(name, []))
-        if n == 0:
-            raise ObservabilityError(
-                f"camera {name!r} never saw the {frame_word} (0 usable detections): check it is connected and "
-                "pointed at the workspace, add poses that present the board to it, or remove it from the dataset."
-            )
-        if n < opts.min_views_per_camera:
-            raise ObservabilityError(
-                f"camera {name!r} saw the {frame_word} in {n} capture(s); at least {opts.min_views_per_camera} with "
-                "varied tilt are needed."
-            )
+        why = too_few_views(n, opts.min_views_per_camera, frame_word, detected.get(name, 0))
+        if why:
+            raise ObservabilityError(f"camera {name!r} {why}", camera=name)
     if problem.method == "single":
         for name, idx in views_by_cam.items():
             msg = _motion_problem([caps[k].T_base_flange for k in idx])

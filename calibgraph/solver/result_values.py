@@ -59,11 +59,21 @@ def matrix(x, shape: tuple, what: str) -> np.ndarray:
     return a
 
 
+RIGID_TOL = 1e-6  # |R^T R - I| of a pose read back: a saved one is at 1e-15; a few printed digits reach 1e-7
+
+
 def pose_matrix(x, what: str) -> np.ndarray:
-    """``x`` as a finite 4x4 pose."""
+    """``x`` as a finite 4x4 rigid transform (rotation orthonormal with det +1, last row 0 0 0 1),
+    returned as written (not re-orthonormalised: a result reads back equal to the one saved)."""
     T = matrix(x, (4, 4), what)
     if not np.all(np.isfinite(T)):
-        raise InputError(f"{what} is not a finite 4x4 matrix.")
+        raise InputError(f"{what} is not a finite 4x4 matrix: the result file was damaged or edited; re-solve.")
+    R = T[:3, :3]
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    if err > RIGID_TOL or det < 0 or np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]).max() > RIGID_TOL:
+        raise InputError(f"{what} is not a rigid transform (|R^T R - I| = {err:.2g}, det {det:.3g}, last row "
+                         f"{np.round(T[3], 6).tolist()}): the result file was damaged or edited; re-solve.")
     return T
 
 
