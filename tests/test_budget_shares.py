@@ -19,11 +19,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from calibgraph.core.camera import Intrinsics
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 from calibgraph.solver import batch
 from calibgraph.solver.batch import solve
 from calibgraph.solver.budget import budgets, conditioned_variance
+from calibgraph.solver.intrinsics_model import parameter_vector, with_parameters
 from calibgraph.solver.keys import C, K
 from calibgraph.solver.session_plan import predict_session_covariance
 
@@ -31,6 +31,7 @@ CELLS = {
     "demo 3 x L515 at 3 m": dict(cameras=ring_cameras([3.0] * 3, presets=("l515",)), n_poses=30, pixel_sigma_px=0.05),
     "3 x D455 at 5 m": dict(cameras=ring_cameras([5.0] * 3, presets=("d455",)), n_poses=40, pixel_sigma_px=0.05),
 }
+NINE = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")  # a session file's covariance covers these
 SLACK = 0.97  # a re-solve's 1-sigma is taken at its own estimate (another linearisation point): 3 %
 
 
@@ -87,17 +88,8 @@ def test_a_resolve_after_a_session_or_a_measured_board_stays_above_the_bound(sol
     for n in sc.problem.cameras:
         true = sc.truth.intrinsics[n]
         cov = predict_session_covariance(true, sc.problem.target, pixel_sigma_px=0.05, size=9)
-        x = rng.multivariate_normal(np.zeros(9), cov)
-        K = true.K.copy()
-        K[0, 0] += x[0]
-        K[1, 1] += x[1]
-        K[0, 2] += x[2]
-        K[1, 2] += x[3]
-        dist = np.zeros(5)
-        dist[:len(true.dist)] = true.dist[:5]
-        dist += x[[4, 5, 6, 7, 8]]
-        cams[n] = Intrinsics(K=K, dist=dist, width_px=true.width_px, height_px=true.height_px,
-                             source="calibration", covariance=cov)
+        drawn = parameter_vector(true, NINE) + rng.multivariate_normal(np.zeros(9), cov)
+        cams[n] = replace(with_parameters(true, NINE, drawn), source="calibration", covariance=cov)
     rs = solve(sc.problem.with_(cameras=cams))
     rb = solve(sc.problem.with_(options=replace(sc.problem.options, board_scale=False)))
     for n, c in r.cameras.items():
