@@ -22,7 +22,8 @@ import pytest
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 from calibgraph.solver import batch
 from calibgraph.solver.batch import solve
-from calibgraph.solver.budget import budgets, conditioned_variance
+from calibgraph.solver.budget import budgets, conditioned_variance, doubled_information
+from calibgraph.solver.reduced import sigma_with
 from calibgraph.solver.intrinsics_model import parameter_vector, with_parameters
 from calibgraph.solver.keys import C, K
 from calibgraph.solver.session_plan import predict_session_covariance
@@ -104,7 +105,8 @@ def test_a_resolve_after_a_session_or_a_measured_board_stays_above_the_bound(sol
 def test_known_exactly_by_scaled_information_matches_conditioning():
     """The "known exactly" shares multiply a source's information by 1e9 and invert the reduced
     system; for the intrinsics (priors on global variables) that must equal the exact conditional
-    covariance given every K key."""
+    covariance given every K key. Twice the poses (the advice's third remedy) is bounded by the
+    views' share by noise source instead: its prediction never falls below it."""
     sc = _scene("demo 3 x L515 at 3 m", seed=3)
     got = {}
     original = batch.error_budgets
@@ -123,8 +125,12 @@ def test_known_exactly_by_scaled_information_matches_conditioning():
     est = got["g"].est
     cams = {n: (C(est.slots[n]), K(est.slots[n])) for n in got["g"].names}
     b = budgets(L, cams)
+    doubled = doubled_information(L)
     for n, (ck, _) in cams.items():
         sigma2 = (b[n].sigma_mm / 1e3) ** 2
         exact = 1 - conditioned_variance(L, ck, keys) / sigma2
         assert b[n].shares["intrinsics"] == pytest.approx(exact, abs=1e-4), n
         assert r.cameras[n].error_budget["shares"]["intrinsics"] == pytest.approx(exact, abs=1e-4), n
+        # twice the poses: never below the bound of the views' share by noise source
+        views = b[n].by_noise["corners"] + b[n].by_noise["robot_fk"]
+        assert sigma_with(L, ck, S=doubled) >= b[n].sigma_mm * np.sqrt(1 - views) * (1 - 1e-9), n

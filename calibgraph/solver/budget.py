@@ -188,15 +188,20 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
 
 
 def _head(name: str, b: Budget, remedy: str) -> str:
-    """The advice line's opening: what the source a remedy improves would leave were it known
-    exactly, ``sigma * sqrt(1 - share)``, with the share (by parameter, :data:`SHARE_LABELS`)."""
+    """The advice line's opening: the bound of what the remedy improves. A session or a measured
+    board: what that source known exactly would leave, ``sigma * sqrt(1 - share)`` (by parameter).
+    Twice the poses: twice the views' information (corners and robot poses, ``J_v``) can take the
+    covariance no lower than ``Sigma - Sigma J_v^T J_v Sigma`` (in the whitened system, eigenvalues
+    ``1 / (1 + m) >= 1 - m`` for ``0 <= m <= 1``), so the bound is ``sigma * sqrt(1 - share)`` with the
+    views' share by noise source."""
     if remedy == "session":
-        what, share = "its intrinsics known exactly", b.own_intrinsics
+        what, share = "its intrinsics known exactly would take", b.own_intrinsics
     elif remedy == "board":
-        what, share = "the board's scale known exactly", b.shares["board"]
-    elif b.shares["robot_fk"] >= b.shares["corners"]:
-        what, share = "the robot's poses known exactly", b.shares["robot_fk"]
+        what, share = "the board's scale known exactly would take", b.shares["board"]
     else:
-        what, share = "noise-free corners", b.shares["corners"]
-    return (f"{name}: {what} would take its {b.sigma_mm:.2f} mm 1σ to {b.sigma_mm * np.sqrt(max(1.0 - share, 0.0)):.2f} mm "
+        share = b.by_noise["corners"] + b.by_noise["robot_fk"]
+        return (f"{name}: its views' noise (corners and robot poses) is {100 * share:.0f} % of its variance, so twice "
+                f"the poses take its {b.sigma_mm:.2f} mm 1σ to no less than "
+                f"{b.sigma_mm * np.sqrt(max(1.0 - share, 0.0)):.2f} mm")
+    return (f"{name}: {what} its {b.sigma_mm:.2f} mm 1σ to {b.sigma_mm * np.sqrt(max(1.0 - share, 0.0)):.2f} mm "
             f"({100 * share:.0f} % of its variance)")
