@@ -134,3 +134,18 @@ def test_known_exactly_by_scaled_information_matches_conditioning():
         # twice the poses: never below the bound of the views' share by noise source
         views = b[n].by_noise["corners"] + b[n].by_noise["robot_fk"]
         assert sigma_with(L, ck, S=doubled) >= b[n].sigma_mm * np.sqrt(1 - views) * (1 - 1e-9), n
+
+
+def test_console_prints_both_share_sets_labelled_and_says_when_not_converged(solved):
+    from calibgraph.cli.solve import format_summary
+
+    cell, sc, r = solved
+    text = format_summary(r)
+    for n, c in r.cameras.items():
+        b = c.error_budget
+        assert f"{n} {b['sigma_translation_norm_mm']:.2f} mm; variance gone were each known exactly: " in text
+        assert f"intrinsics {100 * b['shares']['intrinsics']:.0f} % (its own" in text
+        assert b["advice"] in text
+    assert text.count("by noise source (sums to 100 %)") == len(r.cameras)
+    assert "did not converge" not in text
+    assert "WARNING: the solver did not converge" in format_summary(replace(r, converged=False))

@@ -120,7 +120,9 @@ def run(args) -> int:
     result = replace(solve(problem), dataset=str(ds_dir), target=ds.target.to_dict())
     _write_and_print(args, result, out, ds_dir, problem, f"solve: {time.monotonic() - t0:.1f} s; ")
     print(f"demo finished in {time.monotonic() - t_start:.0f} s; dataset with ground truth in {ds_dir}")
-    return 0
+    if not result.converged:
+        print("demo: the solver did NOT converge (see above); exit 3", file=sys.stderr)
+    return 0 if result.converged else 3
 
 
 def _write_and_print(args, result, out: Path, ds_dir: Path, source, solve_line: str = "") -> Path:

@@ -150,6 +150,9 @@ def format_summary(result, truth=None) -> str:
         lines += [f"  {b['advice']}" for b in budgets.values() if b.get("advice")]
     lines += robot_lines(result.robot)
     lines += [f"note: {n}" for n in result.notes]
+    if not result.converged:
+        lines.append(f"WARNING: the solver did not converge ({result.iterations} iterations): the estimates may still "
+                     "move; the report will say FAIL")
     return "\n".join(lines)
 
 
