@@ -129,8 +129,8 @@ def test_a_false_exact_claim_is_named_and_dropped():
 
 
 def test_error_budget_adds_up_to_the_covariance():
-    """Each camera's budget splits the trace of its translation covariance among the noise sources:
-    the shares sum to 1, the total is the reported 1-sigma, a far camera with a calibration file's
+    """Each camera's budget splits the trace of its translation covariance among the noise sources
+    (the shares by noise source sum to 1; tests/test_budget_shares.py checks the shares by parameter), the total is the reported 1-sigma, a far camera with a calibration file's
     intrinsics is mostly its intrinsics (the hand-eye views barely pin its focal length), held
     intrinsics contribute nothing, and the advice is one line naming the camera with numbers."""
     sc = make_scene(cameras=ring_cameras([1.5, 5.0], presets=("d455",)), n_poses=50, pixel_sigma_px=0.3, seed=4,
@@ -141,13 +141,14 @@ def test_error_budget_adds_up_to_the_covariance():
     for r in (solve(given), solve(held)):
         for n, c in r.cameras.items():
             b = c.error_budget
-            assert set(b["shares"]) >= {"intrinsics", "corners", "robot_fk", "board"}
-            assert abs(sum(b["shares"].values()) - 1.0) < 1e-6, b
+            assert set(b["shares"]) == set(b["shares_by_noise_source"]) == {"intrinsics", "corners", "robot_fk", "board"}
+            assert abs(sum(b["shares_by_noise_source"].values()) - 1.0) < 1e-6, b
             assert b["sigma_translation_norm_mm"] == pytest.approx(np.linalg.norm(c.sigma_translation_mm), rel=1e-6)
             assert "\n" not in b["advice"] and b["advice"].startswith(f"{n}:") and "mm" in b["advice"]
     far = list(sc.problem.cameras)[1]
     assert solve(given).cameras[far].error_budget["shares"]["intrinsics"] > 0.5
-    assert all(c.error_budget["shares"]["intrinsics"] == 0.0 for c in solve(held).cameras.values())
+    assert all(c.error_budget["shares"]["intrinsics"] == 0.0 == c.error_budget["shares_by_noise_source"]["intrinsics"]
+               for c in solve(held).cameras.values())
 
 
 def test_session_advice_takes_the_cameras_own_corner_noise():

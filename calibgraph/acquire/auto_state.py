@@ -96,6 +96,7 @@ class AutoState:
     final: object = None  # the batch Result the loop converged on
     out_of_reach: dict = field(default_factory=dict)  # camera given up -> the bound that said so (journaled)
     reach_strikes: dict = field(default_factory=dict)  # camera -> choices in a row its bound was out of tolerance
+    accept: object = None  # result -> {camera: [reasons]} it fails the commissioning tolerances (run_auto's accept)
 
     @property
     def robot(self):
@@ -315,6 +316,21 @@ class AutoState:
     def within(self, cov) -> bool:
         """A camera covariance within both tolerances."""
         return shortfall(cov, self.opts.tolerance_mm, self.opts.tolerance_deg) <= 1.0
+
+    def file_failures(self, res) -> dict:
+        """camera -> why the batch result ``res`` fails it against the commissioning tolerances (the
+        file the report uses: views, reprojection, workspace 1σ, ...; ``accept``), for the cameras not
+        given up as out of reach; {} when every one passes or no ``accept`` was given."""
+        if self.accept is None or res is None:
+            return {}
+        return {n: list(r) for n, r in (self.accept(res) or {}).items() if r and n not in self.out_of_reach}
+
+    def accepted(self, res) -> bool:
+        """The stop rule: a converged batch solve in which every camera (but those out of reach) is
+        within the 1σ tolerances and passes the commissioning tolerances."""
+        return bool(res is not None and res.cameras and res.converged
+                    and all(self.within(c.covariance) for n, c in res.cameras.items() if n not in self.out_of_reach)
+                    and not self.file_failures(res))
 
     def batch_solve(self):
         """Batch solve of the dataset so far, over the cameras placed by the live solver (a camera

@@ -156,6 +156,17 @@ def _trajectory(args, log) -> int:
     return 0
 
 
+def commissioning_check(config=None):
+    """``accept`` of :func:`~calibgraph.acquire.auto.run_auto`: camera -> why a batch result fails the
+    tolerances ``calibgraph report`` applies (``config``; default ``datasets/tolerances/default.yaml``),
+    so that an autonomous run's "within tolerance" is the report's PASS."""
+    from calibgraph.report.html import report_verdicts
+
+    def accept(result) -> dict:
+        return {n: v["reasons"] for n, v in report_verdicts(result, config).items() if not v["pass"]}
+    return accept
+
+
 def _auto(args, log) -> int:
     """``capture --auto``: the autonomous loop on the simulated or the real cell."""
     from calibgraph.acquire.auto import AutoOptions, dry_run_survey, run_auto
@@ -197,7 +208,7 @@ def _auto(args, log) -> int:
         with _run_on(dev, args):
             rep = _interruptible(args, "--auto", lambda: run_auto(
                 dev.robot, dev.cameras, cell, pworld, args.out, detector=dev.detector, safety=safety, options=opts,
-                resume=args.resume, progress=log))
+                resume=args.resume, progress=log, accept=commissioning_check()))
     if rep is None:
         return 130
     print(rep.summary())

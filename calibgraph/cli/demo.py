@@ -68,7 +68,6 @@ def run(args) -> int:
 
     from calibgraph.core.errors import InputError
     from calibgraph.io.files import output_folder
-    from calibgraph.io.ground_truth import load_ground_truth
     from calibgraph.plan.planner import plan_trajectory
     from calibgraph.sim.render import SimWorld
     from calibgraph.sim.rendered_dataset import simulate_dataset
@@ -125,7 +124,6 @@ def run(args) -> int:
 
     from dataclasses import replace
 
-    from calibgraph.cli.solve import format_summary
     from calibgraph.io.layouts import load_dataset
     from calibgraph.solver.batch import solve
     from calibgraph.solver.build import build_problem
@@ -134,28 +132,42 @@ def run(args) -> int:
     problem, _ = build_problem(ds, "joint", None, progress=True)
     t0 = time.monotonic()
     result = replace(solve(problem), dataset=str(ds_dir), target=ds.target.to_dict())
+    _write_and_print(args, result, out, ds_dir, problem, f"solve: {time.monotonic() - t0:.1f} s; ")
+    print(f"demo finished in {time.monotonic() - t_start:.0f} s; dataset with ground truth in {ds_dir}")
+    if not result.converged:
+        print("demo: the solver did NOT converge (see above); exit 3", file=sys.stderr)
+    return 0 if result.converged else 3
+
+
+def _write_and_print(args, result, out: Path, ds_dir: Path, source, solve_line: str = "") -> Path:
+    """What both demos end with: ``result.json`` in ``out``, every camera's pose, 1σ and true error
+    against the simulator's ground truth, then ``report.html`` and ``calibration.rrd`` in ``out``
+    (``source``: the problem or dataset folder the recording draws the views from)."""
+    import numpy as np
+
+    from calibgraph.cli.solve import format_summary
+    from calibgraph.core.transforms import log_so3, pose_error
+    from calibgraph.io.ground_truth import load_ground_truth
+    from calibgraph.io.layouts import load_dataset
+
     result_path = out / "result.json"
     result.save(result_path)
     gt = load_ground_truth(ds_dir)
     print(format_summary(result, truth=gt["T_base_cam"]))
-    from calibgraph.core.transforms import log_so3, pose_error
-
     print("camera orientations (T_base_cam rotation vector, deg):")
     for n, c in result.calibrated.items():
         print(f"  {n:10s} {np.round(np.degrees(log_so3(c.T_ref_cam[:3, :3])), 3).tolist()}")
-
     if result.T_mount_board is not None:
         e_m, e_deg = pose_error(result.T_mount_board, gt["T_flange_board"])
         print(f"T_flange_board error vs ground truth: {e_m * 1e3:.3f} mm, {e_deg:.4f} deg")
-    print(f"solve: {time.monotonic() - t0:.1f} s; wrote {result_path}")
-
+    print(f"{solve_line}wrote {result_path}")
     if args.report:
         try:
             from calibgraph.report.html import write_report
         except ImportError as e:
             print(f"report skipped: {e}", file=sys.stderr)
         else:
-            p = write_report(result, out / "report.html", dataset=ds, result_path=result_path)
+            p = write_report(result, out / "report.html", dataset=load_dataset(ds_dir), result_path=result_path)
             print(f"wrote {p}")
     if args.rrd:
         try:
@@ -164,12 +176,11 @@ def run(args) -> int:
             print(f"rerun recording skipped: {e}", file=sys.stderr)
         else:
             try:
-                p = write_rrd(result, problem, out / "calibration.rrd")
+                p = write_rrd(result, source, out / "calibration.rrd")
                 print(f"wrote {p} (open with: rerun {p})")
             except Exception as e:  # the recording is a convenience; the calibration is already saved
                 print(f"rerun recording skipped: {type(e).__name__}: {e}", file=sys.stderr)
-    print(f"demo finished in {time.monotonic() - t_start:.0f} s; dataset with ground truth in {ds_dir}")
-    return 0
+    return result_path
 
 
 def _run_auto(args, cell, out, ds_dir, t_start) -> int:
@@ -177,7 +188,7 @@ def _run_auto(args, cell, out, ds_dir, t_start) -> int:
     import numpy as np
 
     from calibgraph.acquire.auto import AutoOptions, run_auto
-    from calibgraph.core.transforms import pose_error
+    from calibgraph.cli.capture import commissioning_check
     from calibgraph.plan.cell import cell_from_world_dict
     from calibgraph.sim.devices import make_devices
     from calibgraph.sim.planning_world import planning_world
@@ -191,31 +202,14 @@ def _run_auto(args, cell, out, ds_dir, t_start) -> int:
     world.skip_hidden_renders = True
     rep = run_auto(robot, cams, plan_cell, planning_world(plan_cell), ds_dir, detector=VisibilityGatedDetector(world),
                    options=AutoOptions(max_poses=args.max_poses, seed=args.seed),
-                   progress=lambda line: print(line, file=sys.stderr, flush=True))
+                   progress=lambda line: print(line, file=sys.stderr, flush=True), accept=commissioning_check())
     write_ground_truth(ds_dir, cell, world)
-    print(rep.summary())
     if rep.result is not None:
-        from calibgraph.cli.solve import oracle_label
-
-        if oracle_label(rep.result):
-            print(f"errors vs ground truth{oracle_label(rep.result)}")
-        print(f"{'camera':8s} {'views':>5s} {'1σ mm':>7s} {'1σ deg':>7s} {'err mm':>7s} {'err deg':>8s} {'err/1σ':>7s}")
-        for n, why in rep.result.not_calibrated.items():
-            print(f"{n:8s} not calibrated: {why}")
-        for n, c in rep.result.calibrated.items():
-            e_m, e_deg = pose_error(c.T_ref_cam, cell.camera(n).T_base_cam)
-            s_mm = float(np.linalg.norm(c.sigma_translation_mm))
-            print(f"{n:8s} {c.views_used:5d} {s_mm:7.3f} {float(np.linalg.norm(c.sigma_rotation_deg)):7.4f} "
-                  f"{e_m * 1e3:7.3f} {e_deg:8.4f} {e_m * 1e3 / s_mm:7.2f}")
+        _write_and_print(args, rep.result, out, ds_dir, ds_dir)
         print(f"captures {rep.captures} (survey included), robot motion {rep.robot_time_s:.0f} s; "
-              f"result in {ds_dir / 'result.json'}, plan log in {ds_dir / 'plan_log.json'}")
-        if args.rrd:  # the cell, the residuals and the plan: candidates and the chosen pose per step
-            try:
-                from calibgraph.report.rerun_view import write_rrd
-
-                p = write_rrd(rep.result, ds_dir, out / "calibration.rrd")
-                print(f"wrote {p} (open with: rerun {p})")
-            except Exception as e:  # the recording is optional (rerun-sdk); the calibration is on disk
-                print(f"rerun recording skipped: {type(e).__name__}: {e}", file=sys.stderr)
+              f"plan log in {ds_dir / 'plan_log.json'}")
+    print(rep.summary())
     print(f"demo finished in {time.monotonic() - t_start:.0f} s; dataset with ground truth in {ds_dir}")
+    if not rep.converged:
+        print("demo --auto did NOT finish within tolerance (see above); exit 3", file=sys.stderr)
     return 0 if rep.converged else 3

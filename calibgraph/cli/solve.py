@@ -10,6 +10,7 @@ import numpy as np
 
 from calibgraph.core.problem import mode_frames, option_flags
 from calibgraph.solver.build import build_problem
+from calibgraph.solver.budget import share_lines
 from calibgraph.solver.result import given_intrinsics_source
 
 
@@ -142,12 +143,16 @@ def format_summary(result, truth=None) -> str:
         lines.append(f"rejected corners: {len(result.rejected_corners)} (listed in the result file)")
     if result.board_scale_sigma is not None:
         lines.append(f"board scale (printed / declared size): {result.board_scale:.5f} ± {result.board_scale_sigma:.5f}")
-    advice = [c.error_budget["advice"] for c in result.cameras.values() if c.calibrated and c.error_budget]
-    if advice:
+    budgets = {n: c.error_budget for n, c in result.cameras.items() if c.calibrated and c.error_budget}
+    if budgets:
         lines.append("what the 1σ is made of (error_budget in the result file):")
-        lines += [f"  {a}" for a in advice]
+        lines += [f"  {line}" for n, b in budgets.items() for line in share_lines(n, b)]
+        lines += [f"  {b['advice']}" for b in budgets.values() if b.get("advice")]
     lines += robot_lines(result.robot)
     lines += [f"note: {n}" for n in result.notes]
+    if not result.converged:
+        lines.append(f"WARNING: the solver did not converge ({result.iterations} iterations): the estimates may still "
+                     "move; the report will say FAIL")
     return "\n".join(lines)
 
 

@@ -48,6 +48,8 @@ class Linear:
     S: np.ndarray  # Schur complement: the information of the global variables, the locals eliminated
     g: np.ndarray  # the cost's gradient on the global variables with the locals at their optimum
     prior_K: dict  # K key -> its prior's information (6, 6)
+    H_src: dict | None = None  # source -> its factors' global-global information (before the reduction)
+    local_src: dict | None = None  # local key -> {source: (H_ll block, {global key: H_lg block})}
 
     @cached_property
     def covariance(self) -> np.ndarray:
@@ -58,6 +60,24 @@ class Linear:
         """Marginal covariances of the graph's variables (``keys``: all of them) from this reduction;
         raises LinAlgError when the information is not positive definite."""
         return ReducedMarginals(self, set(keys))
+
+    def information(self, scale: dict) -> np.ndarray:
+        """The Schur complement were each source's information (its factors' whitened ``A^T A``)
+        multiplied by ``scale[source]`` (1 for a source not named): what the global variables would
+        know with that source's noise scaled by ``scale ** -0.5``. ``information({})`` is ``S``."""
+        H = sum(scale.get(src, 1.0) * Hs for src, Hs in self.H_src.items())
+        for parts in self.local_src.values():
+            Hll = sum(scale.get(src, 1.0) * p[0] for src, p in parts.items())
+            lg = {}
+            for src, (_, blocks) in parts.items():
+                for g, Bg in blocks.items():
+                    lg[g] = lg.get(g, 0) + scale.get(src, 1.0) * Bg
+            if not lg:
+                continue
+            idx = np.concatenate([np.arange(self.index[g].start, self.index[g].stop) for g in lg])
+            Bm = np.hstack([lg[g] for g in lg])
+            H[np.ix_(idx, idx)] -= Bm.T @ np.linalg.solve(Hll, Bm)
+        return 0.5 * (H + H.T)
 
     def step_gain(self, free: list) -> float:
         """Decrease of the linearised cost by the Gauss-Newton step of the global variables ``free``
@@ -92,6 +112,8 @@ def linearise_graph(graph, values) -> Linear:
     grad = np.zeros(n)
     H_ll, H_lg, g_l = {}, {}, {}
     factors, prior_K = [], {}
+    H_src = {src: np.zeros((n, n)) for src in SOURCES}
+    local_src = {}
     for i in range(lin.size()):
         f = lin.at(i)
         if f is None:
@@ -110,16 +132,24 @@ def linearise_graph(graph, values) -> Linear:
             prior_K[keys[0]] = AtA[cols[keys[0]], cols[keys[0]]]
         loc = [k for k in keys if k not in index]
         gl = [k for k in keys if k in index]
+        Hs = H_src[src]
         for a in gl:
             grad[index[a]] -= Atb[cols[a]]
             for c in gl:
-                H[index[a], index[c]] += AtA[cols[a], cols[c]]
+                Hs[index[a], index[c]] += AtA[cols[a], cols[c]]
         for l in loc:  # at most one local variable per factor
-            H_ll[l] = H_ll.get(l, 0) + AtA[cols[l], cols[l]]
             g_l[l] = g_l.get(l, 0) - Atb[cols[l]]
-            lg = H_lg.setdefault(l, {})
+            ll, lg = local_src.setdefault(l, {}).setdefault(src, [0, {}])
+            local_src[l][src][0] = ll + AtA[cols[l], cols[l]]
             for g in gl:
                 lg[g] = lg.get(g, 0) + AtA[cols[l], cols[g]]
+    H += sum(H_src.values())
+    for l, parts in local_src.items():
+        H_ll[l] = sum(p[0] for p in parts.values())
+        lg = H_lg.setdefault(l, {})
+        for _, blocks in parts.values():
+            for g, Bg in blocks.items():
+                lg[g] = lg.get(g, 0) + Bg
     locals_ = {}
     for l, Hll in H_ll.items():
         inv = np.linalg.inv(Hll)
@@ -128,7 +158,7 @@ def linearise_graph(graph, values) -> Linear:
             grad[index[a]] -= Ba.T @ inv @ g_l[l]
             for c, Bc in H_lg[l].items():
                 H[index[a], index[c]] -= Ba.T @ inv @ Bc
-    return Linear(factors, index, locals_, 0.5 * (H + H.T), grad, prior_K)
+    return Linear(factors, index, locals_, 0.5 * (H + H.T), grad, prior_K, H_src, local_src)
 
 
 def columns(L: Linear, S: np.ndarray, wanted: list) -> dict:

@@ -1,0 +1,151 @@
+"""The error budget's shares answer the question the advice answers: a camera's share for a source
+is the fraction of its pose variance that would go were that source known exactly, so a remedy that
+improves the source can never take the 1-sigma below ``sigma * sqrt(1 - share)`` - neither as the
+advice predicts it nor as a re-solve with the remedy applied finds it.
+
+Before, the shares split the variance by noise source: on the demo cell cam1's intrinsics were
+0.3 % while a close-range session took its 1-sigma from 0.41 to 0.24 mm (a bound of 0.41 mm); that
+split is kept, labelled ``shares_by_noise_source``, and checked to sum to 1.
+
+Synthetic corners (calibgraph.sim.synthetic_corners) on the demo's cell (3 x L515 at 3 m,
+factory-class intrinsics as the simulated cameras report them) and a 5 m cell (3 x D455)."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+import pytest
+
+from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
+from calibgraph.solver import batch
+from calibgraph.solver.batch import solve
+from calibgraph.solver.budget import budgets, conditioned_variance, doubled_information
+from calibgraph.solver.reduced import sigma_with
+from calibgraph.solver.intrinsics_model import parameter_vector, with_parameters
+from calibgraph.solver.keys import C, K
+from calibgraph.solver.session_plan import predict_session_covariance
+
+CELLS = {
+    "demo 3 x L515 at 3 m": dict(cameras=ring_cameras([3.0] * 3, presets=("l515",)), n_poses=30, pixel_sigma_px=0.05),
+    "3 x D455 at 5 m": dict(cameras=ring_cameras([5.0] * 3, presets=("d455",)), n_poses=40, pixel_sigma_px=0.05),
+}
+NINE = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")  # a session file's covariance covers these
+SLACK = 0.97  # a re-solve's 1-sigma is taken at its own estimate (another linearisation point): 3 %
+
+
+def _scene(cell: str, seed: int = 2):
+    return make_scene(**CELLS[cell], seed=seed, workspace_half_extent_m=(0.4, 0.4, 0.4),
+                      fk_sigma_translation_m=5e-5, fk_sigma_rotation_rad=np.radians(0.005))
+
+
+def _predicted(advice: str) -> float:
+    return float(re.search(r"would bring it to about ([0-9.]+) mm", advice).group(1))
+
+
+def _sigma(c) -> float:
+    return float(np.linalg.norm(c.sigma_translation_mm))
+
+
+@pytest.fixture(scope="module", params=list(CELLS))
+def solved(request):
+    sc = _scene(request.param)
+    return request.param, sc, solve(sc.problem)
+
+
+def test_shares_bound_the_advice_and_a_resolve_with_the_intrinsics_known(solved):
+    cell, sc, r = solved
+    for n, c in r.cameras.items():
+        b = c.error_budget
+        sigma = b["sigma_translation_norm_mm"]
+        assert abs(sum(b["shares_by_noise_source"].values()) - 1.0) < 1e-6, b
+        assert set(b["share_labels"]) == {"shares", "shares_by_noise_source"}
+        assert all(0.0 <= v <= 1.0 for v in b["shares"].values()), b
+        assert b["own_intrinsics_share"] <= b["shares"]["intrinsics"] + 1e-6, b
+        # the advice's prediction is never below the bound of what its remedy improves
+        remedy = ("intrinsics" if "close-range" in b["advice"] else "board" if "board's pitch" in b["advice"]
+                  else None)
+        if remedy is not None:
+            share = b["own_intrinsics_share"] if remedy == "intrinsics" else b["shares"]["board"]
+            assert _predicted(b["advice"]) >= sigma * np.sqrt(1 - share) - 0.005, (cell, b)
+    # re-solved with every camera's true intrinsics held: the 1-sigma lands on the bound
+    held = sc.problem.with_(cameras={n: replace(sc.truth.intrinsics[n], source="exact") for n in sc.problem.cameras},
+                            options=replace(sc.problem.options, intrinsics="fixed"))
+    rh = solve(held)
+    for n, c in r.cameras.items():
+        bound = c.error_budget["sigma_translation_norm_mm"] * np.sqrt(1 - c.error_budget["shares"]["intrinsics"])
+        assert SLACK * bound <= _sigma(rh.cameras[n]) <= bound / SLACK, (cell, n, bound, _sigma(rh.cameras[n]))
+
+
+def test_a_resolve_after_a_session_or_a_measured_board_stays_above_the_bound(solved):
+    """Each camera given a close-range session's file (true values moved by a draw from the
+    session's covariance): its 1-sigma falls, but never below what the intrinsics known exactly
+    would leave; the board's scale held: never below its bound either."""
+    cell, sc, r = solved
+    rng = np.random.default_rng(7)
+    cams = {}
+    for n in sc.problem.cameras:
+        true = sc.truth.intrinsics[n]
+        cov = predict_session_covariance(true, sc.problem.target, pixel_sigma_px=0.05, size=9)
+        drawn = parameter_vector(true, NINE) + rng.multivariate_normal(np.zeros(9), cov)
+        cams[n] = replace(with_parameters(true, NINE, drawn), source="calibration", covariance=cov)
+    rs = solve(sc.problem.with_(cameras=cams))
+    rb = solve(sc.problem.with_(options=replace(sc.problem.options, board_scale=False)))
+    for n, c in r.cameras.items():
+        b = c.error_budget
+        sigma = b["sigma_translation_norm_mm"]
+        after = _sigma(rs.cameras[n])
+        assert after < sigma, (cell, n)
+        assert after >= SLACK * sigma * np.sqrt(1 - b["shares"]["intrinsics"]), (cell, n, b, after)
+        assert _sigma(rb.cameras[n]) >= SLACK * sigma * np.sqrt(1 - b["shares"]["board"]), (cell, n, b)
+
+
+def test_known_exactly_by_scaled_information_matches_conditioning():
+    """The "known exactly" shares multiply a source's information by 1e9 and invert the reduced
+    system; for the intrinsics (priors on global variables) that must equal the exact conditional
+    covariance given every K key. Twice the poses (the advice's third remedy) is bounded by the
+    views' share by noise source instead: its prediction never falls below it."""
+    sc = _scene("demo 3 x L515 at 3 m", seed=3)
+    got = {}
+    original = batch.error_budgets
+
+    def keep(problem, g, lin):
+        got["lin"], got["g"] = lin, g
+        return original(problem, g, lin)
+    batch.error_budgets = keep
+    try:
+        r = solve(sc.problem)
+    finally:
+        batch.error_budgets = original
+    L = got["lin"]
+    assert np.allclose(L.information({}), L.S, rtol=1e-9, atol=1e-9 * np.abs(L.S).max())
+    keys = [k for k in L.index if chr(gtsam.Symbol(k).chr()) == "k"]
+    est = got["g"].est
+    cams = {n: (C(est.slots[n]), K(est.slots[n])) for n in got["g"].names}
+    b = budgets(L, cams)
+    doubled = doubled_information(L)
+    for n, (ck, _) in cams.items():
+        sigma2 = (b[n].sigma_mm / 1e3) ** 2
+        exact = 1 - conditioned_variance(L, ck, keys) / sigma2
+        assert b[n].shares["intrinsics"] == pytest.approx(exact, abs=1e-4), n
+        assert r.cameras[n].error_budget["shares"]["intrinsics"] == pytest.approx(exact, abs=1e-4), n
+        # twice the poses: never below the bound of the views' share by noise source
+        views = b[n].by_noise["corners"] + b[n].by_noise["robot_fk"]
+        assert sigma_with(L, ck, S=doubled) >= b[n].sigma_mm * np.sqrt(1 - views) * (1 - 1e-9), n
+
+
+def test_console_prints_both_share_sets_labelled_and_says_when_not_converged(solved):
+    from calibgraph.cli.solve import format_summary
+
+    cell, sc, r = solved
+    text = format_summary(r)
+    for n, c in r.cameras.items():
+        b = c.error_budget
+        assert f"{n} {b['sigma_translation_norm_mm']:.2f} mm; variance gone were each known exactly: " in text
+        assert f"intrinsics {100 * b['shares']['intrinsics']:.0f} % (its own" in text
+        assert b["advice"] in text
+    assert text.count("by noise source (sums to 100 %)") == len(r.cameras)
+    assert "did not converge" not in text
+    assert "WARNING: the solver did not converge" in format_summary(replace(r, converged=False))
