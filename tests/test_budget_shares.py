@@ -22,7 +22,7 @@ import pytest
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 from calibgraph.solver import batch
 from calibgraph.solver.batch import solve
-from calibgraph.solver.budget import budgets, conditioned_variance, doubled_information
+from calibgraph.solver.budget import budgets, conditioned_variance, doubled_information, share_lines
 from calibgraph.solver.reduced import sigma_with
 from calibgraph.solver.intrinsics_model import parameter_vector, with_parameters
 from calibgraph.solver.keys import C, K
@@ -149,3 +149,8 @@ def test_console_prints_both_share_sets_labelled_and_says_when_not_converged(sol
     assert text.count("by noise source (sums to 100 %)") == len(r.cameras)
     assert "did not converge" not in text
     assert "WARNING: the solver did not converge" in format_summary(replace(r, converged=False))
+    # a result written before the sets were labelled: its one set was split by noise source, and says so
+    old = {"sigma_translation_norm_mm": 0.41, "shares": {"corners": 0.62, "intrinsics": 0.003, "robot_fk": 0.377,
+                                                          "board": 0.0}, "own_intrinsics_share": 0.002, "advice": ""}
+    assert share_lines("cam1", old) == ["cam1 0.41 mm", "     by noise source (sums to 100 %): corners 62 %, robot FK 38 %, "
+                                                        "intrinsics 0.3 %, board 0 %"]

@@ -112,14 +112,18 @@ def budgets(L: Linear, cameras: dict) -> dict:
 
 
 def share_lines(name: str, b: dict) -> list:
-    """The console's lines for one camera's ``error_budget`` dict: both share sets, labelled."""
+    """The console's lines for one camera's ``error_budget`` dict: both share sets, labelled (a
+    result written before the sets were labelled has only ``shares``, split by noise source)."""
     def pct(x: float) -> str:
         return f"{100 * x:.0f} %" if x >= 0.01 or x == 0 else f"{100 * x:.1f} %"
+    if "share_labels" not in b:
+        b = {**b, "shares": {}, "shares_by_noise_source": b.get("shares", {})}
     s, by = b.get("shares", {}), b.get("shares_by_noise_source", {})
     known = ", ".join(f"{SOURCE_NAMES.get(k, k)} {pct(v)}" + (f" (its own {pct(b['own_intrinsics_share'])})"
                                                            if k == "intrinsics" and "own_intrinsics_share" in b else "")
                       for k, v in sorted(s.items(), key=lambda kv: -kv[1]))
-    lines = [f"{name} {b['sigma_translation_norm_mm']:.2f} mm; variance gone were each known exactly: {known}"]
+    lines = [f"{name} {b['sigma_translation_norm_mm']:.2f} mm" + (f"; variance gone were each known exactly: {known}"
+                                                                  if s else "")]
     if by:
         lines.append(" " * (len(name) + 1) + "by noise source (sums to 100 %): "
                      + ", ".join(f"{SOURCE_NAMES.get(k, k)} {pct(v)}" for k, v in sorted(by.items(), key=lambda kv: -kv[1])))
