@@ -135,7 +135,11 @@ def run(args) -> int:
     t0 = time.monotonic()
     result = replace(solve(problem), dataset=str(ds_dir), target=ds.target.to_dict())
     result_path = out / "result.json"
-    result.save(result_path)
+    from calibgraph.io.output_guard import write_keeping_previous
+
+    kept = write_keeping_previous(result_path, lambda: result.save(result_path))  # one left by an interrupted demo
+    if kept is not None:
+        print(f"kept the previous result as {kept}")
     gt = load_ground_truth(ds_dir)
     print(format_summary(result, truth=gt["T_base_cam"]))
     from calibgraph.core.transforms import log_so3, pose_error
