@@ -134,3 +134,16 @@ def test_keep_previous_numbers_and_a_failed_write_keeps_no_copy(written, tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == before
     (tmp_path / "notes.txt").write_text("mine")
     assert keep_previous(tmp_path / "notes.txt") is None and keep_previous(tmp_path / "none.json") is None
+
+
+def test_the_test_run_refuses_writes_into_shared(shared_dir, tmp_path):
+    """conftest's guard: a test that writes into ../shared (a solve of the shared data in place, which
+    left .calibgraph_cache/ there) fails instead; nothing is written."""
+    from calibgraph.cli.main import main
+    from calibgraph.io.files import atomic_write_text
+
+    with pytest.raises(AssertionError, match="writes into ../shared"):
+        atomic_write_text(shared_dir / "datasets" / "x.txt", "x")
+    with pytest.raises(AssertionError, match="writes into ../shared"):  # the dataset lock comes first
+        main(["solve", str(shared_dir / "datasets" / "rct_static_camera_charuco"), "--out", str(tmp_path / "r.json")])
+    assert not (shared_dir / "datasets" / "x.txt").exists() and not (tmp_path / "r.json").exists()

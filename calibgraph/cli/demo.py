@@ -151,7 +151,11 @@ def _write_and_print(args, result, out: Path, ds_dir: Path, source, solve_line: 
     from calibgraph.io.layouts import load_dataset
 
     result_path = out / "result.json"
-    result.save(result_path)
+    from calibgraph.io.output_guard import write_keeping_previous
+
+    kept = write_keeping_previous(result_path, lambda: result.save(result_path))  # one left by an interrupted demo
+    if kept is not None:
+        print(f"kept the previous result as {kept}")
     gt = load_ground_truth(ds_dir)
     print(format_summary(result, truth=gt["T_base_cam"]))
     print("camera orientations (T_base_cam rotation vector, deg):")

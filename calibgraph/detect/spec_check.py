@@ -91,8 +91,8 @@ class BoardSpecCheck:
             if final:
                 self._cleared = True  # nothing more will come in: search everything
             return []
-        if self.found:
-            self._cleared = True
+        if self.found or not any(self.done.values()):  # a board found; or not one frame could be read (a FIFO,
+            self._cleared = True                        # a truncated file: each named on its own), nothing to judge
             return []
         if self._sampling is None:
             self._sampling = {k for keys in self._unseen.values() for k in _spread(keys, SAMPLE_PER_CAMERA)}

@@ -7,12 +7,13 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
-from pathlib import Path
 
 import numpy as np
 
+from calibgraph.core.errors import InputError
 from calibgraph.core.transforms import R_to_quat_xyzw
 from calibgraph.core.version import __version__
+from calibgraph.io.files import read_input_bytes
 from calibgraph.report import findings
 from calibgraph.report.exports import R_to_rpy
 from calibgraph.report.markup import badge, esc, matrix, num, vec
@@ -230,8 +231,8 @@ def provenance_html(result, ds, result_path, tol: dict, config) -> str:
 
 def _sha256(path) -> str:
     try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
+        return hashlib.sha256(read_input_bytes(path, "result")).hexdigest()
+    except InputError:
         return "unreadable"
 
 
