@@ -56,8 +56,8 @@ def _check_outputs(args, out: Path, ds_dir: Path) -> None:
     check_output_folder(out, "output folder")
     check_output_folder(ds_dir, "dataset folder")
     files = [("trajectory.yaml", "trajectory", "trajectory file")] if not args.auto else []
-    files += [("result.json", "result", "result file")] if not args.auto else []
-    files += [("report.html", "report", "report file")] if args.report and not args.auto else []
+    files += [("result.json", "result", "result file")]  # demo --auto writes its result and report in --out too
+    files += [("report.html", "report", "report file")] if args.report else []
     files += [("calibration.rrd", "recording", "rerun recording")] if args.rrd else []
     for name, kind, what in files:
         check_output_file(out / name, kind, what, name)
