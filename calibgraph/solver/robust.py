@@ -21,6 +21,7 @@ from calibgraph.solver.views import MIN_CORNERS_PER_VIEW, norms_of
 
 MAX_WEIGHT_ROUNDS = 6  # LM runs with re-weighting in between, per view-level round
 SETTLED_RMS_WEIGHT_CHANGE = 0.01  # corner weights whose RMS change is below this have settled
+SETTLED_FLIPPING = (2, 0.005)  # or: at most this many corners (count, fraction of all) still change by over 0.05
 MAX_VIEW_ROUNDS = 4  # rounds of view rejection / re-admission
 
 
@@ -73,10 +74,18 @@ def reweight(views: list, norms: list, sigma_px: float, opts) -> tuple[list, flo
     return out, change
 
 
-def _rms_weight_change(before: list, after: list) -> float:
-    """RMS over the active views' corners of the change of their robust weights."""
+def _weights_settled(before: list, after: list) -> bool:
+    """The active views' corner weights changed little: their RMS change is below
+    ``SETTLED_RMS_WEIGHT_CHANGE``, or only a few corners (``SETTLED_FLIPPING``) still change by over
+    0.05 - on a small dataset one corner flipping across the outlier cut moves the RMS over the limit
+    while the estimate no longer moves."""
     d = [a.w - b.w for b, a in zip(before, after) if b.active]
-    return float(np.sqrt(np.mean(np.concatenate(d) ** 2))) if d else 0.0
+    if not d:
+        return True
+    d = np.concatenate(d)
+    count, fraction = SETTLED_FLIPPING
+    return bool(np.sqrt(np.mean(d ** 2)) < SETTLED_RMS_WEIGHT_CHANGE
+                or np.count_nonzero(np.abs(d) > 0.05) <= max(count, fraction * d.size))
 
 
 def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
@@ -108,7 +117,7 @@ def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, s
         weights_settled = level_settled and change < 0.05
         # settled also when only a few corners straddling the loss's knee still flip their weight
         # (the largest change stays above 0.05 round after round while the estimate no longer moves)
-        settled = (weights_settled or (level_settled and _rms_weight_change(old, views) < SETTLED_RMS_WEIGHT_CHANGE)) \
+        settled = (weights_settled or (level_settled and _weights_settled(old, views))) \
             and run.converged
         sigma = sigma_new
         if weights_settled:
