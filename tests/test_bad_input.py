@@ -907,9 +907,10 @@ def test_i34_intrinsics_of_a_board_never_tilted_warns_and_keeps_its_views(tmp_pa
     """Part 8: boards square to the image plane (under 2 deg) all over the image: the documented
     'never tilted' warning fires (max_tilt_deg was 25-41 deg, measured against the line of sight) and
     no good view is rejected; the images and the target file are left as they were."""
+    from helpers import square_to_the_image
+
     from calibgraph.core.camera import preset
     from calibgraph.core.targets import a4_board_54
-    from calibgraph.core.transforms import exp_so3, make_T
     from calibgraph.io.files import atomic_write_png
     from calibgraph.sim.session import render_session_image
     from calibgraph.sim.workcell import Realism
@@ -918,17 +919,8 @@ def test_i34_intrinsics_of_a_board_never_tilted_warns_and_keeps_its_views(tmp_pa
     images = tmp_path / "cam0"
     spec = tmp_path / "target.yaml"
     spec.write_text(yaml.safe_dump({"target": target.to_dict()}))
-    centre, Kinv, k = target.points_board_m.mean(axis=0), np.linalg.inv(intr.K), 0
-    while k < 10:
-        psi = rng.uniform(0, 2 * np.pi)
-        R = exp_so3(np.radians(rng.uniform(0, 2)) * np.array([np.cos(psi), np.sin(psi), 0.0])) @ exp_so3(
-            [0.0, 0.0, np.radians(rng.uniform(-30, 30))])
-        ray = Kinv @ np.array([rng.uniform(0, intr.width_px), rng.uniform(0, intr.height_px), 1.0])
-        T = make_T(R, ray / ray[2] * rng.uniform(0.3, 0.8) - R @ centre)
-        uv = intr.project(target.points_board_m @ R.T + T[:3, 3])
-        if np.all((uv > 8) & (uv < np.array([intr.width_px, intr.height_px]) - 8)):
-            atomic_write_png(images / f"view_{k:03d}.png", render_session_image(target, intr, T, Realism(), rng))
-            k += 1
+    for k, T in enumerate(square_to_the_image(intr, target, 10, rng)):
+        atomic_write_png(images / f"view_{k:03d}.png", render_session_image(target, intr, T, Realism(), rng))
     out = tmp_path / "cam0.yaml"
     check("intrinsics: a board never tilted (under 2 deg), all over the image",
           ["intrinsics", images, "--target", spec, "--out", out, "--model", "k1k2"], 0,
