@@ -197,10 +197,15 @@ def edges(a) -> int:
                                                  "factory-class (estimated under a factory prior)") +
             ". The knocked camera is judged against where it stands at the end (after the move; for 'moved and back' "
             "its first pose).", ""]
-    text = "\n".join(head + lines) + "\n"
+    return _save(a, "bench_moved_edges", head + lines, raw)
+
+
+def _save(a, stem: str, lines: list, raw: dict) -> int:
+    """Write ``<stem><tag>.md`` (``lines``) and ``.json`` (``raw``) into ``a.out`` and print the table."""
+    text = "\n".join(lines) + "\n"
     a.out.mkdir(parents=True, exist_ok=True)
-    (a.out / f"bench_moved_edges{a.tag}.md").write_text(text)
-    (a.out / f"bench_moved_edges{a.tag}.json").write_text(json.dumps(raw, indent=1, default=float))
+    (a.out / f"{stem}{a.tag}.md").write_text(text)
+    (a.out / f"{stem}{a.tag}.json").write_text(json.dumps(raw, indent=1, default=float))
     print(text)
     return 0
 
@@ -373,12 +378,7 @@ def main(argv=None) -> int:
              + "The knocked camera "
              "is judged against its pose after the move; 'unmoved' are the other cameras against the truth. "
              "Per-axis err/σ: the largest of the three translation axes' |error| / 1-sigma.")]
-    text = "\n".join(head + lines) + "\n"
-    a.out.mkdir(parents=True, exist_ok=True)
-    (a.out / f"bench_moved{a.tag}.md").write_text(text)
-    (a.out / f"bench_moved{a.tag}.json").write_text(json.dumps(raw, indent=1, default=float))
-    print(text)
-    return 0
+    return _save(a, "bench_moved", head + lines, raw)
 
 
 if __name__ == "__main__":

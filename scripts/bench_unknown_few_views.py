@@ -22,7 +22,8 @@ Cells (per seed, fresh poses and noise; corner noise 0.3 px, FK noise 0.1 mm / 0
 What is reported for each case: solved (a pose with a 1-sigma), not calibrated (exit 3: the
 camera's why), or refused (the first line of the error).
 
-    python scripts/bench_unknown_few_views.py [--seeds 24] [--views 3,4,5,6,8,12] [--out scripts/results] [--tag _before]
+    python scripts/bench_unknown_few_views.py [--seeds 24] [--first-seed 0] [--views 3,4,5,6,8,12] [--cells ring,eye-in-hand]
+        [--out scripts/results] [--tag _before]
 """
 
 from __future__ import annotations
@@ -139,6 +140,7 @@ def markdown(sums: list, seconds: float, seeds: int) -> list:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=24)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     ap.add_argument("--views", default="3,4,5,6,8,12")
     ap.add_argument("--cells", default="ring,eye-in-hand")
     ap.add_argument("--out", type=Path, default=REPO / "scripts" / "results")
@@ -148,7 +150,7 @@ def main(argv=None) -> int:
     raw, sums = {}, []
     for cell in a.cells.split(","):
         for n in (int(v) for v in a.views.split(",")):
-            rs = [trial(cell, seed, n) for seed in range(a.seeds)]
+            rs = [trial(cell, seed, n) for seed in range(a.first_seed, a.first_seed + a.seeds)]
             raw[f"{cell}, {n} views"] = rs
             sums.append(summary(cell, n, rs))
             print(markdown([sums[-1]], time.time() - t0, a.seeds)[-1], flush=True)

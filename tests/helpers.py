@@ -19,6 +19,7 @@ import pytest
 from calibgraph import solve
 from calibgraph.core.problem import Detection
 from calibgraph.core.targets import a4_board_54
+from calibgraph.core.transforms import exp_so3, make_T
 from calibgraph.io.dataset import write_capture, write_header
 from calibgraph.sim.synthetic_corners import make_scene
 from calibgraph.solver.result import Result
@@ -229,3 +230,19 @@ def fails_instead_of_hanging(seconds: int, what: str):
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
+
+
+def square_to_the_image(intr, target, n, rng, max_tilt_deg=2.0, distance_m=(0.3, 0.8)) -> list:
+    """``n`` poses of a board square to the image plane (tilted under ``max_tilt_deg``), its centre
+    aimed all over the image, the whole pattern inside it."""
+    centre, Kinv, poses = target.points_board_m.mean(axis=0), np.linalg.inv(intr.K), []
+    while len(poses) < n:
+        psi = rng.uniform(0, 2 * np.pi)
+        R = exp_so3(np.radians(rng.uniform(0, max_tilt_deg)) * np.array([np.cos(psi), np.sin(psi), 0.0])) @ exp_so3(
+            [0.0, 0.0, np.radians(rng.uniform(-30, 30))])
+        ray = Kinv @ np.array([rng.uniform(0, intr.width_px), rng.uniform(0, intr.height_px), 1.0])
+        T = make_T(R, ray / ray[2] * rng.uniform(*distance_m) - R @ centre)
+        uv = intr.project(target.points_board_m @ R.T + T[:3, 3])
+        if np.all((uv > 8) & (uv < np.array([intr.width_px, intr.height_px]) - 8)):
+            poses.append(T)
+    return poses

@@ -15,6 +15,8 @@ import json
 import numpy as np
 import pytest
 
+from helpers import square_to_the_image
+
 from calibgraph.cli.main import main
 from calibgraph.core.camera import INTRINSICS_VECTOR, Intrinsics
 from calibgraph.core.errors import ObservabilityError
@@ -140,22 +142,6 @@ def test_a_session_that_never_reaches_the_corners_says_so():
     assert full.warnings == () and r.sigma["k1"] > 2 * full.sigma["k1"]
 
 
-def _square_to_the_image(intr, target, n, rng, max_tilt_deg=2.0, distance_m=(0.3, 0.8)):
-    """``n`` poses of a board square to the image plane (tilted under ``max_tilt_deg``), its centre
-    aimed all over the image, the whole pattern inside it."""
-    centre, Kinv, poses = target.points_board_m.mean(axis=0), np.linalg.inv(intr.K), []
-    while len(poses) < n:
-        psi = rng.uniform(0, 2 * np.pi)
-        R = exp_so3(np.radians(rng.uniform(0, max_tilt_deg)) * np.array([np.cos(psi), np.sin(psi), 0.0])) @ exp_so3(
-            [0.0, 0.0, np.radians(rng.uniform(-30, 30))])
-        ray = Kinv @ np.array([rng.uniform(0, intr.width_px), rng.uniform(0, intr.height_px), 1.0])
-        T = make_T(R, ray / ray[2] * rng.uniform(*distance_m) - R @ centre)
-        uv = intr.project(target.points_board_m @ R.T + T[:3, 3])
-        if np.all((uv > 8) & (uv < np.array([intr.width_px, intr.height_px]) - 8)):
-            poses.append(T)
-    return poses
-
-
 def test_a_board_never_tilted_says_so_and_no_view_is_rejected():
     """Issue 34: boards square to the image plane (under 2 deg) all over the image never gave the
     'never tilted' warning: the tilt was measured against each board's line of sight (28.7 deg at the
@@ -163,7 +149,7 @@ def test_a_board_never_tilted_says_so_and_no_view_is_rejected():
     mirror pose, nearly the same pose, fits as well: none of these good views is rejected now."""
     target = a4_board_54()
     rng = np.random.default_rng(5)
-    r = calibrate_views(_views(D455, target, _square_to_the_image(D455, target, 20, rng), 0.15, rng), target, 1280, 800)
+    r = calibrate_views(_views(D455, target, square_to_the_image(D455, target, 20, rng), 0.15, rng), target, 1280, 800)
     assert r.coverage.max_tilt_deg < 2.0, r.coverage
     assert any("was never tilted more than" in w and "degrees from square to the image plane" in w for w in r.warnings)
     assert r.rejected == () and len(r.views_used) == 20

@@ -213,7 +213,7 @@ class AutoState:
         tol = (self.opts.tolerance_mm, self.opts.tolerance_deg)
         for n, c in res.cameras.items():
             ce = self.est.cameras.get(n) if self.est else None
-            if ce is None or ce.covariance is None:
+            if ce is None or ce.covariance is None or not c.calibrated:  # no batch 1-sigma to scale to
                 continue
             r_isam, r_batch = shortfall(ce.covariance, *tol), shortfall(c.covariance, *tol)
             if np.isfinite(r_isam) and r_isam > 0:

@@ -28,8 +28,9 @@ and units in comments or fields.
 
 Intrinsics are those the camera was solved with when the result records them, else the dataset's
 given with ``dataset=``, and then every file says so (:func:`given_intrinsics_note`: an old result
-does not say which intrinsics its pose was solved with, and estimated ones differ). Camera names become ROS/URDF identifiers (:func:`export_names`): unique
-even when two names sanitise alike, so no link, joint or file is written twice.
+does not say which intrinsics its pose was solved with, and estimated ones differ). Camera names
+become ROS/URDF identifiers (:func:`export_names`): unique even when two names sanitise alike, so no
+link, joint or file is written twice.
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ linearisation of the views, not a solve per camera.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -106,6 +106,12 @@ class Split:
     @property
     def is_move(self) -> bool:
         return self.f_stat >= F_LIMIT and self.consistent and self.rms_two_sigma <= AT_NOISE
+
+    @property
+    def dragged(self) -> bool:
+        """A move by the F test and each side's consistency whose two poses still leave the corners
+        above the noise: the estimate it was judged at may be the one the mixture dragged."""
+        return self.f_stat >= F_LIMIT and self.consistent and self.rms_two_sigma > AT_NOISE
 
 
 def _pose(T) -> gtsam.Pose3:
@@ -326,12 +332,24 @@ def camera_splits(problem, views: list, est, sigma_px: float, names, start: dict
         mine = [v for v in views if v.camera == name]
         if T_lin is None or len(mine) < MIN_GROUP_VIEWS + min_after:
             continue
-        try:
-            with np.errstate(all="ignore"):
-                vp = view_poses(problem, name, mine, est, T_lin, sigma_px, per_capture, per_view)
-                split = best_split(vp, min_after=min_after) if vp is not None else None
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
-            continue  # a degenerate camera (absurd intrinsics, views behind it): nothing to say about a move
-        if split is not None and np.isfinite(split.f_stat):
+        split = _camera_split(problem, name, mine, est, T_lin, sigma_px, per_capture, per_view, min_after)
+        if split is not None and split.dragged and name in est.intrinsics:
+            # the two poses fit only at the intrinsics the solve pulled to the mixture of them: judged
+            # again at the camera's given intrinsics (a wrong lens model fits no better there)
+            given = replace(est, intrinsics={n: i for n, i in est.intrinsics.items() if n != name})
+            again = _camera_split(problem, name, mine, given, T_lin, sigma_px, per_capture, per_view, min_after)
+            split = again if again is not None and again.is_move else split
+        if split is not None:
             out[name] = split
     return out
+
+
+def _camera_split(problem, name, mine, est, T_lin, sigma_px, per_capture, per_view, min_after) -> Split | None:
+    """Camera ``name``'s best split at ``est`` (see :func:`camera_splits`); None when there is none."""
+    try:
+        with np.errstate(all="ignore"):
+            vp = view_poses(problem, name, mine, est, T_lin, sigma_px, per_capture, per_view)
+            split = best_split(vp, min_after=min_after) if vp is not None else None
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return None  # a degenerate camera (absurd intrinsics, views behind it): nothing to say about a move
+    return split if split is not None and np.isfinite(split.f_stat) else None

@@ -19,9 +19,10 @@ from calibgraph.solver.initialise import initialise, refine_translations
 from calibgraph.solver.timing import timed
 
 INIT_SCORE_MAX_VIEWS = 300  # hypotheses of a joint graph are ranked on a subsample of this many views
-# Zhang's method needs three views of a plane, but from three the pose's 1-sigma does not hold: over 30
-# seeds its Mahalanobis^2 averaged 11.9 (6 expected; 5 seeds above the 99 % point), from four 6.1
-# (scripts/bench_unknown_few_views.py); a camera of unknown intrinsics with fewer is not calibrated
+# Zhang's method needs three views of a plane, but from three the pose's 1-sigma holds worst: its
+# Mahalanobis^2 averaged 11.9 over 30 seeds (6 expected; 5 above the 99 % point, up to 92), from four 8.9
+# over 90 (scripts/results/bench_unknown_few_views_findings.md); a camera of unknown intrinsics with fewer
+# views is not calibrated
 MIN_VIEWS_FOR_INTRINSICS = 4
 
 
