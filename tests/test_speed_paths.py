@@ -64,3 +64,22 @@ def test_warm_widened_resolve_gives_the_fresh_answer(monkeypatch, n_cam, n_poses
         assert d_rot_rad <= 0.05 * np.sqrt(np.trace(cov[:3, :3])), n
         np.testing.assert_allclose(b.sigma_translation_mm, a.sigma_translation_mm, rtol=0.01)
     assert abs(fast.board_scale - slow.board_scale) <= 0.05 * (slow.board_scale_sigma or np.inf)
+
+
+def test_mode_energy_without_qr_equals_the_basis_projection():
+    """The corner-noise level's projection on a view's 6 low-order modes, formed without the QR,
+    equals the projection on :func:`view_mode_basis` (grids seen at any scale, scattered corners,
+    corners on a line, which take the QR)."""
+    from calibgraph.solver.noise_model import _mode_energy, view_mode_basis
+
+    rng = np.random.default_rng(0)
+    grid = np.stack(np.meshgrid(np.arange(9.0), np.arange(6.0)), -1).reshape(-1, 2)
+    cases = [grid * rng.uniform(3, 40) + rng.uniform(0, 900, 2) for _ in range(50)]
+    cases += [rng.uniform(0, 1000, (int(rng.integers(6, 80)), 2)) for _ in range(50)]
+    H = np.array([[0.9, 0.1, 200.0], [-0.05, 1.1, 100.0], [1e-4, 2e-4, 1.0]])  # a tilted board's image
+    g = np.c_[grid, np.ones(len(grid))] @ H.T
+    cases += [g[:, :2] / g[:, 2:], np.c_[np.arange(10.0), 2 * np.arange(10.0) + 1]]
+    for uv in cases:
+        e = rng.normal(0.0, 0.3, 2 * len(uv))
+        q = view_mode_basis(uv).T @ e
+        assert abs(_mode_energy(uv, e) - float(q @ q)) <= 1e-12 * float(e @ e)
