@@ -36,15 +36,14 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 REPO = Path(__file__).resolve().parents[1]
 CODE = REPO
 if "--code" in sys.argv:  # internal: the baseline run imports calibgraph from another tree
     CODE = Path(sys.argv[sys.argv.index("--code") + 1]).resolve()
 sys.path.insert(0, str(CODE))
 
-from calibgraph.acquire.auto import AutoOptions, run_auto  # noqa: E402
+from calibgraph.acquire.auto import AutoOptions, run_auto  # noqa: E402 - calibgraph before numpy, as the CLI (BLAS threads)
+import numpy as np  # noqa: E402
 from calibgraph.core.transforms import pose_error  # noqa: E402
 from calibgraph.io.files import read_yaml  # noqa: E402
 from calibgraph.plan import active  # noqa: E402

@@ -37,8 +37,8 @@ OUT = ROOT / "scripts" / "results"
 ONE = r"""
 import json, os, resource, sys, time
 from dataclasses import replace
+from calibgraph.core.transforms import pose_error  # calibgraph before numpy, as the CLI loads them (BLAS threads)
 import numpy as np
-from calibgraph.core.transforms import pose_error
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
 import calibgraph.solver.batch as batch
 import calibgraph.solver.moved as moved

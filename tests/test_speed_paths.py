@@ -83,3 +83,34 @@ def test_mode_energy_without_qr_equals_the_basis_projection():
         e = rng.normal(0.0, 0.3, 2 * len(uv))
         q = view_mode_basis(uv).T @ e
         assert abs(_mode_energy(uv, e) - float(q @ q)) <= 1e-12 * float(e @ e)
+
+
+def test_candidate_sigmas_by_woodbury_equal_the_full_inverse():
+    """The active planner's predicted 1-sigma of each candidate, from today's covariance and the
+    columns the candidate informs (Woodbury), equals the inverse of the whole information with the
+    candidate's added: 16 cameras on a ring, every camera model estimated, candidates seen by 0 to 8
+    cameras (one seen by none)."""
+    from calibgraph.plan.information import (block_sigmas, block_sigmas_added, inv_scaled, joint_information,
+                                             prior_information)
+
+    K = 16
+    sc = make_scene(cameras=ring_cameras([3.0] * K, presets=("l515",)), n_poses=60, seed=1,
+                    workspace_half_extent_m=(0.4, 0.4, 0.4))
+    names = list(sc.problem.cameras)
+    cams = [(sc.problem.cameras[n], sc.truth.T_ref_cam[n]) for n in names]
+    by_capture = {}
+    for d in sc.problem.detections:
+        by_capture.setdefault(d.capture, set()).add(d.camera)
+    T_bf = np.array([c.T_base_flange for c in sc.problem.captures])
+    seen = np.array([[n in by_capture.get(c.index, ()) for n in names] for c in sc.problem.captures])
+    seen[-1] = False
+    pts, free = sc.problem.target.points_board_m, [True] * K
+    args = (pts, 0.1, 1e-4, np.radians(0.01))
+    T_fb = sc.truth.T_mount_board
+    J0 = prior_information(K, [np.eye(6) * 1e-2] * K) + joint_information(
+        cams, seen[:30], T_bf[:30], T_fb, *args, free_intrinsics=free).sum(axis=0)
+    infos = joint_information(cams, seen[30:], T_bf[30:], T_fb, *args, free_intrinsics=free)
+    full = block_sigmas(inv_scaled(J0 + infos), K)
+    fast = block_sigmas_added(J0, infos, K)
+    np.testing.assert_allclose(fast, full, rtol=1e-9)
+    np.testing.assert_allclose(block_sigmas_added(J0, infos, K, inv_scaled(J0)), full, rtol=1e-9)
