@@ -114,3 +114,19 @@ def test_candidate_sigmas_by_woodbury_equal_the_full_inverse():
     fast = block_sigmas_added(J0, infos, K)
     np.testing.assert_allclose(fast, full, rtol=1e-9)
     np.testing.assert_allclose(block_sigmas_added(J0, infos, K, inv_scaled(J0)), full, rtol=1e-9)
+
+
+def test_openblas_one_thread_unless_the_user_says(tmp_path):
+    """``import calibgraph`` (what the CLI does first) holds OpenBLAS to one thread when the user
+    did not set OPENBLAS_NUM_THREADS, and leaves the user's setting alone."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import calibgraph, os; print(os.environ.get('OPENBLAS_NUM_THREADS'))"
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "1"
+    out = subprocess.run([sys.executable, "-c", code], env=dict(env, OPENBLAS_NUM_THREADS="2"), capture_output=True,
+                         text=True, check=True)
+    assert out.stdout.strip() == "2"
