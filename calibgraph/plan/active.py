@@ -56,6 +56,7 @@ import numpy as np
 from calibgraph.core.transforms import inv
 from calibgraph.plan.information import (
     block_sigmas,
+    block_sigmas_added,
     design_bound,
     inv_scaled,
     joint_information,
@@ -404,7 +405,8 @@ class ActivePlanner:
         names, cams, J0 = self.graph_information(scored, history, T_flange_board, pixel_sigma_px)
         free = self.free_intrinsics(scored, names)
         K = len(names)
-        sig0 = block_sigmas(inv_scaled(J0), K)  # (K, 2) model 1-sigma now
+        cov0 = inv_scaled(J0)
+        sig0 = block_sigmas(cov0, K)  # (K, 2) model 1-sigma now
         ref = np.array([sigma_norms(scored[n].covariance) for n in names])  # (K, 2) reference 1-sigma now
         rho_now = np.array([max(rho[n], 1.0) for n in names])
         is_short = np.array([n in short for n in names])
@@ -417,7 +419,8 @@ class ActivePlanner:
             if m.any():
                 I = joint_information(cams, rows[m], T_bf[m], T_flange_board, self._points_b, pixel_sigma_px,
                                       *self.fk_sigmas, free_intrinsics=free)
-                sig[m] = ref * block_sigmas(inv_scaled(J0 + I), K) / np.maximum(sig0, 1e-12)
+                # each candidate's covariance from today's (Woodbury on the columns it informs)
+                sig[m] = ref * block_sigmas_added(J0, I, K, cov0) / np.maximum(sig0, 1e-12)
                 rho_new = np.maximum(np.maximum(sig[m][..., 0] / tol_mm, sig[m][..., 1] / tol_deg), 1.0)
                 gain[m] = np.sum(np.where(is_short, rho_now ** 2 - rho_new ** 2, 0.0), axis=-1)
             return gain, sig

@@ -32,8 +32,8 @@ import numpy as np
 from calibgraph.core.problem import SolverOptions, intrinsics_estimated, intrinsics_prior_covariance
 
 __all__ = ["sigma_norms", "shortfall", "view_information", "view_jacobians", "intrinsics_jacobian",
-           "joint_information", "block_sigmas", "inv_scaled", "intrinsics_prior", "prior_information", "design_bound",
-           "BOARD_SCALE_SIGMA"]
+           "joint_information", "block_sigmas", "block_sigmas_added", "inv_scaled", "intrinsics_prior",
+           "prior_information", "design_bound", "BOARD_SCALE_SIGMA"]
 
 N_INTR = 6  # [fx, fy, cx, cy, k1, k2]: the solver's intrinsics vector
 BOARD_SCALE_SIGMA = 0.02  # the solver's default prior on the printed board's scale (SolverOptions.board_scale_sigma)
@@ -240,6 +240,38 @@ def inv_scaled(J: np.ndarray) -> np.ndarray:
     d = 1.0 / np.sqrt(np.maximum(np.diagonal(J, axis1=-2, axis2=-1), 1e-300))
     S = J * d[..., :, None] * d[..., None, :]
     return np.linalg.inv(S) * d[..., :, None] * d[..., None, :]
+
+
+def block_sigmas_added(J0: np.ndarray, infos: np.ndarray, K: int, cov0: np.ndarray | None = None) -> np.ndarray:
+    """``block_sigmas(inv_scaled(J0 + infos), K)`` (M, K, 2) without inverting a (P, P) matrix per
+    candidate: a capture informs only the cameras that see it (and their models), the mount and the
+    scale, so each candidate's information lives on a few columns ``s`` and the covariance follows
+    from today's by the Woodbury identity, ``Sigma' = Sigma - Sigma_:s I_ss (1 + Sigma_ss I_ss)^-1
+    Sigma_s:``, of which only the camera blocks' diagonals are formed. Candidates that inform the same
+    columns are done together. ``cov0``: ``inv_scaled(J0)`` when the caller has it. Works in the
+    diagonal scaling of ``J0`` (as :func:`inv_scaled`)."""
+    infos = np.asarray(infos, float).reshape(-1, *J0.shape)
+    M = len(infos)
+    d = 1.0 / np.sqrt(np.maximum(np.diag(J0), 1e-300))
+    C = (inv_scaled(J0) if cov0 is None else cov0) / d[:, None] / d[None, :]  # the scaled J0's inverse
+    n = 6 * K
+    out = np.empty((M, n))
+    support = np.any(infos != 0.0, axis=1)  # (M, P): the columns each candidate informs
+    patterns, which = np.unique(support, axis=0, return_inverse=True)
+    which = np.asarray(which).reshape(-1)
+    for g, pat in enumerate(patterns):
+        m = np.flatnonzero(which == g)
+        sidx = np.flatnonzero(pat)
+        if not len(sidx):
+            out[m] = np.diag(C)[:n]
+            continue
+        Is = infos[np.ix_(m, sidx, sidx)] * d[sidx][None, :, None] * d[sidx][None, None, :]
+        A = C[:n, sidx]  # (n, s)
+        W = Is @ np.linalg.inv(np.eye(len(sidx)) + C[np.ix_(sidx, sidx)][None] @ Is)  # (m, s, s)
+        out[m] = np.diag(C)[:n] - np.sum((A @ W) * A, axis=-1)
+    cov_diag = np.clip(out, 0, None) * (d[:n] ** 2)[None, :]
+    v = np.sqrt(cov_diag).reshape(M, K, 6)
+    return np.stack([np.linalg.norm(v[..., 3:], axis=-1) * 1e3, np.degrees(np.linalg.norm(v[..., :3], axis=-1))], -1)
 
 
 def block_sigmas(cov: np.ndarray, K: int) -> np.ndarray:

@@ -67,6 +67,9 @@ def intrinsics_disagreement(problem: Problem, est: Estimate, name: str) -> float
     return float(np.sum(z * z / w[keep]))
 
 
+WARM_RESOLVE = True  # False: the re-solve screens afresh from the given intrinsics (the slow path tests compare)
+
+
 def widen_inadequate_intrinsics(problem: Problem, group: Group, timings: dict | None = None) -> tuple[Group, list]:
     """(group, notes): the group re-solved with a wide intrinsics prior for the cameras whose data
     reject their given intrinsics, or the group as it was when none does (or the re-solve fails)."""
@@ -81,11 +84,17 @@ def widen_inadequate_intrinsics(problem: Problem, group: Group, timings: dict | 
             bad[n] = (d2, rms)
     if not bad:
         return group, []
-    start = Estimate(T_ref_cam=est.T_ref_cam, T_mount_board=est.T_mount_board, T_ref_mount={},
+    # The re-solve starts where the first ended: its values (robot poses, intrinsics and board scale
+    # too) and its robust rounds' weights, set-aside views and pixel sigma. Only the wider prior moves
+    # the optimum, so the rounds settle in fewer LM runs than from a fresh screening; the answer is the
+    # same fixed point (tests/test_speed_paths.py compares it with the fresh re-solve).
+    start = Estimate(T_ref_cam=est.T_ref_cam, T_mount_board=est.T_mount_board, T_ref_mount=dict(est.T_ref_mount),
+                     intrinsics=dict(est.intrinsics), board_scale=est.board_scale,
                      wide_intrinsics=est.wide_intrinsics | frozenset(bad), free_intrinsics=est.free_intrinsics,
                      joint_offsets=est.joint_offsets)
     try:
-        g2 = solve_from_start(problem, group.names, views, start, timings)
+        g2 = solve_from_start(problem, group.names, views, start, timings,
+                              warm_sigma_px=group.rounds_sigma_px if WARM_RESOLVE else None)
     except ObservabilityError:
         return group, [f"camera {n}: the data disagree with its given intrinsics (chi-square {d2:.0f} on 6 dof), and "
                        "they cannot be estimated from these views; check the intrinsics" for n, (d2, _) in bad.items()]

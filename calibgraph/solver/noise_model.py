@@ -134,9 +134,24 @@ def _high_order(v, r) -> tuple[float, int]:
     e = np.asarray(r, float)[keep].reshape(-1)
     if not np.all(np.isfinite(e)) or np.max(np.abs(e)) >= 1e5:
         return 0.0, 0
-    Q = view_mode_basis(v.uv_px[keep])
-    h = e - Q @ (Q.T @ e)
-    return float(h @ h), 2 * n - N_MODES
+    return max(float(e @ e) - _mode_energy(v.uv_px[keep], e), 0.0), 2 * n - N_MODES
+
+
+def _mode_energy(uv_px: np.ndarray, e: np.ndarray) -> float:
+    """``|Q^T e|^2`` for Q = :func:`view_mode_basis` ``(uv_px)`` without forming Q: the u and the v
+    residuals each projected on {1, x, y} of the centred corners (1 is orthogonal to x and y there),
+    a 2x2 solve instead of a QR of (2n, 6). A view whose corners lie on a line takes the QR."""
+    c = uv_px - uv_px.mean(axis=0)
+    G = c.T @ c
+    det = G[0, 0] * G[1, 1] - G[0, 1] * G[1, 0]
+    if not det > 1e-9 * max(float(np.trace(G)), 1e-300) ** 2:
+        Q = view_mode_basis(uv_px)
+        q = Q.T @ e
+        return float(q @ q)
+    E = e.reshape(-1, 2)  # rows: (u, v) residual of each corner
+    s = E.sum(axis=0)
+    B = c.T @ E  # (2, 2): columns u, v
+    return float(s @ s) / len(E) + float(np.sum(B * np.linalg.solve(G, B)))
 
 
 def camera_noise_scales(views: list, residuals: list, per_view: bool = True) -> tuple[list, float, float]:

@@ -51,25 +51,27 @@ class Group:
     views: list
     notes: tuple = ()
     dropped: dict = field(default_factory=dict)  # camera -> why it is not calibrated (its views left the graph)
+    rounds_sigma_px: float | None = None  # the pixel sigma the robust rounds settled at (``views``' weights)
 
 
 def solve_from_start(problem: Problem, names: list, views: list, est0: Estimate,
-                     timings: dict | None = None) -> Group:
+                     timings: dict | None = None, warm_sigma_px: float | None = None) -> Group:
     """Robust rounds, final graph and marginals for one graph (all cameras in 'joint', one camera
     in 'single') from the values of ``est0`` (its T_ref_cam, T_mount_board, joint offsets, and which
     cameras' intrinsics get the wide prior). The corner formulation, when it fails numerically,
-    falls back to the per-view graph."""
+    falls back to the per-view graph. ``warm_sigma_px``: ``views`` carry the weights of robust rounds
+    that settled at this pixel sigma (:func:`~calibgraph.solver.robust.robust_rounds`)."""
     form = formulation(problem, names, len(views), est0)
     try:
-        return _solve(problem, names, views, est0, form, timings)
+        return _solve(problem, names, views, est0, form, timings, warm_sigma_px)
     except ObservabilityError:
         if form != "corner" or problem.options.formulation == "corner":
             raise
-        return _solve(problem, names, views, est0, "view", timings)
+        return _solve(problem, names, views, est0, "view", timings, warm_sigma_px)
 
 
 def _rounds_keeping_enough_views(problem: Problem, names: list, views: list, est: Estimate, form: str,
-                                 timings: dict | None):
+                                 timings: dict | None, warm_sigma_px: float | None = None):
     """The robust rounds, with every camera left with fewer usable views than it needs (after
     rejection) taken out of the graph and the rest solved again: (names, views, rounds, dropped)
     with ``dropped`` camera -> why. A camera alone in its graph is refused as before."""
@@ -84,7 +86,7 @@ def _rounds_keeping_enough_views(problem: Problem, names: list, views: list, est
     while True:
         slots = {n: i for i, n in enumerate(names)}
         try:
-            rounds = robust_rounds(problem, views, slots, est, form, timings)
+            rounds = robust_rounds(problem, views, slots, est, form, timings, warm_sigma_px)
         except ObservabilityError as e:
             if e.camera not in names or len(names) < 2:
                 raise
@@ -132,12 +134,14 @@ def seen_from_behind(problem: Problem, mine: list, others: list) -> tuple | None
     return (int(flipped), len(mine)) if mine and ref != 0 and flipped >= max(2, 0.7 * len(mine)) else None
 
 
-def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str, timings: dict | None) -> Group:
+def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str, timings: dict | None,
+           warm_sigma_px: float | None = None) -> Group:
     est = Estimate(T_ref_cam=dict(est0.T_ref_cam), T_mount_board=est0.T_mount_board, T_ref_mount={},
                    intrinsics=dict(est0.intrinsics), wide_intrinsics=est0.wide_intrinsics,
                    free_intrinsics=est0.free_intrinsics, joint_offsets=est0.joint_offsets)
     given = views
-    names, views, rounds, dropped = _rounds_keeping_enough_views(problem, names, views, est, form, timings)
+    names, views, rounds, dropped = _rounds_keeping_enough_views(problem, names, views, est, form, timings,
+                                                                 warm_sigma_px)
     check_after_rounds(problem, given, est, rounds)  # a camera that moved during capture is split first (solver.moved)
     slots = {n: i for i, n in enumerate(names)}
     notes = []
@@ -150,7 +154,7 @@ def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str
         form = formulation(problem, names, len(views), est)
         rounds = robust_rounds(problem, views, slots, est, form, timings)
     est = final_graph(problem, names, rounds, slots, form, timings)
-    return Group(names, est, rounds.views, tuple(notes), dropped)
+    return Group(names, est, rounds.views, tuple(notes), dropped, rounds.sigma_px)
 
 
 def _n_parameters(problem: Problem, names: list, est: Estimate) -> int:

@@ -147,9 +147,16 @@ def readmit_or_reject(views: list, norms: list, sigma_px: float, opts) -> tuple[
 
 
 def robust_rounds(problem: Problem, views: list, slots: dict, est: Estimate, form: str,
-                  timings: dict | None) -> Rounds:
-    """Screening, then weighted solves and view-level rejection until the set of views settles."""
-    views, sigma = screen_at_start(problem, views, est)
+                  timings: dict | None, warm_sigma_px: float | None = None) -> Rounds:
+    """Screening, then weighted solves and view-level rejection until the set of views settles.
+
+    ``warm_sigma_px``: the views come from rounds that settled on a nearby problem (their weights,
+    noise scales and set-aside views kept, re-admitted when they fit) and this was their pixel sigma:
+    no screening, the weighted solves start from there (the same fixed point, fewer LM runs)."""
+    if warm_sigma_px is None:
+        views, sigma = screen_at_start(problem, views, est)
+    else:
+        sigma = problem.options.pixel_sigma_px or warm_sigma_px
     iterations = 0
     for _ in range(MAX_VIEW_ROUNDS):
         rounds = weighted_solves(problem, views, slots, est, sigma, form, timings)

@@ -1,0 +1,132 @@
+"""Fast paths of the solve give the slow path's answer (issue 36).
+
+The re-solve of cameras whose data reject their given intrinsics (``widen_inadequate_intrinsics``)
+starts from the first solve's values and robust weights instead of screening afresh from the given
+intrinsics. It must land on the same fixed point: the same estimates within 0.05 sigma, the same
+1-sigma, the same notes and the same convergence, on scenes where the re-solve happens (factory-class
+reported intrinsics labelled as a calibration file's), with and without views the rounds reject.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import calibgraph.solver.camera_model as camera_model
+from calibgraph.core.transforms import pose_error
+from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
+from calibgraph.solver.batch import solve
+
+
+def _scene(n_cam: int, n_poses: int, seed: int, preset: str, pixel_sigma_px: float, corrupt: int = 0):
+    sc = make_scene(cameras=ring_cameras([3.0] * n_cam, presets=(preset,)), n_poses=n_poses,
+                    pixel_sigma_px=pixel_sigma_px, fk_sigma_translation_m=1e-4,
+                    fk_sigma_rotation_rad=np.radians(0.01), seed=seed, workspace_half_extent_m=(0.4, 0.4, 0.4))
+    p = sc.problem.with_(cameras={n: replace(c, source="calibration") for n, c in sc.problem.cameras.items()})
+    if corrupt:  # a few views whose corners are off by several pixels: the rounds set them aside
+        rng = np.random.default_rng(seed)
+        dets = list(p.detections)
+        for i in rng.choice(len(dets), corrupt, replace=False):
+            d = dets[i]
+            dets[i] = replace(d, uv_px=d.uv_px + rng.normal(0.0, 4.0, d.uv_px.shape))
+        p = p.with_(detections=tuple(dets))
+    return p
+
+
+def _both(monkeypatch, problem):
+    monkeypatch.setattr(camera_model, "WARM_RESOLVE", False)
+    slow = solve(problem)
+    monkeypatch.setattr(camera_model, "WARM_RESOLVE", True)
+    fast = solve(problem)
+    return slow, fast
+
+
+@pytest.mark.parametrize("n_cam,n_poses,seed,preset,px,corrupt", [
+    (4, 60, 1, "l515", 0.1, 0),     # issue 36's realistic case, small
+    (4, 80, 2, "l515", 0.2, 4),     # another draw, noisier corners, four corrupted views
+])
+def test_warm_widened_resolve_gives_the_fresh_answer(monkeypatch, n_cam, n_poses, seed, preset, px, corrupt):
+    slow, fast = _both(monkeypatch, _scene(n_cam, n_poses, seed, preset, px, corrupt))
+    # the re-solve happened (else nothing was compared)
+    assert any("the data disagree with its given" in n for n in slow.notes), slow.notes
+    assert fast.notes == slow.notes
+    assert fast.converged == slow.converged
+    assert set(fast.calibrated) == set(slow.calibrated)
+    assert {(r.camera, r.capture) for r in fast.rejected_views} == {(r.camera, r.capture) for r in slow.rejected_views}
+    for n, a in slow.calibrated.items():
+        b = fast.cameras[n]
+        cov = a.covariance  # 6x6, GTSAM tangent order: rotation (rad), translation (m)
+        d_rot_rad = np.radians(pose_error(a.T_ref_cam, b.T_ref_cam)[1])
+        d_t = b.T_ref_cam[:3, 3] - a.T_ref_cam[:3, 3]
+        assert np.all(np.abs(1e3 * d_t) <= 0.05 * np.asarray(a.sigma_translation_mm)), n
+        assert d_rot_rad <= 0.05 * np.sqrt(np.trace(cov[:3, :3])), n
+        np.testing.assert_allclose(b.sigma_translation_mm, a.sigma_translation_mm, rtol=0.01)
+    assert abs(fast.board_scale - slow.board_scale) <= 0.05 * (slow.board_scale_sigma or np.inf)
+
+
+def test_mode_energy_without_qr_equals_the_basis_projection():
+    """The corner-noise level's projection on a view's 6 low-order modes, formed without the QR,
+    equals the projection on :func:`view_mode_basis` (grids seen at any scale, scattered corners,
+    corners on a line, which take the QR)."""
+    from calibgraph.solver.noise_model import _mode_energy, view_mode_basis
+
+    rng = np.random.default_rng(0)
+    grid = np.stack(np.meshgrid(np.arange(9.0), np.arange(6.0)), -1).reshape(-1, 2)
+    cases = [grid * rng.uniform(3, 40) + rng.uniform(0, 900, 2) for _ in range(50)]
+    cases += [rng.uniform(0, 1000, (int(rng.integers(6, 80)), 2)) for _ in range(50)]
+    H = np.array([[0.9, 0.1, 200.0], [-0.05, 1.1, 100.0], [1e-4, 2e-4, 1.0]])  # a tilted board's image
+    g = np.c_[grid, np.ones(len(grid))] @ H.T
+    cases += [g[:, :2] / g[:, 2:], np.c_[np.arange(10.0), 2 * np.arange(10.0) + 1]]
+    for uv in cases:
+        e = rng.normal(0.0, 0.3, 2 * len(uv))
+        q = view_mode_basis(uv).T @ e
+        assert abs(_mode_energy(uv, e) - float(q @ q)) <= 1e-12 * float(e @ e)
+
+
+def test_candidate_sigmas_by_woodbury_equal_the_full_inverse():
+    """The active planner's predicted 1-sigma of each candidate, from today's covariance and the
+    columns the candidate informs (Woodbury), equals the inverse of the whole information with the
+    candidate's added: 16 cameras on a ring, every camera model estimated, candidates seen by 0 to 8
+    cameras (one seen by none)."""
+    from calibgraph.plan.information import (block_sigmas, block_sigmas_added, inv_scaled, joint_information,
+                                             prior_information)
+
+    K = 16
+    sc = make_scene(cameras=ring_cameras([3.0] * K, presets=("l515",)), n_poses=60, seed=1,
+                    workspace_half_extent_m=(0.4, 0.4, 0.4))
+    names = list(sc.problem.cameras)
+    cams = [(sc.problem.cameras[n], sc.truth.T_ref_cam[n]) for n in names]
+    by_capture = {}
+    for d in sc.problem.detections:
+        by_capture.setdefault(d.capture, set()).add(d.camera)
+    T_bf = np.array([c.T_base_flange for c in sc.problem.captures])
+    seen = np.array([[n in by_capture.get(c.index, ()) for n in names] for c in sc.problem.captures])
+    seen[-1] = False
+    pts, free = sc.problem.target.points_board_m, [True] * K
+    args = (pts, 0.1, 1e-4, np.radians(0.01))
+    T_fb = sc.truth.T_mount_board
+    J0 = prior_information(K, [np.eye(6) * 1e-2] * K) + joint_information(
+        cams, seen[:30], T_bf[:30], T_fb, *args, free_intrinsics=free).sum(axis=0)
+    infos = joint_information(cams, seen[30:], T_bf[30:], T_fb, *args, free_intrinsics=free)
+    full = block_sigmas(inv_scaled(J0 + infos), K)
+    fast = block_sigmas_added(J0, infos, K)
+    np.testing.assert_allclose(fast, full, rtol=1e-9)
+    np.testing.assert_allclose(block_sigmas_added(J0, infos, K, inv_scaled(J0)), full, rtol=1e-9)
+
+
+def test_openblas_one_thread_unless_the_user_says(tmp_path):
+    """``import calibgraph`` (what the CLI does first) holds OpenBLAS to one thread when the user
+    did not set OPENBLAS_NUM_THREADS, and leaves the user's setting alone."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import calibgraph, os; print(os.environ.get('OPENBLAS_NUM_THREADS'))"
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "1"
+    out = subprocess.run([sys.executable, "-c", code], env=dict(env, OPENBLAS_NUM_THREADS="2"), capture_output=True,
+                         text=True, check=True)
+    assert out.stdout.strip() == "2"
