@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import DetectionError, InputError
-from calibgraph.detect.blind import look_blind
+from calibgraph.detect.blind import look_blind, search_in_full
 from calibgraph.detect.detection import ImageDetection, failed_detection
 from calibgraph.detect.image import Frame
 from calibgraph.detect.spec_check import FIRST_FRAMES, BoardSpecCheck
@@ -144,14 +144,32 @@ def open_frame(path, target) -> tuple:
     try:
         frame.grey()
     except DetectionError as e:
-        return None, failed_detection(str(e), target, str(path))
+        return None, failed_detection(str(e), target, str(path), unreadable=True)
     return frame, None
 
 
+def view_problems(results: dict) -> list:
+    """(file, message) for every view in ``results`` ((camera, capture) -> :class:`ImageDetection`)
+    that gave no board; an unreadable image is named with its camera and capture, and costs that
+    view only."""
+    out = []
+    for (cam, cap), det in sorted(results.items(), key=lambda kv: (kv[0][0], kv[0][1])):
+        if det.ok:
+            continue
+        where = det.image or f"camera {cam}, capture {cap}"
+        if det.unreadable:
+            out.append((where, f"camera {cam}, capture {cap}: the image cannot be used, so this view is left out "
+                               f"({det.reason})"))
+        else:
+            out.append((where, det.reason))
+    return out
+
+
 def wrong_spec_everywhere(dataset, results: dict) -> list:
-    """A (folder, message) problem when the target was found in no image at all: most likely the
-    wrong spec, said once."""
-    if results and not any(d.ok for d in results.values()):
+    """A (folder, message) problem when the target was found in no image at all (of those that
+    could be read): most likely the wrong spec, said once."""
+    searched = [d for d in results.values() if not d.unreadable]
+    if searched and not any(d.ok for d in searched):
         t = dataset.target
         return [(str(dataset.root), f"the target ({t.kind}, {t.rows}x{t.cols} points, pitch {t.pitch_m} m) was "
                  "not found in any image: check the target spec in dataset.yaml")]
@@ -217,14 +235,17 @@ class DatasetDetector:
         hits = {(v.camera, v.capture): cache.lookup(v) for v in todo}
         bar = progress_bar(sum(h is None for h in hits.values()), self.progress)
         items = iter(todo)
-        deferred, again = [], deque()  # frames the spec check put off; those now due for a full search
+        # frames the spec check put off (key -> (view, deferred detection)); those now due for a search,
+        # as (view, pattern): pattern None for the ordinary search once the spec is settled, else the
+        # deferred detection (a sampled frame's full search, spec_check.py)
+        deferred, again, sampled = {}, deque(), set()
         try:
             with OrderedPool(self.workers) as pool:
                 while True:
                     while pool.has_room:
                         if again:
-                            v = again.popleft()
-                            pool.submit(v, self._work, v, False)
+                            v, full = again.popleft()
+                            pool.submit(v, self._work, v, False, full)
                             continue
                         v = next(items, None)
                         if v is None:
@@ -236,37 +257,43 @@ class DatasetDetector:
                             pool.submit(v, self._work, v, check is not None and check.searching)
                     if len(pool):
                         v, det = pool.next()
-                        self._take(v, det, hits, cache, bar, deferred, check)
+                        self._take(v, det, hits, cache, bar, deferred, sampled, check)
                         sample = check.judge() if check is not None else []
                     elif check is None or not deferred:
                         break
                     else:
                         sample = check.judge(final=True)  # the stream is done: settled, sampled or named wrong
-                    if sample:
-                        again.extend(v for v in deferred if (v.camera, v.capture) in set(sample))
-                        deferred[:] = [v for v in deferred if (v.camera, v.capture) not in set(sample)]
-                    elif check is not None and check.settled and deferred:
-                        again.extend(deferred)
+                    for key in sample:
+                        if key in deferred:
+                            sampled.add(key)
+                            again.append(deferred.pop(key))
+                    if not sample and check is not None and check.settled and deferred:
+                        again.extend((v, None) for v, _ in deferred.values())
                         deferred.clear()
         finally:
             if bar is not None:
                 bar.close()
         self.problems += cache.save()
-        for (cam, cap), det in sorted(self.results.items(), key=lambda kv: (kv[0][0], kv[0][1])):
-            if not det.ok:
-                self.problems.append((det.image or f"camera {cam}, capture {cap}", det.reason))
+        self.problems += view_problems(self.results)
         if self.detect_view is None:
             self.problems += wrong_spec_everywhere(ds, self.results)
         self._done = True
         return self.results
 
-    def _take(self, v, det, hits, cache, bar, deferred, check) -> None:
-        """One frame's answer: kept (and cached) unless the spec check deferred it."""
+    def _take(self, v, det, hits, cache, bar, deferred, sampled, check) -> None:
+        """One frame's answer: kept (and cached) unless the spec check deferred it. A sampled frame
+        whose full search missed goes back to the deferred ones: its region search is no stand-in
+        for the frame's ordinary search once the spec is settled."""
         key = (v.camera, v.capture)
         if check is not None:
             check.add(v.camera, det, readable=key not in self._unreadable, key=key)
+        if key in sampled:
+            sampled.discard(key)
+            if not det.ok and not det.unreadable:
+                deferred[key] = (v, det)
+                return
         if det.deferred:
-            deferred.append(v)
+            deferred[key] = (v, det)
         else:
             self.results[key] = det
             if hits[key] is None:
@@ -274,7 +301,9 @@ class DatasetDetector:
                 if bar is not None:
                     bar.update(1)
 
-    def _work(self, v, check_spec: bool) -> ImageDetection:
+    def _work(self, v, check_spec: bool, full=None) -> ImageDetection:
+        """The blind look at ``v``'s frame, or with ``full`` (its deferred detection) the spec
+        check's full search of it."""
         import cv2
 
         ds = self.dataset
@@ -287,6 +316,8 @@ class DatasetDetector:
             if unreadable is not None:
                 self._unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
                 return unreadable
+            if full is not None:
+                return search_in_full(frame, ds.target, intr, full.pattern)
             return look_blind(frame, ds.target, intr, check_spec=check_spec, **self.options)
         except (cv2.error, ValueError, MemoryError) as e:
             return unusable(ds.target, path, e)
