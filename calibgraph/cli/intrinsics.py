@@ -64,16 +64,13 @@ def run(args) -> int:
 
     out = output_file(args.out, "camera file", "camera.yaml")
     paths = _images(args.images)
-    target = load_target(_target_path(args))
+    target_file = _target_path(args)
+    target = load_target(target_file)
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     say(f"detecting the {target.kind} ({target.rows}x{target.cols} points of {target.pitch_m * 1e3:g} mm) in "
         f"{len(paths)} images of {args.images}")
 
-    def progress(done, total):
-        if not args.quiet and (done == total or done % 10 == 0):
-            print(f"  {done}/{total} images", file=sys.stderr, flush=True)
-
-    r = calibrate_images(paths, target, model=args.model, progress=progress)
+    r = calibrate_images(paths, target, model=args.model, progress=not args.quiet, where=str(target_file))
     write_camera_file(out, r.to_dict(target))
     intr, s = r.intrinsics, r.sigma
     if not args.quiet:

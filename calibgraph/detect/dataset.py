@@ -158,8 +158,9 @@ def view_problems(results: dict) -> list:
             continue
         where = det.image or f"camera {cam}, capture {cap}"
         if det.unreadable:
-            out.append((where, f"camera {cam}, capture {cap}: the image cannot be used, so this view is left out "
-                               f"({det.reason})"))
+            why = det.reason[len(f"{det.image}: "):] if det.image and det.reason.startswith(f"{det.image}: ") \
+                else det.reason
+            out.append((where, f"camera {cam}, capture {cap}: {why.rstrip('.')}; this view is left out"))
         else:
             out.append((where, det.reason))
     return out
@@ -194,6 +195,7 @@ class DatasetDetector:
             frames of every camera show no board, or a board of another size
             (:mod:`calibgraph.detect.spec_check`); off, such a run ends with a problem saying the
             target was found nowhere.
+        where: the file that declares the target, named in that error.
         results: (camera, capture) -> :class:`ImageDetection`.
         problems: (file, message) for every image that could not be used; the CLI prints them.
     """
@@ -207,6 +209,7 @@ class DatasetDetector:
     detect_view: object = None
     cache_tag: str = ""
     fail_fast: bool = False
+    where: str = "dataset.yaml"
     results: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)
     _done: bool = False
@@ -231,7 +234,7 @@ class DatasetDetector:
         todo = spread_order(todo)
         check = None
         if self.fail_fast and self.detect_view is None:
-            check = BoardSpecCheck(ds.target, {c: sum(v.camera == c for v in todo) for c in ds.cameras})
+            check = BoardSpecCheck(ds.target, {c: sum(v.camera == c for v in todo) for c in ds.cameras}, self.where)
         hits = {(v.camera, v.capture): cache.lookup(v) for v in todo}
         bar = progress_bar(sum(h is None for h in hits.values()), self.progress)
         items = iter(todo)
@@ -337,13 +340,15 @@ def view_points(view, results: dict):
 
 
 def dataset_detector(dataset, workers: int = 2, progress: bool = True, cache=True, views=None, detect_view=None,
-                     cache_tag: str = "", fail_fast: bool = False, **options) -> DatasetDetector:
+                     cache_tag: str = "", fail_fast: bool = False, where: str = "dataset.yaml",
+                     **options) -> DatasetDetector:
     """A detector for ``Dataset.to_problem(detector=...)`` that detects all undetected views of
     ``dataset`` in parallel (``workers`` threads; OpenCV releases the GIL), shows a tqdm progress
     bar, caches results next to the data and collects per-file problems in ``.problems``.
     ``cache``: True (``DATASET/.calibgraph_cache/``), False (no cache) or a folder.
     ``options`` are passed to :func:`~calibgraph.detect.search.detect_image` (e.g. ``upscale=1``,
-    ``method="sb"``); ``views``, ``detect_view``, ``cache_tag`` and ``fail_fast`` as in
+    ``method="sb"``); ``views``, ``detect_view``, ``cache_tag``, ``fail_fast`` and ``where`` as in
     :class:`DatasetDetector`."""
     return DatasetDetector(dataset=dataset, workers=workers, progress=progress, options=dict(options), cache=cache,
-                           views=views, detect_view=detect_view, cache_tag=cache_tag, fail_fast=fail_fast)
+                           views=views, detect_view=detect_view, cache_tag=cache_tag, fail_fast=fail_fast,
+                           where=where)

@@ -111,15 +111,17 @@ def _drop_duplicate_captures(ds):
                    problems=tuple(ds.problems) + tuple(warnings))
 
 
-def _image_size(path: Path):
-    """(width, height) of an image file from its header (PNG, or anything OpenCV reads), or None."""
+def image_size(path) -> tuple | None:
+    """(width, height) of an image file from its header (PNG, or anything OpenCV reads), or None when
+    it cannot be read (the detector then names the file, and the image costs its view only)."""
     try:
-        with open(path, "rb") as f:
+        with open(Path(path), "rb") as f:
             head = f.read(24)
     except OSError:
         return None
     if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24:
-        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        wh = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        return wh if min(wh) > 0 else None  # a damaged header: the detector names the file, and it costs one view
     import cv2
 
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -135,7 +137,7 @@ def _check_image_sizes(ds) -> None:
             continue
         imgs = [v.image for v in ds.views if v.camera == cam and v.image and v.ids is None]
         for rel in dict.fromkeys(imgs[i] for i in {0, len(imgs) // 2, len(imgs) - 1} if imgs):
-            wh = _image_size(root / rel)
+            wh = image_size(root / rel)
             if wh is None or wh == (intr.width_px, intr.height_px):
                 continue
             w, h = wh

@@ -37,6 +37,7 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Capture
 from calibgraph.core.targets import Target
 from calibgraph.core.transforms import check_pose, make_T, quat_xyzw_to_R
+from calibgraph.io.checks import image_size
 from calibgraph.io.dataset import Dataset, View
 from calibgraph.io.files import read_yaml
 
@@ -99,15 +100,6 @@ def read_rct_pose(path) -> np.ndarray:
     return check_pose(T, str(p))
 
 
-def _image_size(path: Path):
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return None
-    return img.shape[1], img.shape[0]
-
-
 def load_rct_dataset(root):
     """Read an industrial_calibration / RCT dataset folder as a :class:`calibgraph.io.dataset.Dataset`
     (one camera named ``camera``; views carry no detections, so they are detected on demand).
@@ -152,7 +144,7 @@ def load_rct_dataset(root):
 
     size = None
     for img, _ in pairs:
-        size = _image_size(root / img)
+        size = image_size(root / img)
         if size is not None:
             break
     if size is None:
