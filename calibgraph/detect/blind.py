@@ -63,13 +63,15 @@ def look_blind(frame: Frame, target: Target, intrinsics: Intrinsics | None = Non
 
 
 def search_in_full(frame: Frame, target: Target, intrinsics: Intrinsics | None = None,
-                   pattern: tuple | None = None) -> ImageDetection:
+                   pattern: tuple | None = None, seen_size: tuple | None = None) -> ImageDetection:
     """The full search the spec check asks for before it says a spec is wrong
     (:mod:`calibgraph.detect.spec_check`): :func:`detect_image` with its defaults (up-scaled x2 and
     x3 where the squares are small, the SB detector where the classic one finds nothing), no quick
     probe in front of it. ``pattern`` is the deferred frame's (x0, y0, x1, y1, pitch_px)
-    (:attr:`ImageDetection.pattern`): then only the region is searched in which a declared board
-    containing that pattern could lie (:func:`pattern_region`), at full resolution with classic then
+    (:attr:`ImageDetection.pattern`), ``seen_size`` its inner corners (``other_grid``): then only
+    the region is searched in which a declared board containing that pattern could lie
+    (:func:`pattern_region`; on a 1080p frame showing a board of another size the whole frame costs
+    OpenCV's classic detector up to 20 s, that region 2-4 s), at full resolution with classic then
     SB, and up-scaled as well when its squares are under twice ``min_pitch_px`` (as the blind search
     up-scales only such regions). A declared grid found that continues past its border is refused as
     part of a larger board, as the spec check's blind look does. Never raises for a bad image."""
@@ -84,7 +86,8 @@ def search_in_full(frame: Frame, target: Target, intrinsics: Intrinsics | None =
         det = detect_image(grey, target, intrinsics, source=frame.name)
     else:
         pitch_px = float(pattern[4])
-        det = detect_image(grey, target, intrinsics, source=frame.name, region_px=pattern_region(pattern, target, grey.shape),
+        region = pattern_region(pattern, target, grey.shape, seen_size)
+        det = detect_image(grey, target, intrinsics, source=frame.name, region_px=region,
                            upscale="auto" if pitch_px < 2 * FULL_SEARCH_MIN_PITCH_PX else 1)
     det = _part_of_larger(grey, target, det)
     return replace(det, time_s=time.perf_counter() - t0)
@@ -93,13 +96,16 @@ def search_in_full(frame: Frame, target: Target, intrinsics: Intrinsics | None =
 FULL_SEARCH_MIN_PITCH_PX = 12.0  # detect_image's min_pitch_px: regions of squares under twice this are up-scaled
 
 
-def pattern_region(pattern: tuple, target: Target, shape: tuple) -> tuple:
-    """(x0, y0, x1, y1) around a chessboard pattern (x0, y0, x1, y1, pitch_px) seen in an image of
-    ``shape``: padded on every side by the declared board's extent (its larger number of squares,
-    plus one for the white margin, at the pattern's pitch), so that a declared board containing any
-    part of the pattern lies inside; clipped to the image."""
+def pattern_region(pattern: tuple, target: Target, shape: tuple, seen_size: tuple | None = None) -> tuple:
+    """(x0, y0, x1, y1) around a chessboard pattern (x0, y0, x1, y1, pitch_px) of ``seen_size``
+    inner corners seen in an image of ``shape``, padded so that a declared board containing the
+    pattern lies inside: on every side by as many squares as the declared board can reach past it
+    (its larger number of inner corners less the pattern's smaller one), plus its outer square, its
+    white margin and one square for perspective (the pattern's pitch is a median); clipped to the
+    image."""
     x0, y0, x1, y1, pitch_px = (float(v) for v in pattern)
-    pad = (max(target.rows, target.cols) + 2) * pitch_px
+    reach = max(target.rows, target.cols) - (min(seen_size) if seen_size else 2)
+    pad = (max(reach, 0) + 3) * pitch_px
     h, w = shape[:2]
     return (int(max(0, x0 - pad)), int(max(0, y0 - pad)), int(min(w, np.ceil(x1 + pad) + 1)),
             int(min(h, np.ceil(y1 + pad) + 1)))

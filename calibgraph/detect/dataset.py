@@ -320,7 +320,7 @@ class DatasetDetector:
                 self._unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
                 return unreadable
             if full is not None:
-                return search_in_full(frame, ds.target, intr, full.pattern)
+                return search_in_full(frame, ds.target, intr, full.pattern, full.other_grid)
             return look_blind(frame, ds.target, intr, check_spec=check_spec, **self.options)
         except (cv2.error, ValueError, MemoryError) as e:
             return unusable(ds.target, path, e)
