@@ -17,48 +17,15 @@ import numpy as np
 import pytest
 
 from calibgraph.cli.main import main
-from calibgraph.core.camera import Intrinsics, preset
+from calibgraph.core.camera import preset
 from calibgraph.core.errors import InputError
-from calibgraph.core.targets import Target, a4_board_54
+from calibgraph.core.targets import a4_board_54
 from calibgraph.detect.dataset import dataset_detector
 from calibgraph.detect.detection import ImageDetection, failed_detection
 from calibgraph.detect.spec_check import PATTERN_SAMPLE, BoardSpecCheck
 from calibgraph.io.layouts import load_dataset
-from calibgraph.sim.board_views import ViewPlace, charuco_as_checkerboard_offset, write_board_views
+from calibgraph.sim.board_views import far_or_hidden_first, marker_checkerboard, whole_boards
 from calibgraph.solver.result import load_result
-
-
-def _u(rng, a):
-    return rng.uniform(-a, a)
-
-
-def small_or_hidden_first(root, seed=0):
-    """1280x800 camera, 6x9 board of 25 mm: 10 first frames alternate the board far (11 px squares)
-    and near but hidden but for the squares around 3x3 of its corners; then 8 frames of the whole
-    board at 2.2-3.2x that size."""
-    rng = np.random.default_rng(seed)
-    b, intr = a4_board_54(), preset("d455")
-    W, H = intr.width_px, intr.height_px
-    far_m = intr.K[0, 0] * b.pitch_m / 11.0
-    far = [ViewPlace(far_m, _u(rng, 20), _u(rng, 20), _u(rng, 30), (_u(rng, 0.35 * W), _u(rng, 0.3 * H)))
-           for _ in range(5)]
-    hid = [ViewPlace(far_m / 3, _u(rng, 20), _u(rng, 20), _u(rng, 20), (_u(rng, 0.2 * W), _u(rng, 0.2 * H)),
-                     visible=(3, 3)) for _ in range(5)]
-    whole = [ViewPlace(far_m / rng.uniform(2.2, 3.2), _u(rng, 30), _u(rng, 30), _u(rng, 20),
-                       (_u(rng, 0.15 * W), _u(rng, 0.15 * H))) for _ in range(8)]
-    return write_board_views(root, b, b, intr, [v for pair in zip(far, hid) for v in pair] + whole, seed=seed)
-
-
-def marker_checkerboard(root, n=10, seed=0):
-    """1928x1208 camera, a ChArUco board of 9x12 squares of 30 mm (markers in its white squares)
-    declared as the checkerboard of its 8x11 inner corners, at 0.6-1.3 m."""
-    rng = np.random.default_rng(seed)
-    ch = Target(kind="charuco", rows=8, cols=11, pitch_m=0.03, marker_m=0.022, dictionary="DICT_5X5_100")
-    cb = Target(kind="checkerboard", rows=8, cols=11, pitch_m=0.03)
-    places = [ViewPlace(rng.uniform(0.6, 1.3), _u(rng, 30), _u(rng, 30), _u(rng, 20), (_u(rng, 300), _u(rng, 150)))
-              for _ in range(n)]
-    return write_board_views(root, ch, cb, Intrinsics.from_hfov(1928, 1208, 60.0), places,
-                             T_printed_declared=charuco_as_checkerboard_offset(ch), seed=seed)
 
 
 def _solved_within_sigma(root, truth, capsys):
@@ -72,7 +39,9 @@ def _solved_within_sigma(root, truth, capsys):
 
 
 def test_first_frames_small_or_hidden_then_whole_solves(tmp_path, capsys):
-    truth = small_or_hidden_first(tmp_path)
+    """1280x800, 6x9 board of 25 mm: 10 first frames alternate the board far (11 px squares) and
+    hidden but for 3x3 of its corners; then 8 frames of the whole board."""
+    truth = far_or_hidden_first(tmp_path, preset("d455"), a4_board_54())
     det = dataset_detector(load_dataset(tmp_path), progress=False, cache=False, fail_fast=True)
     det.run()  # no InputError: the probe's 3x3 corners and small boards are no evidence of another board
     found = {cap for (_, cap), d in det.results.items() if d.ok}
@@ -93,11 +62,8 @@ def test_a_marker_checkerboard_solves(tmp_path, capsys):
 def test_wrong_spec_on_1080p_frames_is_still_named(tmp_path, capsys):
     """7x10 declared, a 6x9 board printed, 1920x1080 frames: refused in one line naming the 6x9 grid
     (the full search of the sampled frames finds no 7x10 board)."""
-    rng = np.random.default_rng(1)
     b = a4_board_54()
-    places = [ViewPlace(rng.uniform(0.6, 1.2), _u(rng, 30), _u(rng, 30), _u(rng, 20), (_u(rng, 400), _u(rng, 200)))
-              for _ in range(12)]
-    write_board_views(tmp_path, b, replace(b, rows=7, cols=10), preset("l515"), places)
+    whole_boards(tmp_path, preset("l515"), b, replace(b, rows=7, cols=10))
     with pytest.raises(InputError, match=r"no checkerboard of 7x10 inner corners .*the images show a 6x9 grid: "
                                          r"check rows/cols"):
         dataset_detector(load_dataset(tmp_path), progress=False, cache=False, fail_fast=True).run()

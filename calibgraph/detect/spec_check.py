@@ -107,8 +107,13 @@ class BoardSpecCheck:
         or every camera's first ``FIRST_FRAMES`` frames done, or the stream ``final``): settles the
         spec when a board was found; else returns, once, the keys of the frames to be searched in
         full and added (module docstring); else (the sample searched, no board) raises
-        :class:`InputError`. [] otherwise."""
-        if self.settled or self._sampling:
+        :class:`InputError`. [] otherwise. At ``final`` a spec still waiting for its sample is
+        settled: the frames are then all searched, none is left out."""
+        if self.settled:
+            return []
+        if self._sampling:
+            if final:  # nothing more will come in (a sampled frame never came back): search everything
+                self._cleared = True
             return []
         other = self._other_grid() is not None and self._all_cameras_reached(SIGHTED_FRAMES)
         if not (final or other or self.first_frames_done()):
@@ -160,10 +165,6 @@ class BoardSpecCheck:
         if unseen_too:
             picked += [k for keys in self._unseen.values() for k in _spread(keys, SAMPLE_PER_CAMERA)]
         return picked
-
-    def pattern_keys(self) -> set:
-        """Keys of the frames deferred because the probe saw a chessboard of another size."""
-        return set(self._patterns)
 
     def _message(self, size) -> str:
         t = self.target

@@ -89,6 +89,51 @@ def write_board_views(root, printed: Target, declared: Target, intr: Intrinsics,
     return BoardViewsTruth(T_base_cam, T_flange_board, tuple(poses), intr)
 
 
+def far_or_hidden_first(root, intr: Intrinsics, board: Target, seed: int = 0, square_px: float = 11.0,
+                        wrong: Target | None = None) -> BoardViewsTruth:
+    """The first frames of a far camera (issue 33): 10 frames alternating the board far (squares of
+    ``square_px`` pixels) and near but hidden but for the squares around 3x3 of its corners, then 8
+    frames of the whole board 2.2-3.2x nearer than far. ``wrong``: declared instead of ``board``."""
+    rng = np.random.default_rng(seed)
+    W, H = intr.width_px, intr.height_px
+    far_m = intr.K[0, 0] * board.pitch_m / square_px
+    far = [ViewPlace(far_m, _u(rng, 20), _u(rng, 20), _u(rng, 30), (_u(rng, 0.35 * W), _u(rng, 0.3 * H)))
+           for _ in range(5)]
+    hid = [ViewPlace(far_m / 3, _u(rng, 20), _u(rng, 20), _u(rng, 20), (_u(rng, 0.2 * W), _u(rng, 0.2 * H)),
+                     visible=(3, 3)) for _ in range(5)]
+    whole = [ViewPlace(far_m / rng.uniform(2.2, 3.2), _u(rng, 30), _u(rng, 30), _u(rng, 20),
+                       (_u(rng, 0.15 * W), _u(rng, 0.15 * H))) for _ in range(8)]
+    places = [v for pair in zip(far, hid) for v in pair] + whole
+    return write_board_views(root, board, wrong or board, intr, places, seed=seed)
+
+
+def marker_checkerboard(root, n: int = 10, seed: int = 0, dictionary: str = "DICT_5X5_100") -> BoardViewsTruth:
+    """A ChArUco board of 9x12 squares of 30 mm (markers in its white squares) declared as the
+    checkerboard of its 8x11 inner corners, seen by a 1928x1208 camera at 0.6-1.3 m (the KUKA
+    eye-in-hand recording of issue 33, as an eye-to-hand cell)."""
+    rng = np.random.default_rng(seed)
+    ch = Target(kind="charuco", rows=8, cols=11, pitch_m=0.03, marker_m=0.022, dictionary=dictionary)
+    cb = Target(kind="checkerboard", rows=8, cols=11, pitch_m=0.03)
+    places = [ViewPlace(rng.uniform(0.6, 1.3), _u(rng, 30), _u(rng, 30), _u(rng, 20), (_u(rng, 300), _u(rng, 150)))
+              for _ in range(n)]
+    return write_board_views(root, ch, cb, Intrinsics.from_hfov(1928, 1208, 60.0), places,
+                             T_printed_declared=charuco_as_checkerboard_offset(ch), seed=seed)
+
+
+def whole_boards(root, intr: Intrinsics, board: Target, declared: Target, n: int = 12, seed: int = 1,
+                 distance_m=(0.6, 1.2)) -> BoardViewsTruth:
+    """``n`` frames of the whole ``board`` at ``distance_m``, ``declared`` in dataset.yaml (a wrong
+    spec when they differ)."""
+    rng = np.random.default_rng(seed)
+    places = [ViewPlace(rng.uniform(*distance_m), _u(rng, 30), _u(rng, 30), _u(rng, 20), (_u(rng, 400), _u(rng, 200)))
+              for _ in range(n)]
+    return write_board_views(root, board, declared, intr, places, seed=seed)
+
+
+def _u(rng, a: float) -> float:
+    return rng.uniform(-a, a)
+
+
 def _occlude(img: np.ndarray, declared: Target, intr: Intrinsics, T_cam_declared: np.ndarray, visible: tuple,
              rng) -> None:
     """Cover the board in ``img`` (in place) with a flat grey shape, all but the squares around its
