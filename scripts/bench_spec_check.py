@@ -60,9 +60,10 @@ def make(case: str, root: Path, seed: int):
     raise ValueError(case)
 
 
-def run(tree: Path, case: str, root: Path, truth) -> dict:
+def run(tree: Path, case: str, root: Path, truth, timeout_s: float | None = None) -> dict:
     """One command on ``root`` with the code of ``tree``: exit code, wall time, last error line,
-    and for a solve the camera's error against the truth (mm, and per axis over its 1-sigma)."""
+    and for a solve the camera's error against the truth (mm, and per axis over its 1-sigma). A
+    command still running after ``timeout_s`` is stopped: exit code None, wall time '> timeout_s'."""
     out = root / f"out-{tree.name}"
     shutil.rmtree(out, ignore_errors=True)
     shutil.rmtree(root / ".calibgraph_cache", ignore_errors=True)
@@ -74,7 +75,11 @@ def run(tree: Path, case: str, root: Path, truth) -> dict:
         cmd = ["solve", str(root), "--out", str(out / "result.json"), "--quiet"]
     env = dict(os.environ, PYTHONPATH=str(tree))
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "calibgraph", *cmd], cwd=tree, env=env, capture_output=True, text=True)
+    try:
+        p = subprocess.run([sys.executable, "-m", "calibgraph", *cmd], cwd=tree, env=env, capture_output=True,
+                           text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        return {"tree": str(tree), "rc": None, "wall_s": f"> {timeout_s:g}", "error": "(stopped: still running)"}
     row = {"tree": str(tree), "rc": p.returncode, "wall_s": round(time.perf_counter() - t0, 2),
            "error": next((ln for ln in p.stderr.splitlines() if "error:" in ln), "")}
     if p.returncode == 0 and case != "wrong_7x10_intrinsics":
@@ -91,6 +96,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--compare-tree", type=Path, default=None, help="another checkout to run on the same data")
+    ap.add_argument("--compare-timeout", type=float, default=180.0,
+                    help="stop a command of the other checkout after this many seconds (main's intrinsics ran past "
+                         "9 minutes on the wrong_7x10 images)")
     ap.add_argument("--cases", nargs="*", default=["far_hidden_d455", "far_hidden_l515", "marker", "wrong_7x10"])
     args = ap.parse_args()
     trees = [REPO] + ([args.compare_tree] if args.compare_tree else [])
@@ -102,16 +110,18 @@ def main() -> int:
                 truth = make(case, root, seed)
                 for c in ([case, "wrong_7x10_intrinsics"] if case == "wrong_7x10" else [case]):
                     for tree in trees:
-                        r = dict(case=c, seed=seed, **run(tree, c, root, truth))
+                        r = dict(case=c, seed=seed, **run(tree, c, root, truth,
+                                                          None if tree == REPO else args.compare_timeout))
                         rows.append(r)
                         print(json.dumps(r), flush=True)
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "bench_spec_check.json").write_text(json.dumps(rows, indent=1))
     lines = ["# bench_spec_check", "",
              "`python scripts/bench_spec_check.py --seeds %d%s` (%s). Oracle intrinsics (dataset.yaml holds the "
-             "true ones); wall time of the command in a fresh process, 2 cores shared with other work." % (
+             "true ones); wall time of the command in a fresh process, 2 cores shared with other work; 'this' is "
+             "this checkout, the other tree's commands stopped after %g s." % (
                  args.seeds, f" --compare-tree {args.compare_tree}" if args.compare_tree else "",
-                 time.strftime("%Y-%m-%d")), "",
+                 time.strftime("%Y-%m-%d"), args.compare_timeout), "",
              "| case | seed | tree | exit | wall s | views | error mm | max abs error/sigma | error line |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:

@@ -51,6 +51,19 @@ def test_first_frames_small_or_hidden_then_whole_solves(tmp_path, capsys):
     assert cam.views_used == len(found)
 
 
+def test_first_frames_small_or_hidden_do_not_stop_guided_detection(tmp_path, monkeypatch):
+    """The same frames through the survey of guided detection (a recording of many frames, where
+    the L515-class cell of issue 33 was refused): not refused, every whole and far board found."""
+    import calibgraph.solver.build as build
+
+    far_or_hidden_first(tmp_path, preset("d455"), a4_board_54(), seed=0)  # refused before: "a 3x3 grid"
+    monkeypatch.setattr(build, "GUIDED_MIN_VIEWS", 16)  # 18 frames: guided, all of them in the survey
+    _, det = build.build_problem(load_dataset(tmp_path), progress=False)
+    assert isinstance(det, build.GuidedDatasetDetector)
+    found = {cap for (_, cap), d in det.results.items() if d.ok}
+    assert set(range(10, 18)) | {0, 2, 4, 6, 8} <= found, found
+
+
 def test_a_marker_checkerboard_solves(tmp_path, capsys):
     truth = marker_checkerboard(tmp_path)
     det = dataset_detector(load_dataset(tmp_path), progress=False, cache=False, fail_fast=True)

@@ -239,8 +239,8 @@ class DatasetDetector:
         bar = progress_bar(sum(h is None for h in hits.values()), self.progress)
         items = iter(todo)
         # frames the spec check put off (key -> (view, deferred detection)); those now due for a search,
-        # as (view, pattern): pattern None for the ordinary search once the spec is settled, else the
-        # deferred detection (a sampled frame's full search, spec_check.py)
+        # as (view, deferred detection) for a sampled frame's full search (spec_check.py), or (view,
+        # None) for the ordinary search once the spec is settled; the keys of the sampled frames out
         deferred, again, sampled = {}, deque(), set()
         try:
             with OrderedPool(self.workers) as pool:

@@ -21,7 +21,7 @@ import numpy as np
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.problem import Capture
 from calibgraph.core.targets import Target
-from calibgraph.core.transforms import inv, make_T
+from calibgraph.core.transforms import exp_so3, inv, make_T
 from calibgraph.io.dataset import image_relpath, write_capture, write_header
 from calibgraph.sim.board_image import board_texture, look_at_board, render_view
 
@@ -155,6 +155,4 @@ def _occlude(img: np.ndarray, declared: Target, intr: Intrinsics, T_cam_declared
 
 
 def _rot(rotvec) -> np.ndarray:
-    from calibgraph.core.transforms import exp_so3
-
     return exp_so3(np.asarray(rotvec, float))
