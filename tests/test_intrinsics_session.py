@@ -264,13 +264,17 @@ def test_intrinsics_command_bad_input(case, session, tmp_path, capsys):
     assert not (tmp_path / "cam.yaml").exists()
 
 
-def test_a_board_of_other_size_is_not_found(session, tmp_path, capsys):
-    """The target file says 4x5 corners where the images show 6x9: no view, one clear line."""
+@pytest.mark.parametrize("declared", [(4, 5), (7, 10)])
+def test_a_board_of_other_size_is_not_found(session, tmp_path, capsys, declared):
+    """The target file says 4x5 (or 7x10) corners where the images show 6x9: the spec check of
+    `solve` stops the run in one line naming the grid the images show and the file (issue 33)."""
+    r, c = declared
     t = tmp_path / "wrong.yaml"
-    t.write_text("target: {kind: checkerboard, rows: 4, cols: 5, pitch_m: 0.025}\n")
+    t.write_text(f"target: {{kind: checkerboard, rows: {r}, cols: {c}, pitch_m: 0.025}}\n")
     assert main(["intrinsics", str(session / "cam0"), "--target", str(t), "--out", str(tmp_path / "c.yaml")]) == 2
-    err = capsys.readouterr().err
-    assert "found in none of the 14 images" in err or "usable view" in err, err
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "error" in ln]
+    assert len(err) == 1 and f"no checkerboard of {r}x{c} inner corners" in err[0] and "6x9 grid" in err[0], err
+    assert "wrong.yaml" in err[0] and not (tmp_path / "c.yaml").exists()
 
 
 

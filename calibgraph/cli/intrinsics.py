@@ -63,18 +63,14 @@ def run(args) -> int:
     from calibgraph.solver.intrinsics_session import calibrate_images
 
     paths = _images(args.images)
-    target_path = _target_path(args)
-    out = check_output_file(args.out, "camera file", "camera file", "camera.yaml", inputs=[target_path, *paths])
-    target = load_target(target_path)
+    target_file = _target_path(args)
+    out = check_output_file(args.out, "camera file", "camera file", "camera.yaml", inputs=[target_file, *paths])
+    target = load_target(target_file)
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     say(f"detecting the {target.kind} ({target.rows}x{target.cols} points of {target.pitch_m * 1e3:g} mm) in "
         f"{len(paths)} images of {args.images}")
 
-    def progress(done, total):
-        if not args.quiet and (done == total or done % 10 == 0):
-            print(f"  {done}/{total} images", file=sys.stderr, flush=True)
-
-    r = calibrate_images(paths, target, model=args.model, progress=progress)
+    r = calibrate_images(paths, target, model=args.model, progress=not args.quiet, where=str(target_file))
     kept = write_keeping_previous(out, lambda: write_camera_file(out, r.to_dict(target)))
     if kept is not None:
         print(f"kept the previous camera file as {kept}")

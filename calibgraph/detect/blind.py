@@ -13,6 +13,12 @@ next frames. The dataset driver searches deferred frames in full once the spec i
 right spec loses no view. The size seen goes into the detection's ``other_grid``; a declared grid
 found that continues past its border is refused as part of a larger board.
 
+Before the spec check names a spec wrong it has a few of the deferred frames searched in full
+(:func:`search_in_full`): the detector's whole ladder, up-scaled and with the SB detector, without
+the quick probe, in the region where a declared board containing the pattern the probe saw would
+lie (the whole frame when the probe saw none). The probe only decides what is searched first; it
+never decides alone that the declared board is absent.
+
 With ``gate`` the probe also stands in front of the search when the spec is settled: a frame in
 which it sees no chessboard, or one of fewer than half the declared corners well inside the
 frame, is a miss at the cost of the probe (~0.1-0.7 s on 1080p instead of seconds). That is for first looks whose misses are looked at again (the survey of guided
@@ -23,6 +29,8 @@ the up-scaled search finds.
 from __future__ import annotations
 
 from dataclasses import replace
+
+import numpy as np
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import DetectionError
@@ -49,9 +57,58 @@ def look_blind(frame: Frame, target: Target, intrinsics: Intrinsics | None = Non
     try:
         grey = frame.grey()
     except DetectionError as e:
-        return failed_detection(str(e), target, frame.name, t0)
+        return failed_detection(str(e), target, frame.name, t0, unreadable=True)
     det = _look(frame, grey, target, intrinsics, check_spec, gate, options)
     return replace(det, time_s=time.perf_counter() - t0)  # the decoding included
+
+
+def search_in_full(frame: Frame, target: Target, intrinsics: Intrinsics | None = None,
+                   pattern: tuple | None = None, seen_size: tuple | None = None) -> ImageDetection:
+    """The full search the spec check asks for before it says a spec is wrong
+    (:mod:`calibgraph.detect.spec_check`): :func:`detect_image` with its defaults (up-scaled x2 and
+    x3 where the squares are small, the SB detector where the classic one finds nothing), no quick
+    probe in front of it. ``pattern`` is the deferred frame's (x0, y0, x1, y1, pitch_px)
+    (:attr:`ImageDetection.pattern`), ``seen_size`` its inner corners (``other_grid``): then only
+    the region is searched in which a declared board containing that pattern could lie
+    (:func:`pattern_region`; on a 1080p frame showing a board of another size the whole frame costs
+    OpenCV's classic detector up to 20 s, that region 2-4 s), at full resolution with classic then
+    SB, and up-scaled as well when its squares are under twice ``min_pitch_px`` (as the blind search
+    up-scales only such regions). A declared grid found that continues past its border is refused as
+    part of a larger board, as the spec check's blind look does. Never raises for a bad image."""
+    import time
+
+    t0 = time.perf_counter()
+    try:
+        grey = frame.grey()
+    except DetectionError as e:
+        return failed_detection(str(e), target, frame.name, t0, unreadable=True)
+    if pattern is None:
+        det = detect_image(grey, target, intrinsics, source=frame.name)
+    else:
+        pitch_px = float(pattern[4])
+        region = pattern_region(pattern, target, grey.shape, seen_size)
+        det = detect_image(grey, target, intrinsics, source=frame.name, region_px=region,
+                           upscale="auto" if pitch_px < 2 * FULL_SEARCH_MIN_PITCH_PX else 1)
+    det = _part_of_larger(grey, target, det)
+    return replace(det, time_s=time.perf_counter() - t0)
+
+
+FULL_SEARCH_MIN_PITCH_PX = 12.0  # detect_image's min_pitch_px: regions of squares under twice this are up-scaled
+
+
+def pattern_region(pattern: tuple, target: Target, shape: tuple, seen_size: tuple | None = None) -> tuple:
+    """(x0, y0, x1, y1) around a chessboard pattern (x0, y0, x1, y1, pitch_px) of ``seen_size``
+    inner corners seen in an image of ``shape``, padded so that a declared board containing the
+    pattern lies inside: on every side by as many squares as the declared board can reach past it
+    (its larger number of inner corners less the pattern's smaller one), plus its outer square, its
+    white margin and one square for perspective (the pattern's pitch is a median); clipped to the
+    image."""
+    x0, y0, x1, y1, pitch_px = (float(v) for v in pattern)
+    reach = max(target.rows, target.cols) - (min(seen_size) if seen_size else 2)
+    pad = (max(reach, 0) + 3) * pitch_px
+    h, w = shape[:2]
+    return (int(max(0, x0 - pad)), int(max(0, y0 - pad)), int(min(w, np.ceil(x1 + pad) + 1)),
+            int(min(h, np.ceil(y1 + pad) + 1)))
 
 
 def _look(frame, grey, target, intrinsics, check_spec, gate, options) -> ImageDetection:
@@ -73,13 +130,30 @@ def _look(frame, grey, target, intrinsics, check_spec, gate, options) -> ImageDe
         bigger = "larger" if seen.size[0] >= declared[0] and seen.size[1] >= declared[1] else "other"
         return failed_detection(f"the image shows a chessboard of {seen.rows}x{seen.cols} inner corners, {bigger} "
                                 f"than the target's {target.rows}x{target.cols}; searched once the board spec is "
-                                "settled", target, frame.name, other_grid=(seen.rows, seen.cols), deferred=True)
+                                "settled", target, frame.name, other_grid=(seen.rows, seen.cols), deferred=True,
+                                pattern=_pattern(seen))
     det = detect_image(grey, target, intrinsics, source=frame.name, **options)
-    if det.ok and grid_continues(grey, target, det.ids, det.uv_px):
-        x0, y0, x1, y1 = roi_from_points(det.uv_px, grey.shape, pad_frac=1.0)
-        around = chessboard_seen(grey[y0:y1, x0:x1])
-        other = (around.rows, around.cols) if around is not None and around.size != declared else None
-        return replace(det, ok=False, other_grid=other,
-                       reason=f"the {target.rows}x{target.cols} grid found is part of a larger grid of squares "
-                              "(a larger board than the target spec says?)")
-    return det
+    return _part_of_larger(grey, target, det)
+
+
+def _pattern(seen) -> tuple:
+    """(x0, y0, x1, y1, pitch_px) of a :class:`~calibgraph.detect.board_size.ChessboardSeen`."""
+    G = seen.uv_px.reshape(seen.rows, seen.cols, 2)
+    steps = np.concatenate([np.linalg.norm(np.diff(G, axis=1), axis=-1).ravel(),
+                            np.linalg.norm(np.diff(G, axis=0), axis=-1).ravel()])
+    (x0, y0), (x1, y1) = seen.uv_px.min(0), seen.uv_px.max(0)
+    return (float(x0), float(y0), float(x1), float(y1), float(np.median(steps)))
+
+
+def _part_of_larger(grey, target, det) -> ImageDetection:
+    """``det`` refused when the declared grid it found continues past its border (part of a larger
+    board: :func:`~calibgraph.detect.board_size.grid_continues`), naming the grid seen around it."""
+    if not (det.ok and grid_continues(grey, target, det.ids, det.uv_px)):
+        return det
+    declared = tuple(sorted((target.rows, target.cols)))
+    x0, y0, x1, y1 = roi_from_points(det.uv_px, grey.shape, pad_frac=1.0)
+    around = chessboard_seen(grey[y0:y1, x0:x1])
+    other = (around.rows, around.cols) if around is not None and around.size != declared else None
+    return replace(det, ok=False, other_grid=other,
+                   reason=f"the {target.rows}x{target.cols} grid found is part of a larger grid of squares "
+                          "(a larger board than the target spec says?)")

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import DetectionError, InputError
-from calibgraph.detect.blind import look_blind
+from calibgraph.detect.blind import look_blind, search_in_full
 from calibgraph.detect.board_look import dataset_board_notes, explain_wrong_spec
 from calibgraph.detect.detection import ImageDetection, failed_detection
 from calibgraph.detect.image import Frame
@@ -145,14 +145,33 @@ def open_frame(path, target) -> tuple:
     try:
         frame.grey()
     except DetectionError as e:
-        return None, failed_detection(str(e), target, str(path))
+        return None, failed_detection(str(e), target, str(path), unreadable=True)
     return frame, None
 
 
+def view_problems(results: dict) -> list:
+    """(file, message) for every view in ``results`` ((camera, capture) -> :class:`ImageDetection`)
+    that gave no board; an unreadable image is named with its camera and capture, and costs that
+    view only."""
+    out = []
+    for (cam, cap), det in sorted(results.items(), key=lambda kv: (kv[0][0], kv[0][1])):
+        if det.ok:
+            continue
+        where = det.image or f"camera {cam}, capture {cap}"
+        if det.unreadable:
+            why = det.reason[len(f"{det.image}: "):] if det.image and det.reason.startswith(f"{det.image}: ") \
+                else det.reason
+            out.append((where, f"camera {cam}, capture {cap}: {why.rstrip('.')}; this view is left out"))
+        else:
+            out.append((where, det.reason))
+    return out
+
+
 def wrong_spec_everywhere(dataset, results: dict) -> list:
-    """A (folder, message) problem when the target was found in no image at all: most likely the
-    wrong spec, said once."""
-    if results and not any(d.ok for d in results.values()):
+    """A (folder, message) problem when the target was found in no image at all (of those that
+    could be read): most likely the wrong spec, said once."""
+    searched = [d for d in results.values() if not d.unreadable]
+    if searched and not any(d.ok for d in searched):
         t = dataset.target
         return [(str(dataset.root), f"the target ({t.kind}, {t.rows}x{t.cols} points, pitch {t.pitch_m} m) was "
                  "not found in any image: check the target spec in dataset.yaml")]
@@ -177,6 +196,7 @@ class DatasetDetector:
             frames of every camera show no board, or a board of another size
             (:mod:`calibgraph.detect.spec_check`); off, such a run ends with a problem saying the
             target was found nowhere.
+        where: the file that declares the target, named in that error.
         results: (camera, capture) -> :class:`ImageDetection`.
         problems: (file, message) for every image that could not be used; the CLI prints them.
         notes: what the images show beside the spec, in words (markers in a checkerboard's white
@@ -192,6 +212,7 @@ class DatasetDetector:
     detect_view: object = None
     cache_tag: str = ""
     fail_fast: bool = False
+    where: str = "dataset.yaml"
     results: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)
     notes: list = field(default_factory=list)
@@ -217,18 +238,21 @@ class DatasetDetector:
         todo = spread_order(todo)
         check = None
         if self.fail_fast and self.detect_view is None:
-            check = BoardSpecCheck(ds.target, {c: sum(v.camera == c for v in todo) for c in ds.cameras})
+            check = BoardSpecCheck(ds.target, {c: sum(v.camera == c for v in todo) for c in ds.cameras}, self.where)
         hits = {(v.camera, v.capture): cache.lookup(v) for v in todo}
         bar = progress_bar(sum(h is None for h in hits.values()), self.progress)
         items = iter(todo)
-        deferred, again = [], deque()  # frames the spec check put off; those now due for a full search
+        # frames the spec check put off (key -> (view, deferred detection)); those now due for a search,
+        # as (view, deferred detection) for a sampled frame's full search (spec_check.py), or (view,
+        # None) for the ordinary search once the spec is settled; the keys of the sampled frames out
+        deferred, again, sampled = {}, deque(), set()
         try:
             with OrderedPool(self.workers) as pool:
                 while True:
                     while pool.has_room:
                         if again:
-                            v = again.popleft()
-                            pool.submit(v, self._work, v, False)
+                            v, full = again.popleft()
+                            pool.submit(v, self._work, v, False, full)
                             continue
                         v = next(items, None)
                         if v is None:
@@ -240,17 +264,18 @@ class DatasetDetector:
                             pool.submit(v, self._work, v, check is not None and check.searching)
                     if len(pool):
                         v, det = pool.next()
-                        self._take(v, det, hits, cache, bar, deferred, check)
+                        self._take(v, det, hits, cache, bar, deferred, sampled, check)
                         sample = check.judge() if check is not None else []
                     elif check is None or not deferred:
                         break
                     else:
                         sample = check.judge(final=True)  # the stream is done: settled, sampled or named wrong
-                    if sample:
-                        again.extend(v for v in deferred if (v.camera, v.capture) in set(sample))
-                        deferred[:] = [v for v in deferred if (v.camera, v.capture) not in set(sample)]
-                    elif check is not None and check.settled and deferred:
-                        again.extend(deferred)
+                    for key in sample:
+                        if key in deferred:
+                            sampled.add(key)
+                            again.append(deferred.pop(key))
+                    if not sample and check is not None and check.settled and deferred:
+                        again.extend((v, None) for v, _ in deferred.values())
                         deferred.clear()
         except InputError as e:  # a wrong spec: a ChArUco board's markers may name the right dictionary
             raise explain_wrong_spec(e, ds) from None
@@ -258,22 +283,27 @@ class DatasetDetector:
             if bar is not None:
                 bar.close()
         self.problems += cache.save()
-        for (cam, cap), det in sorted(self.results.items(), key=lambda kv: (kv[0][0], kv[0][1])):
-            if not det.ok:
-                self.problems.append((det.image or f"camera {cam}, capture {cap}", det.reason))
+        self.problems += view_problems(self.results)
         if self.detect_view is None:
             self.problems += wrong_spec_everywhere(ds, self.results)
             self.notes += dataset_board_notes(ds, self.results)
         self._done = True
         return self.results
 
-    def _take(self, v, det, hits, cache, bar, deferred, check) -> None:
-        """One frame's answer: kept (and cached) unless the spec check deferred it."""
+    def _take(self, v, det, hits, cache, bar, deferred, sampled, check) -> None:
+        """One frame's answer: kept (and cached) unless the spec check deferred it. A sampled frame
+        whose full search missed goes back to the deferred ones: its region search is no stand-in
+        for the frame's ordinary search once the spec is settled."""
         key = (v.camera, v.capture)
         if check is not None:
             check.add(v.camera, det, readable=key not in self._unreadable, key=key)
+        if key in sampled:
+            sampled.discard(key)
+            if not det.ok and not det.unreadable:
+                deferred[key] = (v, det)
+                return
         if det.deferred:
-            deferred.append(v)
+            deferred[key] = (v, det)
         else:
             self.results[key] = det
             if hits[key] is None:
@@ -281,7 +311,9 @@ class DatasetDetector:
                 if bar is not None:
                     bar.update(1)
 
-    def _work(self, v, check_spec: bool) -> ImageDetection:
+    def _work(self, v, check_spec: bool, full=None) -> ImageDetection:
+        """The blind look at ``v``'s frame, or with ``full`` (its deferred detection) the spec
+        check's full search of it."""
         import cv2
 
         ds = self.dataset
@@ -294,6 +326,8 @@ class DatasetDetector:
             if unreadable is not None:
                 self._unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
                 return unreadable
+            if full is not None:
+                return search_in_full(frame, ds.target, intr, full.pattern, full.other_grid)
             return look_blind(frame, ds.target, intr, check_spec=check_spec, **self.options)
         except (cv2.error, ValueError, MemoryError) as e:
             return unusable(ds.target, path, e)
@@ -313,13 +347,15 @@ def view_points(view, results: dict):
 
 
 def dataset_detector(dataset, workers: int = 2, progress: bool = True, cache=True, views=None, detect_view=None,
-                     cache_tag: str = "", fail_fast: bool = False, **options) -> DatasetDetector:
+                     cache_tag: str = "", fail_fast: bool = False, where: str = "dataset.yaml",
+                     **options) -> DatasetDetector:
     """A detector for ``Dataset.to_problem(detector=...)`` that detects all undetected views of
     ``dataset`` in parallel (``workers`` threads; OpenCV releases the GIL), shows a tqdm progress
     bar, caches results next to the data and collects per-file problems in ``.problems``.
     ``cache``: True (``DATASET/.calibgraph_cache/``), False (no cache) or a folder.
     ``options`` are passed to :func:`~calibgraph.detect.search.detect_image` (e.g. ``upscale=1``,
-    ``method="sb"``); ``views``, ``detect_view``, ``cache_tag`` and ``fail_fast`` as in
+    ``method="sb"``); ``views``, ``detect_view``, ``cache_tag``, ``fail_fast`` and ``where`` as in
     :class:`DatasetDetector`."""
     return DatasetDetector(dataset=dataset, workers=workers, progress=progress, options=dict(options), cache=cache,
-                           views=views, detect_view=detect_view, cache_tag=cache_tag, fail_fast=fail_fast)
+                           views=views, detect_view=detect_view, cache_tag=cache_tag, fail_fast=fail_fast,
+                           where=where)

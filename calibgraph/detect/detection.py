@@ -41,6 +41,11 @@ class ImageDetection:
         deferred: the image was not searched yet: while the board spec is in doubt, a quick probe saw no
             chessboard of the declared size in it (:mod:`calibgraph.detect.blind`); the dataset driver
             searches it in full once the spec is settled, and never caches such a record.
+        pattern: (x0, y0, x1, y1, pitch_px) of the chessboard a deferred frame's quick probe saw (its
+            corners' bounding box and square size in full-resolution pixels): where a full search of the
+            frame looks for the declared board (:func:`calibgraph.detect.blind.search_in_full`), else None.
+        unreadable: the image file could not be read (missing, empty, truncated, not an image): the
+            frame says nothing about the board, and costs its view only.
     """
 
     ids: np.ndarray
@@ -60,6 +65,8 @@ class ImageDetection:
     image: str | None = None
     other_grid: tuple | None = None
     deferred: bool = False
+    pattern: tuple | None = None
+    unreadable: bool = False
 
     def __post_init__(self):
         ids = np.asarray(self.ids, int).reshape(-1)
@@ -72,6 +79,8 @@ class ImageDetection:
         object.__setattr__(self, "uv_px", uv)
         if self.other_grid is not None:
             object.__setattr__(self, "other_grid", tuple(int(v) for v in self.other_grid))
+        if self.pattern is not None:
+            object.__setattr__(self, "pattern", tuple(float(v) for v in self.pattern))
 
     @property
     def n_found(self) -> int:

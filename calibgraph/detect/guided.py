@@ -149,9 +149,10 @@ def detect_with_hint(image, target: Target, intrinsics: Intrinsics | None, hint:
         else:
             if not (0 < hint.pitch_px < GUIDED_MIN_PITCH_PX):
                 options["upscale"] = 1  # large squares: no up-scaling ladder
+            options.setdefault("bounded", True)  # a quick probe before the up-scaled search of an empty region
             det = detect_image(frame.grey(), target, intrinsics, source=src, region_px=hint.region_px, **options)
             if not det.ok:
                 det = replace(det, reason=f"{det.reason} (searched the predicted region)")
     except DetectionError as e:
-        det = failed_detection(str(e), target, src)
+        det = failed_detection(str(e), target, src, unreadable=True)
     return replace(det, time_s=time.perf_counter() - t0)

@@ -66,12 +66,15 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
             :mod:`calibgraph.detect.board_fit` on the original image (removes the detectors'
             bias; ``False`` keeps OpenCV's corners).
         region_px: (x0, y0, x1, y1) where the board is expected (guided detection,
-            :mod:`calibgraph.detect.guided`): only that region is searched, like a candidate region
-            of the blind search (no quick whole-frame rejection), at full resolution and, with
-            ``upscale="auto"``, up-scaled when its squares are small.
-        bounded: before a candidate region is searched up-scaled, a quick probe (OpenCV's fast
-            check at x2 and x3) must see a board there, as in a guided search: a frame without
-            the board then costs a fraction of a second, not seconds (dataset passes use it).
+            :mod:`calibgraph.detect.guided`; the spec check's full search,
+            :func:`calibgraph.detect.blind.search_in_full`): only that region is searched, like a
+            candidate region of the blind search (no quick whole-frame rejection), at full
+            resolution and, with ``upscale="auto"``, up-scaled when its squares are small or none
+            were found.
+        bounded: before a candidate region (or ``region_px``, when nothing was found in it at full
+            resolution) is searched up-scaled, a quick probe (OpenCV's fast check at x2 and x3)
+            must see a board there: a frame without the board then costs a fraction of a second,
+            not seconds (dataset passes and guided detection use it).
     Returns:
         :class:`ImageDetection`; never raises for a bad image: ``ok=False`` and ``reason`` say why.
     """
@@ -80,7 +83,7 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
     try:
         grey = read_grey(image) if isinstance(image, (str, Path)) else to_grey8(image, src or "image")
     except DetectionError as e:
-        return failed_detection(str(e), target, src, t0)
+        return failed_detection(str(e), target, src, t0, unreadable=True)
     s = _Search(grey=grey, target=target, intrinsics=intrinsics, method=method, upscale=_check_options(method, upscale),
                 allow_symmetric=allow_symmetric, filter=filter, min_pitch_px=min_pitch_px, min_points=min_points,
                 refine=refine, src=src, t0=t0, bounded=bounded)
@@ -293,9 +296,10 @@ def _plainly_small(s: _Search, raw) -> bool:
 def _search_region(s: _Search, roi) -> ImageDetection | None:
     """Guided search of one region, as the blind search treats a candidate region: full
     resolution, then (``upscale="auto"``) x2 and x3 while the squares are under ``min_pitch_px``;
-    the first passing detection, else the best failure. Before the up-scaled full searches, a
-    quick probe (OpenCV's fast check at x2 and x3, no SB) must see a board: where the estimate
-    expected one but none is (occluded, out of focus), a miss then costs a fraction of a full search."""
+    the first passing detection, else the best failure. With ``bounded``, before the up-scaled full
+    searches a quick probe (OpenCV's fast check at x2 and x3, no SB) must see a board: where the
+    estimate expected one but none is (occluded, out of focus), a miss then costs a fraction of a
+    full search."""
     if s.upscale != "auto":
         got = _attempt(s, _detect_in_roi, s, roi, int(s.upscale), False)
         return _finish(s, got, int(s.upscale)) if got is not None else None
@@ -304,7 +308,7 @@ def _search_region(s: _Search, roi) -> ImageDetection | None:
     best = _finish(s, got, 1) if got is not None and deferred is None else None
     if best is not None and best.ok and best.pitch_px >= s.min_pitch_px:
         return best
-    if got is None and not _probe_sees_board(s, roi):
+    if got is None and s.bounded and not _probe_sees_board(s, roi):
         return None
     for k in (2, 3):
         got = _attempt(s, _detect_in_roi, s, roi, k, False)

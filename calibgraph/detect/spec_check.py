@@ -3,17 +3,29 @@
 A wrong target spec (rows and columns swapped for another board's, the wrong kind) used to cost
 a blind search of every frame before the solver blamed the views. :class:`BoardSpecCheck` watches
 the detections of the first frames of each camera as they come in and raises one
-:class:`~calibgraph.core.errors.InputError` naming the likely cause as soon as the evidence is in:
+:class:`~calibgraph.core.errors.InputError` naming the likely cause as soon as the evidence is in.
+The quick probe of :mod:`calibgraph.detect.blind` (OpenCV's SB detector for a chessboard of any
+size, on the reduced frame) only decides what is searched first: frames in which it sees no
+chessboard, or one of another size, are deferred. It misses boards of small squares, sees a 3x3
+corner of a board cut by an occluder, and on boards with markers in their white squares it sees
+whatever part its grid growing reaches. So before anything is named wrong, a few deferred frames
+are searched in full (:func:`calibgraph.detect.blind.search_in_full`: up-scaled, with the SB
+detector, no probe), and a spec is named wrong only when that full search finds the declared board
+in none of them (nor did any other frame):
 
-* frames of every camera show a chessboard of one other size (found by
-  :func:`calibgraph.detect.board_size.chessboard_seen`, or the declared grid found inside a larger
-  board) and none shows the declared board: "the images show a 6x9 grid: check rows/cols";
-* the first ``FIRST_FRAMES`` frames of every camera show no board at all (frames in which the
-  quick probe saw no chessboard were not searched, :mod:`calibgraph.detect.blind`: a few of them,
-  ``SAMPLE_PER_CAMERA`` a camera, are searched in full before this is said).
+* frames of every camera show a chessboard of one other size of at least ``MIN_GRID`` x
+  ``MIN_GRID`` inner corners, found whole in at least ``SIGHTINGS_NEEDED`` frames (by the probe, or
+  the declared grid found inside a larger board): "the images show a 6x9 grid: check rows/cols".
+  A smaller grid is never such evidence: it is a sub-grid of a small or partly seen board. The
+  frames searched in full are ``PATTERN_SAMPLE`` of those where the probe saw a chessboard,
+  those of the grid named first;
+* the first ``FIRST_FRAMES`` frames of every camera show no board at all: the frames searched in
+  full are those where the probe saw a pattern and ``SAMPLE_PER_CAMERA`` a camera of those where
+  it saw none.
 
-A board found in a few frames of any camera settles it: the spec is right, and cameras that do not
-see the board are the solver's business (with its own message), not this check's.
+A board found in any frame settles it: the spec is right, and cameras that do not see the board
+are the solver's business (with its own message), not this check's. A frame that cannot be read
+says nothing about the board.
 """
 
 from __future__ import annotations
@@ -25,8 +37,10 @@ from calibgraph.core.targets import Target
 
 FIRST_FRAMES = 24     # frames per camera after which no board at all means a wrong spec
 SIGHTED_FRAMES = 8    # frames per camera after which a consistent other grid means a wrong spec
-SIGHTINGS_NEEDED = 3  # frames that must show the same other grid
+SIGHTINGS_NEEDED = 3  # frames that must show the same other grid, whole
+MIN_GRID = 4          # inner corners along each side of a grid that is evidence of another board
 CONFIRMING_FRAMES = 2  # frames showing the declared board that settle the spec (one can be a fluke)
+PATTERN_SAMPLE = 4    # frames where the probe saw a chessboard, searched in full before a spec is named wrong
 SAMPLE_PER_CAMERA = 2  # frames the probe saw nothing in, searched in full before "no board at all" is said
 
 
@@ -34,7 +48,12 @@ class BoardSpecCheck:
     """Watches detections of the first frames of each camera (module docstring).
 
     ``frames_per_camera``: camera -> number of frames that camera has to search, so that a camera
-    with fewer than ``FIRST_FRAMES`` frames is judged on all of them.
+    with fewer than ``FIRST_FRAMES`` frames is judged on all of them. ``where``: the file that
+    declares the target, for the message.
+
+    The driver :meth:`add`\\ s every frame's detection, calls :meth:`judge` after each, searches the
+    frames it returns with :func:`~calibgraph.detect.blind.search_in_full` (the deferred detection's
+    ``pattern`` says where) and adds their detections; :meth:`judge` raises on a wrong spec.
     """
 
     def __init__(self, target: Target, frames_per_camera: dict, where: str = "dataset.yaml"):
@@ -46,32 +65,33 @@ class BoardSpecCheck:
         self.found = 0
         self._cleared = False
         self._unseen = {}       # camera -> keys of frames deferred because the probe saw no chessboard
+        self._patterns = {}     # key -> (camera, grid size) of frames deferred because the probe saw another grid
         self._sampling = None   # keys of the sample being searched in full (None: no sample taken yet)
 
     def add(self, camera: str, det, readable: bool = True, key=None) -> None:
         """Count one frame's detection (:class:`~calibgraph.detect.detection.ImageDetection`, ``key``
-        naming the frame); raises :class:`InputError` when a consistent other grid is seen in every
-        camera's first frames. A frame that could not be read (``readable=False``) says nothing
-        about the board."""
-        again = bool(self._sampling) and key in self._sampling  # a sampled frame, counted already
-        if again:
+        naming the frame). A frame that could not be read (``readable=False``, or the detection
+        says so) says nothing about the board."""
+        if self._sampling and key in self._sampling:  # a sampled frame's full search, counted already
             self._sampling.discard(key)
+            self.found += bool(det.ok)
+            return
         if self.settled or camera not in self.total:
             return
-        if not readable:
+        if not readable or getattr(det, "unreadable", False):
             self.total[camera] -= 1
             return
-        self.done[camera] += not again
+        self.done[camera] += 1
         if det.ok:
             self.found += 1
             return
-        if det.other_grid is not None:
-            self.sightings[tuple(sorted(det.other_grid))] += 1
+        size = None if det.other_grid is None else tuple(sorted(det.other_grid))
+        if size is not None and size[0] >= MIN_GRID:
+            self.sightings[size] += 1
+        if det.deferred and size is not None:
+            self._patterns[key] = (camera, size)
         elif det.deferred:
             self._unseen.setdefault(camera, []).append(key)
-        size, n = self._likely_grid()
-        if n >= SIGHTINGS_NEEDED and self._all_cameras_reached(SIGHTED_FRAMES):
-            raise InputError(self._message(size))
 
     def first_frames_done(self) -> bool:
         """Every camera has searched its first ``FIRST_FRAMES`` frames (or all it has)."""
@@ -83,22 +103,29 @@ class BoardSpecCheck:
         return self.found >= CONFIRMING_FRAMES
 
     def judge(self, final: bool = False) -> list:
-        """Once the first frames of every camera are in (or the stream is ``final``): settles the
-        spec when a board was found; else returns, once, the keys of a sample of the frames the
-        probe saw nothing in, to be searched in full and added; else raises :class:`InputError`.
-        [] otherwise. At ``final``, a spec neither named wrong nor sampled is settled."""
-        if self.settled or self._sampling or not (final or self.first_frames_done()):
-            if final:
-                self._cleared = True  # nothing more will come in: search everything
+        """Once the evidence is in (another grid in every camera's first ``SIGHTED_FRAMES`` frames,
+        or every camera's first ``FIRST_FRAMES`` frames done, or the stream ``final``): settles the
+        spec when a board was found; else returns, once, the keys of the frames to be searched in
+        full and added (module docstring); else (the sample searched, no board) raises
+        :class:`InputError`. [] otherwise. At ``final`` a spec still waiting for its sample is
+        settled: the frames are then all searched, none is left out."""
+        if self.settled:
             return []
-        if self.found or not any(self.done.values()):  # a board found; or not one frame could be read (a FIFO,
-            self._cleared = True                        # a truncated file: each named on its own), nothing to judge
+        if self._sampling:
+            if final:  # nothing more will come in (a sampled frame never came back): search everything
+                self._cleared = True
+            return []
+        other = self._other_grid() is not None and self._all_cameras_reached(SIGHTED_FRAMES)
+        if not (final or other or self.first_frames_done()):
+            return []
+        if self.found or not any(self.done.values()):  # a board seen; or no frame could be read at all
+            self._cleared = True
             return []
         if self._sampling is None:
-            self._sampling = {k for keys in self._unseen.values() for k in _spread(keys, SAMPLE_PER_CAMERA)}
+            self._sampling = set(self._sample(unseen_too=not other))
             if self._sampling:
                 return sorted(self._sampling, key=str)
-        raise InputError(self._message(self._likely_grid()[0]))
+        raise InputError(self._message(self._other_grid()))
 
     @property
     def settled(self) -> bool:
@@ -114,10 +141,30 @@ class BoardSpecCheck:
     def _all_cameras_reached(self, n: int) -> bool:
         return all(self.done[c] >= min(n, total) for c, total in self.total.items())
 
-    def _likely_grid(self):
+    def _other_grid(self):
+        """The grid of another size the frames show, when it is evidence (module docstring), else None."""
         if not self.sightings:
-            return None, 0
-        return self.sightings.most_common(1)[0]
+            return None
+        size, n = self.sightings.most_common(1)[0]
+        return size if n >= SIGHTINGS_NEEDED else None
+
+    def _sample(self, unseen_too: bool) -> list:
+        """Frames to search in full: ``PATTERN_SAMPLE`` of those where the probe saw a chessboard
+        (those of the likely grid first, then the others; taken in turn from every camera), plus, with
+        ``unseen_too``, ``SAMPLE_PER_CAMERA`` a camera of those where it saw none."""
+        likely = self._other_grid()
+        by_camera = {}
+        for key, (camera, size) in self._patterns.items():
+            by_camera.setdefault(camera, []).append((size != likely, key))
+        queues = [[k for _, k in sorted(v, key=lambda x: x[0])] for _, v in sorted(by_camera.items())]
+        picked = []
+        while len(picked) < PATTERN_SAMPLE and any(queues):
+            for q in queues:
+                if q and len(picked) < PATTERN_SAMPLE:
+                    picked.append(q.pop(0))
+        if unseen_too:
+            picked += [k for keys in self._unseen.values() for k in _spread(keys, SAMPLE_PER_CAMERA)]
+        return picked
 
     def _message(self, size) -> str:
         t = self.target

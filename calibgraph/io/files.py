@@ -45,8 +45,9 @@ def image_size(path):
         head = read_input_bytes(path, "image file", limit=24)
     except InputError:
         return None
-    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24:
-        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24 and head[12:16] == b"IHDR":
+        wh = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        return wh if min(wh) > 0 else None  # a damaged header: the detector names the file, and it costs one view
     import cv2
     import numpy as np
 

@@ -40,10 +40,10 @@ from pathlib import Path
 from calibgraph.core.errors import CalibgraphError, InputError
 from calibgraph.core.problem import Problem, SolverOptions, mode_frames
 from calibgraph.core.transforms import inv
-from calibgraph.detect.blind import look_blind
+from calibgraph.detect.blind import look_blind, search_in_full
 from calibgraph.detect.board_look import dataset_board_notes, explain_wrong_spec
 from calibgraph.detect.dataset import (DetectionCache, dataset_detector, open_frame, progress_bar, spread, unusable,
-                                       view_points, wrong_spec_everywhere)
+                                       view_points, view_problems, wrong_spec_everywhere)
 from calibgraph.detect.guided import GUIDED_MIN_PITCH_PX, ViewHint, detect_with_hint, predict_view
 from calibgraph.detect.image import Frame
 from calibgraph.detect.spec_check import BoardSpecCheck
@@ -113,8 +113,7 @@ class GuidedDatasetDetector:
             run.execute()
         except InputError as e:  # a wrong spec: a ChArUco board's markers may name the right dictionary
             raise explain_wrong_spec(e, self.dataset) from None
-        self.problems = run.cache_problems + [(d.image or f"camera {c}, capture {k}", d.reason)
-                                              for (c, k), d in sorted(self.results.items()) if not d.ok]
+        self.problems = run.cache_problems + view_problems(self.results)
         self.problems += wrong_spec_everywhere(self.dataset, self.results)
         self.notes.append(run.summary())
         self.notes += dataset_board_notes(self.dataset, self.results)
@@ -153,8 +152,8 @@ class _GuidedRun:
         self.distrusted = set()
         self.counts = Counter()
         self.unreadable = set()
-        self.deferred = set()      # survey frames the spec check put off
-        self.sampled = set()       # frames the spec check wants searched in full, without the probe
+        self.deferred = {}         # survey frames the spec check put off: key -> their deferred detection
+        self.sampled = {}          # frames the spec check wants searched in full (search_in_full): key -> the same
         self.cache = DetectionCache(ds, owner.cache, {"guided": GUIDED_CACHE_TAG})
         self.cache_problems = []
         self.check = BoardSpecCheck(ds.target, {c: sum(v.camera == c for v in survey) for c in ds.cameras}) \
@@ -184,18 +183,20 @@ class _GuidedRun:
             if q is None or not pool.has_room:
                 return
             kind, v, hint = q.popleft()
-            tag = kind if kind in ("survey", "deep", "blind") else _hint_tag(hint)
+            full = self.sampled.get((v.camera, v.capture)) if kind == "survey" else None
+            tag = ("full" if full is not None else kind) if kind in ("survey", "deep", "blind") else _hint_tag(hint)
             job = (kind, v, hint, tag)
             self.in_flight[kind] += 1
             hit = self.cache.lookup(v, tag)
             if hit is not None:
                 pool.put(job + (True,), hit)
             else:
-                sampled = (v.camera, v.capture) in self.sampled
-                check_spec = kind in ("survey", "deep") and self.check is not None and self.check.searching and not sampled
-                pool.submit(job + (False,), self._work, kind, v, hint, check_spec, not sampled)
+                check_spec = kind in ("survey", "deep") and self.check is not None and self.check.searching
+                pool.submit(job + (False,), self._work, kind, v, hint, check_spec, full)
 
-    def _work(self, kind, v, hint, check_spec, gate):
+    def _work(self, kind, v, hint, check_spec, full=None):
+        """One frame's search; ``full``: the deferred detection of a frame the spec check sampled,
+        searched in full (:func:`~calibgraph.detect.blind.search_in_full`)."""
         import cv2
 
         ds = self.ds
@@ -208,8 +209,10 @@ class _GuidedRun:
             if unreadable is not None:
                 self.unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
                 return unreadable
+            if full is not None:
+                return search_in_full(frame, ds.target, intr, full.pattern, full.other_grid)
             return look_blind(frame, ds.target, intr, check_spec=check_spec,
-                              **({"upscale": 1, "gate": gate} if kind == "survey" else {"bounded": True}))
+                              **({"upscale": 1, "gate": True} if kind == "survey" else {"bounded": True}))
         except (cv2.error, ValueError, MemoryError) as e:
             return unusable(ds.target, path, e)
 
@@ -224,8 +227,10 @@ class _GuidedRun:
             self.bar.update(1)
         if kind == "survey" and self.check is not None:
             self.check.add(v.camera, det, readable=key not in self.unreadable, key=key)
+        if self.sampled.pop(key, None) is not None and not det.ok and not det.unreadable:
+            det = replace(det, deferred=True)  # a sampled frame's full search missed: searched as usual once settled
         if det.deferred:  # searched in full once the spec check has settled (blind.py)
-            self.deferred.add(key)
+            self.deferred[key] = det
             self.o.results.setdefault(key, det)
             self._judge()
             return
@@ -258,13 +263,18 @@ class _GuidedRun:
         in full (a sample, or every deferred frame once the spec is settled)."""
         if self.check is None:
             return
-        sample = set(self.check.judge(final=final))
+        sample = set(self.check.judge(final=final)) & set(self.deferred)
         redo = sample if sample else (set(self.deferred) if self.check.settled else set())
         if not redo:
             return
-        self.sampled |= sample  # searched in full, without the probe, before the spec is judged
-        self.deferred -= redo
-        self.queues["survey"].extend(("survey", self.views[k], None) for k in sorted(redo))
+        self.sampled.update((k, self.deferred[k]) for k in sample)  # searched in full before the spec is judged
+        for k in redo:
+            del self.deferred[k]
+        jobs = [("survey", self.views[k], None) for k in sorted(redo)]
+        if sample:  # next: the spec is judged on them
+            self.queues["survey"].extendleft(reversed(jobs))
+        else:
+            self.queues["survey"].extend(jobs)
         if self.bar is not None:
             self.bar.total += len(redo)  # frames looked at again
             self.bar.refresh()

@@ -37,7 +37,9 @@ from calibgraph.core.errors import DetectionError, InputError, ObservabilityErro
 from calibgraph.core.targets import Target
 from calibgraph.core.transforms import exp_so3, make_T
 from calibgraph.core.version import __version__
-from calibgraph.detect.corners import detect_image, read_grey
+from calibgraph.detect.dataset import dataset_detector
+from calibgraph.io.files import image_size
+from calibgraph.io.dataset import Dataset, View
 from calibgraph.solver.intrinsics_model import (
     DEFAULT_MODEL,
     intrinsics_block,
@@ -562,40 +564,46 @@ def _enough(usable: list, rejected: list, min_views: int) -> None:
 # from image files
 # ---------------------------------------------------------------------------------------------
 def calibrate_images(paths: list, target: Target, model: str = DEFAULT_MODEL, min_views: int = MIN_VIEWS,
-                     progress=None) -> SessionResult:
+                     progress: bool = False, where: str = "the target file", workers: int = 2) -> SessionResult:
     """Detect ``target`` in every image (calibgraph's detector, sub-pixel board fit) and calibrate
     the camera from them (:func:`calibrate_views`). Images that cannot be read, show no board or
-    differ in size from the first are rejected with the reason. ``progress``: callable(done, total).
+    differ in size from the first are rejected with the reason. The images are detected as a
+    dataset's are (:func:`~calibgraph.detect.dataset.dataset_detector`: ``workers`` threads, a
+    progress bar with ``progress``, no cache), with the same early stop on a wrong board spec
+    (:mod:`calibgraph.detect.spec_check`); ``where`` names the file that declares the target.
 
     Raises:
-        InputError: no images, or none readable.
+        InputError: no images, none readable, or a wrong board spec (the grid the images show named).
         ObservabilityError: the board found in too few of them.
     """
+    import os
+
     if not paths:
         raise InputError("no images given.")
     model_parameters(model)  # an unknown model is refused before any work
+    paths = [Path(p) for p in paths]
+    root = Path(os.path.commonpath([str(p.resolve().parent) for p in paths]))
+    ds = Dataset(root=root, target=target, cameras={"camera": None}, captures=(),
+                 views=tuple(View("camera", k, os.path.relpath(p.resolve(), root)) for k, p in enumerate(paths)))
+    results = dataset_detector(ds, workers=workers, progress=progress, cache=False, fail_fast=True, where=where).run()
     views, rejected = [], []
     size = None
     for k, p in enumerate(paths):
-        name = Path(p).name
-        try:
-            grey = read_grey(p)
-        except DetectionError as e:
-            rejected.append((name, str(e)))
+        name = p.name
+        det = results[("camera", k)]
+        wh = None if det.unreadable else image_size(p)
+        if wh is None:
+            rejected.append((name, det.reason if det.unreadable else f"{p}: cannot read the image size"))
             continue
         if size is None:
-            size = (grey.shape[1], grey.shape[0])
-        if (grey.shape[1], grey.shape[0]) != size:
-            rejected.append((name, f"image size {grey.shape[1]}x{grey.shape[0]} differs from the first image's "
-                                   f"{size[0]}x{size[1]}"))
+            size = wh
+        if wh != size:
+            rejected.append((name, f"image size {wh[0]}x{wh[1]} differs from the first image's {size[0]}x{size[1]}"))
             continue
-        det = detect_image(grey, target, source=str(p))
         if det.ok:
             views.append(SessionView(name, det.ids, det.uv_px))
         else:
             rejected.append((name, det.reason or "board not found"))
-        if progress:
-            progress(k + 1, len(paths))
     if size is None:
         raise InputError(f"none of the {len(paths)} images could be read (e.g. {rejected[0][1]}).")
     if not views:
