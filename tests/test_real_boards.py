@@ -174,3 +174,25 @@ def test_charuco_spec_with_another_dictionary_names_the_markers_dictionary():
     note = charuco_dictionary_note(rv.image, wrong)
     assert note is not None and "DICT_5X5_100" in note and "DICT_6X6_250" in note
     assert charuco_dictionary_note(rv.image, CHARUCO_9X12) is None
+
+
+def test_wrong_dictionary_error_names_the_markers_dictionary(tmp_path):
+    """A ChArUco dataset declared with DICT_6X6_250 whose board carries DICT_5X5_100 markers: the
+    early wrong-spec stop says which dictionary the markers decode in."""
+    from calibgraph.core.errors import InputError
+    from calibgraph.core.problem import Capture
+    from calibgraph.detect.dataset import dataset_detector
+    from calibgraph.io.dataset import write_capture, write_header
+    from calibgraph.io.layouts import load_dataset
+
+    intr = preset("d455")
+    wrong = Target(kind="charuco", rows=8, cols=11, pitch_m=0.03, marker_m=0.022, dictionary="DICT_6X6_250")
+    write_header(tmp_path, wrong, {"cam": intr}, mode="eye_to_hand")
+    (tmp_path / "images").mkdir()
+    for k, (_, rv) in enumerate(_marker_board_views(4, intr, seed=3)):
+        cv2.imwrite(str(tmp_path / "images" / f"{k}.png"), rv.image)
+        write_capture(tmp_path, Capture(index=k, T_base_flange=np.eye(4)), {"cam": {"image": f"images/{k}.png"}})
+    det = dataset_detector(load_dataset(tmp_path), progress=False, cache=False, fail_fast=True)
+    with pytest.raises(InputError, match="DICT_5X5_100") as e:
+        det.run()
+    assert "not DICT_6X6_250" in str(e.value)

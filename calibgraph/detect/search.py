@@ -155,7 +155,7 @@ def _passes_filter(s: _Search, scale: float, offset):
 
     def accept(ids, uv):
         uv = (uv + 0.5) / scale - 0.5 + np.asarray(offset, float)
-        return check_grid(uv, t.line_ij[ids], t.points_board_m[ids], intrinsics=s.intrinsics).ok
+        return check_grid(uv, t.line_ij[ids], t.points_board_m[ids], intrinsics=_filter_intrinsics(s)).ok
     return accept
 
 
@@ -209,7 +209,7 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
     pitch = _pitch(ids, uv, target) if ids.size >= 2 else 0.0
     h_rms = float("nan")
     if ok and s.filter:
-        fr = check_grid(uv, target.line_ij[ids], target.points_board_m[ids], intrinsics=s.intrinsics)
+        fr = check_grid(uv, target.line_ij[ids], target.points_board_m[ids], intrinsics=_filter_intrinsics(s))
         h_rms = fr.homography_rms_px
         if not fr.ok:
             ok, reason = False, f"rejected by the grid filter{'' if k == 1 else f' (x{k} up-scaled)'}: {fr.reason}"
@@ -281,6 +281,20 @@ def _search_upscaled(s: _Search, rois, first, deferred=None):
     if best is None and deferred is not None:
         best = _finish(s, deferred, 1)
     return best
+
+
+def _filter_intrinsics(s: _Search) -> Intrinsics:
+    """The intrinsics the grid filter judges a grid with: the camera's, or, when none are given, a
+    nominal pinhole (principal point at the image centre, focal length half the larger side, no
+    distortion), so that a lens's bend still gets the filter's one radial term (grid_filter module
+    docstring) instead of failing rows: OpenCV's own left*.jpg samples (k1 -0.27) lost 3 of 13
+    views to it."""
+    if s.intrinsics is not None:
+        return s.intrinsics
+    h, w = s.grey.shape[:2]
+    f = 0.5 * max(h, w)
+    return Intrinsics(K=np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]]), dist=np.zeros(5),
+                      width_px=w, height_px=h)
 
 
 def _plainly_small(s: _Search, raw) -> bool:
