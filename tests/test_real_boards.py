@@ -11,6 +11,7 @@ import pytest
 from calibgraph.core.camera import preset
 from calibgraph.core.targets import Target
 from calibgraph.detect.circles import find_circles
+from calibgraph.detect.grid_filter import check_grid
 from calibgraph.detect.search import detect_image
 from calibgraph.sim.board_image import look_at_board, render_view
 
@@ -196,3 +197,50 @@ def test_wrong_dictionary_error_names_the_markers_dictionary(tmp_path):
     with pytest.raises(InputError, match="DICT_5X5_100") as e:
         det.run()
     assert "not DICT_6X6_250" in str(e.value)
+
+
+def test_a_board_fit_gone_wrong_keeps_the_detectors_corner(monkeypatch):
+    """The board fit may improve corners, never refuse a grid: a fit that moves one corner off its
+    row, so the filter refuses the grid (as on two of MC-HEC's clipped rendered frames, 2.3-2.6 px
+    off), gets the detector's corner back, the others stay refined."""
+    from calibgraph.core.targets import thesis_board
+    from calibgraph.detect import search
+    from calibgraph.detect.board_fit import BoardFit
+
+    intr = preset("d455")
+    t = thesis_board()
+    rv = render_view(t, intr, look_at_board(t, 0.8, 15, -20, 7, (0, 0), intr), blur_sigma_px=0.7, noise_sigma=1.0)
+    good = detect_image(rv.image, t, intr)
+    raw = detect_image(rv.image, t, intr, refine=False)
+    assert good.ok and raw.ok
+
+    def wrong_fit(grey, target, ids, uv):
+        out = np.array(good.uv_px, float)
+        out[5] += 0.12 * good.pitch_px
+        return BoardFit(out, np.ones(len(out), bool), np.ones(len(out)), np.ones(len(out)))
+
+    monkeypatch.setattr(search, "refine_checkerboard", wrong_fit)
+    bad = wrong_fit(None, t, good.ids, good.uv_px).uv_px
+    assert not check_grid(bad, t.line_ij[good.ids], t.points_board_m[good.ids], intrinsics=intr).ok
+    det = detect_image(rv.image, t, intr)
+    assert det.ok, det.reason
+    assert np.allclose(det.uv_px[5], raw.uv_px[5])
+    others = np.arange(len(det.ids)) != 5
+    assert np.allclose(det.uv_px[others], good.uv_px[others]) and det.n_refined == len(det.ids) - 1
+
+
+def test_mchec_clipped_frames_keep_their_board(shared_dir):
+    """MC-HEC's camera4 frames 0149 and 0185: OpenCV's classic detector finds the board (plane fit
+    0.07-0.10 px); calibgraph now does too, every corner within 1 px of OpenCV's."""
+    from calibgraph.io.layouts import load_dataset
+
+    root = shared_dir / "datasets" / "mchec_medium_workcell"
+    if not root.is_dir():
+        pytest.skip(f"{root} is missing")
+    ds = load_dataset(root)
+    for n in ("0149", "0185"):
+        grey = cv2.imread(str(root / "camera4" / "image" / f"{n}.png"), cv2.IMREAD_GRAYSCALE)
+        det = detect_image(grey, ds.target, ds.cameras["camera4"])
+        raw = detect_image(grey, ds.target, ds.cameras["camera4"], refine=False)
+        assert det.ok and det.n_found == 12, det.reason
+        assert np.abs(det.uv_px - raw.uv_px).max() < 1.0

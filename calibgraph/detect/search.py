@@ -191,7 +191,7 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
     """A raw detection (from an image up-scaled by ``k``) refined, filtered and measured."""
     ids, uv, m, note = result
     target, grey = s.target, s.grey
-    n_refined = 0
+    n_refined, raw = 0, uv
     if s.refine and target.kind == "checkerboard" and ids.size:
         # On the original pixels whatever the search scale: interpolation adds its own shift.
         # Markers in the white squares (a ChArUco board declared a checkerboard) enter the model.
@@ -210,6 +210,8 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
     h_rms = float("nan")
     if ok and s.filter:
         fr = check_grid(uv, target.line_ij[ids], target.points_board_m[ids], intrinsics=_filter_intrinsics(s))
+        if not fr.ok and n_refined:
+            uv, fr, n_refined = _keep_detector_corners(s, ids, raw, uv, fr, n_refined)
         h_rms = fr.homography_rms_px
         if not fr.ok:
             ok, reason = False, f"rejected by the grid filter{'' if k == 1 else f' (x{k} up-scaled)'}: {fr.reason}"
@@ -219,6 +221,24 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
         spread=area / float(grey.size), pitch_px=pitch, sharpness_px=edge_sigma_px(grey, uv, max(pitch, 4.0)),
         upscale=k, method=m, homography_rms_px=h_rms, n_refined=n_refined, time_s=time.perf_counter() - s.t0,
         image=s.src)
+
+
+def _keep_detector_corners(s: _Search, ids, raw, uv, fr, n_refined):
+    """The board fit must not turn a grid the filter accepts into one it refuses: when the
+    refined corners are refused, the corners the fit moved far (over 0.5 px and 3x the median
+    move) get the detector's positions back, else all do, whichever the filter accepts first.
+    Seen on MC-HEC's rendered frames (paper at 255, ink at 0: the fit ignores clipped pixels and
+    has little left), where a corner moved 2.5 px off its row. Returns (uv, filter result, number
+    of corners still refined)."""
+    t = s.target
+    moved = np.linalg.norm(uv - raw, axis=1)
+    far = moved > max(0.5, 3.0 * float(np.median(moved)))
+    for keep in ([far] if far.any() else []) + [np.ones(len(uv), bool)]:
+        cand = np.where(keep[:, None], raw, uv)
+        fr2 = check_grid(cand, t.line_ij[ids], t.points_board_m[ids], intrinsics=_filter_intrinsics(s))
+        if fr2.ok:
+            return cand, fr2, max(0, n_refined - int(keep.sum()))
+    return uv, fr, n_refined
 
 
 def _upscale_regions(s: _Search, native, first):
