@@ -229,18 +229,24 @@ def test_a_board_fit_gone_wrong_keeps_the_detectors_corner(monkeypatch):
     assert np.allclose(det.uv_px[others], good.uv_px[others]) and det.n_refined == len(det.ids) - 1
 
 
-def test_mchec_clipped_frames_keep_their_board(shared_dir):
-    """MC-HEC's camera4 frames 0149 and 0185: OpenCV's classic detector finds the board (plane fit
-    0.07-0.10 px); calibgraph now does too, every corner within 1 px of OpenCV's."""
+@pytest.mark.parametrize("camera,frame", [("camera4", "0149"), ("camera4", "0185"), ("camera3", "0121")])
+def test_mchec_frames_opencv_finds_are_found(shared_dir, camera, frame):
+    """MC-HEC frames where an OpenCV detector found the board and calibgraph did not: camera4
+    0149 and 0185 (clipped paper and ink: the board fit moved a corner 2.3-2.6 px off its row and
+    the filter refused the grid; OpenCV's classic corners fit the plane to 0.07-0.10 px), camera3
+    0121 (a steeply tilted board that only SB at full resolution finds, plane fit 0.08 px). Found
+    now, every corner on the detector's own (within a quarter square: a wrong id is a square off),
+    the grid a plane to half a pixel (the board fit on these clipped renders moves corners by up
+    to 1 px: homography residual 0.08 -> 0.32 px on 0121)."""
     from calibgraph.io.layouts import load_dataset
 
     root = shared_dir / "datasets" / "mchec_medium_workcell"
     if not root.is_dir():
         pytest.skip(f"{root} is missing")
     ds = load_dataset(root)
-    for n in ("0149", "0185"):
-        grey = cv2.imread(str(root / "camera4" / "image" / f"{n}.png"), cv2.IMREAD_GRAYSCALE)
-        det = detect_image(grey, ds.target, ds.cameras["camera4"])
-        raw = detect_image(grey, ds.target, ds.cameras["camera4"], refine=False)
-        assert det.ok and det.n_found == 12, det.reason
-        assert np.abs(det.uv_px - raw.uv_px).max() < 1.0
+    grey = cv2.imread(str(root / camera / "image" / f"{frame}.png"), cv2.IMREAD_GRAYSCALE)
+    det = detect_image(grey, ds.target, ds.cameras[camera])
+    assert det.ok and det.n_found == 12, det.reason
+    raw = detect_image(grey, ds.target, ds.cameras[camera], refine=False, method=det.method)
+    assert raw.ok and np.abs(det.uv_px - raw.uv_px).max() < 0.25 * det.pitch_px
+    assert det.homography_rms_px < 0.5
