@@ -47,14 +47,17 @@ def _classic(grey, target, fast):
     return np.asarray(c, float).reshape(-1, 2)
 
 
-def _sb(grey, target, fast):
+def _sb(grey, target, fast, rois=None):
     import cv2
 
     # SB costs seconds on a whole 1080p frame; on the saddle-point regions it costs milliseconds
-    # and finds the same corners (the whole frame is the fallback).
+    # and finds the same corners (the whole frame is the fallback). ``rois``: those regions, when
+    # the caller has them already.
     flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
     h, w = grey.shape
-    rois = (roi_candidates(grey, target) if fast else []) or [(0, 0, w, h)]
+    if rois is None:
+        rois = roi_candidates(grey, target) if fast else []
+    rois = rois or [(0, 0, w, h)]
     for x0, y0, x1, y1 in rois:
         ok, c = cv2.findChessboardCornersSB(grey[y0:y1, x0:x1], (target.cols, target.rows), flags=flags)
         if ok:
@@ -62,13 +65,14 @@ def _sb(grey, target, fast):
     return None
 
 
-def find_checkerboard(grey, target, method, allow_symmetric, scale=1.0, sb_fallback=True, fast=None):
+def find_checkerboard(grey, target, method, allow_symmetric, scale=1.0, sb_fallback=True, fast=None, rois=None):
     """Checkerboard corners on ``grey`` (the original image at ``scale`` 1, or an up-scaled
     region). ``method='auto'``: classic, replaced by SB when the squares are smaller than
     ``SB_BELOW_PITCH_PX`` original pixels, and SB when classic finds nothing and
     ``sb_fallback`` (off on the original image when an up-scaled classic search follows: that
     is more accurate than SB at ~10-12 px squares). ``fast`` (default: on at scale 1) is OpenCV's
-    quick rejection of frames without a board."""
+    quick rejection of frames without a board; ``rois``: the saddle-point regions SB searches
+    (computed when not given)."""
     fast = scale == 1.0 if fast is None else fast
     found = None
     if method in ("classic", "auto"):
@@ -97,7 +101,7 @@ def find_checkerboard(grey, target, method, allow_symmetric, scale=1.0, sb_fallb
                             if check_grid(c2, ij, P).ok and not check_grid(c, ij, P).ok:
                                 found = (c2, "sb")
     if found is None and (method == "sb" or (method == "auto" and sb_fallback)):
-        c = _sb(grey, target, fast)
+        c = _sb(grey, target, fast, rois)
         if c is not None:
             found = (c, "sb")
     if found is None:

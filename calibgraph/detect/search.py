@@ -100,7 +100,36 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
             native = _attempt(s, _raw_detect, s, grey, 1.0)  # its points give the region to up-scale
         rois, first = _upscale_regions(s, native, first)
         best = _search_upscaled(s, rois, first, deferred)
+    if best is None or not best.ok:
+        best = _last_resorts(s, best)
     return best if best is not None else _not_found(s)
+
+
+def _last_resorts(s: _Search, best):
+    """When the ladder accepted nothing: SB at the image's own resolution (:func:`_native_sb`),
+    then the grids the filter refused only after the board fit moved their corners, with the
+    detector's corners back where the fit moved them far (:func:`_keep_detector_corners`).
+    Returns the first accepted detection, else ``best``."""
+    if s.upscale == "auto" and s.method == "auto" and s.target.kind == "checkerboard":
+        best = _native_sb(s, best)
+    for result, k in ([] if best is not None and best.ok else s.refit_refused):
+        det = _finish(s, result, k, keep_detector=True)
+        if det.ok:
+            return det
+    return best
+
+
+def _native_sb(s: _Search, best):
+    """The last resort of the automatic ladder: OpenCV's SB detector at the image's own resolution
+    in the saddle-point regions (milliseconds each; the whole frame only when there is none). A
+    steeply tilted board of 20 px squares that the classic detector, its fast check and the
+    up-scaled searches all miss is found by it (MC-HEC's camera3 frame 0121); what it finds passes
+    the same filter. Returns the accepted detection, else ``best``."""
+    got = _attempt(s, find_checkerboard, s.grey, s.target, "sb", s.allow_symmetric, 1.0, True, True, s.regions)
+    if got is None:
+        return best
+    det = _finish(s, got, 1)
+    return det if det.ok or best is None else best
 
 
 @dataclass
@@ -121,6 +150,15 @@ class _Search:
     t0: float
     bounded: bool = False
     attempts: list = field(default_factory=list)
+    _regions: list | None = None
+    refit_refused: list = field(default_factory=list)  # (raw result, k) refused after the board fit
+
+    @property
+    def regions(self) -> list:
+        """The saddle/blob candidate regions of the whole image (computed once)."""
+        if self._regions is None:
+            self._regions = roi_candidates(self.grey, self.target)
+        return self._regions
 
 
 def _check_options(method: str, upscale):
@@ -158,7 +196,7 @@ def _passes_filter(s: _Search, scale: float, offset):
 
     def accept(ids, uv):
         uv = (uv + 0.5) / scale - 0.5 + np.asarray(offset, float)
-        return check_grid(uv, t.line_ij[ids], t.points_board_m[ids], intrinsics=s.intrinsics).ok
+        return check_grid(uv, t.line_ij[ids], t.points_board_m[ids], intrinsics=_filter_intrinsics(s)).ok
     return accept
 
 
@@ -190,11 +228,13 @@ def _attempt(s: _Search, fn, *a):
         return None
 
 
-def _finish(s: _Search, result, k: int) -> ImageDetection:
-    """A raw detection (from an image up-scaled by ``k``) refined, filtered and measured."""
+def _finish(s: _Search, result, k: int, keep_detector: bool = False) -> ImageDetection:
+    """A raw detection (from an image up-scaled by ``k``) refined, filtered and measured.
+    ``keep_detector``: when the filter refuses the refined corners, try the detector's where the
+    fit moved them far (a last resort, :func:`_last_resorts`)."""
     ids, uv, m, note = result
     target, grey = s.target, s.grey
-    n_refined = 0
+    n_refined, raw = 0, uv
     if s.refine and target.kind == "checkerboard" and ids.size:
         # On the original pixels whatever the search scale: interpolation adds its own shift.
         # Markers in the white squares (a ChArUco board declared a checkerboard) enter the model.
@@ -212,7 +252,11 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
     pitch = _pitch(ids, uv, target) if ids.size >= 2 else 0.0
     h_rms = float("nan")
     if ok and s.filter:
-        fr = check_grid(uv, target.line_ij[ids], target.points_board_m[ids], intrinsics=s.intrinsics)
+        fr = check_grid(uv, target.line_ij[ids], target.points_board_m[ids], intrinsics=_filter_intrinsics(s))
+        if not fr.ok and n_refined and keep_detector:
+            uv, fr, n_refined = _keep_detector_corners(s, ids, raw, uv, fr, n_refined)
+        elif not fr.ok and n_refined:
+            s.refit_refused.append((result, k))
         h_rms = fr.homography_rms_px
         if not fr.ok:
             ok, reason = False, f"rejected by the grid filter{'' if k == 1 else f' (x{k} up-scaled)'}: {fr.reason}"
@@ -222,6 +266,24 @@ def _finish(s: _Search, result, k: int) -> ImageDetection:
         spread=area / float(grey.size), pitch_px=pitch, sharpness_px=edge_sigma_px(grey, uv, max(pitch, 4.0)),
         upscale=k, method=m, homography_rms_px=h_rms, n_refined=n_refined, time_s=time.perf_counter() - s.t0,
         image=s.src)
+
+
+def _keep_detector_corners(s: _Search, ids, raw, uv, fr, n_refined):
+    """The board fit must not turn a grid the filter accepts into one it refuses: when nothing else
+    is accepted and the refined corners were refused, the corners the fit moved far (over 0.5 px and 3x the median
+    move) get the detector's positions back, else all do, whichever the filter accepts first.
+    Seen on MC-HEC's rendered frames (paper at 255, ink at 0: the fit ignores clipped pixels and
+    has little left), where a corner moved 2.5 px off its row. Returns (uv, filter result, number
+    of corners still refined)."""
+    t = s.target
+    moved = np.linalg.norm(uv - raw, axis=1)
+    far = moved > max(0.5, 3.0 * float(np.median(moved)))
+    for keep in ([far] if far.any() else []) + [np.ones(len(uv), bool)]:
+        cand = np.where(keep[:, None], raw, uv)
+        fr2 = check_grid(cand, t.line_ij[ids], t.points_board_m[ids], intrinsics=_filter_intrinsics(s))
+        if fr2.ok:
+            return cand, fr2, max(0, n_refined - int(keep.sum()))
+    return uv, fr, n_refined
 
 
 def _upscale_regions(s: _Search, native, first):
@@ -235,7 +297,7 @@ def _upscale_regions(s: _Search, native, first):
     # than 2x min_pitch_px (a miss there has another cause, e.g. a wrong target spec, and
     # searching them up-scaled costs seconds). Regions are padded by 60 % + 8 px per side.
     n_steps = max(target.rows, target.cols) + 1
-    cands = roi_candidates(grey, target)
+    cands = s.regions
     rois = [r for r in cands if (max(r[2] - r[0], r[3] - r[1]) - 16) / 2.2 / n_steps < 2 * s.min_pitch_px]
     if first is None and target.kind == "checkerboard":
         # A board on the flange touches the arm, whose shading also answers the saddle
@@ -284,6 +346,20 @@ def _search_upscaled(s: _Search, rois, first, deferred=None):
     if best is None and deferred is not None:
         best = _finish(s, deferred, 1)
     return best
+
+
+def _filter_intrinsics(s: _Search) -> Intrinsics:
+    """The intrinsics the grid filter judges a grid with: the camera's, or, when none are given, a
+    nominal pinhole (principal point at the image centre, focal length half the larger side, no
+    distortion), so that a lens's bend still gets the filter's one radial term (grid_filter module
+    docstring) instead of failing rows: OpenCV's own left*.jpg samples (k1 -0.27) lost 3 of 13
+    views to it."""
+    if s.intrinsics is not None:
+        return s.intrinsics
+    h, w = s.grey.shape[:2]
+    f = 0.5 * max(h, w)
+    return Intrinsics(K=np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]]), dist=np.zeros(5),
+                      width_px=w, height_px=h)
 
 
 def _plainly_small(s: _Search, raw) -> bool:
