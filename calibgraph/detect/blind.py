@@ -145,15 +145,35 @@ def _pattern(seen) -> tuple:
     return (float(x0), float(y0), float(x1), float(y1), float(np.median(steps)))
 
 
+def _covers(seen, declared: tuple, uv_px) -> bool:
+    """Whether the chessboard ``seen`` has at least the ``declared`` (sorted) inner corners each way,
+    more one way, and its board holds most of the points ``uv_px`` (same pixel frame): at least half
+    of them within its inner corners' hull grown by its outer ring of squares (1.5 of its squares,
+    perspective included); a board of its own beside it holds none."""
+    import cv2
+
+    if not (seen.size[0] >= declared[0] and seen.size[1] >= declared[1] and seen.size != declared):
+        return False
+    hull = cv2.convexHull(np.asarray(seen.uv_px, np.float32))
+    pitch = float(np.median(np.linalg.norm(np.diff(seen.uv_px.reshape(seen.rows, seen.cols, 2), axis=1), axis=-1)))
+    inside = [cv2.pointPolygonTest(hull, (float(u), float(v)), True) > -1.5 * pitch for u, v in uv_px]
+    return float(np.mean(inside)) >= 0.5  # a sheared grid of wrong saddles reaches past the board's edge
+
+
 def _part_of_larger(grey, target, det) -> ImageDetection:
     """``det`` refused when the declared grid it found continues past its border (part of a larger
     board: :func:`~calibgraph.detect.board_size.grid_continues`), naming the grid seen around it."""
-    if not (det.ok and grid_continues(grey, target, det.ids, det.uv_px)):
+    if not det.ok or target.kind != "checkerboard":
         return det
     declared = tuple(sorted((target.rows, target.cols)))
     x0, y0, x1, y1 = roi_from_points(det.uv_px, grey.shape, pad_frac=1.0)
     around = chessboard_seen(grey[y0:y1, x0:x1])
     other = (around.rows, around.cols) if around is not None and around.size != declared else None
+    # a whole chessboard of more squares seen around the grid and covering it: the grid found is a part
+    # of it, however its own border looks (a sheared sub-grid of wrong saddles is not caught by that)
+    larger = other is not None and _covers(around, declared, det.uv_px - [x0, y0])
+    if not (larger or grid_continues(grey, target, det.ids, det.uv_px)):
+        return det
     return replace(det, ok=False, other_grid=other,
                    reason=f"the {target.rows}x{target.cols} grid found is part of a larger grid of squares "
                           "(a larger board than the target spec says?)")

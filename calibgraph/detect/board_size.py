@@ -52,6 +52,7 @@ def chessboard_seen(grey: np.ndarray, scale: int = 1, min_size=(3, 3)) -> Chessb
     import cv2
 
     flags = cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE
+    cv2.setRNGSeed(0)  # the SB detector draws from the thread's RNG: one image, one answer
     ok, corners, meta = cv2.findChessboardCornersSBWithMeta(grey, (int(min_size[1]), int(min_size[0])), flags)
     if not ok or corners is None or meta is None or meta.ndim != 2:
         return None

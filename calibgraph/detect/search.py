@@ -40,6 +40,8 @@ from calibgraph.detect.image import read_grey, to_grey8
 from calibgraph.detect.quality import edge_sigma_px, hull_area
 from calibgraph.detect.regions import roi_candidates, roi_from_points
 
+OPENCV_RNG_SEED = 0  # seeded at each search: detection may not depend on the thread or on what ran before
+
 
 def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, upscale="auto", method: str = "auto",
                  allow_symmetric: bool = False, filter: bool = True, min_pitch_px: float = 12.0,
@@ -78,7 +80,10 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
     Returns:
         :class:`ImageDetection`; never raises for a bad image: ``ok=False`` and ``reason`` say why.
     """
+    import cv2
+
     t0 = time.perf_counter()
+    cv2.setRNGSeed(OPENCV_RNG_SEED)  # the SB detector draws from the thread's RNG: one image, one result
     src = str(image) if isinstance(image, (str, Path)) else source
     try:
         grey = read_grey(image) if isinstance(image, (str, Path)) else to_grey8(image, src or "image")
