@@ -39,6 +39,7 @@ from calibgraph.solver.moved import solve_minding_moves
 from calibgraph.solver.noise_model import corner_noise_notes
 from calibgraph.solver.observability import check_before_solve
 from calibgraph.solver.optimise import kinematics_start, solve_joint, solve_single
+from calibgraph.solver.prediction import expected_prediction, prediction_notes
 from calibgraph.solver.result import Result
 from calibgraph.solver.start import initial_intrinsics, initial_values
 from calibgraph.solver.timing import STAGES, timed  # noqa: F401 - STAGES: the keys of ``timings``
@@ -61,8 +62,23 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
         InputError: formulation 'corner' was asked for a camera with k3..k6 distortion.
     """
     t0 = time.perf_counter()
-    result = solve_minding_moves(problem, lambda p: solve_once(p, initial, seed, timings))
+    result = with_prediction(problem, solve_minding_moves(problem, lambda p: solve_once(p, initial, seed, timings)))
     return replace(result, solve_time_s=time.perf_counter() - t0)
+
+
+def with_prediction(problem: Problem, result: Result) -> Result:
+    """``result`` with each calibrated camera's expected error for a new pose predicted from its
+    reported FK, and a note saying it (:mod:`calibgraph.solver.prediction`); as it was with
+    kinematics estimated (a new pose's FK then comes from its joint angles and the offsets)."""
+    if problem.options.kinematics != "none":
+        return result
+    fk = result.fk_noise or {}
+    pred = expected_prediction(problem, result, fk.get("used_sigma_translation_m", problem.options.fk_sigma_translation_m),
+                               fk.get("used_sigma_rotation_rad", problem.options.fk_sigma_rotation_rad))
+    if not pred:
+        return result
+    cameras = {n: replace(c, prediction=pred[n]) if n in pred else c for n, c in result.cameras.items()}
+    return replace(result, cameras=cameras, notes=result.notes + tuple(prediction_notes(pred)))
 
 
 def solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, timings: dict | None = None) -> Result:
