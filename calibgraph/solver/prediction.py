@@ -8,8 +8,8 @@ ones by (to first order) the sum of independent parts, per corner:
 * robot: the FK error of the new pose, at the accuracy the solve used (the stated FK sigmas, or
   those the fit implied when the check widened them: ``fk_noise.used_sigma_*``), rotation and
   translation perturbing ``T_base_flange`` at the flange, as the FK prior does;
-* calibration: the camera pose's and the board mount's covariance (each in its own axes, their
-  cross-covariance left out);
+* calibration: the camera pose's and the board mount's joint covariance (their cross-covariance
+  included where the solve has it: the view formulation's joint graph);
 * corners: the detected corners' own noise, 2 sigma_px^2 (the camera's a posteriori pixel sigma).
 
 Each part's 2-D mean square is averaged over the corners of the camera's used views (the poses of
@@ -22,6 +22,7 @@ better; one that grows outside the calibrated workspace worse).
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
 from calibgraph.core.transforms import exp_so3, inv
@@ -73,9 +74,14 @@ def _view_ms(J: np.ndarray, cov: np.ndarray) -> float:
     return float(np.sum((J @ cov) * J))
 
 
-def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma_rotation_rad: float) -> dict:
-    """camera -> {expected_rms_px, expected_rms_mm, parts_px: {robot, calibration, corners}, views}
-    for the calibrated cameras (module docstring); the FK sigmas are those the solve used."""
+def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma_rotation_rad: float,
+                        pose_mount_cov: dict | None = None) -> dict:
+    """camera -> {expected_rms_px, expected_rms_mm, parts_px: {robot, calibration, corners}, ...}
+    for the calibrated cameras (module docstring); the FK sigmas are those the solve used.
+    ``pose_mount_cov``: camera -> the joint (12, 12) covariance of its pose and the board mount in
+    GTSAM's body frame (right perturbations), when the solve has it: their correlation (the board
+    seen by the camera pins the two together) then enters the calibration part; without it the two
+    covariances are added as if independent, which overstates it."""
     fk_cov = np.diag([fk_sigma_rotation_rad ** 2] * 3 + [fk_sigma_translation_m ** 2] * 3)
     caps = {c.index: c for c in problem.captures}
     out = {}
@@ -101,9 +107,15 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
                 return predicted_uv(X_, T_bf_, M_, problem.mode, intr, p)[0]
 
             robot = _view_ms(_jacobian(lambda e: project(T_bf_=_at_flange(T_bf, e))), fk_cov)
-            calib = _view_ms(_jacobian(lambda e: project(X_=_left(X, e))), X_cov)
-            if M_cov is not None:
-                calib += _view_ms(_jacobian(lambda e: project(M_=_left(M, e))), M_cov)
+            joint = (pose_mount_cov or {}).get(name)
+            if joint is not None and cam.T_mount_board is None:
+                Xp, Mp = gtsam.Pose3(X), gtsam.Pose3(M)
+                calib = _view_ms(_jacobian(lambda e: project(X_=Xp.retract(e[:6]).matrix(), M_=Mp.retract(e[6:]).matrix()),
+                                           12), joint)
+            else:
+                calib = _view_ms(_jacobian(lambda e: project(X_=_left(X, e))), X_cov)
+                if M_cov is not None:
+                    calib += _view_ms(_jacobian(lambda e: project(M_=_left(M, e))), M_cov)
             corners = 2.0 * len(ids) * (cam.pixel_sigma_px or result.pixel_sigma_px) ** 2
             sums += [robot, calib, corners]
             depth = predicted_uv(X, T_bf, M, problem.mode, intr, p)[1][:, 2]
