@@ -8,9 +8,13 @@ ones by (to first order) the sum of independent parts, per corner:
 * robot: the FK error of the new pose, at the accuracy the solve used (the stated FK sigmas, or
   those the fit implied when the check widened them: ``fk_noise.used_sigma_*``), rotation and
   translation perturbing ``T_base_flange`` at the flange, as the FK prior does;
-* calibration: the camera pose's and the board mount's joint covariance (their cross-covariance
-  included where the solve has it: the view formulation's joint graph);
-* corners: the detected corners' own noise, 2 sigma_px^2 (the camera's a posteriori pixel sigma).
+* calibration: the joint covariance of the camera pose, the board mount and the camera's estimated
+  intrinsics (their correlations included where the solve has them: the view formulation's joint
+  graph; elsewhere the pose's and the mount's covariances are summed);
+* corners: the detected corners' own noise, 2 sigma_px^2 (the camera's a posteriori pixel sigma),
+  and the extra variance of each view's 6 whole-board image modes the solve found (``corner_noise``'s
+  ``applied`` factor): whether shared pixels or an unmodelled robot error moved whole boards in the
+  calibration's views, it moves a new view's board too.
 
 Each part's 2-D mean square is averaged over the corners of the camera's used views (the poses of
 this calibration stand for the new ones), by numerical Jacobians of the projection. ``mm`` converts
@@ -26,6 +30,7 @@ import gtsam
 import numpy as np
 
 from calibgraph.core.transforms import exp_so3, inv
+from calibgraph.solver.noise_model import N_MODES
 
 EPS = 1e-6
 
@@ -78,10 +83,11 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
                         pose_mount_cov: dict | None = None) -> dict:
     """camera -> {expected_rms_px, expected_rms_mm, parts_px: {robot, calibration, corners}, ...}
     for the calibrated cameras (module docstring); the FK sigmas are those the solve used.
-    ``pose_mount_cov``: camera -> the joint (12, 12) covariance of its pose and the board mount in
-    GTSAM's body frame (right perturbations), when the solve has it: their correlation (the board
-    seen by the camera pins the two together) then enters the calibration part; without it the two
-    covariances are added as if independent, which overstates it."""
+    ``pose_mount_cov``: camera -> the joint covariance of its pose and the board mount in GTSAM's
+    body frame (right perturbations) and, when they were estimated, its intrinsics (``K(c)``'s
+    entries: fx fy cx cy k1 k2 [p1 p2 [k3]]), when the solve has it: their correlations (the board
+    seen by the camera pins them together) then enter the calibration part; without it the pose's and
+    the mount's covariances are added as if independent, which overstates it."""
     fk_cov = np.diag([fk_sigma_rotation_rad ** 2] * 3 + [fk_sigma_translation_m ** 2] * 3)
     caps = {c.index: c for c in problem.captures}
     out = {}
@@ -92,6 +98,7 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
         if M is None or intr is None or not np.all(np.isfinite(intr.K)):
             continue
         X, X_cov = cam.T_ref_cam, cam.covariance
+        mode_factor = max(float((cam.corner_noise or {}).get("applied", 1.0)), 1.0)
         sums = np.zeros(3)
         mm2, n = 0.0, 0
         for k, rec in cam.residuals_px.items():
@@ -110,13 +117,23 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
             joint = (pose_mount_cov or {}).get(name)
             if joint is not None and cam.T_mount_board is None:
                 Xp, Mp = gtsam.Pose3(X), gtsam.Pose3(M)
-                calib = _view_ms(_jacobian(lambda e: project(X_=Xp.retract(e[:6]).matrix(), M_=Mp.retract(e[6:]).matrix()),
-                                           12), joint)
+                n_k = len(joint) - 12  # the estimated intrinsics' share, when they are variables
+                k0 = np.concatenate([[intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2]], intr.dist8[:max(n_k - 4, 0)]])
+
+                def joint_project(e):
+                    intr_ = intr.with_pinhole(k0 + e[12:]) if n_k else intr
+                    uv, _ = predicted_uv(Xp.retract(e[:6]).matrix(), T_bf, Mp.retract(e[6:12]).matrix(), problem.mode,
+                                         intr_, p)
+                    return uv
+
+                calib = _view_ms(_jacobian(joint_project, len(joint)), joint)
             else:
                 calib = _view_ms(_jacobian(lambda e: project(X_=_left(X, e))), X_cov)
                 if M_cov is not None:
                     calib += _view_ms(_jacobian(lambda e: project(M_=_left(M, e))), M_cov)
-            corners = 2.0 * len(ids) * (cam.pixel_sigma_px or result.pixel_sigma_px) ** 2
+            # the corners' own noise, with the whole-board part the solve found in its views (6 image modes
+            # at ``mode_factor`` times the corners' variance: shared pixels, or a robot or camera error)
+            corners = (2.0 * len(ids) + N_MODES * (mode_factor - 1.0)) * (cam.pixel_sigma_px or result.pixel_sigma_px) ** 2
             sums += [robot, calib, corners]
             depth = predicted_uv(X, T_bf, M, problem.mode, intr, p)[1][:, 2]
             mm2 += (robot + calib + corners) / len(ids) * float(np.sum((1e3 * depth / intr.K[0, 0]) ** 2))
