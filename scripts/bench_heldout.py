@@ -294,6 +294,35 @@ def each_image(ds):
     return ds.to_problem(method="joint", options=SolverOptions(), detector=detect)
 
 
+def _outer_square(grey, uv, rows: int, cols: int, corner: int) -> float:
+    """Grey level of the square diagonally outside corner 0 (corner=0) or the last corner (-1)."""
+    g = uv.reshape(rows, cols, 2)
+    if corner:
+        g = g[::-1, ::-1]
+    c = g[0, 0] - 0.5 * (g[0, 1] - g[0, 0]) - 0.5 * (g[1, 0] - g[0, 0])
+    x, y = int(round(c[0])), int(round(c[1]))
+    return float(grey[np.clip(y, 0, grey.shape[0] - 1), np.clip(x, 0, grey.shape[1] - 1)])
+
+
+def opencv_sb(ds):
+    """The Problem of ``ds`` with OpenCV's SB chessboard detector's corners (a board of rows x cols
+    inner corners with an odd and an even number of squares: corner 0 is put at the darker of the two
+    outer corner squares, which fixes the 180-degree ambiguity the same way in every view)."""
+    t = ds.target
+
+    def detect(view, dataset):
+        grey = cv2.imread(str(dataset.root / view.image), cv2.IMREAD_GRAYSCALE)
+        ok, c = cv2.findChessboardCornersSB(grey, (t.cols, t.rows), flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+        if not ok:
+            return None
+        uv = c.reshape(-1, 2).astype(float)
+        if _outer_square(grey, uv, t.rows, t.cols, 0) > _outer_square(grey, uv, t.rows, t.cols, -1):
+            uv = uv[::-1].copy()
+        return np.arange(len(uv)), uv
+
+    return ds.to_problem(method="joint", options=SolverOptions(), detector=detect)
+
+
 def run_set(name: str, folder: Path, py: str | None) -> dict:
     t0 = time.time()
     ds = load_dataset(folder)
@@ -305,6 +334,14 @@ def run_set(name: str, folder: Path, py: str | None) -> dict:
         problem = each_image(ds)
         detection = (f"calibgraph's image detector on each image alone (`calibgraph solve` refuses the set: "
                      f"{str(e).splitlines()[0]})")
+        if len({d.capture for d in problem.detections}) < 9 and ds.target.kind == "checkerboard" \
+                and (ds.target.rows + ds.target.cols) % 2 == 1:
+            found = len({d.capture for d in problem.detections})
+            print(f"[{name}] {found} boards found that way; OpenCV's SB detector instead", flush=True)
+            problem = opencv_sb(ds)
+            detection = (f"OpenCV's findChessboardCornersSB (calibgraph refuses the set: {str(e).splitlines()[0]}; its "
+                         f"image detector alone finds {found} of {len(ds.captures)} boards), the same corners for "
+                         f"every method")
     detected = sorted({d.capture for d in problem.detections})
     problem = subset(problem, set(detected))
     n = len(detected)
