@@ -35,7 +35,7 @@ from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_inadequate_intrinsics
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note
-from calibgraph.solver.keys import B, C, K
+from calibgraph.solver.keys import B, C, K, S
 from calibgraph.solver.moved import solve_minding_moves
 from calibgraph.solver.noise_model import corner_noise_notes
 from calibgraph.solver.observability import check_before_solve
@@ -68,8 +68,9 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
 
 
 def _pose_mount_covariances(problem: Problem, groups: list) -> dict:
-    """camera -> joint body-frame covariance of its pose, the board mount and, when estimated, its
-    intrinsics K(c) (the view formulation's joint graph only; {} otherwise)."""
+    """camera -> (joint body-frame covariance of its pose, the board mount and, when estimated, its
+    intrinsics K(c) and the board scale S(0); K(c)'s size or 0; whether S(0) is in) (the view
+    formulation's joint graph only; {} otherwise)."""
     est = groups[0].est
     if problem.method != "joint" or est.formulation != "view":
         return {}
@@ -77,9 +78,11 @@ def _pose_mount_covariances(problem: Problem, groups: list) -> dict:
     for n in groups[0].names:
         if n in est.slots:
             s = est.slots[n]
-            keys = [C(s), B(0)] + ([K(s)] if est.values.exists(K(s)) else [])
+            n_k = len(est.values.atVector(K(s))) if est.values.exists(K(s)) else 0
+            scale = est.marginals.has(S(0))
+            keys = [C(s), B(0)] + ([K(s)] if n_k else []) + ([S(0)] if scale else [])
             try:
-                out[n] = est.marginals.joint(keys)
+                out[n] = (est.marginals.joint(keys), n_k, scale)
             except (RuntimeError, KeyError, IndexError):
                 continue
     return out

@@ -8,8 +8,8 @@ ones by (to first order) the sum of independent parts, per corner:
 * robot: the FK error of the new pose, at the accuracy the solve used (the stated FK sigmas, or
   those the fit implied when the check widened them: ``fk_noise.used_sigma_*``), rotation and
   translation perturbing ``T_base_flange`` at the flange, as the FK prior does;
-* calibration: the joint covariance of the camera pose, the board mount and the camera's estimated
-  intrinsics (their correlations included where the solve has them: the view formulation's joint
+* calibration: the joint covariance of the camera pose, the board mount, the camera's estimated
+  intrinsics and the board scale (their correlations included where the solve has them: the view formulation's joint
   graph; elsewhere the pose's and the mount's covariances are summed);
 * corners: the detected corners' own noise, 2 sigma_px^2 (the camera's a posteriori pixel sigma),
   and the extra variance of each view's 6 whole-board image modes the solve found (``corner_noise``'s
@@ -83,11 +83,12 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
                         pose_mount_cov: dict | None = None) -> dict:
     """camera -> {expected_rms_px, expected_rms_mm, parts_px: {robot, calibration, corners}, ...}
     for the calibrated cameras (module docstring); the FK sigmas are those the solve used.
-    ``pose_mount_cov``: camera -> the joint covariance of its pose and the board mount in GTSAM's
-    body frame (right perturbations) and, when they were estimated, its intrinsics (``K(c)``'s
-    entries: fx fy cx cy k1 k2 [p1 p2 [k3]]), when the solve has it: their correlations (the board
-    seen by the camera pins them together) then enter the calibration part; without it the pose's and
-    the mount's covariances are added as if independent, which overstates it."""
+    ``pose_mount_cov``: camera -> (the joint covariance of its pose and the board mount in GTSAM's
+    body frame (right perturbations), then, when they were estimated, its intrinsics (``K(c)``'s
+    entries: fx fy cx cy k1 k2 [p1 p2 [k3]]) and the board scale; the intrinsics' count; whether the
+    scale is in), when the solve has it: their correlations (the board seen by the camera pins them
+    together) then enter the calibration part; without it the pose's and the mount's covariances are
+    added as if independent, which overstates it."""
     fk_cov = np.diag([fk_sigma_rotation_rad ** 2] * 3 + [fk_sigma_translation_m ** 2] * 3)
     caps = {c.index: c for c in problem.captures}
     out = {}
@@ -114,16 +115,16 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
                 return predicted_uv(X_, T_bf_, M_, problem.mode, intr, p)[0]
 
             robot = _view_ms(_jacobian(lambda e: project(T_bf_=_at_flange(T_bf, e))), fk_cov)
-            joint = (pose_mount_cov or {}).get(name)
+            joint, n_k, has_scale = (pose_mount_cov or {}).get(name) or (None, 0, False)
             if joint is not None and cam.T_mount_board is None:
                 Xp, Mp = gtsam.Pose3(X), gtsam.Pose3(M)
-                n_k = len(joint) - 12  # the estimated intrinsics' share, when they are variables
                 k0 = np.concatenate([[intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2]], intr.dist8[:max(n_k - 4, 0)]])
 
                 def joint_project(e):
-                    intr_ = intr.with_pinhole(k0 + e[12:]) if n_k else intr
+                    intr_ = intr.with_pinhole(k0 + e[12:12 + n_k]) if n_k else intr
+                    p_ = p * (1.0 + e[12 + n_k] / result.board_scale) if has_scale else p
                     uv, _ = predicted_uv(Xp.retract(e[:6]).matrix(), T_bf, Mp.retract(e[6:12]).matrix(), problem.mode,
-                                         intr_, p)
+                                         intr_, p_)
                     return uv
 
                 calib = _view_ms(_jacobian(joint_project, len(joint)), joint)
