@@ -515,8 +515,8 @@ def main(argv=None) -> int:
         except CalibgraphError as e:  # e.g. calibgraph's detector refuses the set: said, not hidden
             results.append({"set": name, "skipped": f"calibgraph refused the set: {str(e).splitlines()[0]}"})
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    if subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                      text=True).stdout.strip():
+    if subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no", "--", ".",
+                       ":!scripts/results"], capture_output=True, text=True).stdout.strip():  # code, not earlier figures
         commit += " (with uncommitted changes)"
     meta = {"argv": " ".join(sys.argv[1:]), "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
             "cv2_version": next((r.get("cv2_version") for r in results if r.get("cv2_version")), "")}
