@@ -10,7 +10,9 @@ Input ``.npz`` (written by the benchmark), for every job ``j`` (one camera of on
     j{j}_B  (n, 4, 4)  T_cam_board[k]    per-view board pose from PnP
 
 Output ``.npz``: ``j{j}_{METHOD}`` (4, 4) estimated ``T_base_cam`` (NaN when OpenCV raised) and
-``cv2_version``.
+``cv2_version``; for the robot-world methods (SHAH, LI) also ``j{j}_{METHOD}_mount``, their estimate of
+the board's pose in its mount (``T_flange_board``; ``T_base_board`` when the caller passes the
+inverted poses of an eye-in-hand set, see ``scripts/bench_heldout.py``).
 
 Eye-to-hand conventions (fixed cameras, board on the flange), from OpenCV's documentation:
 
@@ -61,7 +63,8 @@ def _inv(T: np.ndarray) -> np.ndarray:
 
 
 def solve_job(A: np.ndarray, B: np.ndarray) -> dict:
-    """All seven OpenCV estimates of T_base_cam for one camera (NaN where OpenCV raised)."""
+    """All seven OpenCV estimates of T_base_cam for one camera (NaN where OpenCV raised), and the
+    robot-world methods' board mount under ``{METHOD}_mount``."""
     out = {}
     A_inv = [_inv(a) for a in A]
     R_fb = [a[:3, :3] for a in A_inv]
@@ -79,11 +82,16 @@ def solve_job(A: np.ndarray, B: np.ndarray) -> dict:
     t_bf = [a[:3, 3].reshape(3, 1) for a in A]
     for name, flag in ROBOT_WORLD.items():
         try:
-            _, _, R_cam_base, t_cam_base = cv2.calibrateRobotWorldHandEye(R_cb, t_cb, R_bf, t_bf, method=flag)
+            R_fl_bd, t_fl_bd, R_cam_base, t_cam_base = cv2.calibrateRobotWorldHandEye(R_cb, t_cb, R_bf, t_bf,
+                                                                                     method=flag)
             T = _inv(_T(R_cam_base, t_cam_base))
-            out[name] = T if np.all(np.isfinite(T)) else np.full((4, 4), np.nan)
+            M = _inv(_T(R_fl_bd, t_fl_bd))  # "base2world" is T_board_flange here: its inverse is the mount
+            ok = np.all(np.isfinite(T)) and np.all(np.isfinite(M))
+            out[name] = T if ok else np.full((4, 4), np.nan)
+            out[f"{name}_mount"] = M if ok else np.full((4, 4), np.nan)
         except cv2.error:
             out[name] = np.full((4, 4), np.nan)
+            out[f"{name}_mount"] = np.full((4, 4), np.nan)
     return out
 
 

@@ -283,7 +283,8 @@ def ensure_cv4_python(out_dir: Path, override: str | None) -> tuple[str | None, 
 
 
 def run_opencv(py: str, jobs: list) -> tuple[list, str]:
-    """jobs: list of (A, B). Returns (list of {method: T_base_cam}, cv2 version)."""
+    """jobs: list of (A, B). Returns (list of {method: T_base_cam, and the robot-world methods'
+    '{method}_mount'}, cv2 version)."""
     with tempfile.TemporaryDirectory() as tmp:
         fin, fout = Path(tmp) / "in.npz", Path(tmp) / "out.npz"
         arrays = {}
@@ -294,7 +295,7 @@ def run_opencv(py: str, jobs: list) -> tuple[list, str]:
         if r.returncode != 0:
             raise RuntimeError(f"OpenCV 4 worker failed: {r.stderr.strip()[-500:]}")
         data = np.load(fout)
-        out = [{m: data[f"j{j}_{m}"] for m in CV_METHODS} for j in range(len(jobs))]
+        out = [{k[len(f"j{j}_"):]: data[k] for k in data.files if k.startswith(f"j{j}_")} for j in range(len(jobs))]
         return out, str(data["cv2_version"])
 
 

@@ -36,10 +36,12 @@ from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_inadequate_intrinsics
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note
+from calibgraph.solver.keys import B, C, K, S
 from calibgraph.solver.moved import solve_minding_moves
 from calibgraph.solver.noise_model import corner_noise_notes
 from calibgraph.solver.observability import check_before_solve
 from calibgraph.solver.optimise import kinematics_start, solve_joint, solve_single
+from calibgraph.solver.prediction import expected_prediction, prediction_notes
 from calibgraph.solver.result import Result
 from calibgraph.solver.start import initial_intrinsics, initial_values
 from calibgraph.solver.timing import STAGES, timed  # noqa: F401 - STAGES: the keys of ``timings``
@@ -64,6 +66,42 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
     t0 = time.perf_counter()
     result = solve_minding_moves(problem, lambda p: solve_once(p, initial, seed, timings))
     return replace(result, solve_time_s=time.perf_counter() - t0)
+
+
+def _pose_mount_covariances(problem: Problem, groups: list) -> dict:
+    """camera -> (joint body-frame covariance of its pose, the board mount and, when estimated, its
+    intrinsics K(c) and the board scale S(0); K(c)'s size or 0; whether S(0) is in) (the view
+    formulation's joint graph only; {} otherwise)."""
+    est = groups[0].est
+    if problem.method != "joint" or est.formulation != "view":
+        return {}
+    out = {}
+    for n in groups[0].names:
+        if n in est.slots:
+            s = est.slots[n]
+            n_k = len(est.values.atVector(K(s))) if est.values.exists(K(s)) else 0
+            scale = est.marginals.has(S(0))
+            keys = [C(s), B(0)] + ([K(s)] if n_k else []) + ([S(0)] if scale else [])
+            try:
+                out[n] = (est.marginals.joint(keys), n_k, scale)
+            except (RuntimeError, KeyError, IndexError):
+                continue
+    return out
+
+
+def with_prediction(problem: Problem, result: Result, pose_mount_cov: dict | None = None) -> Result:
+    """``result`` with each calibrated camera's expected error for a new pose predicted from its
+    reported FK, and a note saying it (:mod:`calibgraph.solver.prediction`); as it was with
+    kinematics estimated (a new pose's FK then comes from its joint angles and the offsets)."""
+    if problem.options.kinematics != "none":
+        return result
+    fk = result.fk_noise or {}
+    pred = expected_prediction(problem, result, fk.get("used_sigma_translation_m", problem.options.fk_sigma_translation_m),
+                               fk.get("used_sigma_rotation_rad", problem.options.fk_sigma_rotation_rad), pose_mount_cov)
+    if not pred:
+        return result
+    cameras = {n: replace(c, prediction=pred[n]) if n in pred else c for n, c in result.cameras.items()}
+    return replace(result, cameras=cameras, notes=result.notes + tuple(prediction_notes(pred)))
 
 
 def solve_once(problem: Problem, initial: dict | None = None, seed: int = 0, timings: dict | None = None) -> Result:
@@ -156,7 +194,7 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
     settings["intrinsics_source_default"] = settings.pop("intrinsics_source")
     settings["formulation_used"] = groups[0].est.formulation
     fk_ratio = groups[0].est.fk_ratio if len(groups) == 1 else None
-    return Result(
+    return with_prediction(problem, Result(
         mode=problem.mode, method=problem.method, cameras=cameras, T_mount_board=T_mount_board,
         mount_covariance=mount_cov, pairs=pair_results([n for n in problem.cameras if cameras[n].calibrated], cameras,
                                                        groups, problem.method == "joint"),
@@ -167,4 +205,4 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
         rejected_corners=tuple(rejected_corners), T_base_flange_est=T_base_flange_est, settings=settings,
         board_scale=scale, board_scale_sigma=scale_sigma, notes=tuple(notes), robot=robot,
         fk_noise=fk_ratio.to_dict(problem.options) if fk_ratio is not None else None,
-    )
+    ), _pose_mount_covariances(problem, groups))

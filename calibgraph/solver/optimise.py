@@ -19,7 +19,8 @@ from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.claims import contradicted
 from calibgraph.solver.factors import intrinsics_vector
-from calibgraph.solver.fk_check import fk_variance_ratio, robot_pose_marginals, widened
+from calibgraph.solver.fk_check import (FK_COMPONENT_STEPS, fk_variance_ratio, rescaled, robot_pose_marginals,
+                                         settled_components, widened)
 from calibgraph.solver.graph import (
     Estimate,
     build_graph,
@@ -201,7 +202,7 @@ def _rejudge_robot(stated: Problem, slots: dict, views: list, est: Estimate, sig
     fk2 = fk_variance_ratio(stated, views, est2, sigma, lin, factors,
                             _fk_marginals(stated, views, slots, est2, sigma, form, factors, timings,
                                           (graph, run.values)))
-    if fk2 is not None and fk2.applied > 1.0:
+    if fk2 is not None and fk2.widens:
         return None
     modes = mode_variance_ratios(stated, views, est2, sigma, lin)
     return (stated, est2, fk2, modes, {c: m.applied for c, m in modes.items() if m.applied > 1.0},
@@ -231,17 +232,28 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     fk_ratio = fk_variance_ratio(problem, views, est, sigma, lin,
                                  marginal=_fk_marginals(problem, views, slots, est, sigma, form, None, timings, solved)
                                  ) if opts.fk_variance else None
-    if fk_ratio is not None and fk_ratio.applied > 1.0:
+    if fk_ratio is not None and fk_ratio.widens:
         # the robot is less accurate than stated: the final graph uses the FK sigmas the fit implies,
         # and the corner-noise modes are judged on the residuals of that graph
         problem = problem.with_(options=widened(opts, fk_ratio))
-        est, run, _ = _resolve(problem, views, slots, est, sigma, form, None, timings)
+        est, run, graph = _resolve(problem, views, slots, est, sigma, form, None, timings)
         iterations += run.iterations
         converged = converged and run.converged
         lin = None
+        for _ in range(FK_COMPONENT_STEPS):
+            # Helmert's iteration: the two components judged again at the widened sigmas, until they hold
+            again = fk_variance_ratio(problem, views, est, sigma, marginal=_fk_marginals(
+                problem, views, slots, est, sigma, form, None, timings, (graph, run.values)))
+            if again is None or settled_components(again):
+                break
+            fk_ratio = rescaled(fk_ratio, again)
+            problem = problem.with_(options=widened(opts, fk_ratio))
+            est, run, graph = _resolve(problem, views, slots, est, sigma, form, None, timings)
+            iterations += run.iterations
+            converged = converged and run.converged
     mode_ratios = mode_variance_ratios(problem, views, est, sigma, lin) if check_modes else {}
     factors = {c: m.applied for c, m in mode_ratios.items() if m.applied > 1.0}
-    if fk_ratio is not None and fk_ratio.applied > 1.0 and factors:
+    if fk_ratio is not None and fk_ratio.widens and factors:
         # Whole boards move more than the corners' scatter implies even with the robot poses freed:
         # the corners' correlated noise, not (or not only) the robot, may be why the poses departed.
         # Judge the robot again at its stated accuracy on the graph that weights those modes.

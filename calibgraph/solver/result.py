@@ -16,7 +16,8 @@ round-trip it exactly (every number, array and note), in JSON or YAML.
   axes: rotation vector of ``R_est R_true^T`` and camera-centre offset), ``reprojection_rms_px``,
   ``reprojection_max_px``, ``pixel_sigma_px`` (the a posteriori sigma of its corners, px per
   axis: each camera's own), ``views_used``, ``views_rejected`` (list of {capture, reason}),
-  ``corners_used``, ``corners_rejected``, ``intrinsics`` (K, dist, width_px, height_px used; their
+  ``corners_used``, ``corners_rejected``, ``prediction`` (the expected error of a new pose's corners
+  predicted from its reported FK, :mod:`calibgraph.solver.prediction`), ``intrinsics`` (K, dist, width_px, height_px used; their
   provenance ``source_given``, ``source_stated``, ``source_used``; with ``prior_sigma``, ``sigma`` and
   ``given`` when they were estimated), ``corner_noise``, ``error_budget`` (what the
   1-sigma is made of); ``moved`` when the camera moved during capture (the pose above is the one
@@ -142,6 +143,9 @@ class CameraResult:
     pixel_sigma_px: float | None = None
     # capture -> {"ids" (N,), "uv_detected_px" (N,2), "residual_px" (N,2), "weight" (N,), "rejected" bool}
     residuals_px: dict = field(default_factory=dict, repr=False)
+    # the expected error of a new pose's corners predicted from its reported FK (solver.prediction):
+    # expected_rms_px, expected_rms_mm, parts_px {robot, calibration, corners}, the FK sigmas used, corners
+    prediction: dict | None = None
 
     def __post_init__(self):
         set_fields(self, T_ref_cam=floats_or_none(self.T_ref_cam), covariance=floats_or_none(self.covariance),
@@ -152,7 +156,8 @@ class CameraResult:
              intrinsics=plain_json(self.intrinsics), corner_noise=plain_json(self.corner_noise),
              error_budget=plain_json(self.error_budget), calibrated=bool(self.calibrated), why=str(self.why),
              pixel_sigma_px=None if self.pixel_sigma_px is None else float(self.pixel_sigma_px),
-             residuals_px={int(k): residual_record(v) for k, v in (self.residuals_px or {}).items()})
+             residuals_px={int(k): residual_record(v) for k, v in (self.residuals_px or {}).items()},
+             prediction=plain_json(self.prediction))
 
     def __eq__(self, other):  # exact, arrays included
         return exactly_equal(self, other)
@@ -333,6 +338,8 @@ class Result:
                 cams[name]["error_budget"] = c.error_budget
             if c.moved is not None:
                 cams[name]["moved"] = moved_to_dict(c.moved, ref_key)
+            if c.prediction is not None:
+                cams[name]["prediction"] = c.prediction
         pairs = {}
         for (a, b), p in self.pairs.items():
             st, sr = sigmas_from_cov(p.covariance)
@@ -659,4 +666,5 @@ def _camera_from_dict(name: str, c: dict, frames, residuals: dict, where: str) -
         moved=None if c.get("moved") is None else moved_from_dict(c["moved"], frames.camera_key, what),
         residuals_px={int(k): residual_from_dict(mapping(v, f"{what}: residuals of capture {k}"))
                       for k, v in residuals.items()},
+        prediction=section(c, "prediction", what),
     )

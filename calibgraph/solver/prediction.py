@@ -1,0 +1,157 @@
+"""What a held-out test would say, without test data: the expected error of a new pose's corners
+predicted from the robot's *reported* forward kinematics.
+
+A user applies the calibration with the poses the robot reports, so a new capture's board corners
+are predicted as ``pi(K, inv(T_ref_cam) T_ref_mount(FK) T_mount_board p)`` and miss the detected
+ones by (to first order) the sum of independent parts, per corner:
+
+* robot: the FK error of the new pose, at the accuracy the solve used (the stated FK sigmas, or
+  those the fit implied when the check widened them: ``fk_noise.used_sigma_*``), rotation and
+  translation perturbing ``T_base_flange`` at the flange, as the FK prior does;
+* calibration: the joint covariance of the camera pose, the board mount, the camera's estimated
+  intrinsics and the board scale (their correlations included where the solve has them: the view formulation's joint
+  graph; elsewhere the pose's and the mount's covariances are summed);
+* corners: the detected corners' own noise, 2 sigma_px^2 (the camera's a posteriori pixel sigma),
+  and the extra variance of each view's 6 whole-board image modes the solve found (``corner_noise``'s
+  ``applied`` factor): whether shared pixels or an unmodelled robot error moved whole boards in the
+  calibration's views, it moves a new view's board too.
+
+Each part's 2-D mean square is averaged over the corners of the camera's used views (the poses of
+this calibration stand for the new ones), by numerical Jacobians of the projection. ``mm`` converts
+each corner's miss with its depth over the focal length (the miss at the board's distance, across
+the line of sight). The figure assumes what the solve assumes: the FK error of a new pose is
+independent of the calibration poses' (a kinematic error that repeats from pose to pose predicts
+better; one that grows outside the calibrated workspace worse).
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from calibgraph.core.transforms import exp_so3, inv
+from calibgraph.solver.noise_model import N_MODES
+
+EPS = 1e-6
+
+
+def _left(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """``T`` perturbed as the result's covariances are: rotation vector ``xi[:3]`` on the left, in the
+    frame ``T`` is expressed in, and ``xi[3:]`` added to its translation."""
+    out = T.copy()
+    out[:3, :3] = exp_so3(xi[:3]) @ T[:3, :3]
+    out[:3, 3] = T[:3, 3] + xi[3:]
+    return out
+
+
+def _at_flange(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """``T_base_flange`` perturbed at the flange (the FK prior's convention)."""
+    d = np.eye(4)
+    d[:3, :3] = exp_so3(xi[:3])
+    d[:3, 3] = xi[3:]
+    return T @ d
+
+
+def _jacobian(f, n: int = 6) -> np.ndarray:
+    """(2N, n) central-difference Jacobian of ``f`` (R^n -> (N, 2) pixels)."""
+    cols = []
+    for i in range(n):
+        e = np.zeros(n)
+        e[i] = EPS
+        cols.append(((f(e) - f(-e)) / (2 * EPS)).reshape(-1))
+    return np.column_stack(cols)
+
+
+def predicted_uv(T_ref_cam: np.ndarray, T_base_flange: np.ndarray, T_mount_board: np.ndarray, mode: str, intr,
+                 p_board_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(pixels (N, 2), camera-frame points (N, 3)) of board points ``p_board_m`` at a capture whose
+    robot pose is ``T_base_flange``, as a user applies a calibration: ``T_ref_cam`` is
+    ``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand), ``T_mount_board`` the board's
+    pose in its mount (``T_flange_board`` or ``T_base_board``)."""
+    T_ref_mount = inv(T_base_flange) if mode == "eye_in_hand" else T_base_flange
+    T = inv(T_ref_cam) @ T_ref_mount @ T_mount_board
+    p_cam = p_board_m @ T[:3, :3].T + T[:3, 3]
+    return intr.project(p_cam), p_cam
+
+
+def _view_ms(J: np.ndarray, cov: np.ndarray) -> float:
+    """Sum over the view's corners of the 2-D mean square ``tr(J cov J^T)``."""
+    return float(np.sum((J @ cov) * J))
+
+
+def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma_rotation_rad: float,
+                        pose_mount_cov: dict | None = None) -> dict:
+    """camera -> {expected_rms_px, expected_rms_mm, parts_px: {robot, calibration, corners}, ...}
+    for the calibrated cameras (module docstring); the FK sigmas are those the solve used.
+    ``pose_mount_cov``: camera -> (the joint covariance of its pose and the board mount in GTSAM's
+    body frame (right perturbations), then, when they were estimated, its intrinsics (``K(c)``'s
+    entries: fx fy cx cy k1 k2 [p1 p2 [k3]]) and the board scale; the intrinsics' count; whether the
+    scale is in), when the solve has it: their correlations (the board seen by the camera pins them
+    together) then enter the calibration part; without it the pose's and the mount's covariances are
+    added as if independent, which overstates it."""
+    fk_cov = np.diag([fk_sigma_rotation_rad ** 2] * 3 + [fk_sigma_translation_m ** 2] * 3)
+    caps = {c.index: c for c in problem.captures}
+    out = {}
+    for name, cam in result.calibrated.items():
+        intr = cam.solved_intrinsics or problem.cameras[name]
+        M = cam.T_mount_board if cam.T_mount_board is not None else result.T_mount_board
+        M_cov = result.mount_covariance if cam.T_mount_board is None else None
+        if M is None or intr is None or not np.all(np.isfinite(intr.K)):
+            continue
+        X, X_cov = cam.T_ref_cam, cam.covariance
+        mode_factor = max(float((cam.corner_noise or {}).get("applied", 1.0)), 1.0)
+        sums = np.zeros(3)
+        mm2, n = 0.0, 0
+        for k, rec in cam.residuals_px.items():
+            if rec["rejected"] or k not in caps:
+                continue
+            ids = rec["ids"][rec["weight"] > 0]
+            if len(ids) == 0:
+                continue
+            p = problem.points_board_m[ids] * result.board_scale
+            T_bf = caps[k].T_base_flange
+
+            def project(X_=X, T_bf_=T_bf, M_=M):
+                return predicted_uv(X_, T_bf_, M_, problem.mode, intr, p)[0]
+
+            robot = _view_ms(_jacobian(lambda e: project(T_bf_=_at_flange(T_bf, e))), fk_cov)
+            joint, n_k, has_scale = (pose_mount_cov or {}).get(name) or (None, 0, False)
+            if joint is not None and cam.T_mount_board is None:
+                Xp, Mp = gtsam.Pose3(X), gtsam.Pose3(M)
+                k0 = np.concatenate([[intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2]], intr.dist8[:max(n_k - 4, 0)]])
+
+                def joint_project(e):
+                    intr_ = intr.with_pinhole(k0 + e[12:12 + n_k]) if n_k else intr
+                    p_ = p * (1.0 + e[12 + n_k] / result.board_scale) if has_scale else p
+                    uv, _ = predicted_uv(Xp.retract(e[:6]).matrix(), T_bf, Mp.retract(e[6:12]).matrix(), problem.mode,
+                                         intr_, p_)
+                    return uv
+
+                calib = _view_ms(_jacobian(joint_project, len(joint)), joint)
+            else:
+                calib = _view_ms(_jacobian(lambda e: project(X_=_left(X, e))), X_cov)
+                if M_cov is not None:
+                    calib += _view_ms(_jacobian(lambda e: project(M_=_left(M, e))), M_cov)
+            # the corners' own noise, with the whole-board part the solve found in its views (6 image modes
+            # at ``mode_factor`` times the corners' variance: shared pixels, or a robot or camera error)
+            corners = (2.0 * len(ids) + N_MODES * (mode_factor - 1.0)) * (cam.pixel_sigma_px or result.pixel_sigma_px) ** 2
+            sums += [robot, calib, corners]
+            depth = predicted_uv(X, T_bf, M, problem.mode, intr, p)[1][:, 2]
+            mm2 += (robot + calib + corners) / len(ids) * float(np.sum((1e3 * depth / intr.K[0, 0]) ** 2))
+            n += len(ids)
+        if n == 0:
+            continue
+        parts = np.sqrt(sums / n)
+        out[name] = {"expected_rms_px": float(np.sqrt(sums.sum() / n)), "expected_rms_mm": float(np.sqrt(mm2 / n)),
+                     "parts_px": {"robot": float(parts[0]), "calibration": float(parts[1]), "corners": float(parts[2])},
+                     "fk_sigma_translation_m": float(fk_sigma_translation_m),
+                     "fk_sigma_rotation_rad": float(fk_sigma_rotation_rad), "corners": int(n)}
+    return out
+
+
+def prediction_notes(prediction: dict) -> list:
+    """One line per camera: what a held-out test would say."""
+    return [f"camera {name}: a new robot pose's corners, predicted from its reported FK, are expected to miss by "
+            f"{p['expected_rms_px']:.2f} px RMS ({p['expected_rms_mm']:.2f} mm at the board): robot "
+            f"{p['parts_px']['robot']:.2f} px, calibration {p['parts_px']['calibration']:.2f} px, corner noise "
+            f"{p['parts_px']['corners']:.2f} px" for name, p in prediction.items()]
