@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calibgraph.acquire.interfaces import DeviceError
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError, ObservabilityError
 from calibgraph.core.targets import Target
@@ -273,8 +274,6 @@ def run_live_session(camera, target: Target, goal_px: float | None = None, model
     Returns:
         :class:`LiveOutcome`; a Ctrl-C (KeyboardInterrupt) during a frame ends it with 'interrupted'.
     """
-    from calibgraph.acquire.interfaces import DeviceError
-
     intr = camera.intrinsics()
     if intr.width_px <= 0 or intr.height_px <= 0:
         raise InputError("live intrinsics: the camera reports no image size.")
@@ -306,7 +305,7 @@ def run_live_session(camera, target: Target, goal_px: float | None = None, model
                     same = [i for i in cur if taken_uv is not None and i in taken_uv]
                     new_hold = (taken_uv is None or len(same) < 0.5 * len(cur)
                                 or float(np.median([np.hypot(*(cur[i] - taken_uv[i])) for i in same])) > NEW_HOLD_PX)
-                    name = f"frame_{frames:05d}"
+                    name = f"frame_{frames:05d}.png"
                     full = detect_image(grey, target) if new_hold else None  # the calibration's corners
                     if full is not None and full.ok and s.consider(name, full.ids, full.uv_px):
                         taken_uv, board = cur, "taken"
