@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from calibgraph.acquire.interfaces import DeviceError
-from calibgraph.acquire.live_session import MIN_STOP_VIEWS, default_goal_px, run_live_session
+from calibgraph.acquire.live_session import MIN_STOP_VIEWS, STILL_PX, default_goal_px, run_live_session
 from calibgraph.core.camera import Intrinsics, preset
 from calibgraph.io.camera_file import read_camera_file
 from calibgraph.plan.cell import board_by_name
@@ -49,17 +49,25 @@ def _within_3_sigma(r, true):
 def test_session_reaches_its_goal_with_fx_within_3_sigma():
     true, cam = _device(seed=1)
     statuses = []
-    o = run_live_session(cam, BOARD, on_status=statuses.append, max_frames=400)
-    goal, _ = default_goal_px(cam.intrinsics(), BOARD)
-    assert o.goal_met and o.goal_px == pytest.approx(goal), o.reason
+    o = run_live_session(cam, BOARD, on_status=statuses.append, max_frames=600)
+    assert o.goal_met, o.reason
     r = o.result
-    assert r.sigma["fx"] <= goal and len(r.views_used) >= MIN_STOP_VIEWS
+    # the default goal: the advice's 25-view session at the corner noise this session measured (< 0.1 px)
+    assert o.goal_px == pytest.approx(default_goal_px(r.intrinsics, BOARD, pixel_sigma_px=r.pixel_sigma_px)[0], rel=0.05)
+    assert o.goal_px < default_goal_px(cam.intrinsics(), BOARD)[0]
+    assert r.sigma["fx"] <= o.goal_px and len(r.views_used) >= MIN_STOP_VIEWS
     _within_3_sigma(r, true)
-    # every taken frame was a still one: the true board moved < 1 mm between it and the frame before
+    # every taken frame was a still one: the board's true image moved less than STILL_PX (plus the
+    # detector's noise) since the frame before, and by far less than a moving board's
     poses = [T for _, T in cam.true_poses]
+
+    def image_travel(k):
+        uv = [true.project(BOARD.points_board_m @ T[:3, :3].T + T[:3, 3]) for T in (poses[k], poses[k - 1])]
+        return float(np.max(np.hypot(*(uv[0] - uv[1]).T)))
     for v in o.views:
         k = int(v.name[len("frame_"):-len(".png")]) - 1  # frame_00001.png is the first frame
-        assert np.linalg.norm(poses[k][:3, 3] - poses[k - 1][:3, 3]) < 1e-3
+        assert image_travel(k) < STILL_PX + 0.2, (v.name, image_travel(k))
+    assert max(image_travel(k) for k in range(1, len(poses))) > 10 * STILL_PX  # the board did move
     # the console line says what it should, and the last one that the goal is met
     assert statuses[-1].hint == "the goal is met" and "goal" in statuses[-1].line(true.K[0, 0])
     assert any(s.board == "moving" for s in statuses) and any(s.hint.startswith("bring it to") for s in statuses)
@@ -157,7 +165,7 @@ def test_recorded_realsense_playback_goes_through_the_same_loop(tmp_path):
     from calibgraph_drivers.realsense import RealSenseCamera
 
     rs = require_realsense()
-    true, cam = _device(seed=4, max_frames=260)
+    true, cam = _device(seed=4, max_frames=200)
     frames = []
     while True:
         try:
@@ -196,7 +204,7 @@ def test_recorded_realsense_playback_goes_through_the_same_loop(tmp_path):
 
     played = RealSenseCamera("cam", file=path, settle_frames=2)
     try:
-        o = run_live_session(played, BOARD)
+        o = run_live_session(played, BOARD, goal_px=0.2)
     finally:
         played.close()
     assert o.goal_met or ("recording ended" in o.reason and o.frames == len(frames)), o.reason
@@ -218,6 +226,6 @@ def test_recorded_realsense_playback_goes_through_the_same_loop(tmp_path):
 
             return Frame("cam", frames[self.k - 1], 0.2 * self.k)
 
-    direct = run_live_session(Replay(), BOARD)
+    direct = run_live_session(Replay(), BOARD, goal_px=0.2)
     assert [v.name for v in direct.views] == [v.name for v in o.views]
     np.testing.assert_allclose(direct.result.intrinsics.K, o.result.intrinsics.K, rtol=1e-6)

@@ -15,8 +15,10 @@
   stage as ``calibgraph intrinsics``); the session stops when that calibration's fx and fy 1-sigma
   meet the goal. The stop is the calibration's, never the prediction's.
 
-The goal defaults to the fx 1-sigma the error budget's advice assumed for this camera (a 25-image
-session at ``SESSION_PIXEL_SIGMA_PX``, :func:`default_goal_px`), else ``DEFAULT_GOAL_FRACTION`` of fx.
+The goal defaults to the fx 1-sigma the error budget's advice assumes for this camera
+(:func:`default_goal_px`: a 25-image session with the camera's own corner noise capped at
+``SESSION_PIXEL_SIGMA_PX``; the advice takes that noise from the hand-eye views, the session from its
+own calibration, so the goal tightens after the first one), else ``DEFAULT_GOAL_FRACTION`` of fx.
 A device that stops sending frames (a recording's end) or a Ctrl-C ends the session with what it has.
 """
 
@@ -46,14 +48,19 @@ ADVICE_SESSION_VIEWS = 25  # the session the error budget's advice assumes
 CORNER_CELLS = ("top-left", "top-right", "bottom-left", "bottom-right")
 
 
-def default_goal_px(intr: Intrinsics, target: Target, model: str = DEFAULT_MODEL) -> tuple:
-    """(fx 1-sigma in px, how it was chosen): the advice's session prediction, else 0.05 % of fx."""
+def default_goal_px(intr: Intrinsics, target: Target, model: str = DEFAULT_MODEL,
+                    pixel_sigma_px: float = SESSION_PIXEL_SIGMA_PX) -> tuple:
+    """(fx 1-sigma in px, how it was chosen): what the error budget's advice assumes a session gives,
+    :func:`~calibgraph.solver.session_plan.predict_session_covariance` of ``ADVICE_SESSION_VIEWS`` views
+    with corners of ``pixel_sigma_px`` capped at ``SESSION_PIXEL_SIGMA_PX`` (as the advice caps the
+    camera's own corner noise); else 0.05 % of fx."""
+    sigma = min(float(pixel_sigma_px), SESSION_PIXEL_SIGMA_PX)
     try:
-        cov = predict_session_covariance(intr, target, ADVICE_SESSION_VIEWS, model=model)
+        cov = predict_session_covariance(intr, target, ADVICE_SESSION_VIEWS, pixel_sigma_px=sigma, model=model)
         s = float(np.sqrt(cov[0, 0]))
         if np.isfinite(s) and s > 0:
-            return s, (f"the error budget's advice ({ADVICE_SESSION_VIEWS} views at {SESSION_PIXEL_SIGMA_PX:g} px "
-                       "corner noise)")
+            return s, (f"what the error budget's advice assumes: {ADVICE_SESSION_VIEWS} views with corners of "
+                       f"{sigma:.3g} px")
     except (InputError, np.linalg.LinAlgError):
         pass
     return DEFAULT_GOAL_FRACTION * float(intr.K[0, 0]), f"{100 * DEFAULT_GOAL_FRACTION:g} % of fx"
@@ -137,8 +144,10 @@ class LiveOutcome:
 
 
 class _Session:
-    def __init__(self, intr: Intrinsics, target: Target, model: str, goal_px: float, min_views: int):
-        self.intr, self.target, self.model, self.goal_px = intr, target, model, goal_px
+    def __init__(self, intr: Intrinsics, target: Target, model: str, goal_px: float | None, min_views: int):
+        self.intr, self.target, self.model = intr, target, model
+        self.auto_goal = goal_px is None  # the advice's: follows the corner noise the session measures
+        self.goal_px = default_goal_px(intr, target, model)[0] if goal_px is None else float(goal_px)
         self.names = model_parameters(model)
         self.min_views = min_views
         self.views, self.poses, self.images = [], [], {}
@@ -206,6 +215,8 @@ class _Session:
         self.result, self.error = r, ""
         self.intr = r.intrinsics  # the next views' poses and predictions at the fitted camera
         self.pixel_sigma_px = max(r.pixel_sigma_px * np.sqrt(r.mode_variance_ratio), 1e-3)
+        if self.auto_goal:
+            self.goal_px = default_goal_px(self.intr, self.target, self.model, r.pixel_sigma_px)[0]
         blocks = [view_jacobians(self.intr, self.names, self.target.points_board_m[v.ids], r.T_cam_board[v.name])[1:]
                   if v.name in r.T_cam_board else None for v in self.views]
         self.info = reduced_information([b for b in blocks if b is not None])
@@ -265,7 +276,8 @@ def run_live_session(camera, target: Target, goal_px: float | None = None, model
     Args:
         camera: the device; its ``intrinsics()`` start the predictions (the image size is its).
         target: the board.
-        goal_px: the fx 1-sigma to reach, px (default :func:`default_goal_px`).
+        goal_px: the fx 1-sigma to reach, px (default :func:`default_goal_px`: at 0.1 px corners until
+            the first calibration, then at the corner noise it measured, capped at 0.1 px).
         model: the distortion model to calibrate.
         min_views: the fewest views calibrated.
         max_frames: stop after this many frames (None: until the goal, the device's end or Ctrl-C).
@@ -277,9 +289,7 @@ def run_live_session(camera, target: Target, goal_px: float | None = None, model
     intr = camera.intrinsics()
     if intr.width_px <= 0 or intr.height_px <= 0:
         raise InputError("live intrinsics: the camera reports no image size.")
-    if goal_px is None:
-        goal_px, _ = default_goal_px(intr, target, model)
-    s = _Session(intr, target, model, float(goal_px), int(min_views))
+    s = _Session(intr, target, model, goal_px, int(min_views))
     prev, taken_uv = None, None  # the previous frame's and the last taken frame's corners (id -> uv)
     frames, reason = 0, ""
     try:

@@ -99,10 +99,12 @@ def run_live(args) -> int:
                 raise InputError(f"--goal-fx-percent must be > 0, got {args.goal_fx_percent}.")
             goal, why = args.goal_fx_percent / 100.0 * float(intr.K[0, 0]), "--goal-fx-percent"
         else:
-            goal, why = default_goal_px(intr, target, args.model)
+            goal, why = None, "what the error budget's advice assumes: a 25-view session with the camera's own corners"
         say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+        shown = default_goal_px(intr, target, args.model)[0] if goal is None else goal
         say(f"live intrinsics of {args.camera} ({intr.width_px}x{intr.height_px}, fx {intr.K[0, 0]:.1f} px as the "
-            f"device reports): goal fx 1-sigma {goal:.2f} px ({100 * goal / intr.K[0, 0]:.3f} %, {why}); hold the "
+            f"device reports): goal fx 1-sigma {shown:.2f} px ({100 * shown / intr.K[0, 0]:.3f} %; {why}"
+            f"{', at 0.1 px until it measures them' if goal is None else ''}); hold the "
             f"{target.kind} ({target.rows}x{target.cols}) still in each pose; Ctrl-C stops and writes what it has")
         console = _Console(float(intr.K[0, 0]), args.quiet)
 
@@ -125,7 +127,7 @@ def run_live(args) -> int:
     s = r.sigma
     print(f"wrote {out}: {o.reason} after {o.frames} frames; {len(r.views_used)} of {len(o.views)} views used, "
           f"RMS {r.rms_px:.3f} px, fx {r.intrinsics.K[0, 0]:.2f} ± {s['fx']:.2f} px "
-          f"({100 * s['fx'] / r.intrinsics.K[0, 0]:.3f} %, goal {goal:.2f} px)"
+          f"({100 * s['fx'] / r.intrinsics.K[0, 0]:.3f} %, goal {o.goal_px:.2f} px)"
           + (f"; views saved in {views_dir}" if views_dir is not None else ""))
     for w in r.warnings:
         print(f"  warning: {w}")
