@@ -94,7 +94,7 @@ class _Interrupted:
 
 def _args(tmp_path, **kw):
     a = dict(images=None, live=True, camera="cam", workcell=tmp_path / "cell.yaml", target=None, out=tmp_path / "cam.yaml",
-             model="k1k2p1p2k3", quiet=True, goal_fx_percent=None, save_views=tmp_path / "views")
+             model="k1k2p1p2k3", quiet=True, goal_fx_percent=None, save_views=tmp_path / "views", view=False, rrd=None)
     a.update(kw)
     return argparse.Namespace(**a)
 
@@ -132,6 +132,33 @@ def _within_3_sigma_file(d, true):
     K = np.asarray(d["K"])
     for name, (i, j) in {"fx": (0, 0), "fy": (1, 1)}.items():
         assert abs(K[i, j] - true.K[i, j]) < 3.0 * d["sigma"][name], name
+
+
+def test_live_view_writes_a_recording_of_the_frames_coverage_and_sigma(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("rerun", reason="rerun-sdk not installed (pip install calibgraph[viz])")
+    import subprocess
+
+    from rerun.chunk import RrdReader
+
+    import calibgraph.cli.intrinsics_live as live
+    from calibgraph.report.rerun_view import rerun_cli
+
+    (tmp_path / "cell.yaml").write_text("board: a4_54\ncameras:\n  cam: {driver: realsense, serial: '1'}\n")
+    _, cam = _device(seed=2)
+    monkeypatch.setattr(live, "_device", lambda args, spec, board: _Interrupted(cam, 60))
+    rc = live.run_live(_args(tmp_path, save_views=None, rrd=tmp_path / "live.rrd"))
+    assert rc == live.EXIT_INTERRUPTED and f"wrote {tmp_path / 'live.rrd'}" in capsys.readouterr().out
+    r = subprocess.run(rerun_cli() + ["rrd", "verify", str(tmp_path / "live.rrd")], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    frames = {}
+    for ch in RrdReader(str(tmp_path / "live.rrd")).stream():
+        if not ch.is_static:
+            frames.setdefault(ch.entity_path, set()).update(ch.to_record_batch().column("frame").to_pylist())
+    assert frames["/cam/image"] == set(range(1, 61))  # every frame read
+    assert frames["/cam/image/corners"] and frames["/coverage"] and frames["/log"]
+    assert frames["/coverage"] <= frames["/cam/image/corners"] and len(frames["/fx_sigma/goal_px"]) == 60
+    assert not list(tmp_path.glob(".live.rrd*"))  # the temporary file moved into place
 
 
 def test_too_few_views_writes_nothing_and_says_so(tmp_path, monkeypatch, capsys):

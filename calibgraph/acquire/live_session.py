@@ -269,7 +269,7 @@ class _Session:
 
 def run_live_session(camera, target: Target, goal_px: float | None = None, model: str = DEFAULT_MODEL,
                      min_views: int = MIN_VIEWS, max_frames: int | None = None, on_status=None,
-                     on_take=None) -> LiveOutcome:
+                     on_take=None, on_frame=None) -> LiveOutcome:
     """Read frames from ``camera`` (a :class:`calibgraph.acquire.interfaces.Camera`) until the goal is met
     (module docstring).
 
@@ -283,6 +283,7 @@ def run_live_session(camera, target: Target, goal_px: float | None = None, model
         max_frames: stop after this many frames (None: until the goal, the device's end or Ctrl-C).
         on_status: callable(LiveStatus) after every frame.
         on_take: callable(name, image) for every taken frame.
+        on_frame: callable(frame_no, image, corners (n, 2) or None, LiveStatus) after every frame (a live view).
     Returns:
         :class:`LiveOutcome`; a Ctrl-C (KeyboardInterrupt) during a frame ends it with 'interrupted'.
     """
@@ -326,8 +327,12 @@ def run_live_session(camera, target: Target, goal_px: float | None = None, model
                 prev = cur
             else:
                 prev = None
-            if on_status:
-                on_status(s.status(frames, board))
+            if on_status or on_frame:
+                st = s.status(frames, board)
+                if on_status:
+                    on_status(st)
+                if on_frame:
+                    on_frame(frames, frame.image, det.uv_px if det.ok else None, st)
             if s.goal_met():
                 reason = "goal met"
                 break

@@ -40,6 +40,11 @@ def add_parser(sub):
     live.add_argument("--goal-fx-percent", type=float, default=None, metavar="PCT",
                       help="fx 1-sigma to reach, in %% of fx (default: what the error budget's advice assumed for a "
                            "25-image session, else 0.05)")
+    live.add_argument("--view", action="store_true",
+                      help="stream a live rerun view (the image with the corners, the coverage heat map, fx 1-sigma "
+                           "over time): a viewer where there is a display, else a .rrd beside --out (or --rrd)")
+    live.add_argument("--rrd", type=Path, default=None, metavar="FILE",
+                      help="write the live view into this rerun recording instead of opening a viewer")
     live.add_argument("--save-views", type=Path, default=None, metavar="DIR",
                       help="also write the frames the session took as PNG into this new folder "
                            "(calibgraph intrinsics DIR then calibrates them again)")

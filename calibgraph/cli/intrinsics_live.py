@@ -89,9 +89,17 @@ def run_live(args) -> int:
     inputs = [args.workcell] + ([args.target] if args.target is not None else [])
     out = check_output_file(args.out, "camera file", "camera file", "camera.yaml", inputs=inputs)
     views_dir = check_output_folder(args.save_views, "views folder", empty=True) if args.save_views else None
+    rrd = None
+    if args.rrd is not None or args.view:
+        from calibgraph.report.live_view import has_display
+
+        if args.rrd is not None or not has_display():
+            rrd = check_output_file(args.rrd or out.with_suffix(".rrd"), "recording", "recording file", "calibgraph.rrd",
+                                    inputs=inputs + [out])
     spec = read_workcell(args.workcell)
     target = load_target(args.target) if args.target is not None else spec.target
     cam = _device(args, spec, target)
+    view = None
     try:
         intr = cam.intrinsics()
         if args.goal_fx_percent is not None:
@@ -112,10 +120,19 @@ def run_live(args) -> int:
             if views_dir is not None:
                 atomic_write_png(views_dir / name, image)
 
-        o = run_live_session(cam, target, goal_px=goal, model=args.model, on_status=console, on_take=keep)
+        if args.view or rrd is not None:
+            from calibgraph.report.live_view import LiveView
+
+            view = LiveView(args.camera, intr.width_px, intr.height_px, float(intr.K[0, 0]), rrd)
+        o = run_live_session(cam, target, goal_px=goal, model=args.model, on_status=console, on_take=keep,
+                             on_frame=view)
         console.end()
     finally:
         cam.close()
+        if view is not None:
+            written = view.close()
+            if written is not None:
+                print(f"wrote {written} (open with: rerun {written})")
     if o.result is None:
         print(f"calibgraph intrinsics --live: {o.reason}; {len(o.views)} views taken, too few to calibrate"
               f"{' (' + o.error + ')' if o.error else ''}; nothing written to {out}.", file=sys.stderr)
