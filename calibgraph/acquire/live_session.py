@@ -4,8 +4,8 @@
 
 - a frame is **taken** when the board is still (every corner moved less than ``STILL_PX`` since
   the previous frame), has moved since the last taken frame (a new hold, not the same pose again)
-  and adds information: the predicted fx 1-sigma falls by at least ``MIN_FALL``, or a coverage
-  cell of the image or a tilt bin is new;
+  and adds information: the predicted fx 1-sigma falls by at least ``MIN_FALL`` of what an average
+  view taken so far brought, or a coverage cell of the image or a tilt bin is new;
 - the predicted fx 1-sigma is the information of the taken views' corners at the camera's current
   intrinsics, every view's pose eliminated (as :func:`calibgraph.solver.session_plan.predict_session_covariance`
   and the calibration compute it), at the corner noise the last fit measured (before one:
@@ -39,7 +39,8 @@ from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX, predict_sessi
 
 STILL_PX = 0.5  # every corner moved less than this since the previous frame: the board is still
 NEW_HOLD_PX = 10.0  # the corners' median travel since the last taken frame that makes a new pose
-MIN_FALL = 0.02  # a taken frame lowers the predicted fx 1-sigma by at least this share ...
+MIN_FALL = 0.5  # a taken frame lowers the predicted fx 1-sigma by at least this share of what an average view
+                # of those taken so far did (n views: 1 - sqrt(n / (n + 1))) ...
 TILT_BIN_DEG = 15.0  # ... or reaches a new bin of tilt about the image's vertical / horizontal axis
 MIN_STOP_VIEWS = 10  # the session stops with no fewer views: a 6-view fit's 1-sigma rests on few views' scatter
 REFIT_EVERY = 5  # calibrate after this many new views even while the prediction is above the goal
@@ -188,7 +189,9 @@ class _Session:
         new_cov = coverage(self.views + [view], self.poses + [T], self.intr, self.target)
         tilt = _tilt_bin(T)
         new_cell = self.cov is None or new_cov.cells_fraction > self.cov.cells_fraction + 1e-9
-        adds = (not np.isfinite(before) or after < (1.0 - MIN_FALL) * before or new_cell
+        n = len(self.views)
+        typical = 1.0 - np.sqrt(n / (n + 1.0))  # an average view's share of the fall
+        adds = (not np.isfinite(before) or (1.0 - after / before) >= MIN_FALL * typical or new_cell
                 or tilt not in self.tilt_bins)
         if not adds:
             return False
