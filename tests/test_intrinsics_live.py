@@ -186,8 +186,10 @@ def test_bad_live_arguments_are_one_line_and_exit_2(tmp_path, capsys):
     assert "Traceback" not in err and not (tmp_path / "c.yaml").exists()
 
 
-def test_recorded_realsense_playback_goes_through_the_same_loop(tmp_path):
+def test_recorded_realsense_playback_goes_through_the_same_loop(tmp_path, capsys):
     from helpers import require_realsense
+
+    from calibgraph.cli.main import main
 
     from calibgraph_drivers.realsense import RealSenseCamera
 
@@ -229,13 +231,25 @@ def test_recorded_realsense_playback_goes_through_the_same_loop(tmp_path):
     rsensor.close()
     del rsensor, rec
 
+    # through the command, the camera named by a workcell as the device registry opens it (realsense, file=)
+    (tmp_path / "cell.yaml").write_text(f"board: a4_54\ncameras:\n  cam: {{driver: realsense, file: {path}, "
+                                        "settle_frames: 2}\n")
+    rc = main(["intrinsics", "--live", "--camera", "cam", "--workcell", str(tmp_path / "cell.yaml"), "--out",
+               str(tmp_path / "cam.yaml"), "--goal-fx-percent", str(100 * 0.2 / rep.K[0, 0]), "--quiet"])
+    out = capsys.readouterr().out
+    assert rc in (0, 3) and ("goal met" in out or "recording ended" in out), out
+    import yaml
+
+    d = yaml.safe_load((tmp_path / "cam.yaml").read_text())
+    assert d["source"] == "calibration" and d["views_used"] >= MIN_STOP_VIEWS
+    _within_3_sigma_file(d, true)
+
     played = RealSenseCamera("cam", file=path, settle_frames=2)
     try:
         o = run_live_session(played, BOARD, goal_px=0.2)
     finally:
         played.close()
-    assert o.goal_met or ("recording ended" in o.reason and o.frames == len(frames)), o.reason
-    assert o.result is not None and len(o.result.views_used) >= MIN_STOP_VIEWS
+    assert o.result is not None and list(o.result.views_used) == d["views"]["used"]
     _within_3_sigma(o.result, true)
 
     class Replay:  # the same frames from memory: the loop takes the same views
