@@ -270,3 +270,26 @@ def test_recorded_realsense_playback_goes_through_the_same_loop(tmp_path, capsys
     direct = run_live_session(Replay(), BOARD, goal_px=0.2)
     assert [v.name for v in direct.views] == [v.name for v in o.views]
     np.testing.assert_allclose(direct.result.intrinsics.K, o.result.intrinsics.K, rtol=1e-6)
+
+
+def test_next_pose_hint_says_where_how_far_and_which_edge_is_nearer():
+    from calibgraph.acquire.live_session import describe_pose
+    from calibgraph.core.transforms import exp_so3, make_T
+
+    intr = preset("d455")
+    centre = np.append(np.mean(np.reshape(BOARD.extent_m, (2, 2)), axis=0), 0.0)
+
+    def pose(rotvec, at):
+        R = exp_so3(rotvec)
+        return make_T(R, np.asarray(at, float) - R @ centre)
+    T = pose([0.0, np.radians(30), 0.0], [0.0, 0.0, 0.5])
+    p = BOARD.points_board_m @ T[:3, :3].T + T[:3, 3]
+    assert p[p[:, 0] > 0, 2].mean() < p[p[:, 0] < 0, 2].mean()  # its right half is nearer the camera
+    assert describe_pose(T, intr, BOARD) == ("the board at the centre of the image, about 0.5 m away, turned about "
+                                             "30 deg about its vertical axis (right edge nearer)")
+    T = pose([np.radians(-35), 0.0, 0.0], [-0.25, 0.2, 0.6])
+    p = BOARD.points_board_m @ T[:3, :3].T + T[:3, 3]
+    assert p[p[:, 1] > 0.2, 2].mean() < p[p[:, 1] < 0.2, 2].mean()  # its bottom half is nearer
+    assert describe_pose(T, intr, BOARD) == ("the board at the bottom-left corner of the image, about 0.6 m away, "
+                                             "tilted about 35 deg about its horizontal axis (bottom edge nearer)")
+    assert "facing the camera" in describe_pose(pose([0.0, 0.0, 0.3], [0.0, 0.0, 0.4]), intr, BOARD)

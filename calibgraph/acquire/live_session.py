@@ -35,7 +35,7 @@ from calibgraph.core.targets import Target
 from calibgraph.detect.corners import detect_image
 from calibgraph.solver.intrinsics_model import DEFAULT_MODEL, model_parameters, reduced_information, view_jacobians
 from calibgraph.solver.intrinsics_session import GRID_COLS, MIN_VIEWS, SessionView, calibrate_views, coverage
-from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance
+from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance, session_poses
 
 STILL_PX = 0.5  # every corner moved less than this since the previous frame: the board is still
 NEW_HOLD_PX = 10.0  # the corners' median travel since the last taken frame that makes a new pose
@@ -46,6 +46,7 @@ MIN_STOP_VIEWS = 10  # the session stops with no fewer views: a 6-view fit's 1-s
 REFIT_EVERY = 5  # calibrate after this many new views even while the prediction is above the goal
 DEFAULT_GOAL_FRACTION = 5e-4  # 0.05 % of fx, when the advice's session cannot be predicted
 ADVICE_SESSION_VIEWS = 25  # the session the error budget's advice assumes
+NEXT_CANDIDATES = 24  # planned poses the next-pose hint chooses from
 CORNER_CELLS = ("top-left", "top-right", "bottom-left", "bottom-right")
 
 
@@ -87,6 +88,26 @@ def _pose(intr: Intrinsics, p_board_m: np.ndarray, uv_px: np.ndarray):
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, tvec[:, 0]
     return T
+
+
+def describe_pose(T: np.ndarray, intr: Intrinsics, target: Target) -> str:
+    """A board pose in words: where its centre falls in the image, how far, how it is tilted."""
+    centre_b = np.append(np.mean(np.reshape(target.extent_m, (2, 2)), axis=0), 0.0)
+    p = T[:3, :3] @ centre_b + T[:3, 3]
+    u, v = intr.project(p[None])[0]
+    col = ("left", "centre", "right")[int(np.clip(3 * u / intr.width_px, 0, 2))]
+    row = ("top", "middle", "bottom")[int(np.clip(3 * v / intr.height_px, 0, 2))]
+    where = "the centre" if (row, col) == ("middle", "centre") else (
+        f"the {row} edge" if col == "centre" else f"the {col} edge" if row == "middle" else f"the {row}-{col} corner")
+    n = T[:3, 2] * np.sign(T[2, 2] or 1.0)
+    about_v, about_h = np.degrees(np.arctan2(n[0], n[2])), np.degrees(np.arctan2(n[1], n[2]))
+    if max(abs(about_v), abs(about_h)) < 10:
+        tilt = "facing the camera"
+    elif abs(about_v) >= abs(about_h):
+        tilt = f"turned about {abs(about_v):.0f} deg about its vertical axis ({'right' if about_v > 0 else 'left'} edge nearer)"
+    else:
+        tilt = f"tilted about {abs(about_h):.0f} deg about its horizontal axis ({'bottom' if about_h > 0 else 'top'} edge nearer)"
+    return f"the board at {where} of the image, about {p[2]:.1f} m away, {tilt}"
 
 
 def _tilt_bin(T: np.ndarray) -> tuple:
@@ -159,6 +180,8 @@ class _Session:
         self.result = None
         self.last_fit_at = 0
         self.error = ""
+        self._candidates = None  # planned poses the next-pose hint chooses from
+        self._next = (-1, "")
 
     def predicted_sigma(self, info) -> float:
         if info is None:
@@ -254,9 +277,27 @@ class _Session:
             return "farther"
         if self.cov.cells_fraction < 0.6:
             return "move it over the parts of the image it has not covered"
-        if self.result is None and len(self.views) < self.min_views:
+        if self.info is None or not np.isfinite(self.predicted_sigma(self.info)):
             return "more poses: tilted, near and far, all over the image"
-        return "more poses like these (the focal length needs more views)"
+        return self.best_next()
+
+    def best_next(self) -> str:
+        """The pose of a planned session (:func:`session_poses`, ``NEXT_CANDIDATES`` of them) that would
+        lower the predicted fx 1-sigma most, in words; computed once per new view."""
+        if self._next[0] == len(self.views):
+            return self._next[1]
+        if self._candidates is None:
+            self._candidates = session_poses(self.intr, self.target, NEXT_CANDIDATES, (0.3, 0.8))
+        pts = self.target.points_board_m
+        best, best_s = None, np.inf
+        for T in self._candidates:
+            _, A, B = view_jacobians(self.intr, self.names, pts, T)
+            sig = self.predicted_sigma(self.info + reduced_information([(A, B)]))
+            if sig < best_s:
+                best, best_s = T, sig
+        words = "more poses like these" if best is None else describe_pose(best, self.intr, self.target)
+        self._next = (len(self.views), words)
+        return words
 
     def status(self, frames: int, board: str) -> LiveStatus:
         st = LiveStatus(frames=frames, views=len(self.views), board=board, goal_px=self.goal_px,
