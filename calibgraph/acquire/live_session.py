@@ -33,6 +33,7 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError, ObservabilityError
 from calibgraph.core.targets import Target
 from calibgraph.detect.corners import detect_image
+from calibgraph.detect.image import to_grey8
 from calibgraph.solver.intrinsics_model import DEFAULT_MODEL, model_parameters, reduced_information, view_jacobians
 from calibgraph.solver.intrinsics_session import GRID_COLS, MIN_VIEWS, SessionView, calibrate_views, coverage
 from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance, session_poses
@@ -66,14 +67,6 @@ def default_goal_px(intr: Intrinsics, target: Target, model: str = DEFAULT_MODEL
     except (InputError, np.linalg.LinAlgError):
         pass
     return DEFAULT_GOAL_FRACTION * float(intr.K[0, 0]), f"{100 * DEFAULT_GOAL_FRACTION:g} % of fx"
-
-
-def _grey(img: np.ndarray) -> np.ndarray:
-    if img.ndim == 3:
-        import cv2
-
-        return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    return img
 
 
 def _pose(intr: Intrinsics, p_board_m: np.ndarray, uv_px: np.ndarray):
@@ -345,7 +338,7 @@ def run_live_session(camera, target: Target, goal_px: float | None = None, model
                 reason = f"the camera stopped: {e}"
                 break
             frames += 1
-            grey = _grey(frame.image)
+            grey = to_grey8(frame.image, f"frame {frames}")
             if grey.shape != (intr.height_px, intr.width_px):
                 raise InputError(f"live intrinsics: frame {frames} is {grey.shape[1]}x{grey.shape[0]}, the camera "
                                  f"reports {intr.width_px}x{intr.height_px}.")
