@@ -41,6 +41,7 @@ SKIPPED = {  # name -> why (the docs' markers say the same)
     "capture-auto-franka": "a real robot (Franka) and cameras",
     "verify-franka": "a real robot (Franka) and cameras",
     "view": "opens the rerun viewer (a window)",
+    "intrinsics-live-camera": "a real camera",
     "rosbag": "a ROS 2 recording of a real cell (tests/test_rosbag2.py imports synthetic ones)",
 }
 

@@ -165,6 +165,9 @@ def test_session_advice_takes_the_cameras_own_corner_noise():
     for n, c in r.cameras.items():
         advice = c.error_budget["advice"]
         assert "a close-range session of 25 images" in advice, advice
+        # the advice names the command that makes the session: the guided live one at the camera
+        assert f"(calibgraph intrinsics --live --camera {n} --workcell CELL.yaml --out {n}.yaml, then --intrinsics " \
+               f"{n}={n}.yaml)" in advice, advice
         predicted = float(advice.split("would bring it to about ")[1].split(" mm")[0])
         assert predicted < 0.5 * c.error_budget["sigma_translation_norm_mm"], advice
 

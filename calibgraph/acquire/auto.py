@@ -78,6 +78,7 @@ from calibgraph.plan.survey import (
     survey_round,
 )
 from calibgraph.solver.incremental import IncrementalSolver
+from calibgraph.solver.session_plan import session_command
 
 __all__ = ["AutoOptions", "AutoReport", "run_auto", "dry_run_survey", "refuted_from_steps", "PLAN_LOG_NAME"]
 
@@ -429,8 +430,7 @@ def _session_text(name, sigma) -> str:
     """'; a close-range intrinsics session ... would bring it to about 0.31 mm / 0.012° ...' (or '')."""
     if not sigma:
         return ""
-    return (f"; a close-range intrinsics session of {SESSION_VIEWS} images (calibgraph intrinsics, then --intrinsics "
-            f"{name}=CAM.yaml) would bring it to about {sigma[0]:.2f} mm / {sigma[1]:.3f}° with those poses")
+    return (f"; a close-range intrinsics session of {SESSION_VIEWS} images ({session_command(name)}) would bring it to about {sigma[0]:.2f} mm / {sigma[1]:.3f}° with those poses")
 
 
 def _bound_text(lower, tol) -> str:
@@ -452,7 +452,7 @@ def _out_of_reach_status(c, rec, res, tol) -> str:
     lo = rec.get("best_possible") or [0.0, 0.0]
     advice = _session_text(c, rec.get("with_session"))[2:] or ((cr.error_budget or {}).get("advice") if cr is not None
                                                               else None) or (
-        f"a close-range intrinsics session (calibgraph intrinsics, then --intrinsics {c}=CAM.yaml)")
+        f"a close-range intrinsics session ({session_command(c)})")
     return (f"OUT OF REACH of {tol[0]:g} mm / {tol[1]:g}°: {now}; at capture {rec.get('at_capture')} the model of the "
             f"captures so far predicted at best {_bound_text(lo, tol)} from the {_poses(rec.get('captures_left'))} "
             f"left (any reachable poses); would help: {advice}")

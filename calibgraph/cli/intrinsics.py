@@ -19,7 +19,8 @@ def add_parser(sub):
                                    "(use it with solve --intrinsics NAME=CAM.yaml). Take 20-30 images at 0.3-0.8 m, "
                                    "the board tilted by 20-45 degrees and moved over the whole image, into its "
                                    "corners.")
-    p.add_argument("images", type=Path, metavar="IMAGES_DIR", help="folder of the camera's images (png, jpg, ...)")
+    p.add_argument("images", type=Path, metavar="IMAGES_DIR", nargs="?", default=None,
+                   help="folder of the camera's images (png, jpg, ...); none with --live")
     p.add_argument("--target", type=Path, default=None,
                    help="target spec YAML (target: {kind, rows, cols, pitch_m}; rows/cols count inner corners); "
                         "default: target.yaml in IMAGES_DIR or its parent")
@@ -27,12 +28,35 @@ def add_parser(sub):
     p.add_argument("--model", choices=tuple(DISTORTION_MODELS), default=DEFAULT_MODEL,
                    help=f"distortion coefficients to estimate (default {DEFAULT_MODEL})")
     p.add_argument("--quiet", action="store_true", help="print only the result line")
+    live = p.add_argument_group("a guided live session at the camera (instead of IMAGES_DIR)")
+    live.add_argument("--live", action="store_true",
+                      help="take frames from the camera's device while the board is held in front of it: a frame is "
+                           "taken when the board is still and adds information; stops when fx's 1-sigma meets the "
+                           "goal (Ctrl-C writes what it has)")
+    live.add_argument("--camera", default=None, metavar="NAME", help="the camera of --workcell (with --live)")
+    live.add_argument("--workcell", type=Path, default=None, metavar="CELL.yaml",
+                      help="the workcell naming the camera's device (realsense, kinect, ros2, or a simulated camera: "
+                           "a simulated hand-held board); its board unless --target")
+    live.add_argument("--goal-fx-percent", type=float, default=None, metavar="PCT",
+                      help="fx 1-sigma to reach, in %% of fx (default: what the error budget's advice assumed for a "
+                           "25-image session, else 0.05)")
+    live.add_argument("--view", action="store_true",
+                      help="stream a live rerun view (the image with the corners, the coverage heat map, fx 1-sigma "
+                           "over time): a viewer where there is a display, else a .rrd beside --out (or --rrd)")
+    live.add_argument("--rrd", type=Path, default=None, metavar="FILE",
+                      help="write the live view into this rerun recording instead of opening a viewer")
+    live.add_argument("--save-views", type=Path, default=None, metavar="DIR",
+                      help="also write the frames the session took as PNG into this new folder "
+                           "(calibgraph intrinsics DIR then calibrates them again)")
     return p
 
 
 def _images(folder: Path) -> list:
     from calibgraph.core.errors import InputError
 
+    if folder is None:
+        raise InputError("intrinsics: give IMAGES_DIR (the folder of the camera's images), or --live --camera NAME "
+                         "--workcell CELL.yaml to take them from the camera.")
     if not folder.exists():
         raise InputError(f"{folder}: no such folder; give the folder that holds the camera's images.")
     if not folder.is_dir():
@@ -57,6 +81,10 @@ def _target_path(args) -> Path:
 
 
 def run(args) -> int:
+    if args.live:
+        from calibgraph.cli.intrinsics_live import run_live
+
+        return run_live(args)
     from calibgraph.io.camera_file import write_camera_file
     from calibgraph.io.output_guard import check_output_file, write_keeping_previous
     from calibgraph.io.specs import load_target

@@ -35,6 +35,7 @@ import gtsam
 import numpy as np
 
 from calibgraph.solver.reduced import SOURCES, TRANSLATION, Linear, columns, sigma_with
+from calibgraph.solver.session_plan import session_command
 
 KNOWN_EXACTLY = 1e9  # the factor a source's information is multiplied by for "known exactly"
 SHARE_LABELS = {
@@ -182,7 +183,7 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
         how, bound = ((("25 more close-range images, calibrated together with its first session's" if has_session
                         else "a close-range session of 25 images"), "") if realistic
                       else ("a close-range intrinsics session", " at best (its intrinsics then known exactly)"))
-        return (f"{head}; {how} (calibgraph intrinsics, then --intrinsics {name}=CAM.yaml) would bring it to about "
+        return (f"{head}; {how} ({session_command(name)}) would bring it to about "
                 f"{s:.2f} mm{bound}")
     if best == "board":
         return (f"{head}; measuring the board's pitch (ruler or caliper) and solving with it fixed "

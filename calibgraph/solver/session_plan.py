@@ -40,6 +40,13 @@ SESSION_PIXEL_SIGMA_PX = 0.1
 FIRST_AIMS = ((-1, -1), (1, 1), (1, -1), (-1, 1), (0, -1), (0, 1), (-1, 0), (1, 0))
 
 
+def session_command(camera: str) -> str:
+    """The commands that make and use a close-range session of ``camera``, as advice lines name them:
+    the guided live session at the camera (``calibgraph intrinsics --live``), then the solve with its file."""
+    return (f"calibgraph intrinsics --live --camera {camera} --workcell CELL.yaml --out {camera}.yaml, "
+            f"then --intrinsics {camera}={camera}.yaml")
+
+
 def _halton(k: int, base: int) -> float:
     f, r = 1.0, 0.0
     while k > 0:
