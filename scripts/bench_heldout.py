@@ -83,7 +83,7 @@ MIRROR = Path("/work/.mirror")
 RWHE = {  # name -> (folder, rows, cols, pitch_m)
     "kuka_1": ("kuka_1", 17, 28, 0.020),
     "kuka_2": ("kuka_2", 17, 24, 0.015),
-    "kuka_3": ("kuka_3", 7, 8, 0.060),
+    "kuka_3": ("kuka_3", 8, 11, 0.060),  # 9 x 12 squares, ArUco markers in the white ones (not 7 x 8)
 }
 IC = {"ic_10x10": "test_set_10x10", "ic_charuco": "test_set_charuco"}
 SEEDS = (0, 1, 2, 3, 4)

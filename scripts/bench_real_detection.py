@@ -53,7 +53,12 @@ from calibgraph.core.targets import Target  # noqa: E402
 from calibgraph.detect.search import detect_image  # noqa: E402
 
 FALSE_RMS_PX = 1.0
-ALL_SETS = ("rct_charuco", "mchec", "ic_wrist_10x10", "ic_noise_10x10", "opencv_left", "opencv_right", "opencv_extra")
+ALL_SETS = ("rct_charuco", "mchec", "ic_wrist_10x10", "ic_noise_10x10", "opencv_left", "opencv_right", "opencv_extra",
+            "rwhe_kuka_1", "rwhe_kuka_2", "rwhe_kuka_3")
+RWHE_MIRROR = Path("/work/.mirror/ihtishamaliktk+RWHE-Calib/repo")
+# RWHE-Calib's boards: (rows, cols) inner corners and the square (getSquareSize4dataset.m), as bench_heldout.py uses them
+# (kuka_3's board has 9 x 12 squares with ArUco markers in its white squares: 8 x 11 inner corners)
+RWHE_BOARDS = {"kuka_1": (17, 28, 0.020), "kuka_2": (17, 24, 0.015), "kuka_3": (8, 11, 0.060)}
 IC_MIRROR = Path("/work/.mirror/ros-industrial+industrial_calibration/repo")
 OPENCV_MIRROR = Path("/work/.mirror/opencv+opencv/repo")
 OPENCV_EXTRA_MIRROR = Path("/work/.mirror/opencv+opencv_extra/repo")
@@ -154,6 +159,17 @@ def load_sets(args) -> tuple:
         skipped["opencv_extra"] = ("opencv/opencv_extra is not here (1.5 GB: over the fetch limit); its "
                                    "checkerboard_marker_*.png are not measured" if extra is None else
                                    f"{extra}: no spec table for its images in this bench yet")
+    for name in (n for n in wanted if n.startswith("rwhe_")):
+        kuka = name[len("rwhe_"):]
+        root = _extract(Path(args.rwhe_repo), f"Datasets/{kuka}", work / "rwhe") if kuka in RWHE_BOARDS else None
+        imgs = sorted(p for p in root.iterdir() if p.suffix.lower() in (".png", ".bmp", ".jpg")) if root else []
+        if not imgs:
+            skipped[name] = f"no RWHE-Calib Datasets/{kuka} (fetch ihtishamaliktk/RWHE-Calib: {args.rwhe_repo})"
+            continue
+        rows, cols, pitch = RWHE_BOARDS[kuka]
+        t = Target(kind="checkerboard", rows=rows, cols=cols, pitch_m=pitch)
+        sets.append(dict(name=name, target=t, items=[(p, None, kuka) for p in imgs], single=True, root=str(root),
+                         note="a KUKA arm's eye-in-hand camera, 1928x1208, no intrinsics given"))
     return sets, skipped, samples
 
 
@@ -361,6 +377,7 @@ def main():
     ap.add_argument("--shared", default=str(REPO.parent / "shared"))
     ap.add_argument("--ic-repo", default=str(IC_MIRROR), help="bare git directory of industrial_calibration")
     ap.add_argument("--ic-data", default="", help="industrial_calibration's examples/data folder (instead of the mirror)")
+    ap.add_argument("--rwhe-repo", default=str(RWHE_MIRROR), help="bare git directory of RWHE-Calib")
     ap.add_argument("--opencv-samples", default="", help="OpenCV's samples/data folder (left01.jpg ...)")
     ap.add_argument("--opencv-extra", default="", help="opencv_extra's testdata/cv/cameracalibration folder")
     ap.add_argument("--mchec-stride", type=int, default=4, help="every n-th capture of the MC-HEC recording")
