@@ -28,6 +28,11 @@ when it places its cameras; the planner reads only the cell (:mod:`calibgraph.pl
 without placements, optional hints, obstacles, keep-out boxes): CELL.yaml, or the world with every
 placement stripped. A simulated ``--auto`` or ``--verify`` run writes ``ground_truth.json`` too.
 
+``--view`` (a trajectory or ``--auto`` run) streams a live rerun view: each camera's frame with
+the board found or not, the robot and the next planned pose, each camera's 1-sigma against the
+tolerance (:class:`calibgraph.report.live_view.CaptureView`, an observer of the acquisition loop);
+a viewer where there is a display, else ``DIR.rrd`` beside ``--out`` (or ``--rrd FILE``).
+
 A real robot (``driver: franka``) never moves without ``--i-have-cleared-the-cell``; ``--dry-run``
 connects to nothing that moves and opens no camera. The workcell file (robot, cameras, safety) is
 described in :mod:`calibgraph.acquire.workcell`, its drivers in :mod:`calibgraph.acquire.devices`.
