@@ -186,7 +186,8 @@ def dry_run_survey(cell, world, safety: SafetyLimits, options: AutoOptions, q_st
 
 
 def run_auto(robot, cameras, cell, world, out_dir, detector=None, safety: SafetyLimits | None = None,
-             options: AutoOptions | None = None, resume: bool = False, progress=True, accept=None) -> AutoReport:
+             options: AutoOptions | None = None, resume: bool = False, progress=True, accept=None,
+             watch=None) -> AutoReport:
     """Discover, refine and calibrate every camera of ``cell`` (see the module docstring).
 
     Args:
@@ -203,6 +204,8 @@ def run_auto(robot, cameras, cell, world, out_dir, detector=None, safety: Safety
             commissioning tolerances (the commands pass the report's, ``datasets/tolerances/default.yaml``:
             views, reprojection, workspace 1σ); the stop rule then also needs it empty, so that "within
             tolerance" is never followed by the report's FAIL. None: the 1σ tolerances only.
+        watch: an observer of every grab, next pose and estimate (:attr:`~calibgraph.acquire.loop.Station.watch`;
+            ``capture --auto --view``), or None.
     Returns:
         :class:`AutoReport` (``result.json`` and ``plan_log.json`` are in ``out_dir``).
     """
@@ -221,6 +224,7 @@ def run_auto(robot, cameras, cell, world, out_dir, detector=None, safety: Safety
             log(f"cell cameras without a device: {missing}; calibrating the others")
         write_or_check_header(station.out, cell.target, station.intr, "eye_to_hand", claim)
         L = AutoState(station, cell, world, opts, log, accept=accept)
+        station.watch, station.estimate = watch, L.estimates
         if resume and (station.out / PLAN_LOG_NAME).is_file():
             L.reload()
         else:

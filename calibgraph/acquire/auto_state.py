@@ -184,6 +184,10 @@ class AutoState:
                 out[n] = CameraBelief(n, self.intr[n], ce.T_ref_cam, self.cov(n), ce.views, self._model_prior(n, None))
         return out
 
+    def estimates(self) -> dict:
+        """camera -> (T_base_cam, 1-sigma mm, deg) of :meth:`beliefs` (the live view's)."""
+        return {n: (b.T_base_cam, *(sigma_pair(b.covariance) or (None, None))) for n, b in self.beliefs().items()}
+
     def _model_prior(self, name, rc):
         """The prior the batch solver puts on camera ``name``'s model (the wide one when its last
         solve found the given values contradicted by the views), None when it holds it known."""

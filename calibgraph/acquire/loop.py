@@ -180,6 +180,13 @@ class Station:
         reasons: camera -> {why refused: count}.
         camera_errors: camera -> messages of failed grabs.
         trace: state transitions ``(state, index)``.
+        watch: an observer (e.g. :class:`calibgraph.report.live_view.CaptureView`) or None: its
+            ``frames(index, T_base_flange, images, found, why)`` sees every grab (camera -> image,
+            -> uv_px or None, -> why not found), its ``next_pose(index or None, T_base_flange or None,
+            estimates)`` each visit before it moves (and the end, index None). A failing observer is
+            dropped with one line; it never costs the run.
+        estimate: None, or the plan's ``estimate() -> {camera: (T_ref_cam or None, 1-sigma mm, deg)}``
+            handed to the observer.
     """
 
     def __init__(self, robot, cameras, out_dir, target: Target, detector, safety: SafetyLimits | None,
@@ -200,6 +207,36 @@ class Station:
         self.camera_errors = {c: [] for c in self.cams}
         self.fails_in_row = {c: 0 for c in self.cams}
         self.last_stamp = {}  # camera -> stamp of its last frame: a repeated stamp is a stale (re-delivered) frame
+        self.watch, self.estimate = None, None
+
+    def notify(self, what: str, *args) -> None:
+        """Call the observer's ``what(*args)``; one that fails is dropped (the run goes on)."""
+        if self.watch is None:
+            return
+        try:
+            getattr(self.watch, what)(*args)
+        except Exception as e:  # the view is advisory: never lose a capture to it
+            self.watch = None
+            self.log(f"live view stopped ({type(e).__name__}: {e}); the capture goes on")
+
+    def notify_next(self, v) -> None:
+        """Tell the observer where visit ``v`` goes (None: the run ended) and the plan's estimates."""
+        if self.watch is None:
+            return
+        T = None
+        if v is not None and v.legs:
+            q_goal, T = v.legs[-1]
+            if T is None and self.fk is not None:
+                try:
+                    T = self.fk(np.asarray(q_goal, float))
+                except Exception:  # no pose to show, nothing else lost
+                    T = None
+        try:
+            est = self.estimate() if self.estimate is not None else {}
+        except Exception as e:  # the estimate is advisory too
+            est = {}
+            self.log(f"live view: no estimate ({type(e).__name__}: {e})")
+        self.notify("next_pose", None if v is None else v.index, T, est)
 
     def enter(self, state: State, i=None) -> None:
         """Record a state transition in the trace."""
@@ -289,6 +326,9 @@ class Station:
             atomic_write_png(self.out / rel, fr.image)
             views[c] = dict(image=rel, stamp_s=float(fr.stamp_s), ids=ids, uv_px=uv)
             dets.append(Detection(camera=c, capture=i, ids=ids, uv_px=uv, image=str(self.out / rel)))
+        if self.watch is not None:
+            self.notify("frames", i, T0, {c: fr.image for c, fr in frames.items()},
+                        {c: views[c]["uv_px"] if c in views else None for c in frames}, dict(rej))
         if not views:
             msg = "; ".join(f"{c}: {w}" for c, w in rej) or "no camera delivered a frame"
             return Outcome(i, "no_views", msg, legs, rejected=tuple(rej), T_base_flange=T0, q_rad=q_rad)
@@ -346,11 +386,13 @@ def acquisition_loop(station: Station, plan):
             current = visit.index
             if not station.live():
                 return None, "every camera is lost; fix the cameras and resume with --resume"
+            station.notify_next(visit)
             outcome = station.visit(visit)
             if outcome.status in PASSED:
                 station.enter(State.NEXT, visit.index)
             visit = plan.send(outcome)
     except StopIteration as stop:
+        station.notify_next(None)
         return stop.value, None
     except DeviceError as e:  # cameras never get here (their failures are caught per grab): the robot failed
         return None, f"robot failed at pose {current}: {e}; check the robot and resume with --resume"

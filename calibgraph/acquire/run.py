@@ -88,6 +88,7 @@ from calibgraph.core.targets import Target
 from calibgraph.detect.corners import detect_image
 from calibgraph.io.dataset import capture_path, image_relpath
 from calibgraph.io.files import atomic_write_bytes, read_input_bytes
+from calibgraph.plan.information import sigma_norms
 from calibgraph.plan.trajectory import Trajectory, load_trajectory, save_trajectory
 
 __all__ = ["AcquisitionReport", "PoseOutcome", "State", "run_acquisition", "normalise_detection", "JOURNAL_NAME",
@@ -257,7 +258,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
                     mode: str = "eye_to_hand", settle_timeout_s: float = 10.0, settle_dwell_s: float = 0.0,
                     settle_poll_s: float = 0.01, max_camera_failures: int = 3, grab_retries: int = 1,
                     min_corners: int = 6, arrival_tolerance_rad: float = 0.01,
-                    still_tolerance_m: float = 5e-4, still_tolerance_deg: float = 0.05) -> AcquisitionReport:
+                    still_tolerance_m: float = 5e-4, still_tolerance_deg: float = 0.05, watch=None) -> AcquisitionReport:
     """Capture along a trajectory (see the module docstring).
 
     Args:
@@ -281,6 +282,8 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
         mode: 'eye_to_hand' or 'eye_in_hand', stored in dataset.yaml.
         min_corners: views with fewer detected points are rejected.
         settle_timeout_s ... still_tolerance_deg: the loop's :class:`~calibgraph.acquire.loop.Settings`.
+        watch: an observer of every grab and next pose (:attr:`~calibgraph.acquire.loop.Station.watch`;
+            ``capture --view``), shown ``on_capture``'s estimate when it is an iSAM2 one; or None.
     Returns:
         :class:`AcquisitionReport`.
     """
@@ -293,6 +296,7 @@ def run_acquisition(robot, cameras, trajectory, out_dir, target: Target, detecto
     with claim_dataset(run.out, "trajectory", {"trajectory_sha256": run.trajectory.sha256()}, resume, run.log,
                        accept=TRAJECTORY_RUNS) as claim:
         run.station.open_cameras()
+        run.station.watch, run.station.estimate = watch, run.estimates
         run.open_journal(resume)
         run.plan()
         pending = run.prepare_dataset(claim)
@@ -340,6 +344,14 @@ class _TrajectoryRun:
         self.outcomes = []
         self.failed_leg = {}  # capture pose -> the via pose on the way to it that was not reached
         self.last_estimate = None
+
+    def estimates(self) -> dict:
+        """camera -> (T_ref_cam, 1-sigma mm, deg) of the last iSAM2 estimate (the live view's), else {}."""
+        cams = getattr(self.last_estimate, "cameras", None)
+        if not isinstance(cams, dict):
+            return {}
+        return {n: (c.T_ref_cam, *(sigma_norms(c.covariance) if c.covariance is not None else (None, None)))
+                for n, c in cams.items() if hasattr(c, "covariance")}
 
     # ---- START --------------------------------------------------------------------------------------
     def open_journal(self, resume: bool) -> None:

@@ -28,6 +28,11 @@ when it places its cameras; the planner reads only the cell (:mod:`calibgraph.pl
 without placements, optional hints, obstacles, keep-out boxes): CELL.yaml, or the world with every
 placement stripped. A simulated ``--auto`` or ``--verify`` run writes ``ground_truth.json`` too.
 
+``--view`` (a trajectory or ``--auto`` run) streams a live rerun view: each camera's frame with
+the board found or not, the robot and the next planned pose, each camera's 1-sigma against the
+tolerance (:class:`calibgraph.report.live_view.CaptureView`, an observer of the acquisition loop);
+a viewer where there is a display, else ``DIR.rrd`` beside ``--out`` (or ``--rrd FILE``).
+
 A real robot (``driver: franka``) never moves without ``--i-have-cleared-the-cell``; ``--dry-run``
 connects to nothing that moves and opens no camera. The workcell file (robot, cameras, safety) is
 described in :mod:`calibgraph.acquire.workcell`, its drivers in :mod:`calibgraph.acquire.devices`.
@@ -65,6 +70,12 @@ def add_parser(sub):
     p.add_argument("--intrinsics", action="append", default=[], metavar="NAME=CAM.yaml",
                    help="camera NAME's intrinsics from a camera file (calibgraph intrinsics), used instead of what "
                         "the device reports; its covariance becomes the prior (repeatable)")
+    p.add_argument("--view", action="store_true",
+                   help="stream a live rerun view (each camera's image with the board found or not, the flange, the "
+                        "next planned pose, the cameras' estimated poses, each camera's 1-sigma against the "
+                        "tolerance): a viewer where there is a display, else a .rrd beside --out (or --rrd)")
+    p.add_argument("--rrd", type=Path, default=None, metavar="FILE",
+                   help="write the live view into this rerun recording instead of opening a viewer")
     p.add_argument("--quiet", action="store_true")
     a = p.add_argument_group("autonomous calibration (--auto)")
     a.add_argument("--auto", action="store_true",
@@ -93,6 +104,7 @@ def run(args) -> int:
     log = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     if args.auto and args.verify:
         raise InputError("capture: --auto and --verify are different runs; choose one.")
+    args.view_rrd = _check_view(args)  # the recording's path is checked before anything moves
     if args.verify:
         return _verify(args, log)
     if args.result is not None:
@@ -135,17 +147,18 @@ def _trajectory(args, log) -> int:
                        plans_without_robot="planning from the first pose instead of the robot's joints")
         with _run_on(dev, args):
             on_capture = None
-            if args.incremental and not args.dry_run:
+            if (args.incremental or _viewing(args)) and not args.dry_run:
                 from calibgraph.solver.incremental import IncrementalSolver
 
                 inc = IncrementalSolver(wc.target.points_board_m, {n: c.intrinsics() for n, c in dev.cameras.items()},
                                         mode=wc.mode)
                 on_capture = inc.add_capture
             target = dev.simulation.target if dev.simulation is not None else wc.target
-            rep = _interruptible(args, "", lambda: run_acquisition(
-                dev.robot, dev.cameras, traj, args.out, target, detector=dev.detector, resume=args.resume,
-                safety=wc.safety, on_capture=on_capture, progress=log, dry_run=args.dry_run, mode=wc.mode,
-                settle_dwell_s=_dwell(args, driver)))
+            with _live_view(args, eye_in_hand=wc.mode == "eye_in_hand") as watch:
+                rep = _interruptible(args, "", lambda: run_acquisition(
+                    dev.robot, dev.cameras, traj, args.out, target, detector=dev.detector, resume=args.resume,
+                    safety=wc.safety, on_capture=on_capture, progress=log, dry_run=args.dry_run, mode=wc.mode,
+                    settle_dwell_s=_dwell(args, driver), watch=watch))
     if rep is None:
         return 130
     print(rep.summary())
@@ -205,10 +218,10 @@ def _auto(args, log) -> int:
     with _claim(args, "auto", _input_hashes(wc, world), log, claim_dataset):
         pworld = planning_world(cell)
         dev = devices(skip_hidden=True)
-        with _run_on(dev, args):
+        with _run_on(dev, args), _live_view(args, T_flange_board=cell.T_flange_board) as watch:
             rep = _interruptible(args, "--auto", lambda: run_auto(
                 dev.robot, dev.cameras, cell, pworld, args.out, detector=dev.detector, safety=safety, options=opts,
-                resume=args.resume, progress=log, accept=commissioning_check()))
+                resume=args.resume, progress=log, accept=commissioning_check(), watch=watch))
     if rep is None:
         return 130
     print(rep.summary())
@@ -279,6 +292,51 @@ def _verify(args, log) -> int:
 
 
 # -- shared by the three runs -------------------------------------------------------------------------
+def _viewing(args) -> bool:
+    return bool(args.view or args.rrd is not None)
+
+
+def _check_view(args):
+    """The .rrd the live view writes (``--rrd``, else beside ``--out`` when there is no display), checked
+    before anything runs; None for a viewer or no view."""
+    from calibgraph.core.errors import InputError
+
+    if not _viewing(args):
+        return None
+    if args.verify or args.dry_run:
+        raise InputError("capture: --view / --rrd show an --auto or a trajectory capture as it runs; "
+                         f"{'a dry run grabs nothing' if args.dry_run else '--verify has no live view'} (drop them).")
+    from calibgraph.io.output_guard import check_output_file
+    from calibgraph.report.live_view import has_display
+    from calibgraph.report.rerun_view import _import_rerun
+
+    _import_rerun()  # not installed: said now, before anything moves
+    if args.rrd is None and has_display():
+        return None
+    inputs = [p for p in (args.workcell, args.trajectory, args.sim_world) if p is not None]
+    return check_output_file(args.rrd or args.out.with_suffix(".rrd"), "recording", "recording file", "capture.rrd",
+                             inputs=inputs)
+
+
+@contextlib.contextmanager
+def _live_view(args, T_flange_board=None, eye_in_hand: bool = False):
+    """The live view of the run (:class:`calibgraph.report.live_view.CaptureView`) or None; closed
+    (the recording moved into place) when the run ends, after Ctrl-C or a failure too."""
+    if not _viewing(args):
+        yield None
+        return
+    from calibgraph.report.live_view import CaptureView
+
+    view = CaptureView((args.tolerance_mm, args.tolerance_deg), args.view_rrd, T_flange_board=T_flange_board,
+                       eye_in_hand=eye_in_hand)
+    try:
+        yield view
+    finally:
+        written = view.close()
+        if written is not None:
+            print(f"wrote {written} (open with: rerun {written})")
+
+
 def _cell_and_world(args, what: str):
     """(workcell spec or None, simulated world spec or None, robot driver) of an --auto or --verify
     run: the world is --sim-world, or the workcell itself when it places its cameras."""
