@@ -74,6 +74,51 @@ def test_unknown_intrinsics_carry_a_real_lens_tangential_terms():
         assert abs(cam.intrinsics["dist"][("k1", "k2", "p1", "p2").index(k)] - true) < 4 * cam.intrinsics["sigma"][k]
 
 
+def test_unknown_intrinsics_prior_is_centred_on_no_lens_not_on_the_start():
+    """The prior of a camera of unknown intrinsics does not count its views twice: whatever Zhang's
+    method found from them (here a wild k2), it is centred on the principal point at the image centre
+    and no distortion; only the focal lengths, the one scale there is, are taken from the start.
+    Given intrinsics keep their values as the prior's centre."""
+    from calibgraph.solver.factors import intrinsics_vector
+    from calibgraph.solver.graph import intrinsics_prior_mean
+    K = np.array([[1297.9, 0, 994.1], [0, 1299.3, 568.8], [0, 0, 1]])
+    start = Intrinsics(K=K, dist=np.array([-1.33, 97.06, 0.0, 0.0, 0.0]), width_px=1920, height_px=1080,
+                       source="unknown")
+    np.testing.assert_allclose(intrinsics_prior_mean(start, 9), [1297.9, 1299.3, 959.5, 539.5, 0, 0, 0, 0, 0])
+    given = replace(start, source="factory", dist=np.array([-0.1, 0.05, 0.0, 0.0, 0.0]))
+    np.testing.assert_allclose(intrinsics_prior_mean(given, 6), intrinsics_vector(given, 6))
+
+
+def test_unknown_intrinsics_from_four_views_survive_a_wild_start():
+    """Four views of a 1.5 m camera of unknown intrinsics (the ring cell of
+    scripts/bench_unknown_few_views.py, seed 66): Zhang's k1, k2 from them are wild (k2 ~ 97 for a lens
+    without distortion). With the prior centred on them, k2 stayed there and the pose was 26 mm off at
+    a 1-sigma of 14 mm (Mahalanobis^2 73); the solve must end with k1, k2 within their 1-sigma's reach
+    of the truth (0) and the pose inside its own 1-sigma's chi-square bound."""
+    import cv2
+
+    from calibgraph.solver.start import _plane_coordinates
+    seed, n_views = 66, 4
+    sc = make_scene(n_poses=36, seed=seed, fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=float(np.radians(0.01)))
+    p = sc.problem
+    caps = sorted({d.capture for d in p.detections if d.camera == "cam0"})
+    keep = set(np.random.default_rng(10_000 + seed).choice(caps, size=n_views, replace=False).tolist())
+    dets = tuple(d for d in p.detections if d.camera != "cam0" or d.capture in keep)
+    c0 = p.cameras["cam0"]
+    mine = [d for d in dets if d.camera == "cam0"]
+    plane = _plane_coordinates(p.points_board_m).astype(np.float32)
+    _, _, dist, _, _ = cv2.calibrateCamera([plane[d.ids] for d in mine], [d.uv_px.astype(np.float32) for d in mine],
+                                           (c0.width_px, c0.height_px), None, None,
+                                           flags=cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3)
+    assert abs(dist.ravel()[1]) > 10  # the case this test is about: a wild start
+    r = solve(p.with_(cameras={**p.cameras, "cam0": Intrinsics.unknown(c0.width_px, c0.height_px)}, detections=dets))
+    cam = r.cameras["cam0"]
+    assert np.allclose(sc.truth.intrinsics["cam0"].dist, 0.0)
+    for i, k in enumerate(("k1", "k2")):
+        assert abs(cam.intrinsics["dist"][i]) < 4 * cam.intrinsics["sigma"][k], (k, cam.intrinsics["dist"][i])
+    assert _z2(cam, sc.truth.T_ref_cam["cam0"]) < CHI2_6_9999
+
+
 def _board_in_cam(sc, det, T_flange_cam):
     """The detection's board points in the camera frame at the truth (eye-in-hand: the board fixed in
     the base, the camera on the flange of the capture's true pose)."""

@@ -76,8 +76,8 @@ def widen_inadequate_intrinsics(problem: Problem, group: Group, timings: dict | 
     est, views = group.est, group.views
     bad = {}
     for n in group.names:
-        if not estimates_intrinsics(problem, n, est) or n in est.wide_intrinsics:
-            continue
+        if not estimates_intrinsics(problem, n, est) or n in est.wide_intrinsics or not problem.cameras[n].known:
+            continue  # (a camera of unknown intrinsics has the wide prior already, around no given values)
         d2 = intrinsics_disagreement(problem, est, n)
         rms, radial = radial_structure(est, views, n, problem.cameras)
         if d2 > CHI2_6_999 or (rms > INADEQUATE_RMS_PX and radial > INADEQUATE_RADIAL_FRACTION):

@@ -98,6 +98,22 @@ def intrinsics_prior(problem: Problem, name: str, est: Estimate) -> np.ndarray:
     return intrinsics_prior_covariance(problem.cameras[name], problem.options, wide=wide)
 
 
+def intrinsics_prior_mean(intr: Intrinsics, n: int) -> np.ndarray:
+    """The mean of the prior on a camera's intrinsics vector (size ``n``): its given values; for a
+    camera of unknown intrinsics, whose values were found from the same views the graph holds, only
+    their focal lengths (the one scale there is, under a 10 % prior), with the principal point at the
+    image centre and no distortion. Centring the prior on values found from the views would count
+    those views twice, and from a few views of a small board Zhang's k1 and k2 can be wild (k2 = 97
+    for a lens without distortion): a prior of 0.5 around them held k2 there, and the pose's
+    Mahalanobis^2 reached 73 (scripts/results/bench_unknown_few_views_findings.md)."""
+    x = intrinsics_vector(intr, n)
+    if intr.known:
+        return x
+    x[2:4] = [(intr.width_px - 1) / 2.0, (intr.height_px - 1) / 2.0]
+    x[4:] = 0.0
+    return x
+
+
 def intrinsics_size(problem: Problem, name: str, est: Estimate) -> int:
     """The size of camera ``name``'s intrinsics vector in this graph (6, 8 or 9; see
     :func:`intrinsics_prior`)."""
@@ -189,7 +205,7 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
         i, given = slots[name], problem.cameras[name]
         prior = intrinsics_prior(problem, name, est)
         n_intr[name] = prior.shape[0]
-        graph.add(gtsam.PriorFactorVector(K(i), intrinsics_vector(given, n_intr[name]), _prior_noise(prior)))
+        graph.add(gtsam.PriorFactorVector(K(i), intrinsics_prior_mean(given, n_intr[name]), _prior_noise(prior)))
         values.insert(K(i), intrinsics_vector(est.camera_model(name, problem.cameras), n_intr[name]))
     if o.board_scale:
         graph.add(gtsam.PriorFactorVector(S(0), np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, o.board_scale_sigma)))
