@@ -70,6 +70,11 @@ def test_shares_bound_the_advice_and_a_resolve_with_the_intrinsics_known(solved)
         if remedy is not None:
             share = b["own_intrinsics_share"] if remedy == "intrinsics" else b["shares"]["board"]
             assert _predicted(b["advice"]) >= sigma * np.sqrt(1 - share) - 0.005, (cell, b)
+        # twice the poses: the views' information doubled, at best sigma / sqrt(1 + their share) (Jensen)
+        views = b["shares_by_noise_source"]["corners"] + b["shares_by_noise_source"]["robot_fk"]
+        bound = sigma / np.sqrt(1 + views)
+        if remedy is None:
+            assert _predicted(b["advice"]) >= bound - 0.005, (cell, b)
     # re-solved with every camera's true intrinsics held: the 1-sigma lands on the bound
     held = sc.problem.with_(cameras={n: replace(sc.truth.intrinsics[n], source="exact") for n in sc.problem.cameras},
                             options=replace(sc.problem.options, intrinsics="fixed"))
@@ -106,7 +111,7 @@ def test_known_exactly_by_scaled_information_matches_conditioning():
     """The "known exactly" shares multiply a source's information by 1e9 and invert the reduced
     system; for the intrinsics (priors on global variables) that must equal the exact conditional
     covariance given every K key. Twice the poses (the advice's third remedy) is bounded by the
-    views' share by noise source instead: its prediction never falls below it."""
+    views' share by noise source instead (sigma / sqrt(1 + share), Jensen): its prediction never falls below it."""
     sc = _scene("demo 3 x L515 at 3 m", seed=3)
     got = {}
     original = batch.error_budgets
@@ -133,7 +138,7 @@ def test_known_exactly_by_scaled_information_matches_conditioning():
         assert r.cameras[n].error_budget["shares"]["intrinsics"] == pytest.approx(exact, abs=1e-4), n
         # twice the poses: never below the bound of the views' share by noise source
         views = b[n].by_noise["corners"] + b[n].by_noise["robot_fk"]
-        assert sigma_with(L, ck, S=doubled) >= b[n].sigma_mm * np.sqrt(1 - views) * (1 - 1e-9), n
+        assert sigma_with(L, ck, S=doubled) >= b[n].sigma_mm / np.sqrt(1 + views) * (1 - 1e-9), n
 
 
 def test_console_prints_both_share_sets_labelled_and_says_when_not_converged(solved):

@@ -195,10 +195,12 @@ def advice(name: str, b: Budget, L: Linear, cam_key, own_K_key=None, session_inf
 def _head(name: str, b: Budget, remedy: str) -> str:
     """The advice line's opening: the bound of what the remedy improves. A session or a measured
     board: what that source known exactly would leave, ``sigma * sqrt(1 - share)`` (by parameter).
-    Twice the poses: twice the views' information (corners and robot poses, ``J_v``) can take the
-    covariance no lower than ``Sigma - Sigma J_v^T J_v Sigma`` (in the whitened system, eigenvalues
-    ``1 / (1 + m) >= 1 - m`` for ``0 <= m <= 1``), so the bound is ``sigma * sqrt(1 - share)`` with the
-    views' share by noise source."""
+    Twice the poses: twice the views' information (corners and robot poses, ``J_v``) gives the
+    covariance ``(Sigma^-1 + J_v^T J_v)^-1``; in the whitened system its eigenvalues are ``1 / (1 + m)``
+    (``0 <= m <= 1``), and the trace over the camera's translation is a weighted mean of them whose
+    weighted mean ``m`` is the views' share by noise source. ``1 / (1 + m)`` is convex, so (Jensen) the
+    bound is ``sigma / sqrt(1 + share)``: at most a factor sqrt(2), however large the share (it was
+    ``sigma * sqrt(1 - share)``, true but empty when the views are all of the variance)."""
     if remedy == "session":
         what, share = "its intrinsics known exactly would take", b.own_intrinsics
     elif remedy == "board":
@@ -207,6 +209,6 @@ def _head(name: str, b: Budget, remedy: str) -> str:
         share = b.by_noise["corners"] + b.by_noise["robot_fk"]
         return (f"{name}: its views' noise (corners and robot poses) is {100 * share:.0f} % of its variance, so twice "
                 f"the poses take its {b.sigma_mm:.2f} mm 1σ to no less than "
-                f"{b.sigma_mm * np.sqrt(max(1.0 - share, 0.0)):.2f} mm")
+                f"{b.sigma_mm / np.sqrt(1.0 + max(share, 0.0)):.2f} mm")
     return (f"{name}: {what} its {b.sigma_mm:.2f} mm 1σ to {b.sigma_mm * np.sqrt(max(1.0 - share, 0.0)):.2f} mm "
             f"({100 * share:.0f} % of its variance)")
