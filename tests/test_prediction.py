@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from calibgraph.core.transforms import exp_so3, make_T
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
@@ -87,3 +88,31 @@ def test_rotation_and_translation_accuracy_are_judged_apart():
         assert fk["translation"]["significant"] and fk["translation"]["applied"] > 8, fk
         assert fk["rotation"]["applied"] < 0.6 * fk["translation"]["applied"], fk
         assert fk["used_sigma_translation_m"] > 2.5e-4, fk
+
+
+def test_all_views_at_once_equals_view_by_view(monkeypatch):
+    """The expected prediction takes its Jacobians for all of a camera's views at once (5.4 s view by
+    view at 16 cameras x 480 poses); a view's corners depend on its own robot pose only, so the
+    figures equal the view-by-view path's to rounding (central differences), both formulations'
+    calibration parts (the joint covariance, eye-to-hand; pose and mount apart, eye-in-hand)."""
+    from calibgraph.solver import prediction
+
+    got = []
+    real = prediction.expected_prediction
+
+    def keep(*a, **k):
+        got.append((a, k))
+        return real(*a, **k)
+    monkeypatch.setattr(solver, "expected_prediction", keep)
+    solver.solve(make_scene(n_poses=30, seed=2).problem)
+    solver.solve(make_scene(n_poses=24, seed=4, mode="eye_in_hand").problem)
+    assert len(got) == 2
+    for a, k in got:
+        fast, slow = real(*a, **k), real(*a, **k, per_view=True)
+        assert fast.keys() == slow.keys() and fast
+        for c in fast:
+            assert fast[c]["corners"] == slow[c]["corners"]
+            for key in ("expected_rms_px", "expected_rms_mm"):
+                assert fast[c][key] == pytest.approx(slow[c][key], rel=1e-6), (c, key)
+            for part in ("robot", "calibration", "corners"):
+                assert fast[c]["parts_px"][part] == pytest.approx(slow[c]["parts_px"][part], rel=1e-6), (c, part)
