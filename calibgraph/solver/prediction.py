@@ -60,9 +60,17 @@ def predicted_uv(T_ref_cam: np.ndarray, T_base_flange: np.ndarray, T_mount_board
     robot pose is ``T_base_flange``, as a user applies a calibration: ``T_ref_cam`` is
     ``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand), ``T_mount_board`` the board's
     pose in its mount (``T_flange_board`` or ``T_base_board``)."""
-    T_ref_mount = inv(T_base_flange) if mode == "eye_in_hand" else T_base_flange
+    p = np.asarray(p_board_m, float)
+    return _project_views(T_ref_cam, np.asarray(T_base_flange, float)[None], T_mount_board, mode, intr, p,
+                          np.zeros(len(p), int))
+
+
+def _project_views(T_ref_cam, T_base_flange, T_mount_board, mode: str, intr, p_board_m, which):
+    """:func:`predicted_uv` for several captures at once: ``T_base_flange`` (n, 4, 4), each board
+    point ``p_board_m[i]`` seen at capture ``which[i]``."""
+    T_ref_mount = _inv_stack(T_base_flange) if mode == "eye_in_hand" else T_base_flange
     T = inv(T_ref_cam) @ T_ref_mount @ T_mount_board
-    p_cam = p_board_m @ T[:3, :3].T + T[:3, 3]
+    p_cam = np.einsum("nij,nj->ni", T[which, :3, :3], p_board_m) + T[which, :3, 3]
     return intr.project(p_cam), p_cam
 
 
@@ -132,10 +140,7 @@ def _camera_parts(mode, intr, X, X_cov, M, M_cov, joint, n_k, has_scale, board_s
     which = np.repeat(np.arange(len(views)), [len(p) for _, p in views])
 
     def project(X_=X, T_bf_=T_bf, M_=M, intr_=intr, P_=P):
-        T_ref_mount = _inv_stack(T_bf_) if mode == "eye_in_hand" else T_bf_
-        T = inv(X_) @ T_ref_mount @ M_
-        p_cam = np.einsum("nij,nj->ni", T[which, :3, :3], P_) + T[which, :3, 3]
-        return intr_.project(p_cam), p_cam
+        return _project_views(X_, T_bf_, M_, mode, intr_, P_, which)
 
     robot = _per_view(_jacobian(lambda e: project(T_bf_=T_bf @ _flange_step(e))[0]), fk_cov, which, len(views))
     if joint is not None:
