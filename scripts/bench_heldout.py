@@ -63,6 +63,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import yaml
+from scipy.stats import chi2
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -269,8 +270,10 @@ def sigma_ratio(X_random: list, X_halves: list, sig_random: np.ndarray, sig_halv
     dof_r, dof_h = len(X_random) - 1, 1
     pooled = (dof_r * var_random + dof_h * var_halves) / (dof_r + dof_h)
     stated = np.sqrt((dof_r * sig_random ** 2 + dof_h * sig_halves ** 2 * (n / 2) / m) / (dof_r + dof_h))
+    # all six axes pooled: the RMS of the observed scatter in units of the stated 1-sigma (about 6 x 5 dof)
+    pooled_ratio = 1.0 / np.sqrt(np.mean(pooled / stated ** 2))
     return {"observed_sigma_m": np.sqrt(pooled).tolist(), "stated_sigma_m": stated.tolist(),
-            "ratio": (stated / np.sqrt(pooled)).tolist(), "ratio_random_only":
+            "ratio": (stated / np.sqrt(pooled)).tolist(), "ratio_pooled": float(pooled_ratio), "ratio_random_only":
                 (sig_random / np.sqrt(var_random)).tolist(), "dof": dof_r + dof_h}
 
 
@@ -407,6 +410,10 @@ def run_set(name: str, folder: Path, py: str | None) -> dict:
 # report
 # ---------------------------------------------------------------------------------------------
 AXES = ("rx", "ry", "rz", "x", "y", "z")
+# with an honest 1-sigma, stated / observed is 1 / sqrt(chi2_dof / dof): its 95 % range over the six axes pooled
+# (6 x 5 dof) and how often one axis (5 dof) falls outside [0.6, 1.6]
+HONEST_POOLED = (1.0 / np.sqrt(chi2.ppf(0.975, 30) / 30), 1.0 / np.sqrt(chi2.ppf(0.025, 30) / 30))
+HONEST_AXIS_OUTSIDE = float(chi2.sf(5 / 0.6 ** 2, 5) + chi2.cdf(5 / 1.6 ** 2, 5))
 
 
 def table(rec: dict) -> list:
@@ -464,6 +471,12 @@ def markdown(results: list, meta: dict) -> str:
             L.append(f"- FK accuracy the all-capture solve used: {1e3 * fk['used_sigma_translation_m']:.3f} mm, "
                      f"{np.degrees(fk['used_sigma_rotation_rad']):.4f} deg (stated {1e3 * fk['stated_sigma_translation_m']:.3f} "
                      f"mm, {np.degrees(fk['stated_sigma_rotation_rad']):.4f} deg).")
+        cvs = [(s.get("calibgraph_fk_noise") or {}).get("cross_validation") for s in rec["splits"]]
+        if any(cvs):
+            chosen = [c["chosen"] if c else "not run" for c in cvs]
+            jk = [c.get("jackknife_variance_factor", 1.0) for c in cvs if c]
+            L.append(f"- The robot's error split the held-out captures chose (`fk_noise.cross_validation`), per train "
+                     f"split: {', '.join(chosen)}; the folds' jackknife variance factor {min(jk):.2f}-{max(jk):.2f}.")
         if rec.get("best_peer"):
             cgm = np.mean([s["scores"]["calibgraph"]["rms_px"] for s in rec["splits"]])
             L.append(f"- Best peer {rec['best_peer'][0]} {rec['best_peer'][1]:.3f} px; calibgraph {cgm:.3f} px "
@@ -478,7 +491,11 @@ def markdown(results: list, meta: dict) -> str:
                   "| | " + " | ".join(AXES) + " |", "|---" * 7 + "|",
                   "| stated | " + " | ".join(f"{x:.4f}" for x in stated * scale) + " |",
                   "| observed | " + " | ".join(f"{x:.4f}" for x in obs * scale) + " |",
-                  "| stated / observed | " + " | ".join(f"{x:.2f}" for x in s["ratio"]) + " |"]
+                  "| stated / observed | " + " | ".join(f"{x:.2f}" for x in s["ratio"]) + " |", "",
+                  f"All six axes pooled (the observed scatter's RMS in stated 1-sigma, about {6 * s['dof']} dof): "
+                  f"stated / observed **{s['ratio_pooled']:.2f}** (an honest 1-sigma lands in {HONEST_POOLED[0]:.2f}-"
+                  f"{HONEST_POOLED[1]:.2f} 95 % of the time; one axis alone, with {s['dof']} dof, falls outside "
+                  f"[0.6, 1.6] {100 * HONEST_AXIS_OUTSIDE:.0f} % of the time)."]
         cm = rec.get("cross_method")
         if cm:
             L += ["", "Each OpenCV method's all-capture hand-eye pose minus calibgraph's (rot deg, trans mm; "

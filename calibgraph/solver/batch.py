@@ -96,8 +96,14 @@ def with_prediction(problem: Problem, result: Result, pose_mount_cov: dict | Non
     if problem.options.kinematics != "none":
         return result
     fk = result.fk_noise or {}
-    pred = expected_prediction(problem, result, fk.get("used_sigma_translation_m", problem.options.fk_sigma_translation_m),
-                               fk.get("used_sigma_rotation_rad", problem.options.fk_sigma_rotation_rad), pose_mount_cov)
+    # a component the held-out captures kept at its stated sigma still departs as far as the fit says
+    # (fk_select): a new pose's FK error is that size, whatever weight the graph gave it
+    pred = expected_prediction(problem, result,
+                               fk.get("prediction_sigma_translation_m", fk.get("used_sigma_translation_m",
+                                                                                problem.options.fk_sigma_translation_m)),
+                               fk.get("prediction_sigma_rotation_rad", fk.get("used_sigma_rotation_rad",
+                                                                              problem.options.fk_sigma_rotation_rad)),
+                               pose_mount_cov)
     if not pred:
         return result
     cameras = {n: replace(c, prediction=pred[n]) if n in pred else c for n, c in result.cameras.items()}

@@ -73,6 +73,8 @@ class FkRatio:
     significant: bool
     rotation: FkComponent
     translation: FkComponent
+    # which components the held-out captures chose to widen (fk_select.cross_validated_split), when it ran
+    cross_validation: dict | None = None
 
     @property
     def applied(self) -> float:
@@ -85,11 +87,20 @@ class FkRatio:
 
     def to_dict(self, opts) -> dict:
         t, r = float(opts.fk_sigma_translation_m), float(opts.fk_sigma_rotation_rad)
-        return {"variance_ratio": self.ratio, "applied": self.applied, "dof": self.dof, "significant": self.significant,
-                "rotation": self.rotation.to_dict(), "translation": self.translation.to_dict(),
-                "stated_sigma_translation_m": t, "stated_sigma_rotation_rad": r,
-                "used_sigma_translation_m": t * float(np.sqrt(self.translation.applied)),
-                "used_sigma_rotation_rad": r * float(np.sqrt(self.rotation.applied))}
+        out = {"variance_ratio": self.ratio, "applied": self.applied, "dof": self.dof, "significant": self.significant,
+               "rotation": self.rotation.to_dict(), "translation": self.translation.to_dict(),
+               "stated_sigma_translation_m": t, "stated_sigma_rotation_rad": r,
+               "used_sigma_translation_m": t * float(np.sqrt(self.translation.applied)),
+               "used_sigma_rotation_rad": r * float(np.sqrt(self.rotation.applied))}
+        if self.cross_validation is not None:
+            out["cross_validation"] = dict(self.cross_validation)
+            # the FK error a new pose has: a component kept at its stated sigma by the folds departs as the fit says
+            def judged(c):
+                return c.applied if c.applied > 1.0 else max(1.0, c.ratio)
+
+            out["prediction_sigma_translation_m"] = t * float(np.sqrt(judged(self.translation)))
+            out["prediction_sigma_rotation_rad"] = r * float(np.sqrt(judged(self.rotation)))
+        return out
 
 
 def _mode_weighted_information(lin: Linearised, mode_factors: dict) -> dict:
@@ -197,8 +208,20 @@ def fk_note(options, ratio: FkRatio | None) -> list:
             test = "" if c.significant else ", p < 0.05 but not < 0.001"
             parts.append(f"{what} {s:.1f}x the stated {stated:{fmt}} {unit}{test}: solved with "
                          f"{stated * float(np.sqrt(c.applied)):{fmt}} {unit}")
+        elif ratio.cross_validation is not None and c.ratio > 1.0:
+            parts.append(f"{what} {s:.1f}x the stated {stated:{fmt}} {unit} by the fit, kept at it: held-out "
+                         f"captures predicted from the reported FK better so")
         else:
             parts.append(f"{what} within the stated {stated:{fmt}} {unit} ({s:.1f}x): kept")
+    cv = ratio.cross_validation
+    if cv is not None:
+        rms = cv["rms_px"]
+        parts.append(f"{cv['folds']}-fold held-out RMS {rms[cv['chosen']]:.2f} px"
+                     + ("" if cv["chosen"] == "both" else f" against {rms['both']:.2f} px with both widened"))
+        f = float(cv.get("jackknife_variance_factor", 1.0))
+        if f > 1.0:
+            parts.append(f"the folds' camera poses scatter {f:.1f}x the variance the per-pose FK model gives (the arm's "
+                         f"error repeats from pose to pose): every 1-sigma x{np.sqrt(f):.2f}")
     return [f"robot: the fitted flange poses depart from forward kinematics further than the stated FK accuracy "
             f"allows ({'; '.join(parts)}); the 1-sigma is widened for it (state the arm's accuracy with "
             f"--fk-sigma-mm/--fk-sigma-deg; joint zero offsets: --estimate-kinematics joint-offsets)"]

@@ -21,6 +21,7 @@ from calibgraph.solver.claims import contradicted
 from calibgraph.solver.factors import intrinsics_vector
 from calibgraph.solver.fk_check import (FK_COMPONENT_STEPS, fk_variance_ratio, rescaled, robot_pose_marginals,
                                          settled_components, widened)
+from calibgraph.solver.fk_select import cross_validated_split, jackknife_factor
 from calibgraph.solver.graph import (
     Estimate,
     build_graph,
@@ -33,7 +34,7 @@ from calibgraph.solver.graph import (
     reduced_marginals,
 )
 from calibgraph.solver.initialise import pnp_candidates
-from calibgraph.solver.keys import B
+from calibgraph.solver.keys import B, C
 from calibgraph.solver.linearise import linearise
 from calibgraph.solver.moved import check_after_rounds
 from calibgraph.solver.noise_model import a_posteriori_sigma, camera_noise_scales, mode_variance_ratios
@@ -217,6 +218,7 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     est, views, sigma, iterations = rounds.est, rounds.views, rounds.sigma_px, rounds.iterations
     converged = rounds.settled
     solved = None  # (graph, values) of the last solve at ``est``, when this function made one
+    fold_est = None  # the FK split's cross-validation folds' estimates (fk_select), when it ran
     if opts.corner_noise == "per-view" and not opts.pixel_sigma_px:
         # each view its own noise level, now that the rounds have settled which corners and views are in
         residuals = est.residuals(views, problem.cameras)
@@ -261,6 +263,18 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
         if redo is not None:
             problem, est, fk_ratio, mode_ratios, factors, it = redo
             iterations += it
+    if fk_ratio is not None and fk_ratio.widens and form == "view":
+        # rotation, translation or both: the split that predicts held-out captures from the reported FK
+        with timed(timings, "fk_split"):
+            chosen, record, fold_est = cross_validated_split(
+                problem, opts, fk_ratio, views, est,
+                lambda p, vs, e: _resolve(p, vs, slots, e, sigma, form, factors or None, None)[0], widened)
+        if record is not None and record["chosen"] != "both":
+            problem = problem.with_(options=widened(opts, chosen))
+            est, run, _ = _resolve(problem, views, slots, est, sigma, form, factors or None, timings)
+            iterations += run.iterations
+            converged = converged and run.converged
+        fk_ratio = chosen
     if opts.pixel_sigma_px:
         sigma_post = opts.pixel_sigma_px
     else:
@@ -280,6 +294,25 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     linear = None
     if form == "view":
         linear, marg = reduced_marginals(graph, values, timings)
+        if fold_est is not None and fk_ratio is not None and fk_ratio.cross_validation is not None:
+            # the folds' camera poses scatter more than the graph's covariance says: the robot's error
+            # repeats from pose to pose; every noise of the graph takes the missing variance factor
+            f, per = jackknife_factor(est, fold_est, lambda n: marg.marginalCovariance(C(slots[n])))
+            fk_ratio = replace(fk_ratio, cross_validation={**fk_ratio.cross_validation, "jackknife_variance_factor": f,
+                                                           "jackknife_per_camera": per})
+            if f > 1.0:
+                s = float(np.sqrt(f))
+                inflated = problem.with_(options=replace(problem.options,
+                                                         fk_sigma_translation_m=problem.options.fk_sigma_translation_m * s,
+                                                         fk_sigma_rotation_rad=problem.options.fk_sigma_rotation_rad * s))
+                with timed(timings, "lm"):
+                    graph, values = build_graph(views, slots, inflated, est, sigma_post * s, form, factors)
+                    run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+                iterations += run.iterations
+                converged = converged and run.converged
+                values = run.values
+                est = extract(values, slots, views, est, problem.cameras, form)
+                linear, marg = reduced_marginals(graph, values, timings)
     else:
         marg = marginals(graph, values, form, timings)
     mount_cov = factors_ppp.mount_cov_body(marg, values) if form == "corner" else marg.marginalCovariance(B(0))

@@ -6,7 +6,8 @@ are predicted as ``pi(K, inv(T_ref_cam) T_ref_mount(FK) T_mount_board p)`` and m
 ones by (to first order) the sum of independent parts, per corner:
 
 * robot: the FK error of the new pose, at the accuracy the solve used (the stated FK sigmas, or
-  those the fit implied when the check widened them: ``fk_noise.used_sigma_*``), rotation and
+  those the fit implied when the check widened them: ``fk_noise.used_sigma_*``; when the held-out
+  captures kept a component at its stated sigma, the size the fit judged it: ``prediction_sigma_*``), rotation and
   translation perturbing ``T_base_flange`` at the flange, as the FK prior does;
 * calibration: the joint covariance of the camera pose, the board mount, the camera's estimated
   intrinsics and the board scale (their correlations included where the solve has them: the view formulation's joint

@@ -1,0 +1,113 @@
+"""The robot's error split chosen by held-out captures, and the folds' jackknife (solver/fk_select.py)."""
+
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+import pytest
+
+import calibgraph.solver.fk_select as fk_select
+from calibgraph.core.problem import SolverOptions
+from calibgraph.sim.kinematic_scene import make_kinematic_scene
+from calibgraph.sim.synthetic_corners import make_scene
+from calibgraph.solver.batch import solve
+from calibgraph.solver.fk_check import FkComponent, FkRatio
+from calibgraph.solver.graph import Estimate
+from calibgraph.solver.views import View
+
+
+def _view(cam, k):
+    return View(camera=cam, capture=k, ids=np.arange(4), p_board_m=np.zeros((4, 3)), uv_px=np.zeros((4, 2)),
+                T_ref_mount=np.eye(4))
+
+
+def test_folds_need_enough_captures_and_views_per_camera():
+    views = [_view("a", k) for k in range(12)]
+    folds = fk_select._folds(views, 3)
+    assert len(folds) == fk_select.FOLDS
+    assert set().union(*folds) == set(range(12)) and sum(len(f) for f in folds) == 12  # disjoint, all captures
+    assert fk_select._folds(views[:9], 3) is None  # fewer than two captures per fold
+    # camera b seen in 3 captures only: any fold holding one of them out leaves it 2 views
+    assert fk_select._folds(views + [_view("b", k) for k in (0, 1, 2)], 3) is None
+
+
+def test_one_widened_component_is_not_cross_validated():
+    c = FkComponent.of(16.0 * 30, 30.0)
+    kept = FkComponent(1.2, 1.0, 30.0, False)
+
+    def never(*_):
+        raise AssertionError("no fold may be solved")
+
+    ratio = FkRatio(10.0, 60.0, True, kept, c)
+    out, record, folds = fk_select.cross_validated_split(None, None, ratio, [], None, never, never)
+    assert out is ratio and record is None and folds is None
+
+
+def test_jackknife_factor_is_the_folds_scatter_over_the_covariance():
+    rng = np.random.default_rng(3)
+    T = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.1, -0.2, 0.3), gtsam.Point3(1.0, 2.0, 3.0)).matrix()
+    d = rng.normal(scale=1e-3, size=(fk_select.FOLDS, 6))
+    est = Estimate(T_ref_cam={"c": T}, T_mount_board=np.eye(4), T_ref_mount={})
+    folds = [replace(est, T_ref_cam={"c": gtsam.Pose3(T).retract(x).matrix()}) for x in d]
+    sigma2 = 2e-7
+    f, per = fk_select.jackknife_factor(est, folds, lambda n: np.eye(6) * sigma2)
+    dc = d - d.mean(axis=0)
+    want = (fk_select.FOLDS - 1) / fk_select.FOLDS * np.sum(dc ** 2) / (6 * sigma2)
+    assert per["c"] == pytest.approx(want, rel=1e-6)
+    assert f == pytest.approx(max(1.0, want), rel=1e-6)
+    # the graph's covariance already covers the scatter: no factor below 1
+    assert fk_select.jackknife_factor(est, folds, lambda n: np.eye(6) * 1.0)[0] == 1.0
+
+
+def test_robot_as_stated_leaves_the_solve_as_it_was():
+    sc = make_scene(n_poses=24, pixel_sigma_px=0.1, seed=2, reported_intrinsics="exact")
+    r = solve(sc.problem)
+    assert r.fk_noise is None or "cross_validation" not in r.fk_noise
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_unmodelled_joint_offsets_the_folds_make_the_sigma_more_honest(seed, monkeypatch):
+    """Joint zero offsets of 0.5-2 mrad, not estimated: an error that repeats from pose to pose.
+    Cross-validated and with the folds' jackknife the cameras' error / 1-sigma is closer to 1 than
+    the per-pose FK model alone gives (which understates it), and the error itself no larger."""
+    rng = np.random.default_rng(1000 + seed)
+    offsets = np.zeros(7)
+    offsets[1:6] = rng.uniform(0.5e-3, 2e-3, 5) * rng.choice([-1, 1], 5)
+    sc = make_kinematic_scene(offsets, n_poses=30, seed=seed, pixel_sigma_px=0.1)[0]
+
+    def errors(r):
+        e = np.concatenate([1e3 * (c.T_ref_cam[:3, 3] - sc.truth.T_ref_cam[n][:3, 3]) for n, c in r.cameras.items()])
+        z = np.concatenate([1e3 * (c.T_ref_cam[:3, 3] - sc.truth.T_ref_cam[n][:3, 3]) / np.asarray(c.sigma_translation_mm)
+                            for n, c in r.cameras.items()])
+        return float(np.sqrt(np.mean(e ** 2))), float(np.sqrt(np.mean(z ** 2)))
+
+    r_cv = solve(sc.problem)
+    cv = r_cv.fk_noise["cross_validation"]
+    assert cv["chosen"] == min(cv["rms_px"], key=cv["rms_px"].get)
+    assert cv["jackknife_variance_factor"] > 1.0
+    assert any("folds' camera poses scatter" in n for n in r_cv.notes)
+    monkeypatch.setattr(fk_select, "_folds", lambda *a: None)  # the path before: Helmert's split, no folds
+    r_old = solve(sc.problem)
+    assert "cross_validation" not in r_old.fk_noise
+    (e_cv, z_cv), (e_old, z_old) = errors(r_cv), errors(r_old)
+    assert z_old > 1.5  # the per-pose model understates the 1-sigma here
+    assert z_cv < z_old
+    assert e_cv <= e_old * 1.05
+
+
+def test_chosen_split_sets_the_sigmas_the_solve_used():
+    """Eye-in-hand, the arm's error all translation (0.6 mm) but stated 0.1 mm / 0.01 deg: whichever
+    candidate the folds choose, the FK sigmas reported are that candidate's."""
+    sc = make_scene(n_poses=30, pixel_sigma_px=0.1, fk_sigma_translation_m=6e-4, mode="eye_in_hand", seed=0,
+                    reported_intrinsics="exact", options=SolverOptions())
+    r = solve(sc.problem)
+    f = r.fk_noise
+    cv = f["cross_validation"]
+    assert set(cv["rms_px"]) == {"both", "translation", "rotation"}
+    stated_r, stated_t = f["stated_sigma_rotation_rad"], f["stated_sigma_translation_m"]
+    if cv["chosen"] == "translation":
+        assert f["used_sigma_rotation_rad"] == pytest.approx(stated_r) and f["used_sigma_translation_m"] > stated_t
+    elif cv["chosen"] == "rotation":
+        assert f["used_sigma_translation_m"] == pytest.approx(stated_t) and f["used_sigma_rotation_rad"] > stated_r
+    else:
+        assert f["used_sigma_translation_m"] > stated_t and f["used_sigma_rotation_rad"] > stated_r
