@@ -83,7 +83,9 @@ def test_unmodelled_joint_offsets_the_folds_make_the_sigma_more_honest(seed, mon
 
     r_cv = solve(sc.problem)
     cv = r_cv.fk_noise["cross_validation"]
-    assert cv["chosen"] == min(cv["rms_px"], key=cv["rms_px"].get)
+    rms = cv["rms_px"]
+    best = min(rms, key=rms.get)
+    assert cv["chosen"] == (best if rms[best] < (1 - fk_select.TIE) * rms["both"] else "both")
     assert cv["jackknife_variance_factor"] > 1.0
     assert any("folds' camera poses scatter" in n for n in r_cv.notes)
     monkeypatch.setattr(fk_select, "_folds", lambda *a: None)  # the path before: Helmert's split, no folds
