@@ -23,7 +23,7 @@ The same folds say how far the 1-sigma can be trusted: :func:`jackknife_factor` 
 scatter of the chosen candidate's fold solves with the graph's covariance, and the final graph's
 noises take the variance factor the model lacks (``optimise.final_graph``). The simulator's joint
 zero offsets, an error that repeats from pose to pose and is not modelled without
-``--estimate-kinematics``: camera error / 1-sigma RMS 2.3-3.7 -> 1.3-3.1 (3 seeds, 30 and 60
+``--estimate-kinematics``: camera error / 1-sigma RMS 2.3-3.7 -> 1.3-2.7 (3 seeds, 30 and 60
 captures, eye-to-hand).
 """
 
