@@ -130,3 +130,76 @@ def test_openblas_one_thread_unless_the_user_says(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], env=dict(env, OPENBLAS_NUM_THREADS="2"), capture_output=True,
                          text=True, check=True)
     assert out.stdout.strip() == "2"
+
+
+def _solved_graph(monkeypatch, problem):
+    """(graph, values) of the final graph of ``problem``'s solve (the one its marginals come from)."""
+    import calibgraph.solver.graph as graph_mod
+
+    seen = []
+    real = graph_mod.linearise_graph
+
+    def spy(graph, values):
+        seen.append((graph, values))
+        return real(graph, values)
+
+    monkeypatch.setattr(graph_mod, "linearise_graph", spy)
+    solve(problem)
+    return seen[-1]
+
+
+def test_reduced_linearisation_equals_the_dense_elimination(monkeypatch):
+    """The Schur reduction formed by sources and all locals at once (:func:`linearise_graph`) equals
+    the dense elimination of the whole linearised system: the global information and gradient, the
+    information with each source scaled (the error budget's), covariance columns with the robot
+    poses' rows, and a robot pose's marginal; on a 3-camera cell whose intrinsics and board scale
+    are estimated (the factory-class case, every source present)."""
+    import gtsam
+
+    from calibgraph.solver.reduced import SOURCES, _source, columns, linearise_graph
+
+    graph, values = _solved_graph(monkeypatch, _scene(3, 24, 4, "l515", 0.2))
+    L = linearise_graph(graph, values)
+    keys = list(values.keys())
+    zero = values.zeroVectors()
+    at, n = {}, 0
+    for k in keys:
+        at[k] = slice(n, n + zero.at(k).shape[0])
+        n = at[k].stop
+    lin = graph.linearize(values)
+    full = {src: np.zeros((n, n)) for src in SOURCES}
+    grad = np.zeros(n)
+    for i in range(lin.size()):
+        f = lin.at(i)
+        fk = list(f.keys())
+        A, b = f.jacobian()
+        cols = np.concatenate([np.arange(at[k].start, at[k].stop) for k in fk])
+        full[_source(fk)][np.ix_(cols, cols)] += A.T @ A
+        grad[cols] -= A.T @ b
+    g_rows = np.concatenate([np.arange(at[k].start, at[k].stop) for k in L.index])
+    l_rows = np.setdiff1d(np.arange(n), g_rows)
+    assert len(l_rows) == 6 * len(L.locals_) > 0
+    assert all(np.abs(full[src]).max() > 0 for src in SOURCES)  # every source is in the graph
+
+    def schur(H):
+        Hgl = H[np.ix_(g_rows, l_rows)]
+        return H[np.ix_(g_rows, g_rows)] - Hgl @ np.linalg.solve(H[np.ix_(l_rows, l_rows)], Hgl.T)
+
+    H = sum(full.values())
+    S = schur(H)
+    np.testing.assert_allclose(L.S, S, rtol=1e-9, atol=1e-9 * np.abs(S).max())
+    g = grad[g_rows] - H[np.ix_(g_rows, l_rows)] @ np.linalg.solve(H[np.ix_(l_rows, l_rows)], grad[l_rows])
+    np.testing.assert_allclose(L.g, g, rtol=1e-7, atol=1e-7 * np.abs(g).max())
+    for src in SOURCES:
+        scale = {src: 1e3, "corners": 0.5} if src != "corners" else {src: 1e3}
+        Ss = schur(sum(scale.get(s, 1.0) * Hs for s, Hs in full.items()))
+        np.testing.assert_allclose(L.information(scale), Ss, rtol=1e-9, atol=1e-9 * np.abs(Ss).max())
+    cov = np.linalg.inv(H)
+    cam = next(k for k in L.index if chr(gtsam.Symbol(k).chr()) == "c")
+    X = columns(L, L.S, [(cam, slice(3, 6))])
+    for k in keys:
+        np.testing.assert_allclose(X[k], cov[at[k], at[cam].start + 3:at[cam].start + 6], rtol=1e-6,
+                                   atol=1e-6 * np.abs(cov[:, at[cam]]).max())
+    loc = next(iter(L.locals_))
+    np.testing.assert_allclose(L.marginals(keys).marginalCovariance(loc), cov[at[loc], at[loc]], rtol=1e-6,
+                               atol=1e-9 * np.abs(cov[at[loc], at[loc]]).max())
