@@ -203,3 +203,56 @@ def test_reduced_linearisation_equals_the_dense_elimination(monkeypatch):
     loc = next(iter(L.locals_))
     np.testing.assert_allclose(L.marginals(keys).marginalCovariance(loc), cov[at[loc], at[loc]], rtol=1e-6,
                                atol=1e-9 * np.abs(cov[at[loc], at[loc]]).max())
+
+
+def test_high_order_of_all_views_at_once_equals_view_by_view():
+    """The corners' scatter outside each view's 6 low-order modes, formed for all views at once by
+    segment sums (:func:`_high_order_all`), equals :func:`_high_order` view by view: views of a
+    tilted grid, scattered corners, corners on a line (the QR), too few corners, an inactive view,
+    a view with a non-finite and one with an absurd residual, some corners rejected."""
+    from calibgraph.solver.noise_model import _high_order, _high_order_all
+    from calibgraph.solver.views import View
+
+    rng = np.random.default_rng(5)
+    grid = np.stack(np.meshgrid(np.arange(8.0), np.arange(5.0)), -1).reshape(-1, 2)
+    H = np.array([[0.9, 0.1, 200.0], [-0.05, 1.1, 100.0], [1e-4, 2e-4, 1.0]])
+    g = np.c_[grid * 20, np.ones(len(grid))] @ H.T
+    shapes = [g[:, :2] / g[:, 2:], rng.uniform(0, 1000, (30, 2)), np.c_[np.arange(12.0), 3 * np.arange(12.0) + 5],
+              rng.uniform(0, 1000, (5, 2))]
+    views, residuals = [], []
+    for i in range(40):
+        uv = shapes[i % len(shapes)] + rng.normal(0, 0.5, shapes[i % len(shapes)].shape)
+        n = len(uv)
+        w = np.where(rng.random(n) < 0.9, rng.uniform(0.3, 1.0, n), 0.0)
+        r = rng.normal(0, 0.3, (n, 2)) + rng.normal(0, 2.0, 2)
+        if i == 7:
+            r[0, 0] = np.nan
+        if i == 11:
+            r[1, 1] = 2e5
+        views.append(View(camera=f"c{i % 3}", capture=i, ids=np.arange(n), uv_px=uv, p_board_m=np.zeros((n, 3)),
+                          T_ref_mount=np.eye(4), w=w, active=i != 5))
+        residuals.append(r)
+    pe, pn = _high_order_all(views, residuals)
+    for i, (v, r) in enumerate(zip(views, residuals)):
+        e_ref, n_ref = _high_order(v, r)
+        assert pn[i] == n_ref, i
+        assert abs(pe[i] - e_ref) <= 1e-9 * max(e_ref, 1.0), (i, pe[i], e_ref)
+    assert (pn > 0).sum() >= 20 and pn[5] == pn[7] == pn[11] == 0
+
+
+def test_pairwise_rotation_angles_by_one_product_equal_the_batched_ones():
+    """The initialiser's consensus angles between every pair of candidate rotations, as one matrix
+    product of the flattened rotations, equal :func:`_angle_deg` of every pair (near-identical,
+    opposite and random rotations)."""
+    from calibgraph.core.transforms import exp_so3
+    from calibgraph.solver.initialise import _angle_deg, _pairwise_angle_deg
+
+    rng = np.random.default_rng(2)
+    base = [exp_so3(rng.normal(0, 1.0, 3)) for _ in range(30)]
+    R = np.array(base + [b @ exp_so3(rng.normal(0, 1e-3, 3)) for b in base[:10]]
+                 + [b @ exp_so3(np.array([np.pi, 0, 0])) for b in base[:5]])
+    fast = _pairwise_angle_deg(R)
+    slow = _angle_deg(R[:, None], R[None, :])
+    # arccos near 0 turns the traces' last-bit rounding into ~1e-6 deg; the inlier limit is degrees away
+    np.testing.assert_allclose(fast, slow, atol=1e-5)
+    assert fast.max() > 170 and np.sort(fast, axis=1)[:, 1].min() < 0.5

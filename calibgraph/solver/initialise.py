@@ -75,6 +75,13 @@ def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
+def _pairwise_angle_deg(R: np.ndarray) -> np.ndarray:
+    """(M, M) :func:`_angle_deg` between every pair of the rotations ``R`` (M, 3, 3): the traces
+    tr(Ra^T Rb) as one matrix product of the flattened rotations."""
+    F = R.reshape(len(R), 9)
+    return np.degrees(np.arccos(np.clip((F @ F.T - 1.0) / 2.0, -1.0, 1.0)))
+
+
 def _solve_rotations(rows_by_cam: dict, n_cams: int):
     """Linear least squares for R_Z (one per camera slot) and shared R_Y.
 
@@ -252,7 +259,7 @@ def camera_from_mount(views: list, T_mount_board: np.ndarray):
     T_board_cam[:, 3, 3] = 1.0
     props = A @ T_mount_board @ T_board_cam
     Rs = props[:, :3, :3]
-    ang = _angle_deg(Rs[:, None], Rs[None, :])
+    ang = _pairwise_angle_deg(Rs)
     counts = (ang < ROT_INLIER_DEG).sum(axis=1)
     best = int(np.argmax(counts))
     members = ang[best] < ROT_INLIER_DEG

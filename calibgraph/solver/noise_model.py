@@ -154,6 +154,61 @@ def _mode_energy(uv_px: np.ndarray, e: np.ndarray) -> float:
     return float(s @ s) / len(E) + float(np.sum(B * np.linalg.solve(G, B)))
 
 
+def _high_order_all(views: list, residuals: list) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_high_order` of every view at once: (squared residuals outside the 6 modes (V,), their
+    counts (V,)). The per-view sums (centroid, the 2x2 Gram matrix of the centred corners, the
+    residuals' sums and moments) are segment sums over all the views' corners; a view whose corners
+    lie on a line takes :func:`_high_order`'s QR."""
+    V = len(views)
+    pe, pn = np.zeros(V), np.zeros(V, int)
+    idx, uv, es = [], [], []
+    for i, (v, r) in enumerate(zip(views, residuals)):
+        if not v.active:
+            continue
+        keep = v.kept
+        n = int(keep.sum())
+        if n < MODE_MIN_CORNERS + 2:
+            continue
+        e = np.asarray(r, float)[keep]
+        if not np.all(np.isfinite(e)) or np.max(np.abs(e)) >= 1e5:
+            continue
+        idx.append(i)
+        uv.append(v.uv_px[keep])
+        es.append(e)
+    if not idx:
+        return pe, pn
+    idx = np.array(idx)
+    counts = np.array([len(u) for u in uv])
+    w = np.repeat(np.arange(len(idx)), counts)
+    UV, E = np.concatenate(uv), np.concatenate(es)
+    m = len(idx)
+
+    def seg(x):
+        return np.bincount(w, x, minlength=m)
+
+    c = UV - np.column_stack([seg(UV[:, 0]), seg(UV[:, 1])])[w] / counts[w, None]
+    G = np.empty((m, 2, 2))
+    G[:, 0, 0], G[:, 1, 1] = seg(c[:, 0] * c[:, 0]), seg(c[:, 1] * c[:, 1])
+    G[:, 0, 1] = G[:, 1, 0] = seg(c[:, 0] * c[:, 1])
+    B = np.empty((m, 2, 2))  # c^T E: rows x, y of the corners; columns the u, v residuals
+    for a in range(2):
+        for b in range(2):
+            B[:, a, b] = seg(c[:, a] * E[:, b])
+    s = np.column_stack([seg(E[:, 0]), seg(E[:, 1])])
+    det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] * G[:, 1, 0]
+    ok = det > 1e-9 * np.maximum(G[:, 0, 0] + G[:, 1, 1], 1e-300) ** 2
+    modes = np.zeros(m)
+    if ok.any():
+        X = np.linalg.solve(G[ok], B[ok])
+        modes[ok] = np.sum(s[ok] * s[ok], axis=1) / counts[ok] + np.sum(B[ok] * X, axis=(1, 2))
+    for j in np.flatnonzero(~ok):  # corners on a line: the basis by QR
+        q = view_mode_basis(uv[j]).T @ es[j].reshape(-1)
+        modes[j] = float(q @ q)
+    pe[idx] = np.maximum(seg(np.sum(E * E, axis=1)) - modes, 0.0)
+    pn[idx] = 2 * counts - N_MODES
+    return pe, pn
+
+
 def camera_noise_scales(views: list, residuals: list, per_view: bool = True) -> tuple[list, float, float]:
     """(views with each camera's ``noise_scale`` and each view's ``view_noise`` set, the largest
     relative change of a camera's scale, the largest of a view's level). ``residuals``: (N, 2)
@@ -173,20 +228,22 @@ def camera_noise_scales(views: list, residuals: list, per_view: bool = True) -> 
     level had VIEW_PRIOR_DOF residuals of its own (a view of 20 corners moves about two thirds of
     the way), and kept within VIEW_NOISE_RANGE, is its ``view_noise``. Views out of the graph keep
     1, so that a rejected view cannot earn its way back by looking noisy."""
-    per = [_high_order(v, r) for v, r in zip(views, residuals)]
-    tot_e = sum(e for e, _ in per)
-    tot_n = sum(n for _, n in per)
+    pe_all, pn_all = _high_order_all(views, residuals)
+    tot_e = float(sum(pe_all.tolist()))  # in view order, as the per-camera sums below
+    tot_n = int(pn_all.sum())
     if tot_n == 0 or tot_e <= 0:
         return views, 0.0, 0.0
     ref = tot_e / tot_n
+    slot = {c: i for i, c in enumerate(dict.fromkeys(v.camera for v in views))}
+    cams = list(slot)
+    ci = np.array([slot[v.camera] for v in views], int)
+    e_cam, n_cam = np.bincount(ci, pe_all, len(cams)), np.bincount(ci, pn_all, len(cams))
     scales, level = {}, {}
-    for cam in dict.fromkeys(v.camera for v in views):
-        e = sum(pe for v, (pe, _) in zip(views, per) if v.camera == cam)
-        n = sum(pn for v, (_, pn) in zip(views, per) if v.camera == cam)
+    for cam, e, n in zip(cams, e_cam, n_cam):
         level[cam] = e / n if n > 0 else 0.0
         scales[cam] = max(float(np.sqrt(level[cam] / ref)), 1e-3) if n >= CAMERA_SIGMA_MIN_CORNERS and e > 0 else 1.0
     out, change, change_view = [], 0.0, 0.0
-    for v, (pe, pn) in zip(views, per):
+    for v, pe, pn in zip(views, pe_all.tolist(), pn_all.tolist()):
         t = 1.0
         if per_view and pn > 0 and level[v.camera] > 0:
             ratio = pe / pn / level[v.camera]
