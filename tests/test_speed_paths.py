@@ -240,19 +240,23 @@ def test_high_order_of_all_views_at_once_equals_view_by_view():
     assert (pn > 0).sum() >= 20 and pn[5] == pn[7] == pn[11] == 0
 
 
-def test_pairwise_rotation_angles_by_one_product_equal_the_batched_ones():
-    """The initialiser's consensus angles between every pair of candidate rotations, as one matrix
-    product of the flattened rotations, equal :func:`_angle_deg` of every pair (near-identical,
-    opposite and random rotations)."""
+def test_pairwise_rotation_cosines_by_one_product_equal_the_batched_angles():
+    """The initialiser's consensus between every pair of candidate rotations, cosines from one
+    matrix product of the flattened rotations, equals :func:`_angle_deg` of every pair (near-
+    identical, 5 deg apart give or take a little, opposite and random rotations), and so does the
+    inlier set its angle limit gives."""
     from calibgraph.core.transforms import exp_so3
-    from calibgraph.solver.initialise import _angle_deg, _pairwise_angle_deg
+    from calibgraph.solver.initialise import ROT_INLIER_DEG, _angle_deg, _pairwise_cos
 
     rng = np.random.default_rng(2)
     base = [exp_so3(rng.normal(0, 1.0, 3)) for _ in range(30)]
+    axis = np.array([0.0, 0.6, 0.8])
     R = np.array(base + [b @ exp_so3(rng.normal(0, 1e-3, 3)) for b in base[:10]]
+                 + [b @ exp_so3(np.radians(ROT_INLIER_DEG + d) * axis) for b, d in zip(base[:8], np.linspace(-0.2, 0.2, 8))]
                  + [b @ exp_so3(np.array([np.pi, 0, 0])) for b in base[:5]])
-    fast = _pairwise_angle_deg(R)
+    c = _pairwise_cos(R)
     slow = _angle_deg(R[:, None], R[None, :])
-    # arccos near 0 turns the traces' last-bit rounding into ~1e-6 deg; the inlier limit is degrees away
-    np.testing.assert_allclose(fast, slow, atol=1e-5)
-    assert fast.max() > 170 and np.sort(fast, axis=1)[:, 1].min() < 0.5
+    np.testing.assert_allclose(c, np.cos(np.radians(slow)), atol=1e-12)
+    inliers = c > np.cos(np.radians(ROT_INLIER_DEG))
+    assert np.array_equal(inliers, slow < ROT_INLIER_DEG)
+    assert 0 < (inliers.sum() - len(R)) < len(R) ** 2 / 4

@@ -328,17 +328,12 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
     estimated = np.array([t.key_intr is not None for t in terms])
     n_intr = np.array([t.n_intr for t in terms])  # each estimated camera's intrinsics vector size
     views_of_intr = [np.flatnonzero(np.array(intr_of) == j) for j in range(len(intr_keys))]
-    # the last pass: the bytes of the values it was made at (robot poses, cameras, intrinsics, the
-    # mount and scale), its residuals and Jacobians (row blocks over all the views' rows)
-    cache = {"robot": None, "cam": None, "intr": None, "shared": None, "e": None, "H": None, "white": {}}
+    # the last pass: the values it was made at (the robot poses', cameras' and mount's Pose3, the
+    # intrinsics' and the scale's bytes), its residuals and Jacobians (row blocks over all the views' rows)
+    cache = {"robot": None, "cam": None, "intr": None, "mount": None, "scale": None, "e": None, "H": None, "white": {}}
 
-    def shared_inputs(values):
-        T_mb = values.atPose3(key_mount).matrix()
-        scale = float(values.atVector(key_scale)[0]) if key_scale is not None else 1.0
-        return T_mb, scale
-
-    def shared_key(shared) -> bytes:  # exact: the inputs' bytes
-        return shared[0].tobytes() + np.float64(shared[1]).tobytes()
+    def scale_bytes(values) -> bytes:
+        return values.atVector(key_scale).tobytes() if key_scale is not None else b""
 
     n_pose = 3 + (key_scale is not None)  # Jacobian blocks before the intrinsics': robot pose, mount, (scale,) camera
 
@@ -354,9 +349,13 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
     chunks = [slice(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:])]
 
     def compute(values):
-        T_mb, scale = shared_inputs(values)
-        T_rm = np.array([values.atPose3(k).matrix() for k in robot_keys])
-        T_rc = np.array([values.atPose3(k).matrix() for k in cam_keys])
+        mount = values.atPose3(key_mount)
+        T_mb = mount.matrix()
+        scale = float(values.atVector(key_scale)[0]) if key_scale is not None else 1.0
+        robots = [values.atPose3(k) for k in robot_keys]
+        cams = [values.atPose3(k) for k in cam_keys]
+        T_rm = np.array([p.matrix() for p in robots])
+        T_rc = np.array([p.matrix() for p in cams])
         k6s = [np.asarray(values.atVector(k), float) for k in intr_keys]
         par = pinhole.copy()  # fx, fy, cx, cy
         dist = static[:, 1:].copy()
@@ -417,8 +416,8 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
         for v, (c, Q) in whiten.items():  # a whitened view's rows, replaced
             ev, Hv = e[rows[v]], view_blocks(blocks, v)
             white[v] = (ev - c * (Q @ (Q.T @ ev)), [A - c * (Q @ (Q.T @ A)) for A in Hv])
-        cache.update(robot=[T.tobytes() for T in T_rm], cam=[T.tobytes() for T in T_rc],
-                     intr=[k.tobytes() for k in k6s], shared=shared_key((T_mb, scale)), e=e, H=blocks, white=white)
+        cache.update(robot=robots, cam=cams, intr=[k.tobytes() for k in k6s], mount=mount, scale=scale_bytes(values),
+                     e=e, H=blocks, white=white)
 
     def factor(v: int, t) -> gtsam.CustomFactor:
         key_robot = robot_keys[cap[v]]
@@ -427,9 +426,11 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
         c, j, k_i = cap[v], cam[v], intr_of[v]
 
         def stale(values) -> bool:
-            return (cache["e"] is None or cache["robot"][c] != values.atPose3(key_robot).matrix().tobytes()
-                    or cache["cam"][j] != values.atPose3(t.key_cam).matrix().tobytes()
-                    or cache["shared"] != shared_key(shared_inputs(values))
+            # exact: Pose3.equals at tolerance 0 is equality of every entry (cheaper than their bytes)
+            return (cache["e"] is None or not cache["robot"][c].equals(values.atPose3(key_robot), 0.0)
+                    or not cache["cam"][j].equals(values.atPose3(t.key_cam), 0.0)
+                    or not cache["mount"].equals(values.atPose3(key_mount), 0.0)
+                    or (key_scale is not None and cache["scale"] != scale_bytes(values))
                     or (k_i >= 0 and cache["intr"][k_i] != np.asarray(values.atVector(t.key_intr), float).tobytes()))
 
         def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):

@@ -75,11 +75,12 @@ def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
-def _pairwise_angle_deg(R: np.ndarray) -> np.ndarray:
-    """(M, M) :func:`_angle_deg` between every pair of the rotations ``R`` (M, 3, 3): the traces
-    tr(Ra^T Rb) as one matrix product of the flattened rotations."""
+def _pairwise_cos(R: np.ndarray) -> np.ndarray:
+    """(M, M) cosine of the angle between every pair of the rotations ``R`` (M, 3, 3), clipped to
+    [-1, 1] (:func:`_angle_deg` is its arccos): the traces tr(Ra^T Rb) as one matrix product of the
+    flattened rotations, and no arccos (an angle limit is a cosine limit)."""
     F = R.reshape(len(R), 9)
-    return np.degrees(np.arccos(np.clip((F @ F.T - 1.0) / 2.0, -1.0, 1.0)))
+    return np.clip((F @ F.T - 1.0) / 2.0, -1.0, 1.0)
 
 
 def _solve_rotations(rows_by_cam: dict, n_cams: int):
@@ -259,10 +260,10 @@ def camera_from_mount(views: list, T_mount_board: np.ndarray):
     T_board_cam[:, 3, 3] = 1.0
     props = A @ T_mount_board @ T_board_cam
     Rs = props[:, :3, :3]
-    ang = _pairwise_angle_deg(Rs)
-    counts = (ang < ROT_INLIER_DEG).sum(axis=1)
+    close = _pairwise_cos(Rs) > np.cos(np.radians(ROT_INLIER_DEG))  # angle below ROT_INLIER_DEG
+    counts = close.sum(axis=1)
     best = int(np.argmax(counts))
-    members = ang[best] < ROT_INLIER_DEG
+    members = close[best]
     R = project_to_so3(Rs[members].sum(axis=0))
     t = np.median(props[members, :3, 3], axis=0)
     return make_T(R, t), int(counts[best])
