@@ -303,10 +303,12 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
     n_views = len(terms)
     robot_keys = [k for k, _ in captures]
     cap = np.repeat(np.arange(len(captures)), [len(ts) for _, ts in captures]).astype(int)  # capture of each view
-    cam_keys = list(dict.fromkeys(t.key_cam for t in terms))
-    cam = np.array([cam_keys.index(t.key_cam) for t in terms], int)  # camera pose of each view
-    intr_keys = list(dict.fromkeys(t.key_intr for t in terms if t.key_intr is not None))
-    intr_of = [intr_keys.index(t.key_intr) if t.key_intr is not None else -1 for t in terms]
+    cam_slot = {k: i for i, k in enumerate(dict.fromkeys(t.key_cam for t in terms))}
+    cam_keys = list(cam_slot)
+    cam = np.array([cam_slot[t.key_cam] for t in terms], int)  # camera pose of each view
+    intr_slot = {k: i for i, k in enumerate(dict.fromkeys(t.key_intr for t in terms if t.key_intr is not None))}
+    intr_keys = list(intr_slot)
+    intr_of = [intr_slot[t.key_intr] if t.key_intr is not None else -1 for t in terms]
     rows, whiten = [], {}
     start = 0
     for v, t in enumerate(terms):
@@ -323,8 +325,11 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
     SW = np.concatenate([t.sqrt_w for t in terms])
     counts = [t.p_board_m.shape[0] for t in terms]
     vi = np.repeat(np.arange(n_views), counts)  # view of each corner
-    static = np.array([[t.intr.K[0, 1], *t.intr.dist8] for t in terms])  # skew, k1..k6 as given
-    pinhole = np.array([[t.intr.K[0, 0], t.intr.K[1, 1], t.intr.K[0, 2], t.intr.K[1, 2]] for t in terms])
+    models = {}  # each camera model's row (views share their camera's Intrinsics)
+    model_of = np.array([models.setdefault(id(t.intr), (len(models), t.intr))[0] for t in terms], int)
+    by_model = [m for _, m in models.values()]
+    static = np.array([[m.K[0, 1], *m.dist8] for m in by_model])[model_of]  # skew, k1..k6 as given
+    pinhole = np.array([[m.K[0, 0], m.K[1, 1], m.K[0, 2], m.K[1, 2]] for m in by_model])[model_of]
     estimated = np.array([t.key_intr is not None for t in terms])
     n_intr = np.array([t.n_intr for t in terms])  # each estimated camera's intrinsics vector size
     views_of_intr = [np.flatnonzero(np.array(intr_of) == j) for j in range(len(intr_keys))]
@@ -449,6 +454,10 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
                     H[i] = A
             return cache["e"][rows[v]]
 
-        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2 * t.p_board_m.shape[0]), keys, error_func)
+        n_rows = 2 * t.p_board_m.shape[0]
+        if n_rows not in units:
+            units[n_rows] = gtsam.noiseModel.Unit.Create(n_rows)
+        return gtsam.CustomFactor(units[n_rows], keys, error_func)
 
+    units = {}  # one unit noise model per row count
     return [factor(v, t) for v, t in enumerate(terms)]
