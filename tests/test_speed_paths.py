@@ -260,3 +260,30 @@ def test_pairwise_rotation_cosines_by_one_product_equal_the_batched_angles():
     inliers = c > np.cos(np.radians(ROT_INLIER_DEG))
     assert np.array_equal(inliers, slow < ROT_INLIER_DEG)
     assert 0 < (inliers.sum() - len(R)) < len(R) ** 2 / 4
+
+
+def test_mode_terms_of_views_together_equal_view_by_view():
+    """The corner-noise model's per-view terms (squared residual in the 6 image modes, the total,
+    the traces of the robot pose's share in the modes and overall) formed for views of equal corner
+    counts together equal the view-by-view formulas (:func:`view_mode_basis` per view)."""
+    from calibgraph.solver.noise_model import _mode_terms, view_mode_basis
+    from calibgraph.solver.views import View
+
+    rng = np.random.default_rng(9)
+    per_view, cov = [], {}
+    for i in range(30):
+        n = (12, 20, 7)[i % 3]
+        uv = rng.uniform(0, 1000, (n + 3, 2))
+        keep = np.ones(n + 3, bool)
+        keep[rng.choice(n + 3, 3, replace=False)] = False
+        v = View(camera="c", capture=i // 2, ids=np.arange(n + 3), uv_px=uv, p_board_m=np.zeros((n + 3, 3)),
+                 T_ref_mount=np.eye(4), w=keep.astype(float))
+        per_view.append((v, keep, rng.normal(0, 1, 2 * n), rng.normal(0, 50, (2 * n, 6))))
+        A = rng.normal(0, 1, (6, 6))
+        cov[i // 2] = A @ A.T * 1e-6
+    got = _mode_terms(per_view, cov)
+    for (v, keep, e, H_f), row in zip(per_view, got):
+        Q = view_mode_basis(v.uv_px[keep])
+        Sk, G, qe = cov[v.capture], H_f.T @ Q, Q.T @ e
+        ref = [qe @ qe, e @ e, np.sum(Sk * (G @ G.T)), np.sum(Sk * (H_f.T @ H_f))]
+        np.testing.assert_allclose(row, ref, rtol=1e-10)

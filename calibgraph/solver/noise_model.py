@@ -57,14 +57,19 @@ def view_mode_basis(uv_px: np.ndarray) -> np.ndarray:
     a shift in u and v and the four linear maps about the corners' centroid (rotation, scale, the
     two shears), i.e. an affine change of the board's image; rows interleave u, v per corner as the
     view factor's residual does."""
-    c = uv_px - uv_px.mean(axis=0)
-    c = c / max(float(np.sqrt(np.mean(np.sum(c * c, axis=1)))), 1e-9)
-    n = len(uv_px)
-    A = np.zeros((2 * n, N_MODES))
-    A[0::2, 0] = 1.0
-    A[1::2, 1] = 1.0
-    A[0::2, 2], A[0::2, 3] = c[:, 0], c[:, 1]
-    A[1::2, 4], A[1::2, 5] = c[:, 0], c[:, 1]
+    return view_mode_bases(np.asarray(uv_px, float)[None])[0]
+
+
+def view_mode_bases(uv_px: np.ndarray) -> np.ndarray:
+    """:func:`view_mode_basis` of V views of n corners each at once: ``uv_px`` (V, n, 2) -> (V, 2n, 6)."""
+    c = uv_px - uv_px.mean(axis=1, keepdims=True)
+    c = c / np.maximum(np.sqrt(np.mean(np.sum(c * c, axis=2), axis=1)), 1e-9)[:, None, None]
+    V, n = uv_px.shape[:2]
+    A = np.zeros((V, 2 * n, N_MODES))
+    A[:, 0::2, 0] = 1.0
+    A[:, 1::2, 1] = 1.0
+    A[:, 0::2, 2], A[:, 0::2, 3] = c[..., 0], c[..., 1]
+    A[:, 1::2, 4], A[:, 1::2, 5] = c[..., 0], c[..., 1]
     return np.linalg.qr(A)[0]
 
 
@@ -81,19 +86,11 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
     ~1 with independent corners (F-distributed). ``lin``: :func:`linearise` of the same arguments.
     """
     lin = lin or linearise(problem, views, est, sigma_px)
-    per_view = [(v, e, H_f, view_mode_basis(v.uv_px[keep])) for v, keep, e, H_f in lin.views
-                if keep.sum() >= MODE_MIN_CORNERS]
+    per_view = [(v, keep, e, H_f) for v, keep, e, H_f in lin.views if keep.sum() >= MODE_MIN_CORNERS]
     cov = lin.robot_pose_covariances()
+    terms = _mode_terms(per_view, cov)
     acc = {}
-    for v, e, H_f, Q in per_view:
-        # traces of M = H_f Sigma_k H_f^T without forming it (2n x 2n): tr(Q^T M Q) = <Sigma_k, G G^T>
-        # with G = H_f^T Q, and tr(M) = <Sigma_k, H_f^T H_f>
-        Sk = cov[v.capture]
-        G = H_f.T @ Q
-        qe = Q.T @ e
-        low, total = float(qe @ qe), float(e @ e)
-        t_low = float(np.sum(Sk * (G @ G.T)))
-        t_all = float(np.sum(Sk * (H_f.T @ H_f)))
+    for (v, _, e, _), (low, total, t_low, t_all) in zip(per_view, terms.tolist()):
         a = acc.setdefault(v.camera, np.zeros(5))
         a += [low, max(total - low, 0.0), N_MODES - t_low, len(e) - N_MODES - (t_all - t_low), low * sigma_px ** 2]
     out = {}
@@ -105,6 +102,30 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
         z = np.log(max(ratio, 1e-12)) / np.sqrt(2.0 / r_low + 2.0 / r_rest)
         out[cam] = ModeRatio(float(ratio), float(ratio) if z > APPLY_Z else 1.0, int(round(r_low)),
                              int(round(r_rest)), bool(z > NOTE_Z), float(low_px2))
+    return out
+
+
+def _mode_terms(per_view: list, cov: dict) -> np.ndarray:
+    """(V, 4) per view of ``per_view`` ([(view, kept mask, e (2n,), H_f (2n, 6))]): the squared
+    residual in its 6 modes ``|Q^T e|^2``, the total ``e^T e``, and the traces of M = H_f Sigma_k
+    H_f^T without forming it (2n x 2n): ``tr(Q^T M Q) = <Sigma_k, G G^T>`` with ``G = H_f^T Q``, and
+    ``tr(M) = <Sigma_k, H_f^T H_f>`` (``cov``: capture -> Sigma_k). Views of equal corner counts
+    are taken together."""
+    out = np.zeros((len(per_view), 4))
+    groups = {}
+    for i, (_, keep, e, _) in enumerate(per_view):
+        groups.setdefault(len(e), []).append(i)
+    for idx in groups.values():
+        E = np.array([per_view[i][2] for i in idx])
+        H = np.array([per_view[i][3] for i in idx])
+        Q = view_mode_bases(np.array([per_view[i][0].uv_px[per_view[i][1]] for i in idx]))
+        Sk = np.array([cov[per_view[i][0].capture] for i in idx])
+        G = np.einsum("grj,gri->gji", H, Q)
+        qe = np.einsum("gri,gr->gi", Q, E)
+        out[idx, 0] = np.sum(qe * qe, axis=1)
+        out[idx, 1] = np.sum(E * E, axis=1)
+        out[idx, 2] = np.sum(Sk * np.einsum("gik,gjk->gij", G, G), axis=(1, 2))
+        out[idx, 3] = np.sum(Sk * np.einsum("gri,grj->gij", H, H), axis=(1, 2))
     return out
 
 
