@@ -14,6 +14,7 @@ the views are weighted and their covariance propagated accordingly.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -190,18 +191,26 @@ def _high_order_all(views: list, residuals: list) -> tuple[np.ndarray, np.ndarra
         n = int(keep.sum())
         if n < MODE_MIN_CORNERS + 2:
             continue
-        e = np.asarray(r, float)[keep]
-        if not np.all(np.isfinite(e)) or np.max(np.abs(e)) >= 1e5:
-            continue
         idx.append(i)
         uv.append(v.uv_px[keep])
-        es.append(e)
+        es.append(np.asarray(r, float)[keep])
     if not idx:
         return pe, pn
-    idx = np.array(idx)
     counts = np.array([len(u) for u in uv])
     w = np.repeat(np.arange(len(idx)), counts)
-    UV, E = np.concatenate(uv), np.concatenate(es)
+    E = np.concatenate(es)
+    # a view with a non-finite or absurd residual (>= 1e5 px) is left out
+    bad = np.bincount(w, ~(np.abs(E) < 1e5).all(axis=1), minlength=len(idx)) > 0
+    if bad.any():
+        good = np.flatnonzero(~bad)
+        idx, uv, es = [idx[j] for j in good], [uv[j] for j in good], [es[j] for j in good]
+        if not idx:
+            return pe, pn
+        counts = counts[good]
+        w = np.repeat(np.arange(len(idx)), counts)
+        E = np.concatenate(es)
+    idx = np.array(idx)
+    UV = np.concatenate(uv)
     m = len(idx)
 
     def seg(x):
@@ -268,7 +277,8 @@ def camera_noise_scales(views: list, residuals: list, per_view: bool = True) -> 
         t = 1.0
         if per_view and pn > 0 and level[v.camera] > 0:
             ratio = pe / pn / level[v.camera]
-            t = float(np.clip(np.sqrt((VIEW_PRIOR_DOF + pn * ratio) / (VIEW_PRIOR_DOF + pn)), *VIEW_NOISE_RANGE))
+            t = min(max(math.sqrt((VIEW_PRIOR_DOF + pn * ratio) / (VIEW_PRIOR_DOF + pn)), VIEW_NOISE_RANGE[0]),
+                    VIEW_NOISE_RANGE[1])
         change = max(change, abs(scales[v.camera] / v.noise_scale - 1.0))
         change_view = max(change_view, abs(t / v.view_noise - 1.0))
         out.append(v if (v.noise_scale, v.view_noise) == (scales[v.camera], t)
