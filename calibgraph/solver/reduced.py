@@ -147,28 +147,31 @@ def linearise_graph(graph, values) -> Linear:
     d = max([dims[k] for k in loc_keys], default=6)
     if any(dims[k] != d for k in loc_keys):
         raise ValueError("linearise_graph: the local variables must share one tangent dimension")
-    raw, groups = [], {}
+    raw, groups, shapes = [], {}, {}
     for i in range(lin.size()):
         f = lin.at(i)
         if f is None:
             continue
-        keys = list(f.keys())
+        keys = f.keys()
         A, b = f.jacobian()
-        kd = [dims[k] for k in keys]
-        src = _source_of(keys, chars)
-        raw.append((src, keys, A, kd))
-        loc = [j for j, k in enumerate(keys) if k in locals_]
-        gl = tuple(k for k in keys if k in index)
-        if loc:  # the local's columns first
-            j = loc[0]
-            start = sum(kd[:j])
+        shape = shapes.get(tuple(keys))
+        if shape is None:  # the factor's source, dims, group and where its local's columns start
+            loc = [j for j, k in enumerate(keys) if k in locals_]
+            kd = [dims[k] for k in keys]
+            src = _source_of(keys, chars)
+            gl = tuple(k for k in keys if k in index)
+            shape = shapes[tuple(keys)] = (src, kd, (src, gl, bool(loc)), sum(kd[:loc[0]]) if loc else None,
+                                           locals_[keys[loc[0]]] if loc else -1)
+        src, kd, key, start, lid = shape
+        raw.append((src, list(keys), A, kd))
+        if start:  # the local's columns first
             A = np.concatenate([A[:, start:start + d], A[:, :start], A[:, start + d:]], axis=1)
-        key = (src, gl, bool(loc))
-        groups.setdefault(key, ([], [], []))
-        grp = groups[key]
+        grp = groups.get(key)
+        if grp is None:
+            grp = groups[key] = ([], [], [])
         grp[0].append(A.T @ A)
         grp[1].append(A.T @ b)
-        grp[2].append(locals_[keys[loc[0]]] if loc else -1)
+        grp[2].append(lid)
     H_src = {src: np.zeros((n, n)) for src in SOURCES}
     Hll_src, Hlg_src = {}, {}
     grad, g_l = np.zeros(n), np.zeros((len(loc_keys), d))
