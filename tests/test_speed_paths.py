@@ -287,3 +287,76 @@ def test_mode_terms_of_views_together_equal_view_by_view():
         Sk, G, qe = cov[v.capture], H_f.T @ Q, Q.T @ e
         ref = [qe @ qe, e @ e, np.sum(Sk * (G @ G.T)), np.sum(Sk * (H_f.T @ H_f))]
         np.testing.assert_allclose(row, ref, rtol=1e-10)
+
+
+def _refine_translations_view_by_view(views_by_cam, intr_by_cam, T_ref_cam, T_mount_board, p_by_view, uv_by_view):
+    """The per-view formulation of :func:`refine_translations`' normal equations (its code before
+    the corners of a camera's views were taken together): (views' AtA, Atb, camera slots)."""
+    import cv2
+
+    from calibgraph.solver.initialise import ROT_INLIER_DEG, _angle_deg
+
+    RY = T_mount_board[:3, :3]
+    out = []
+    for s, n in enumerate(T_ref_cam):
+        RZ = T_ref_cam[n][:3, :3]
+        for v in views_by_cam[n]:
+            err = _angle_deg(RZ @ v.R, (v.T_ref_mount[:3, :3] @ RY)[None]).min() if len(v.R) else np.inf
+            if err > ROT_INLIER_DEG:
+                continue
+            pb, uv = p_by_view[(n, v.capture)], uv_by_view[(n, v.capture)]
+            xy = cv2.undistortPoints(uv.reshape(-1, 1, 2).astype(np.float64), intr_by_cam[n].K,
+                                     intr_by_cam[n].dist).reshape(-1, 2)
+            RA, tA = v.T_ref_mount[:3, :3], v.T_ref_mount[:3, 3]
+            q = (pb @ (RA @ RY).T + tA) @ RZ
+            MY, MZ = RZ.T @ RA, -RZ.T
+            G = np.vstack([np.hstack([xy[:, c, None] * MZ[2] - MZ[c], xy[:, c, None] * MY[2] - MY[c]]) for c in (0, 1)])
+            b = np.concatenate([-(xy[:, c] * q[:, 2] - q[:, c]) for c in (0, 1)])
+            out.append((G.T @ G, G.T @ b, s))
+    return out
+
+
+def test_refine_translations_all_corners_of_a_camera_at_once(monkeypatch):
+    """The initialiser's translation refinement, every corner of a camera's agreeing views at once,
+    forms the per-view normal equations of the view-by-view formulation (3 cameras, 20 poses, one
+    camera's rotation off so that some of its views disagree) and its solve equals the one from
+    those equations."""
+    import calibgraph.solver.initialise as ini
+    from calibgraph.core.transforms import exp_so3
+    from calibgraph.solver.initialise import pnp_candidates, refine_translations
+
+    sc = make_scene(cameras=ring_cameras([2.0, 3.0, 4.0], presets=("l515",)), n_poses=20, pixel_sigma_px=0.3, seed=3)
+    prob = sc.problem
+    views_by_cam, p_by_view, uv_by_view = {}, {}, {}
+    caps = {c.index: c for c in prob.captures}
+    for d in prob.detections:
+        pb = prob.points_board_m[d.ids]
+        R, t, rms = pnp_candidates(pb, d.uv_px, prob.cameras[d.camera])
+        views_by_cam.setdefault(d.camera, []).append(
+            ini.ViewCandidates(d.camera, d.capture, caps[d.capture].T_base_flange, R, t, rms))
+        p_by_view[(d.camera, d.capture)], uv_by_view[(d.camera, d.capture)] = pb, d.uv_px
+    T_ref_cam = {n: T.copy() for n, T in sc.truth.T_ref_cam.items()}
+    off = next(iter(T_ref_cam))
+    T_ref_cam[off][:3, :3] = exp_so3(np.radians([0.0, 4.0, 0.0])) @ T_ref_cam[off][:3, :3]
+    args = (views_by_cam, prob.cameras, T_ref_cam, sc.truth.T_mount_board, p_by_view, uv_by_view)
+    ref = _refine_translations_view_by_view(*args)
+    seen = {}
+    real_solve = np.linalg.solve
+
+    def spy(N, r):
+        seen.setdefault("N", N)
+        return real_solve(N, r)
+    monkeypatch.setattr(ini.np.linalg, "solve", spy)
+    T_new, M_new = refine_translations(*args)
+    monkeypatch.setattr(ini.np.linalg, "solve", real_solve)
+    ns = len(T_ref_cam)
+    N_ref = np.zeros((3 * ns + 3, 3 * ns + 3))
+    for AtA, _, s in ref:
+        idx = np.r_[3 * s:3 * s + 3, 3 * ns:3 * ns + 3]
+        N_ref[np.ix_(idx, idx)] += AtA
+    N = seen["N"]  # the first solve's system (with its weak pull)
+    lam = 1e-9 * max(np.trace(N_ref) / len(N_ref), 1e-12)
+    np.testing.assert_allclose(N, N_ref + lam * np.eye(len(N_ref)), rtol=1e-9, atol=1e-9 * np.abs(N_ref).max())
+    assert 0 < len(ref) < sum(len(v) for v in views_by_cam.values())  # some views left out, most in
+    for n in T_ref_cam:
+        assert np.linalg.norm(T_new[n][:3, 3] - sc.truth.T_ref_cam[n][:3, 3]) < (0.2 if n == off else 0.02)
