@@ -360,3 +360,25 @@ def test_refine_translations_all_corners_of_a_camera_at_once(monkeypatch):
     assert 0 < len(ref) < sum(len(v) for v in views_by_cam.values())  # some views left out, most in
     for n in T_ref_cam:
         assert np.linalg.norm(T_new[n][:3, 3] - sc.truth.T_ref_cam[n][:3, 3]) < (0.2 if n == off else 0.02)
+
+
+def test_views_carry_the_side_their_pnp_candidates_show():
+    """The usable views carry the side of the board their best PnP pose shows (``View.facing``,
+    which the mirrored-camera check reads instead of solving PnP again), equal to PnP solved anew:
+    a cell with one camera's images mirrored, so both sides occur."""
+    from calibgraph.core.problem import Detection
+    from calibgraph.solver.initialise import pnp_candidates
+    from calibgraph.solver.views import usable_views
+
+    sc = make_scene(n_poses=20, pixel_sigma_px=0.3, seed=13)
+    p = sc.problem
+    w = p.cameras["cam1"].width_px
+    p = p.with_(detections=tuple(Detection(d.camera, d.capture, d.ids, np.column_stack([w - 1 - d.uv_px[:, 0], d.uv_px[:, 1]]))
+                                 if d.camera == "cam1" else d for d in p.detections))
+    views, _, _ = usable_views(p)
+    sides = []
+    for v in views:
+        R, _, _ = pnp_candidates(v.p_board_m, v.uv_px, p.cameras[v.camera])
+        assert v.facing == np.sign(R[0][2, 2]), (v.camera, v.capture)
+        sides.append(v.facing)
+    assert min(sides) == -1.0 and max(sides) == 1.0
