@@ -382,3 +382,35 @@ def test_views_carry_the_side_their_pnp_candidates_show():
         assert v.facing == np.sign(R[0][2, 2]), (v.camera, v.capture)
         sides.append(v.facing)
     assert min(sides) == -1.0 and max(sides) == 1.0
+
+
+@pytest.mark.parametrize("loss", ["huber", "cauchy", "none"])
+def test_reweight_all_views_at_once_equals_view_by_view(loss):
+    """The robust weights of every active view's corners formed at once equal the per-view formula
+    (each view's residuals in its own sigmas, weight 0 beyond outlier_sigmas), inactive views left
+    as they were, and the largest change is the per-view one's."""
+    from calibgraph.core.problem import SolverOptions
+    from calibgraph.solver.robust import loss_weights, reweight
+    from calibgraph.solver.views import View
+
+    rng = np.random.default_rng(4)
+    opts = replace(SolverOptions(), loss=loss)
+    views, norms = [], []
+    for i in range(25):
+        n = int(rng.integers(5, 40))
+        views.append(View(camera=f"c{i % 3}", capture=i, ids=np.arange(n), uv_px=np.zeros((n, 2)),
+                          p_board_m=np.zeros((n, 3)), T_ref_mount=np.eye(4), w=rng.uniform(0, 1, n),
+                          active=i % 7 != 3, noise_scale=rng.uniform(0.5, 2), view_noise=rng.uniform(0.5, 2)))
+        norms.append(np.abs(rng.standard_cauchy(n)) * 0.3)
+    out, change = reweight(views, norms, 0.25, opts)
+    ref_change = 0.0
+    for v, r, o in zip(views, norms, out):
+        if not v.active:
+            assert o is v
+            continue
+        rs = r / (0.25 * v.sigma_scale)
+        w = loss_weights(rs, opts.loss, opts.loss_scale)
+        w[rs > opts.outlier_sigmas] = 0.0
+        np.testing.assert_array_equal(o.w, w)
+        ref_change = max(ref_change, float(np.abs(w - v.w).max()))
+    assert change == ref_change and any((o.w == 0).any() for o in out)

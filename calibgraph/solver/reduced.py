@@ -83,6 +83,15 @@ class Linear:
         """``S^-1``: the joint covariance of the global variables (computed once)."""
         return _inverse(self.S)
 
+    @cached_property
+    def local_covariances(self) -> np.ndarray:
+        """(L, d, d) every local variable's marginal covariance, ``H_ll^-1 + X Sigma_gg X^T`` with
+        ``X = H_ll^-1 H_lg`` (all at once, on first use)."""
+        X = self.Hll_inv @ self.Hlg
+        L, d, n = X.shape
+        XS = (X.reshape(L * d, n) @ self.covariance).reshape(L, d, n)
+        return self.Hll_inv + XS @ X.transpose(0, 2, 1)
+
     def marginals(self, keys) -> "ReducedMarginals":
         """Marginal covariances of the graph's variables (``keys``: all of them) from this reduction;
         raises LinAlgError when the information is not positive definite."""
@@ -271,9 +280,7 @@ class ReducedMarginals:
         if key in L.index:
             r = self._rows([key])
             return L.covariance[np.ix_(r, r)]
-        i = L.locals_[key]
-        inv, B = L.Hll_inv[i], L.Hlg[i]
-        return inv + inv @ B @ L.covariance @ B.T @ inv
+        return L.local_covariances[L.locals_[key]]
 
     def has(self, key) -> bool:
         """True when ``key`` is a variable of the graph."""
