@@ -414,3 +414,19 @@ def test_reweight_all_views_at_once_equals_view_by_view(loss):
         np.testing.assert_array_equal(o.w, w)
         ref_change = max(ref_change, float(np.abs(w - v.w).max()))
     assert change == ref_change and any((o.w == 0).any() for o in out)
+
+
+def test_view_evolve_equals_replace():
+    """``View.evolve`` (no ``__init__``) makes the view ``dataclasses.replace`` makes, and a new ``w``
+    gets its own kept-corner mask (the mask is cached per view)."""
+    from calibgraph.solver.views import View
+
+    v = View(camera="c", capture=3, ids=np.arange(4), uv_px=np.zeros((4, 2)), p_board_m=np.zeros((4, 3)),
+             T_ref_mount=np.eye(4), w=np.array([1.0, 0.0, 0.5, 1.0]))
+    assert v.kept.tolist() == [True, False, True, True]
+    for changes in ({"w": np.array([0.0, 1.0, 1.0, 0.0])}, {"noise_scale": 2.0, "view_noise": 0.5}, {"active": False}):
+        a, b = v.evolve(**changes), replace(v, **changes)
+        assert a == b and type(a) is View
+        np.testing.assert_array_equal(a.kept, b.kept)
+        assert a.sigma_scale == b.sigma_scale
+    assert v.kept.tolist() == [True, False, True, True]

@@ -15,7 +15,7 @@ the views are weighted and their covariance propagated accordingly.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -282,7 +282,7 @@ def camera_noise_scales(views: list, residuals: list, per_view: bool = True) -> 
         change = max(change, abs(scales[v.camera] / v.noise_scale - 1.0))
         change_view = max(change_view, abs(t / v.view_noise - 1.0))
         out.append(v if (v.noise_scale, v.view_noise) == (scales[v.camera], t)
-                   else replace(v, noise_scale=scales[v.camera], view_noise=t))
+                   else v.evolve(noise_scale=scales[v.camera], view_noise=t))
     return out, change, change_view
 
 

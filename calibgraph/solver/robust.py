@@ -73,7 +73,7 @@ def reweight(views: list, norms: list, sigma_px: float, opts) -> tuple[list, flo
     out = list(views)
     ends = np.cumsum([len(views[i].w) for i in act])
     for i, part in zip(act, np.split(w, ends[:-1])):
-        out[i] = replace(views[i], w=part)
+        out[i] = views[i].evolve(w=part)
     return out, change
 
 

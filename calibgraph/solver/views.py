@@ -8,6 +8,7 @@ them, so every stage can be read as values in, values out.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -50,10 +51,21 @@ class View:
         if self.w is None:
             object.__setattr__(self, "w", np.ones(len(self.ids)))
 
-    @property
+    @cached_property
     def kept(self) -> np.ndarray:
-        """(N,) True for the corners with a non-zero weight."""
+        """(N,) True for the corners with a non-zero weight (computed once: a view's ``w`` is not
+        changed in place, a new view is made)."""
         return self.w > 0
+
+    def evolve(self, **changes) -> "View":
+        """``dataclasses.replace(self, **changes)`` without running ``__init__`` again (the robust
+        rounds make thousands per round); ``w``, when changed, must be an array."""
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        if "w" in changes:
+            new.__dict__.pop("kept", None)
+        new.__dict__.update(changes)
+        return new
 
     @property
     def weight(self) -> np.ndarray:
