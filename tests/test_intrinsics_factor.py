@@ -75,3 +75,86 @@ def test_intrinsics_jacobian_matches_finite_differences(n_intr):
                 @ values.atPose3(B(0)).matrix())
         expect = ((model.project(p_board @ T_cb[:3, :3].T + T_cb[:3, 3]) - uv) * sqrt_w[:, None]).ravel()
         assert np.allclose(e, expect, atol=1e-9)
+
+
+def test_all_captures_in_one_pass_equal_the_per_view_factor(monkeypatch):
+    """The view factors of many captures made in one vectorised pass (:func:`make_view_factors`, in
+    chunks of whole views) give each view's residual and Jacobian blocks of the per-view reference
+    factor (:func:`make_calibration_factor`), whitened modes applied by hand: 3 cameras (one with its
+    intrinsics held, one estimating 6, one 8 coefficients), 7 captures, views of different corner
+    counts, two of them with whitened low-order modes, chunks of 50 corners (views straddle none)."""
+    import calibgraph.solver.factors as factors
+    from calibgraph.solver.factors import make_view_factors
+    from calibgraph.solver.noise_model import view_mode_basis
+
+    monkeypatch.setattr(factors, "CHUNK_CORNERS", 50)
+    rng = np.random.default_rng(3)
+    intr, p_board, _, _ = _cell(6)
+    values = gtsam.Values()
+    T_ref_cam = [make_T(exp_so3(rng.normal(0, 0.1, 3)), rng.normal(0, 0.05, 3)) for _ in range(3)]
+    for c, T in enumerate(T_ref_cam):
+        values.insert(C(c), gtsam.Pose3(T))
+    n_intr = {1: 6, 2: 8}
+    for c, n in n_intr.items():
+        values.insert(K(c), intrinsics_vector(intr, n) + np.r_[[2.0, -1.0, 0.5, 1.0], rng.normal(0, 1e-3, n - 4)])
+    T_mount_board = make_T(exp_so3(np.array([0.2, 0.1, -0.1])), np.array([0.01, 0.0, 0.05]))
+    values.insert(B(0), gtsam.Pose3(T_mount_board))
+    values.insert(S(0), np.array([1.003]))
+    captures, expected = [], []
+    for k in range(7):
+        T_ref_mount = make_T(exp_so3(rng.normal(0, 0.1, 3)), np.array([0.05, 0.03, 0.9]) + rng.normal(0, 0.02, 3))
+        values.insert(F(k), gtsam.Pose3(T_ref_mount))
+        terms = []
+        for c in range(3):
+            keep = rng.random(len(p_board)) < 0.8
+            T_cb = np.linalg.inv(T_ref_cam[c]) @ T_ref_mount @ T_mount_board
+            uv = intr.project(p_board[keep] @ T_cb[:3, :3].T + T_cb[:3, 3]) + rng.normal(0, 0.3, (keep.sum(), 2))
+            sqrt_w = rng.uniform(0.5, 1.0, keep.sum()) / 0.3
+            f = 2.5 if (k, c) in ((1, 0), (4, 2)) else 1.0
+            modes = view_mode_basis(uv) if f > 1.0 else None
+            key_intr = K(c) if c in n_intr else None
+            terms.append(ViewTerm(C(c), key_intr, intr, p_board[keep], uv, sqrt_w, modes, f, n_intr.get(c, 6)))
+            ref = make_calibration_factor(C(c), F(k), B(0), p_board[keep], uv, intr, sqrt_w, key_intr=key_intr,
+                                          key_scale=S(0))
+            expected.append((ref, modes, f))
+        captures.append((F(k), terms))
+    made = make_view_factors(B(0), S(0), captures)
+    assert len(made) == len(expected) == 21
+    for factor, (ref, modes, f) in zip(made, expected):
+        A, b = factor.linearize(values).jacobian()
+        A_ref, b_ref = ref.linearize(values).jacobian()
+        if modes is not None:  # the reference whitened by hand: I - (1 - f^-1/2) Q Q^T
+            W = np.eye(len(b_ref)) - (1 - f ** -0.5) * modes @ modes.T
+            A_ref, b_ref = W @ A_ref, W @ b_ref
+        np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-9)
+        cols = {}
+        start = 0
+        for key in factor.keys():
+            cols[key] = slice(start, start + (n_intr.get(gtsam.Symbol(key).index(), 6)
+                                              if chr(gtsam.Symbol(key).chr()) == "k" else 1 if key == S(0) else 6))
+            start = cols[key].stop
+        start = 0
+        for key in ref.keys():
+            n = cols[key].stop - cols[key].start
+            np.testing.assert_allclose(A[:, cols[key]], A_ref[:, start:start + n], rtol=1e-7,
+                                       atol=1e-7 * np.abs(A_ref[:, start:start + n]).max())
+            start += n
+    # the pass is redone whenever any key a view depends on differs from the last pass's values
+    for key in (F(3), B(0), S(0), C(1), K(2), K(1)):
+        moved = gtsam.Values(values)
+        if key == S(0):
+            moved.update(key, np.array([1.01]))
+        elif chr(gtsam.Symbol(key).chr()) == "k":
+            moved.update(key, values.atVector(key) + 1e-3)
+        else:
+            moved.update(key, values.atPose3(key).retract(np.full(6, 1e-3)))
+        for factor, (ref, modes, f) in zip(made, expected):
+            e, e_ref = factor.unwhitenedError(moved), ref.unwhitenedError(moved)
+            if modes is not None:
+                e_ref = e_ref - (1 - f ** -0.5) * modes @ (modes.T @ e_ref)
+            np.testing.assert_allclose(e, e_ref, rtol=1e-9, atol=1e-9)
+        for factor, (ref, modes, f) in zip(made, expected):  # and back at the first values
+            e_ref = ref.unwhitenedError(values)
+            if modes is not None:
+                e_ref = e_ref - (1 - f ** -0.5) * modes @ (modes.T @ e_ref)
+            np.testing.assert_allclose(factor.unwhitenedError(values), e_ref, rtol=1e-9, atol=1e-9)

@@ -23,6 +23,7 @@ import numpy as np
 from calibgraph.core.camera import Intrinsics, distortion_partials, project_points
 
 _MIN_DEPTH_M = 1e-3
+CHUNK_CORNERS = 4096  # corners per numpy pass of :func:`make_view_factors` (its arrays stay in cache)
 
 
 def project_chain(T_ref_cam: np.ndarray, T_ref_mount: np.ndarray, T_mount_board: np.ndarray, p_board_m: np.ndarray,
@@ -50,6 +51,17 @@ def _cross_rows(a: np.ndarray, p: np.ndarray) -> np.ndarray:
     px, py, pz = p[:, None, 0], p[:, None, 1], p[:, None, 2]
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
     return np.stack([ay * pz - az * py, az * px - ax * pz, ax * py - ay * px], axis=-1)
+
+
+def _cross_into(out: np.ndarray, a: np.ndarray, p: np.ndarray, negate: bool = False) -> None:
+    """``out`` (N, 2, 3) = cross(a[n, r], p[n]) (or its negative) for a (N, 2, 3), p (N, 3), in place."""
+    px, py, pz = p[:, None, 0], p[:, None, 1], p[:, None, 2]
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    for i, (u, q, v, r) in enumerate(((ay, pz, az, py), (az, px, ax, pz), (ax, py, ay, px))):
+        np.multiply(u, q, out=out[..., i])
+        out[..., i] -= v * r
+        if negate:
+            np.negative(out[..., i], out=out[..., i])
 
 
 def view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w,
@@ -248,7 +260,7 @@ def make_calibration_factor(key_cam, key_robot, key_mount, p_board_m, uv_px, int
 
 @dataclass(frozen=True)
 class ViewTerm:
-    """One view of a capture (:func:`make_capture_factors`): its camera's keys and model,
+    """One view of a capture (:func:`make_view_factors`): its camera's keys and model,
     its kept corners and their weights (``sqrt_w`` (n,) already includes 1 / sigma_px), and
     ``whiten`` (2n, 6) Q scaled so that ``e - whiten @ (Q^T e)`` whitens correlated low-order modes
     (None: independent corners)."""
@@ -267,122 +279,185 @@ class ViewTerm:
 def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
     """One CustomFactor per view of one capture (``terms``: :class:`ViewTerm` s): the views share
     the robot pose ``key_robot`` (F(k)), the mount and the board scale (``key_scale`` or None), and
-    each brings its camera pose and, when estimated, its intrinsics. Each view's residual has its
-    low-order modes whitened by its variance factor (covariance I + (f - 1) Q Q^T, whose inverse
-    square root is I - (1 - f^-1/2) Q Q^T), so its noise model is unit.
+    each brings its camera pose and, when estimated, its intrinsics (:func:`make_view_factors` for
+    one capture)."""
+    return make_view_factors(key_mount, key_scale, [(key_robot, terms)])
 
-    The same model as :func:`make_calibration_factor`; the capture's corners are projected in one
-    vectorised pass with per-corner camera parameters (one numpy pass per capture, not per view),
-    and each view's factor takes its rows of it. A factor's Jacobian is then its own view's rows on
-    its own keys, so the linear system keeps the graph's sparsity (a factor over the whole capture
-    would carry every camera's block over every view's rows). The pass is redone whenever a view
-    finds the values of its keys differ from those it was made with."""
+
+def make_view_factors(key_mount, key_scale, captures: list) -> list:
+    """One CustomFactor per view of every capture in ``captures`` ((robot pose key F(k), its views'
+    :class:`ViewTerm` s) pairs), in that order: a view's factor has the keys of its capture's robot
+    pose, the mount, the board scale (``key_scale`` or None), its camera pose and, when estimated,
+    its intrinsics. Each view's residual has its low-order modes whitened by its variance factor
+    (covariance I + (f - 1) Q Q^T, whose inverse square root is I - (1 - f^-1/2) Q Q^T), so its
+    noise model is unit.
+
+    The same model as :func:`make_calibration_factor`; all the views' corners are projected in one
+    vectorised pass with per-corner camera and robot-pose parameters (one numpy pass for the whole
+    graph, not one per view or per capture), and each view's factor takes its rows of it. A
+    factor's Jacobian is then its own view's rows on its own keys, so the linear system keeps the
+    graph's sparsity. The pass is redone, at the values asked for, whenever a view finds the
+    values of its keys differ from those of the last pass: a graph's error or linearisation at new
+    values makes one pass, whichever factor asks first."""
+    terms = [t for _, ts in captures for t in ts]
     n_views = len(terms)
-    rows, whiten = [], []
+    robot_keys = [k for k, _ in captures]
+    cap = np.repeat(np.arange(len(captures)), [len(ts) for _, ts in captures]).astype(int)  # capture of each view
+    cam_slot = {k: i for i, k in enumerate(dict.fromkeys(t.key_cam for t in terms))}
+    cam_keys = list(cam_slot)
+    cam = np.array([cam_slot[t.key_cam] for t in terms], int)  # camera pose of each view
+    intr_slot = {k: i for i, k in enumerate(dict.fromkeys(t.key_intr for t in terms if t.key_intr is not None))}
+    intr_keys = list(intr_slot)
+    intr_of = [intr_slot[t.key_intr] if t.key_intr is not None else -1 for t in terms]
+    rows, whiten = [], {}
     start = 0
-    for t in terms:
+    for v, t in enumerate(terms):
         n = t.p_board_m.shape[0]
         rows.append(slice(start, start + 2 * n))
-        c = 1.0 - 1.0 / np.sqrt(t.mode_factor) if t.modes is not None and t.mode_factor > 1.0 else 0.0
-        whiten.append((c, t.modes))
+        if t.modes is not None and t.mode_factor > 1.0:
+            whiten[v] = (1.0 - 1.0 / np.sqrt(t.mode_factor), t.modes)
         start += 2 * n
     total = start
+    if not n_views:
+        return []
     P_b = np.ascontiguousarray(np.concatenate([t.p_board_m for t in terms]), float)
     UV = np.concatenate([t.uv_px for t in terms])
     SW = np.concatenate([t.sqrt_w for t in terms])
     counts = [t.p_board_m.shape[0] for t in terms]
     vi = np.repeat(np.arange(n_views), counts)  # view of each corner
-    static = np.array([[t.intr.K[0, 1], *t.intr.dist8] for t in terms])  # skew, k1..k6 as given
+    models = {}  # each camera model's row (views share their camera's Intrinsics)
+    model_of = np.array([models.setdefault(id(t.intr), (len(models), t.intr))[0] for t in terms], int)
+    by_model = [m for _, m in models.values()]
+    static = np.array([[m.K[0, 1], *m.dist8] for m in by_model])[model_of]  # skew, k1..k6 as given
+    pinhole = np.array([[m.K[0, 0], m.K[1, 1], m.K[0, 2], m.K[1, 2]] for m in by_model])[model_of]
     estimated = np.array([t.key_intr is not None for t in terms])
     n_intr = np.array([t.n_intr for t in terms])  # each estimated camera's intrinsics vector size
-    # the last pass: the bytes of the shared keys' values and of each view's own, its residuals and Jacobians
-    cache = {"shared": None, "own": None, "jacobians": False, "e": None, "H": None}
+    views_of_intr = [np.flatnonzero(np.array(intr_of) == j) for j in range(len(intr_keys))]
+    # the last pass: the values it was made at (the robot poses', cameras' and mount's Pose3, the
+    # intrinsics' and the scale's bytes), its residuals and Jacobians (row blocks over all the views' rows)
+    cache = {"robot": None, "cam": None, "intr": None, "mount": None, "scale": None, "e": None, "H": None, "white": {}}
 
-    def shared_inputs(values):
-        T_rm = values.atPose3(key_robot).matrix()
-        T_mb = values.atPose3(key_mount).matrix()
+    def scale_bytes(values) -> bytes:
+        return values.atVector(key_scale).tobytes() if key_scale is not None else b""
+
+    n_pose = 3 + (key_scale is not None)  # Jacobian blocks before the intrinsics': robot pose, mount, (scale,) camera
+
+    def view_blocks(blocks, v: int) -> list:
+        """View ``v``'s Jacobian blocks, on its keys in order, from a pass's row blocks."""
+        rs = rows[v]
+        return [A[rs] for A in blocks[:n_pose]] + ([blocks[n_pose][rs, :n_intr[v]]] if estimated[v] else [])
+
+    m_intr = int(n_intr[estimated].max()) if estimated.any() else 0
+    ends = np.cumsum(counts)  # chunks of whole views, about CHUNK_CORNERS corners each (in cache)
+    cuts = sorted({0, *(int(ends[i]) for i in np.searchsorted(ends, np.arange(CHUNK_CORNERS, ends[-1], CHUNK_CORNERS))),
+                   int(ends[-1])})
+    chunks = [slice(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:])]
+
+    def compute(values):
+        mount = values.atPose3(key_mount)
+        T_mb = mount.matrix()
         scale = float(values.atVector(key_scale)[0]) if key_scale is not None else 1.0
-        return T_rm, T_mb, scale
-
-    def own_inputs(values, t):
-        return values.atPose3(t.key_cam).matrix(), (values.atVector(t.key_intr) if t.key_intr is not None else None)
-
-    def shared_key(shared) -> bytes:  # exact: the inputs' bytes
-        return shared[0].tobytes() + shared[1].tobytes() + np.float64(shared[2]).tobytes()
-
-    def own_key(own) -> bytes:
-        return own[0].tobytes() if own[1] is None else own[0].tobytes() + np.asarray(own[1], float).tobytes()
-
-    def compute(values, shared, key: bytes, want_jacobians: bool):
-        T_rm, T_mb, scale = shared
-        own = [own_inputs(values, t) for t in terms]
-        R_rc = np.array([T[:3, :3] for T, _ in own])
-        t_rc = np.array([T[:3, 3] for T, _ in own])
-        par = np.empty((n_views, 4))  # fx, fy, cx, cy
+        robots = [values.atPose3(k) for k in robot_keys]
+        cams = [values.atPose3(k) for k in cam_keys]
+        T_rm = np.array([p.matrix() for p in robots])
+        T_rc = np.array([p.matrix() for p in cams])
+        k6s = [np.asarray(values.atVector(k), float) for k in intr_keys]
+        par = pinhole.copy()  # fx, fy, cx, cy
         dist = static[:, 1:].copy()
-        for v, (t, (_, k6)) in enumerate(zip(terms, own)):
-            if k6 is not None:
-                par[v] = k6[:4]
-                dist[v, :len(k6) - 4] = k6[4:]
-            else:
-                par[v] = t.intr.K[0, 0], t.intr.K[1, 1], t.intr.K[0, 2], t.intr.K[1, 2]
+        for j, k6 in enumerate(k6s):
+            vs = views_of_intr[j]
+            par[vs] = k6[:4]
+            dist[vs, :len(k6) - 4] = k6[4:]
         R_mb, t_mb = T_mb[:3, :3], T_mb[:3, 3]
-        R_rm, t_rm = T_rm[:3, :3], T_rm[:3, 3]
-        p_b = P_b * scale
-        p_m = p_b @ R_mb.T + t_mb
-        p_r = p_m @ R_rm.T + t_rm
-        Rp = R_rc[vi]
-        p_c = np.einsum("ni,nij->nj", p_r - t_rc[vi], Rp)
-        p_c[:, 2] = np.maximum(p_c[:, 2], _MIN_DEPTH_M)  # finite residuals for a corner behind the camera
-        fx, fy, cx, cy = (par[vi, i] for i in range(4))
-        uv, Jp, aux = project_points(p_c, fx, fy, cx, cy, static[vi, 0], dist[vi].T, want_jacobians)
-        e = ((uv - UV) * SW[:, None]).reshape(-1)
-        H = None
-        if want_jacobians:
-            Jp = Jp * SW[:, None, None]
-            H_c = np.concatenate([_cross_rows(Jp, p_c), -Jp], axis=2).reshape(total, 6)
-            JF = np.einsum("nij,njk->nik", Jp, np.einsum("nji,jk->nik", Rp, R_rm))  # Jp R_rc^T R_rm
-            H_f = np.concatenate([-_cross_rows(JF, p_m), JF], axis=2).reshape(total, 6)
-            JB = JF @ R_mb
-            H_b = np.concatenate([-_cross_rows(JB, p_b), JB], axis=2).reshape(total, 6)
-            shared_blocks = [H_f, H_b]
-            if key_scale is not None:
-                shared_blocks.append(np.einsum("nij,nj->ni", JB, P_b).reshape(total, 1))
-            Jk = None
-            if estimated.any():
+        # each view's chain from the mount frame to its camera: p_c = M p_m + d, M = R_rc^T R_rm
+        R_rcT = T_rc[cam, :3, :3].transpose(0, 2, 1)
+        M = R_rcT @ T_rm[cap, :3, :3]
+        d = np.einsum("vij,vj->vi", R_rcT, T_rm[cap, :3, 3] - T_rc[cam, :3, 3])
+        n_c = len(vi)
+        e = np.empty((n_c, 2))
+        H_f, H_b, H_c = np.empty((n_c, 2, 6)), np.empty((n_c, 2, 6)), np.empty((n_c, 2, 6))
+        H_s = np.empty((n_c, 2)) if key_scale is not None else None
+        Jk = np.zeros((n_c, 2, m_intr)) if m_intr else None
+        for ch in chunks:
+            w = vi[ch]
+            sw = SW[ch]
+            p_b = P_b[ch] * scale
+            p_m = p_b @ R_mb.T + t_mb
+            Mv = M[w]
+            p_c = np.einsum("nij,nj->ni", Mv, p_m) + d[w]
+            p_c[:, 2] = np.maximum(p_c[:, 2], _MIN_DEPTH_M)  # finite residuals for a corner behind the camera
+            fx, fy, cx, cy = par[w].T
+            skew, dist_c = static[w, 0], dist[w].T
+            uv, Jp, aux = project_points(p_c, fx, fy, cx, cy, skew, dist_c, True)
+            e[ch] = (uv - UV[ch]) * sw[:, None]
+            Jp *= sw[:, None, None]
+            _cross_into(H_c[ch, :, :3], Jp, p_c)
+            np.negative(Jp, out=H_c[ch, :, 3:])
+            JF = H_f[ch, :, 3:]  # Jp M, written in place
+            for k in range(3):
+                np.multiply(Jp[:, :, 0], Mv[:, None, 0, k], out=JF[:, :, k])
+                JF[:, :, k] += Jp[:, :, 1] * Mv[:, None, 1, k]
+                JF[:, :, k] += Jp[:, :, 2] * Mv[:, None, 2, k]
+            _cross_into(H_f[ch, :, :3], JF, p_m, negate=True)
+            JB = H_b[ch, :, 3:]
+            JB[...] = (JF.reshape(-1, 3) @ R_mb).reshape(JF.shape)
+            _cross_into(H_b[ch, :, :3], JB, p_b, negate=True)
+            if H_s is not None:
+                H_s[ch] = np.einsum("nij,nj->ni", JB, P_b[ch])
+            if Jk is not None:
                 x, y, xd, yd = aux[:4]
-                m = int(n_intr.max())
-                Jk = np.zeros((len(vi), 2, m))
-                Jk[:, 0, 0], Jk[:, 0, 2], Jk[:, 1, 1], Jk[:, 1, 3] = xd, 1.0, yd, 1.0
-                Jk[:, :, 4:] = _distortion_columns(x, y, dist[vi].T, fx, fy, static[vi, 0], m)
-                Jk = (Jk * SW[:, None, None]).reshape(total, m)
-            H = [[A[rs] for A in shared_blocks] + [H_c[rs]] + ([Jk[rs, :n_intr[v]]] if estimated[v] else [])
-                 for v, rs in enumerate(rows)]
-        es = [e[rs] for rs in rows]
-        for v, (c, Q) in enumerate(whiten):
-            if c:
-                es[v] = es[v] - c * (Q @ (Q.T @ es[v]))
-                if H is not None:
-                    H[v] = [A - c * (Q @ (Q.T @ A)) for A in H[v]]
-        cache.update(shared=key, own=[own_key(o) for o in own], jacobians=want_jacobians, e=es, H=H)
+                J = Jk[ch]
+                J[:, 0, 0], J[:, 0, 2], J[:, 1, 1], J[:, 1, 3] = xd, 1.0, yd, 1.0
+                J[:, :, 4:] = _distortion_columns(x, y, dist_c, fx, fy, skew, m_intr)
+                J *= sw[:, None, None]
+        e = e.reshape(-1)
+        blocks = [H_f.reshape(-1, 6), H_b.reshape(-1, 6)]
+        if H_s is not None:
+            blocks.append(H_s.reshape(-1, 1))
+        blocks.append(H_c.reshape(-1, 6))
+        if Jk is not None:
+            blocks.append(Jk.reshape(-1, m_intr))
+        white = {}
+        for v, (c, Q) in whiten.items():  # a whitened view's rows, replaced
+            ev, Hv = e[rows[v]], view_blocks(blocks, v)
+            white[v] = (ev - c * (Q @ (Q.T @ ev)), [A - c * (Q @ (Q.T @ A)) for A in Hv])
+        cache.update(robot=robots, cam=cams, intr=[k.tobytes() for k in k6s], mount=mount, scale=scale_bytes(values),
+                     e=e, H=blocks, white=white)
 
     def factor(v: int, t) -> gtsam.CustomFactor:
+        key_robot = robot_keys[cap[v]]
         keys = [key_robot, key_mount] + ([key_scale] if key_scale is not None else []) + [t.key_cam]
         keys += [t.key_intr] if t.key_intr is not None else []
+        c, j, k_i = cap[v], cam[v], intr_of[v]
+
+        def stale(values) -> bool:
+            # exact: Pose3.equals at tolerance 0 is equality of every entry (cheaper than their bytes)
+            return (cache["e"] is None or not cache["robot"][c].equals(values.atPose3(key_robot), 0.0)
+                    or not cache["cam"][j].equals(values.atPose3(t.key_cam), 0.0)
+                    or not cache["mount"].equals(values.atPose3(key_mount), 0.0)
+                    or (key_scale is not None and cache["scale"] != scale_bytes(values))
+                    or (k_i >= 0 and cache["intr"][k_i] != np.asarray(values.atVector(t.key_intr), float).tobytes()))
 
         def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
-            shared = shared_inputs(values)
-            key = shared_key(shared)
-            if (cache["own"] is None or (H is not None and not cache["jacobians"]) or cache["shared"] != key
-                    or cache["own"][v] != own_key(own_inputs(values, t))):
+            if stale(values):
                 # with the Jacobians even for the error alone: LM linearises next where it accepted a
                 # step, at values whose error it has just asked for
-                compute(values, shared, key, True)
+                compute(values)
+            if v in cache["white"]:
+                e, Hv = cache["white"][v]
+                if H is not None:
+                    for i, A in enumerate(Hv):
+                        H[i] = A
+                return e
             if H is not None:
-                for i, A in enumerate(cache["H"][v]):
+                for i, A in enumerate(view_blocks(cache["H"], v)):
                     H[i] = A
-            return cache["e"][v]
+            return cache["e"][rows[v]]
 
-        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2 * t.p_board_m.shape[0]), keys, error_func)
+        n_rows = 2 * t.p_board_m.shape[0]
+        if n_rows not in units:
+            units[n_rows] = gtsam.noiseModel.Unit.Create(n_rows)
+        return gtsam.CustomFactor(units[n_rows], keys, error_func)
 
+    units = {}  # one unit noise model per row count
     return [factor(v, t) for v, t in enumerate(terms)]

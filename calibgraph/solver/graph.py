@@ -32,7 +32,7 @@ from calibgraph.core.errors import InputError, ObservabilityError
 from calibgraph.core.problem import Problem, intrinsics_estimated, intrinsics_prior_covariance
 from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.factors import ViewTerm, fk_noise, intrinsics_vector, make_capture_factors, with_pinhole
+from calibgraph.solver.factors import ViewTerm, fk_noise, intrinsics_vector, make_view_factors, with_pinhole
 from calibgraph.solver.keys import B, C, F, K, O, S
 from calibgraph.solver.noise_model import MODE_MIN_CORNERS, view_mode_basis
 from calibgraph.solver.reduced import linearise_graph
@@ -214,6 +214,7 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
     for v in views:
         if v.active:
             by_capture.setdefault(v.capture, []).append(v)
+    captures = []
     for k, vs in by_capture.items():
         terms = []
         for v in vs:
@@ -223,8 +224,9 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
             terms.append(ViewTerm(C(slots[v.camera]), K(slots[v.camera]) if v.camera in refine else None,
                                   problem.cameras[v.camera], v.p_board_m[keep], v.uv_px[keep],
                                   np.sqrt(v.weight[keep]) / sigma_px, modes, f, n_intr.get(v.camera, 6)))
-        for f in make_capture_factors(F(k), B(0), S(0) if o.board_scale else None, terms):
-            graph.add(f)
+        captures.append((F(k), terms))
+    for f in make_view_factors(B(0), S(0) if o.board_scale else None, captures):
+        graph.add(f)
     return graph, values
 
 

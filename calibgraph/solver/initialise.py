@@ -75,6 +75,14 @@ def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
+def _pairwise_cos(R: np.ndarray) -> np.ndarray:
+    """(M, M) cosine of the angle between every pair of the rotations ``R`` (M, 3, 3), clipped to
+    [-1, 1] (:func:`_angle_deg` is its arccos): the traces tr(Ra^T Rb) as one matrix product of the
+    flattened rotations, and no arccos (an angle limit is a cosine limit)."""
+    F = R.reshape(len(R), 9)
+    return np.clip((F @ F.T - 1.0) / 2.0, -1.0, 1.0)
+
+
 def _solve_rotations(rows_by_cam: dict, n_cams: int):
     """Linear least squares for R_Z (one per camera slot) and shared R_Y.
 
@@ -252,10 +260,10 @@ def camera_from_mount(views: list, T_mount_board: np.ndarray):
     T_board_cam[:, 3, 3] = 1.0
     props = A @ T_mount_board @ T_board_cam
     Rs = props[:, :3, :3]
-    ang = _angle_deg(Rs[:, None], Rs[None, :])
-    counts = (ang < ROT_INLIER_DEG).sum(axis=1)
+    close = _pairwise_cos(Rs) > np.cos(np.radians(ROT_INLIER_DEG))  # angle below ROT_INLIER_DEG
+    counts = close.sum(axis=1)
     best = int(np.argmax(counts))
-    members = ang[best] < ROT_INLIER_DEG
+    members = close[best]
     R = project_to_so3(Rs[members].sum(axis=0))
     t = np.median(props[members, :3, 3], axis=0)
     return make_T(R, t), int(counts[best])
@@ -363,38 +371,53 @@ def refine_translations(views_by_cam: dict, intr_by_cam: dict, T_ref_cam: dict, 
     slot = {n: i for i, n in enumerate(names)}
     nu = 3 * (len(names) + 1)
     RY = T_mount_board[:3, :3]
-    blocks = []  # (rows on [t_Z of its camera, t_Y] (m, 6), b (m,), its camera's slot)
+    # per camera, its views whose rotation agrees with the consensus, all their corners at once:
+    # each corner's two rows on [t_Z of its camera, t_Y] and right-hand sides, and its view
+    G_parts, b_parts, own_parts, AtA_parts, Atb_parts, slot_parts = [], [], [], [], [], []
+    nb = 0
     for n in names:
         RZ = T_ref_cam[n][:3, :3]
         intr = intr_by_cam[n]
-        for v in views_by_cam[n]:
-            err = _angle_deg(RZ @ v.R, (v.T_ref_mount[:3, :3] @ RY)[None]).min() if len(v.R) else np.inf
-            if err > ROT_INLIER_DEG:
-                continue
-            key = (n, v.capture)
-            pb = p_board_by_view[key]
-            xy = cv2.undistortPoints(uv_by_view[key].reshape(-1, 1, 2).astype(np.float64), intr.K, intr.dist).reshape(-1, 2)
-            RA, tA = v.T_ref_mount[:3, :3], v.T_ref_mount[:3, 3]
-            q = (pb @ (RA @ RY).T + tA - 0.0) @ RZ  # R_Z^T (R_A R_Y p + t_A)
-            MY = RZ.T @ RA
-            MZ = -RZ.T
-            rows, rhs = [], []
-            for c, xn in ((0, xy[:, 0]), (1, xy[:, 1])):
-                # (xn e3 - e_c)^T p_cam = 0; a view's rows touch its camera's t_Z and t_Y only
-                coef_q = xn * q[:, 2] - q[:, c]
-                rows.append(np.hstack([xn[:, None] * MZ[2] - MZ[c], xn[:, None] * MY[2] - MY[c]]))
-                rhs.append(-coef_q)
-            G = np.vstack(rows)
-            blocks.append((G, np.concatenate(rhs), slot[n]))
-    if len(blocks) < 3:
+        vs = [v for v in views_by_cam[n] if len(v.R)]
+        if not vs:
+            continue
+        R, A, cand_view, _ = _stack(vs)
+        err = np.full(len(vs), np.inf)
+        np.minimum.at(err, cand_view, _angle_deg(RZ @ R, A @ RY))
+        vs = [v for v, e in zip(vs, err) if not e > ROT_INLIER_DEG]
+        if not vs:
+            continue
+        pb = np.concatenate([p_board_by_view[(n, v.capture)] for v in vs])
+        uv = np.concatenate([uv_by_view[(n, v.capture)] for v in vs])
+        counts = np.array([len(p_board_by_view[(n, v.capture)]) for v in vs])
+        w = np.repeat(np.arange(len(vs)), counts)  # each corner's view
+        xy = cv2.undistortPoints(uv.reshape(-1, 1, 2).astype(np.float64), intr.K, intr.dist).reshape(-1, 2)
+        RA = np.array([v.T_ref_mount[:3, :3] for v in vs])
+        tA = np.array([v.T_ref_mount[:3, 3] for v in vs])
+        q = (np.einsum("nij,nj->ni", (RA @ RY)[w], pb) + tA[w]) @ RZ  # R_Z^T (R_A R_Y p + t_A)
+        MY = (RZ.T @ RA)[w]  # (N, 3, 3)
+        MZ = -RZ.T
+        Gc, bc = [], []
+        for c in (0, 1):
+            # (xn e3 - e_c)^T p_cam = 0; a view's rows touch its camera's t_Z and t_Y only
+            xn = xy[:, c]
+            Gc.append(np.hstack([xn[:, None] * MZ[2] - MZ[c], xn[:, None] * MY[:, 2] - MY[:, c]]))
+            bc.append(-(xn * q[:, 2] - q[:, c]))
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        AtA_parts.append(np.add.reduceat(np.einsum("ni,nj->nij", Gc[0], Gc[0]) + np.einsum("ni,nj->nij", Gc[1], Gc[1]),
+                                         starts))
+        Atb_parts.append(np.add.reduceat(Gc[0] * bc[0][:, None] + Gc[1] * bc[1][:, None], starts))
+        G_parts += Gc
+        b_parts += bc
+        own_parts += [w + nb, w + nb]
+        slot_parts.append(np.full(len(vs), slot[n]))
+        nb += len(vs)
+    if nb < 3:
         return T_ref_cam, T_mount_board
-    nb, ns = len(blocks), len(names)
-    slots = np.array([blk[2] for blk in blocks])
-    AtA = np.array([blk[0].T @ blk[0] for blk in blocks])
-    Atb = np.array([blk[0].T @ blk[1] for blk in blocks])
-    G_all = np.concatenate([blk[0] for blk in blocks])
-    b_all = np.concatenate([blk[1] for blk in blocks])
-    owner = np.repeat(np.arange(nb), [len(blk[1]) for blk in blocks])
+    ns = len(names)
+    slots = np.concatenate(slot_parts)
+    AtA, Atb = np.concatenate(AtA_parts), np.concatenate(Atb_parts)
+    G_all, b_all, owner = np.concatenate(G_parts), np.concatenate(b_parts), np.concatenate(own_parts)
     use = np.ones(nb, bool)
     # A weak pull towards the current translations keeps directions the kept views do not determine
     # (a camera whose views all fell out, a mount seen edge-on) where they were instead of singular.

@@ -26,7 +26,10 @@ class Linearised:
 
     def robot_pose_covariances(self) -> dict:
         """capture -> covariance of F(k) given the rest of the graph, ``(prior + views)^-1``."""
-        return {k: np.linalg.pinv(prior + info) for k, (prior, info, _) in self.captures.items()}
+        if not self.captures:
+            return {}
+        inv = np.linalg.pinv(np.array([prior + info for prior, info, _ in self.captures.values()]))
+        return dict(zip(self.captures, inv))
 
 
 def linearise(problem: Problem, views, est, sigma_px: float) -> Linearised:

@@ -14,7 +14,8 @@ the views are weighted and their covariance propagated accordingly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -57,14 +58,19 @@ def view_mode_basis(uv_px: np.ndarray) -> np.ndarray:
     a shift in u and v and the four linear maps about the corners' centroid (rotation, scale, the
     two shears), i.e. an affine change of the board's image; rows interleave u, v per corner as the
     view factor's residual does."""
-    c = uv_px - uv_px.mean(axis=0)
-    c = c / max(float(np.sqrt(np.mean(np.sum(c * c, axis=1)))), 1e-9)
-    n = len(uv_px)
-    A = np.zeros((2 * n, N_MODES))
-    A[0::2, 0] = 1.0
-    A[1::2, 1] = 1.0
-    A[0::2, 2], A[0::2, 3] = c[:, 0], c[:, 1]
-    A[1::2, 4], A[1::2, 5] = c[:, 0], c[:, 1]
+    return view_mode_bases(np.asarray(uv_px, float)[None])[0]
+
+
+def view_mode_bases(uv_px: np.ndarray) -> np.ndarray:
+    """:func:`view_mode_basis` of V views of n corners each at once: ``uv_px`` (V, n, 2) -> (V, 2n, 6)."""
+    c = uv_px - uv_px.mean(axis=1, keepdims=True)
+    c = c / np.maximum(np.sqrt(np.mean(np.sum(c * c, axis=2), axis=1)), 1e-9)[:, None, None]
+    V, n = uv_px.shape[:2]
+    A = np.zeros((V, 2 * n, N_MODES))
+    A[:, 0::2, 0] = 1.0
+    A[:, 1::2, 1] = 1.0
+    A[:, 0::2, 2], A[:, 0::2, 3] = c[..., 0], c[..., 1]
+    A[:, 1::2, 4], A[:, 1::2, 5] = c[..., 0], c[..., 1]
     return np.linalg.qr(A)[0]
 
 
@@ -81,19 +87,11 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
     ~1 with independent corners (F-distributed). ``lin``: :func:`linearise` of the same arguments.
     """
     lin = lin or linearise(problem, views, est, sigma_px)
-    per_view = [(v, e, H_f, view_mode_basis(v.uv_px[keep])) for v, keep, e, H_f in lin.views
-                if keep.sum() >= MODE_MIN_CORNERS]
+    per_view = [(v, keep, e, H_f) for v, keep, e, H_f in lin.views if keep.sum() >= MODE_MIN_CORNERS]
     cov = lin.robot_pose_covariances()
+    terms = _mode_terms(per_view, cov)
     acc = {}
-    for v, e, H_f, Q in per_view:
-        # traces of M = H_f Sigma_k H_f^T without forming it (2n x 2n): tr(Q^T M Q) = <Sigma_k, G G^T>
-        # with G = H_f^T Q, and tr(M) = <Sigma_k, H_f^T H_f>
-        Sk = cov[v.capture]
-        G = H_f.T @ Q
-        qe = Q.T @ e
-        low, total = float(qe @ qe), float(e @ e)
-        t_low = float(np.sum(Sk * (G @ G.T)))
-        t_all = float(np.sum(Sk * (H_f.T @ H_f)))
+    for (v, _, e, _), (low, total, t_low, t_all) in zip(per_view, terms.tolist()):
         a = acc.setdefault(v.camera, np.zeros(5))
         a += [low, max(total - low, 0.0), N_MODES - t_low, len(e) - N_MODES - (t_all - t_low), low * sigma_px ** 2]
     out = {}
@@ -105,6 +103,30 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
         z = np.log(max(ratio, 1e-12)) / np.sqrt(2.0 / r_low + 2.0 / r_rest)
         out[cam] = ModeRatio(float(ratio), float(ratio) if z > APPLY_Z else 1.0, int(round(r_low)),
                              int(round(r_rest)), bool(z > NOTE_Z), float(low_px2))
+    return out
+
+
+def _mode_terms(per_view: list, cov: dict) -> np.ndarray:
+    """(V, 4) per view of ``per_view`` ([(view, kept mask, e (2n,), H_f (2n, 6))]): the squared
+    residual in its 6 modes ``|Q^T e|^2``, the total ``e^T e``, and the traces of M = H_f Sigma_k
+    H_f^T without forming it (2n x 2n): ``tr(Q^T M Q) = <Sigma_k, G G^T>`` with ``G = H_f^T Q``, and
+    ``tr(M) = <Sigma_k, H_f^T H_f>`` (``cov``: capture -> Sigma_k). Views of equal corner counts
+    are taken together."""
+    out = np.zeros((len(per_view), 4))
+    groups = {}
+    for i, (_, keep, e, _) in enumerate(per_view):
+        groups.setdefault(len(e), []).append(i)
+    for idx in groups.values():
+        E = np.array([per_view[i][2] for i in idx])
+        H = np.array([per_view[i][3] for i in idx])
+        Q = view_mode_bases(np.array([per_view[i][0].uv_px[per_view[i][1]] for i in idx]))
+        Sk = np.array([cov[per_view[i][0].capture] for i in idx])
+        G = np.einsum("grj,gri->gji", H, Q)
+        qe = np.einsum("gri,gr->gi", Q, E)
+        out[idx, 0] = np.sum(qe * qe, axis=1)
+        out[idx, 1] = np.sum(E * E, axis=1)
+        out[idx, 2] = np.sum(Sk * np.einsum("gik,gjk->gij", G, G), axis=(1, 2))
+        out[idx, 3] = np.sum(Sk * np.einsum("gri,grj->gij", H, H), axis=(1, 2))
     return out
 
 
@@ -154,6 +176,69 @@ def _mode_energy(uv_px: np.ndarray, e: np.ndarray) -> float:
     return float(s @ s) / len(E) + float(np.sum(B * np.linalg.solve(G, B)))
 
 
+def _high_order_all(views: list, residuals: list) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_high_order` of every view at once: (squared residuals outside the 6 modes (V,), their
+    counts (V,)). The per-view sums (centroid, the 2x2 Gram matrix of the centred corners, the
+    residuals' sums and moments) are segment sums over all the views' corners; a view whose corners
+    lie on a line takes :func:`_high_order`'s QR."""
+    V = len(views)
+    pe, pn = np.zeros(V), np.zeros(V, int)
+    idx, uv, es = [], [], []
+    for i, (v, r) in enumerate(zip(views, residuals)):
+        if not v.active:
+            continue
+        keep = v.kept
+        n = int(keep.sum())
+        if n < MODE_MIN_CORNERS + 2:
+            continue
+        idx.append(i)
+        uv.append(v.uv_px[keep])
+        es.append(np.asarray(r, float)[keep])
+    if not idx:
+        return pe, pn
+    counts = np.array([len(u) for u in uv])
+    w = np.repeat(np.arange(len(idx)), counts)
+    E = np.concatenate(es)
+    # a view with a non-finite or absurd residual (>= 1e5 px) is left out
+    bad = np.bincount(w, ~(np.abs(E) < 1e5).all(axis=1), minlength=len(idx)) > 0
+    if bad.any():
+        good = np.flatnonzero(~bad)
+        idx, uv, es = [idx[j] for j in good], [uv[j] for j in good], [es[j] for j in good]
+        if not idx:
+            return pe, pn
+        counts = counts[good]
+        w = np.repeat(np.arange(len(idx)), counts)
+        E = np.concatenate(es)
+    idx = np.array(idx)
+    UV = np.concatenate(uv)
+    m = len(idx)
+
+    def seg(x):
+        return np.bincount(w, x, minlength=m)
+
+    c = UV - np.column_stack([seg(UV[:, 0]), seg(UV[:, 1])])[w] / counts[w, None]
+    G = np.empty((m, 2, 2))
+    G[:, 0, 0], G[:, 1, 1] = seg(c[:, 0] * c[:, 0]), seg(c[:, 1] * c[:, 1])
+    G[:, 0, 1] = G[:, 1, 0] = seg(c[:, 0] * c[:, 1])
+    B = np.empty((m, 2, 2))  # c^T E: rows x, y of the corners; columns the u, v residuals
+    for a in range(2):
+        for b in range(2):
+            B[:, a, b] = seg(c[:, a] * E[:, b])
+    s = np.column_stack([seg(E[:, 0]), seg(E[:, 1])])
+    det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] * G[:, 1, 0]
+    ok = det > 1e-9 * np.maximum(G[:, 0, 0] + G[:, 1, 1], 1e-300) ** 2
+    modes = np.zeros(m)
+    if ok.any():
+        X = np.linalg.solve(G[ok], B[ok])
+        modes[ok] = np.sum(s[ok] * s[ok], axis=1) / counts[ok] + np.sum(B[ok] * X, axis=(1, 2))
+    for j in np.flatnonzero(~ok):  # corners on a line: the basis by QR
+        q = view_mode_basis(uv[j]).T @ es[j].reshape(-1)
+        modes[j] = float(q @ q)
+    pe[idx] = np.maximum(seg(np.sum(E * E, axis=1)) - modes, 0.0)
+    pn[idx] = 2 * counts - N_MODES
+    return pe, pn
+
+
 def camera_noise_scales(views: list, residuals: list, per_view: bool = True) -> tuple[list, float, float]:
     """(views with each camera's ``noise_scale`` and each view's ``view_noise`` set, the largest
     relative change of a camera's scale, the largest of a view's level). ``residuals``: (N, 2)
@@ -173,28 +258,31 @@ def camera_noise_scales(views: list, residuals: list, per_view: bool = True) -> 
     level had VIEW_PRIOR_DOF residuals of its own (a view of 20 corners moves about two thirds of
     the way), and kept within VIEW_NOISE_RANGE, is its ``view_noise``. Views out of the graph keep
     1, so that a rejected view cannot earn its way back by looking noisy."""
-    per = [_high_order(v, r) for v, r in zip(views, residuals)]
-    tot_e = sum(e for e, _ in per)
-    tot_n = sum(n for _, n in per)
+    pe_all, pn_all = _high_order_all(views, residuals)
+    tot_e = float(sum(pe_all.tolist()))  # in view order, as the per-camera sums below
+    tot_n = int(pn_all.sum())
     if tot_n == 0 or tot_e <= 0:
         return views, 0.0, 0.0
     ref = tot_e / tot_n
+    slot = {c: i for i, c in enumerate(dict.fromkeys(v.camera for v in views))}
+    cams = list(slot)
+    ci = np.array([slot[v.camera] for v in views], int)
+    e_cam, n_cam = np.bincount(ci, pe_all, len(cams)), np.bincount(ci, pn_all, len(cams))
     scales, level = {}, {}
-    for cam in dict.fromkeys(v.camera for v in views):
-        e = sum(pe for v, (pe, _) in zip(views, per) if v.camera == cam)
-        n = sum(pn for v, (_, pn) in zip(views, per) if v.camera == cam)
+    for cam, e, n in zip(cams, e_cam, n_cam):
         level[cam] = e / n if n > 0 else 0.0
         scales[cam] = max(float(np.sqrt(level[cam] / ref)), 1e-3) if n >= CAMERA_SIGMA_MIN_CORNERS and e > 0 else 1.0
     out, change, change_view = [], 0.0, 0.0
-    for v, (pe, pn) in zip(views, per):
+    for v, pe, pn in zip(views, pe_all.tolist(), pn_all.tolist()):
         t = 1.0
         if per_view and pn > 0 and level[v.camera] > 0:
             ratio = pe / pn / level[v.camera]
-            t = float(np.clip(np.sqrt((VIEW_PRIOR_DOF + pn * ratio) / (VIEW_PRIOR_DOF + pn)), *VIEW_NOISE_RANGE))
+            t = min(max(math.sqrt((VIEW_PRIOR_DOF + pn * ratio) / (VIEW_PRIOR_DOF + pn)), VIEW_NOISE_RANGE[0]),
+                    VIEW_NOISE_RANGE[1])
         change = max(change, abs(scales[v.camera] / v.noise_scale - 1.0))
         change_view = max(change_view, abs(t / v.view_noise - 1.0))
         out.append(v if (v.noise_scale, v.view_noise) == (scales[v.camera], t)
-                   else replace(v, noise_scale=scales[v.camera], view_noise=t))
+                   else v.evolve(noise_scale=scales[v.camera], view_noise=t))
     return out, change, change_view
 
 

@@ -128,6 +128,8 @@ def seen_from_behind(problem: Problem, mine: list, others: list) -> tuple | None
     against the side the other cameras' views show; None otherwise. A mirrored image shows a planar
     board from its other side."""
     def side(v):
+        if v.facing is not None:  # from the PnP candidates the solve started from (views.usable_views)
+            return v.facing
         R, _, _ = pnp_candidates(v.p_board_m, v.uv_px, problem.cameras[v.camera])
         return np.sign(R[0][2, 2]) if len(R) else 0.0
 

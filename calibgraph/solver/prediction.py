@@ -18,7 +18,8 @@ ones by (to first order) the sum of independent parts, per corner:
   calibration's views, it moves a new view's board too.
 
 Each part's 2-D mean square is averaged over the corners of the camera's used views (the poses of
-this calibration stand for the new ones), by numerical Jacobians of the projection. ``mm`` converts
+this calibration stand for the new ones), by the projection's Jacobians (analytic; central
+differences of the projection are the reference the tests compare them with). ``mm`` converts
 each corner's miss with its depth over the focal length (the miss at the board's distance, across
 the line of sight). The figure assumes what the solve assumes: the FK error of a new pose is
 independent of the calibration poses' (a kinematic error that repeats from pose to pose predicts
@@ -30,7 +31,9 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from calibgraph.core.camera import project_points
 from calibgraph.core.transforms import exp_so3, inv
+from calibgraph.solver.factors import _cross_rows, _distortion_columns
 from calibgraph.solver.noise_model import N_MODES
 
 EPS = 1e-6
@@ -76,7 +79,7 @@ def _project_views(T_ref_cam, T_base_flange, T_mount_board, mode: str, intr, p_b
 
 
 def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma_rotation_rad: float,
-                        pose_mount_cov: dict | None = None, per_view: bool = False) -> dict:
+                        pose_mount_cov: dict | None = None, per_view: bool = False, numeric: bool = False) -> dict:
     """camera -> {expected_rms_px, expected_rms_mm, parts_px: {robot, calibration, corners}, ...}
     for the calibrated cameras (module docstring); the FK sigmas are those the solve used.
     ``pose_mount_cov``: camera -> (the joint covariance of its pose and the board mount in GTSAM's
@@ -89,7 +92,9 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
     The Jacobians are taken for all of a camera's views at once (each perturbation projects every
     view; a view's corners depend on its own robot pose only); ``per_view=True`` takes them view by
     view, the slow path the test compares with (same numbers to rounding; 16 cameras x 480 poses:
-    5.4 s view by view)."""
+    5.4 s view by view). The Jacobians are analytic (the chain rule through the same projection,
+    :func:`_analytic_jacobians`); ``numeric=True`` takes them by central differences of
+    :func:`_project_views`, the slower reference the test compares with (16 x 480: 0.55 s)."""
     fk_cov = np.diag([fk_sigma_rotation_rad ** 2] * 3 + [fk_sigma_translation_m ** 2] * 3)
     caps = {c.index: c for c in problem.captures}
     out = {}
@@ -113,7 +118,7 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
             joint = None
         stack = [[v] for v in views] if per_view else [views]
         parts = [_camera_parts(problem.mode, intr, cam.T_ref_cam, cam.covariance, M, M_cov, joint, n_k, has_scale,
-                               result.board_scale, vs, fk_cov) for vs in stack]
+                               result.board_scale, vs, fk_cov, numeric) for vs in stack]
         robot, calib = (np.concatenate([p[i] for p in parts]) for i in (0, 1))
         depth2 = np.concatenate([p[2] for p in parts])  # per view: sum over its corners of (1e3 depth / fx)^2
         n_view = np.array([len(p) for _, p in views], float)
@@ -132,19 +137,37 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
     return out
 
 
-def _camera_parts(mode, intr, X, X_cov, M, M_cov, joint, n_k, has_scale, board_scale, views, fk_cov):
+def _camera_parts(mode, intr, X, X_cov, M, M_cov, joint, n_k, has_scale, board_scale, views, fk_cov, numeric=False):
     """For ``views`` ([(T_base_flange, board points)]) of one camera: per view, the robot and the
     calibration parts' 2-D mean square summed over its corners, and its corners' (1e3 depth / fx)^2
-    summed; every view projected at once per perturbation."""
+    summed; every view at once."""
     T_bf = np.stack([T for T, _ in views])
     P = np.concatenate([p for _, p in views])
     which = np.repeat(np.arange(len(views)), [len(p) for _, p in views])
+    n_views = len(views)
+    jacobians = _numeric_jacobians if numeric else _analytic_jacobians
+    J_robot, J_cal, J_X, J_M, depth = jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, which,
+                                                joint is not None, M_cov is not None)
+    robot = _per_view(J_robot, fk_cov, which, n_views)
+    if joint is not None:
+        calib = _per_view(J_cal, joint, which, n_views)
+    else:
+        calib = _per_view(J_X, X_cov, which, n_views)
+        if M_cov is not None:
+            calib = calib + _per_view(J_M, M_cov, which, n_views)
+    depth2 = np.bincount(which, (1e3 * depth / intr.K[0, 0]) ** 2, minlength=n_views)
+    return robot, calib, depth2
 
+
+def _numeric_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, which, joint: bool, mount: bool):
+    """:func:`_analytic_jacobians` by central differences of :func:`_project_views` (every view
+    projected at once per perturbation): the slow reference."""
     def project(X_=X, T_bf_=T_bf, M_=M, intr_=intr, P_=P):
         return _project_views(X_, T_bf_, M_, mode, intr_, P_, which)
 
-    robot = _per_view(_jacobian(lambda e: project(T_bf_=T_bf @ _flange_step(e))[0]), fk_cov, which, len(views))
-    if joint is not None:
+    J_robot = _jacobian(lambda e: project(T_bf_=T_bf @ _flange_step(e))[0])
+    J_cal = J_X = J_M = None
+    if joint:
         Xp, Mp = gtsam.Pose3(X), gtsam.Pose3(M)
         k0 = np.concatenate([[intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2]], intr.dist8[:max(n_k - 4, 0)]])
 
@@ -153,14 +176,57 @@ def _camera_parts(mode, intr, X, X_cov, M, M_cov, joint, n_k, has_scale, board_s
             P_ = P * (1.0 + e[12 + n_k] / board_scale) if has_scale else P
             return project(Xp.retract(e[:6]).matrix(), T_bf, Mp.retract(e[6:12]).matrix(), intr_, P_)[0]
 
-        calib = _per_view(_jacobian(joint_project, len(joint)), joint, which, len(views))
+        J_cal = _jacobian(joint_project, 12 + n_k + int(has_scale))
     else:
-        calib = _per_view(_jacobian(lambda e: project(X_=_left(X, e))[0]), X_cov, which, len(views))
-        if M_cov is not None:
-            calib = calib + _per_view(_jacobian(lambda e: project(M_=_left(M, e))[0]), M_cov, which, len(views))
-    depth = project()[1][:, 2]
-    depth2 = np.bincount(which, (1e3 * depth / intr.K[0, 0]) ** 2, minlength=len(views))
-    return robot, calib, depth2
+        J_X = _jacobian(lambda e: project(X_=_left(X, e))[0])
+        J_M = _jacobian(lambda e: project(M_=_left(M, e))[0]) if mount else None
+    return J_robot, J_cal, J_X, J_M, project()[1][:, 2]
+
+
+def _analytic_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, which, joint: bool, mount: bool = True):
+    """The Jacobians :func:`_camera_parts` takes numerically, by the chain rule (each (2N, n), rows u,
+    v of each corner): on the robot pose of each corner's own capture (the FK prior's perturbation at
+    the flange, :func:`_flange_step`), on [camera pose, mount (GTSAM's right perturbations), the
+    intrinsics' ``n_k`` entries, the board scale] when ``joint`` (else None), on the camera pose
+    and on the mount perturbed as their covariances are (:func:`_left`) otherwise; and the corners'
+    depths. (``mount``: the numeric reference's switch; the mount's Jacobian costs nothing extra here.)"""
+    T_rm = _inv_stack(T_bf) if mode == "eye_in_hand" else T_bf
+    R_c, t_c = X[:3, :3], X[:3, 3]
+    R_b, t_b = M[:3, :3], M[:3, 3]
+    R_w = T_rm[which, :3, :3]
+    p_m = P @ R_b.T + t_b
+    q = np.einsum("nij,nj->ni", R_w, p_m) + T_rm[which, :3, 3]  # the corners in the reference frame
+    p_c = (q - t_c) @ R_c
+    K = intr.K
+    uv, Jp, aux = project_points(p_c, K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1], intr.dist8, True)
+    N = len(P)
+    JR = Jp @ R_c.T  # d uv / d q
+    JF = np.einsum("nij,njk->nik", JR, R_w)  # d uv / d p_m
+    JB = JF @ R_b  # d uv / d P
+
+    def rows(*blocks):
+        return np.concatenate(blocks, axis=2).reshape(2 * N, -1)
+
+    if mode == "eye_in_hand":  # T_ref_mount = (T_bf D(e))^-1: d q = [q]x w - v
+        J_robot = rows(_cross_rows(JR, q), -JR)
+    else:  # T_ref_mount = T_bf D(e): d q = R_rm (-[p_m]x w + v)
+        J_robot = rows(-_cross_rows(JF, p_m), JF)
+    J_cal = J_X = J_M = None
+    if joint:
+        blocks = [_cross_rows(Jp, p_c), -Jp, -_cross_rows(JB, P), JB]
+        if n_k:
+            x, y, xd, yd = aux[:4]
+            Jk = np.zeros((N, 2, n_k))
+            Jk[:, 0, 0], Jk[:, 0, 2], Jk[:, 1, 1], Jk[:, 1, 3] = xd, 1.0, yd, 1.0
+            Jk[:, :, 4:] = _distortion_columns(x, y, intr.dist8, K[0, 0], K[1, 1], K[0, 1], n_k)
+            blocks.append(Jk)
+        if has_scale:
+            blocks.append(np.einsum("nij,nj->ni", JB, P)[:, :, None] / board_scale)
+        J_cal = rows(*blocks)
+    else:
+        J_X = rows(_cross_rows(JR, q - t_c), -JR)  # X = (exp(w) R_c, t_c + v)
+        J_M = rows(-_cross_rows(JF, p_m - t_b), JF)  # M = (exp(w) R_b, t_b + v)
+    return J_robot, J_cal, J_X, J_M, p_c[:, 2]
 
 
 def _flange_step(xi: np.ndarray) -> np.ndarray:

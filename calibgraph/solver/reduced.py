@@ -24,7 +24,15 @@ def _chars(keys) -> set:
 
 
 def _source(keys) -> str:
-    c = _chars(keys)
+    return _source_of_chars(_chars(keys))
+
+
+def _source_of(keys, chars: dict) -> str:
+    """:func:`_source` with the keys' characters looked up in ``chars`` (key -> character)."""
+    return _source_of_chars({chars[k] for k in keys})
+
+
+def _source_of_chars(c: set) -> str:
     if "c" in c:
         return "corners"
     if c == {"k"}:
@@ -40,21 +48,49 @@ SOURCES = ("corners", "intrinsics", "robot_fk", "board")
 
 @dataclass(frozen=True)
 class Linear:
-    """A graph linearised at its values and reduced to its global variables."""
+    """A graph linearised at its values and reduced to its global variables.
 
-    factors: list  # (source, keys, {key: whitened Jacobian block A_key})
+    The per-capture (local) variables' parts are dense arrays over the locals (all of one tangent
+    dimension ``d``) and the global vector: ``Hll`` (L, d, d) and ``Hlg`` (L, d, n), by source too,
+    so a reduction with the sources scaled (:meth:`information`) is a few array products."""
+
+    raw: list  # (source, keys, whitened Jacobian A, dims of the keys' columns) per factor
     index: dict  # global key -> slice in the global vector
-    locals_: dict  # local key -> (H_ll^-1 (d, d), {global key: H_lg block})
+    locals_: dict  # local key -> its row in the local arrays
     S: np.ndarray  # Schur complement: the information of the global variables, the locals eliminated
     g: np.ndarray  # the cost's gradient on the global variables with the locals at their optimum
     prior_K: dict  # K key -> its prior's information (6, 6)
-    H_src: dict | None = None  # source -> its factors' global-global information (before the reduction)
-    local_src: dict | None = None  # local key -> {source: (H_ll block, {global key: H_lg block})}
+    H_src: dict  # source -> its factors' global-global information (before the reduction)
+    Hll_src: dict  # source -> (L, d, d) its factors' local-local information
+    Hlg_src: dict  # source -> (L, d, n) its factors' local-global information (sources that have any)
+    Hll_inv: np.ndarray  # (L, d, d) the inverse of the locals' information, all sources
+    Hlg: np.ndarray  # (L, d, n) the locals' information with the globals, all sources
+
+    @cached_property
+    def factors(self) -> list:
+        """(source, keys, {key: whitened Jacobian block A_key}) per factor."""
+        out = []
+        for src, keys, A, dims in self.raw:
+            blocks, col = {}, 0
+            for k, d in zip(keys, dims):
+                blocks[k] = A[:, col:col + d]
+                col += d
+            out.append((src, keys, blocks))
+        return out
 
     @cached_property
     def covariance(self) -> np.ndarray:
         """``S^-1``: the joint covariance of the global variables (computed once)."""
         return _inverse(self.S)
+
+    @cached_property
+    def local_covariances(self) -> np.ndarray:
+        """(L, d, d) every local variable's marginal covariance, ``H_ll^-1 + X Sigma_gg X^T`` with
+        ``X = H_ll^-1 H_lg`` (all at once, on first use)."""
+        X = self.Hll_inv @ self.Hlg
+        L, d, n = X.shape
+        XS = (X.reshape(L * d, n) @ self.covariance).reshape(L, d, n)
+        return self.Hll_inv + XS @ X.transpose(0, 2, 1)
 
     def marginals(self, keys) -> "ReducedMarginals":
         """Marginal covariances of the graph's variables (``keys``: all of them) from this reduction;
@@ -66,17 +102,11 @@ class Linear:
         multiplied by ``scale[source]`` (1 for a source not named): what the global variables would
         know with that source's noise scaled by ``scale ** -0.5``. ``information({})`` is ``S``."""
         H = sum(scale.get(src, 1.0) * Hs for src, Hs in self.H_src.items())
-        for parts in self.local_src.values():
-            Hll = sum(scale.get(src, 1.0) * p[0] for src, p in parts.items())
-            lg = {}
-            for src, (_, blocks) in parts.items():
-                for g, Bg in blocks.items():
-                    lg[g] = lg.get(g, 0) + scale.get(src, 1.0) * Bg
-            if not lg:
-                continue
-            idx = np.concatenate([np.arange(self.index[g].start, self.index[g].stop) for g in lg])
-            Bm = np.hstack([lg[g] for g in lg])
-            H[np.ix_(idx, idx)] -= Bm.T @ np.linalg.solve(Hll, Bm)
+        if not self.locals_:
+            return 0.5 * (H + H.T)
+        Hll = sum(scale.get(src, 1.0) * Hs for src, Hs in self.Hll_src.items())
+        Hlg = sum(scale.get(src, 1.0) * Hs for src, Hs in self.Hlg_src.items())
+        H = H - _reduction(np.linalg.inv(Hll), Hlg)
         return 0.5 * (H + H.T)
 
     def step_gain(self, free: list) -> float:
@@ -98,67 +128,90 @@ class Linear:
         return out
 
 
+def _reduction(Hll_inv: np.ndarray, Hlg: np.ndarray) -> np.ndarray:
+    """sum over the locals of ``Hlg_l^T Hll_l^-1 Hlg_l`` (n, n): what eliminating them takes from the
+    globals' information (one matrix product over all the locals' rows)."""
+    L, d, n = Hlg.shape
+    return Hlg.reshape(L * d, n).T @ (Hll_inv @ Hlg).reshape(L * d, n)
+
+
 def linearise_graph(graph, values) -> Linear:
-    """The Schur-reduced information of a solved graph (see the module docstring)."""
+    """The Schur-reduced information of a solved graph (see the module docstring).
+
+    Each factor's ``A^T A`` is formed once with its local variable's columns first (a factor has at
+    most one local variable); factors of one source on the same global keys are summed before their
+    blocks are scattered, and the locals are eliminated all at once."""
     lin = graph.linearize(values)
     zero = values.zeroVectors()
-    dims = {k: zero.at(k).shape[0] for k in values.keys()}
-    glob = [k for k in values.keys() if chr(gtsam.Symbol(k).chr()) not in LOCAL]
+    keys_all = list(values.keys())
+    dims = {k: zero.at(k).shape[0] for k in keys_all}
+    chars = {k: chr(gtsam.Symbol(k).chr()) for k in keys_all}
+    glob = [k for k in keys_all if chars[k] not in LOCAL]
     index, n = {}, 0
     for k in glob:
         index[k] = slice(n, n + dims[k])
         n += dims[k]
-    H = np.zeros((n, n))
-    grad = np.zeros(n)
-    H_ll, H_lg, g_l = {}, {}, {}
-    factors, prior_K = [], {}
-    H_src = {src: np.zeros((n, n)) for src in SOURCES}
-    local_src = {}
+    loc_keys = [k for k in keys_all if chars[k] in LOCAL]
+    locals_ = {k: i for i, k in enumerate(loc_keys)}
+    d = max([dims[k] for k in loc_keys], default=6)
+    if any(dims[k] != d for k in loc_keys):
+        raise ValueError("linearise_graph: the local variables must share one tangent dimension")
+    raw, groups, shapes = [], {}, {}
     for i in range(lin.size()):
         f = lin.at(i)
         if f is None:
             continue
-        keys = list(f.keys())
+        keys = f.keys()
         A, b = f.jacobian()
-        blocks, cols, col = {}, {}, 0
-        for k in keys:
-            blocks[k] = A[:, col:col + dims[k]]
-            cols[k] = slice(col, col + dims[k])
-            col += dims[k]
-        src = _source(keys)
-        factors.append((src, keys, blocks))
-        AtA, Atb = A.T @ A, A.T @ b  # one product per factor, its blocks scattered below
-        if src == "intrinsics":
-            prior_K[keys[0]] = AtA[cols[keys[0]], cols[keys[0]]]
-        loc = [k for k in keys if k not in index]
-        gl = [k for k in keys if k in index]
-        Hs = H_src[src]
-        for a in gl:
-            grad[index[a]] -= Atb[cols[a]]
-            for c in gl:
-                Hs[index[a], index[c]] += AtA[cols[a], cols[c]]
-        for l in loc:  # at most one local variable per factor
-            g_l[l] = g_l.get(l, 0) - Atb[cols[l]]
-            ll, lg = local_src.setdefault(l, {}).setdefault(src, [0, {}])
-            local_src[l][src][0] = ll + AtA[cols[l], cols[l]]
-            for g in gl:
-                lg[g] = lg.get(g, 0) + AtA[cols[l], cols[g]]
-    H += sum(H_src.values())
-    for l, parts in local_src.items():
-        H_ll[l] = sum(p[0] for p in parts.values())
-        lg = H_lg.setdefault(l, {})
-        for _, blocks in parts.values():
-            for g, Bg in blocks.items():
-                lg[g] = lg.get(g, 0) + Bg
-    locals_ = {}
-    for l, Hll in H_ll.items():
-        inv = np.linalg.inv(Hll)
-        locals_[l] = (inv, H_lg.get(l, {}))
-        for a, Ba in H_lg.get(l, {}).items():
-            grad[index[a]] -= Ba.T @ inv @ g_l[l]
-            for c, Bc in H_lg[l].items():
-                H[index[a], index[c]] -= Ba.T @ inv @ Bc
-    return Linear(factors, index, locals_, 0.5 * (H + H.T), grad, prior_K, H_src, local_src)
+        shape = shapes.get(tuple(keys))
+        if shape is None:  # the factor's source, dims, group and where its local's columns start
+            loc = [j for j, k in enumerate(keys) if k in locals_]
+            kd = [dims[k] for k in keys]
+            src = _source_of(keys, chars)
+            gl = tuple(k for k in keys if k in index)
+            shape = shapes[tuple(keys)] = (src, kd, (src, gl, bool(loc)), sum(kd[:loc[0]]) if loc else None,
+                                           locals_[keys[loc[0]]] if loc else -1)
+        src, kd, key, start, lid = shape
+        raw.append((src, list(keys), A, kd))
+        if start:  # the local's columns first
+            A = np.concatenate([A[:, start:start + d], A[:, :start], A[:, start + d:]], axis=1)
+        grp = groups.get(key)
+        if grp is None:
+            grp = groups[key] = ([], [], [])
+        grp[0].append(A.T @ A)
+        grp[1].append(A.T @ b)
+        grp[2].append(lid)
+    H_src = {src: np.zeros((n, n)) for src in SOURCES}
+    Hll_src, Hlg_src = {}, {}
+    grad, g_l = np.zeros(n), np.zeros((len(loc_keys), d))
+    prior_K = {}
+    ar = np.arange(d)
+    for (src, gl, has_local), (AtA, Atb, lid) in groups.items():
+        AtA, Atb, lid = np.array(AtA), np.array(Atb), np.array(lid)
+        cols = np.concatenate([np.arange(index[k].start, index[k].stop) for k in gl]) if gl else np.zeros(0, int)
+        o = d if has_local else 0
+        H_src[src][np.ix_(cols, cols)] += AtA[:, o:, o:].sum(axis=0)
+        grad[cols] -= Atb[:, o:].sum(axis=0)
+        if src == "intrinsics" and len(gl) == 1 and chars[gl[0]] == "k":
+            prior_K[gl[0]] = AtA[:, o:, o:].sum(axis=0)
+        if not has_local:
+            continue
+        if src not in Hll_src:
+            Hll_src[src] = np.zeros((len(loc_keys), d, d))
+        np.add.at(Hll_src[src], lid, AtA[:, :d, :d])
+        np.add.at(g_l, lid, -Atb[:, :d])
+        if len(cols):
+            if src not in Hlg_src:
+                Hlg_src[src] = np.zeros((len(loc_keys), d, n))
+            np.add.at(Hlg_src[src], (lid[:, None, None], ar[None, :, None], cols[None, None, :]), AtA[:, :d, d:])
+    H = sum(H_src.values())
+    Hll = sum(Hll_src.values()) if Hll_src else np.zeros((0, d, d))
+    Hlg = sum(Hlg_src.values()) if Hlg_src else np.zeros((len(loc_keys), d, n))
+    Hll_inv = np.linalg.inv(Hll) if len(loc_keys) else Hll
+    if len(loc_keys):
+        H = H - _reduction(Hll_inv, Hlg)
+        grad -= np.einsum("lan,la->n", Hlg, np.einsum("lab,lb->la", Hll_inv, g_l))
+    return Linear(raw, index, locals_, 0.5 * (H + H.T), grad, prior_K, H_src, Hll_src, Hlg_src, Hll_inv, Hlg)
 
 
 def columns(L: Linear, S: np.ndarray, wanted: list) -> dict:
@@ -174,8 +227,9 @@ def columns(L: Linear, S: np.ndarray, wanted: list) -> dict:
         j += n
     Xg = np.linalg.solve(S, e)
     X = {k: Xg[s] for k, s in L.index.items()}
-    for loc, (inv, lg) in L.locals_.items():
-        X[loc] = -inv @ sum(B @ X[g] for g, B in lg.items()) if lg else np.zeros((inv.shape[0], m))
+    if L.locals_:
+        X_loc = -(L.Hll_inv @ (L.Hlg @ Xg))  # (L, d, m)
+        X.update({k: X_loc[i] for k, i in L.locals_.items()})
     return X
 
 
@@ -226,12 +280,7 @@ class ReducedMarginals:
         if key in L.index:
             r = self._rows([key])
             return L.covariance[np.ix_(r, r)]
-        inv, lg = L.locals_[key]
-        if not lg:
-            return inv
-        B = np.hstack([lg[g] for g in lg])
-        r = self._rows(list(lg))
-        return inv + inv @ B @ L.covariance[np.ix_(r, r)] @ B.T @ inv
+        return L.local_covariances[L.locals_[key]]
 
     def has(self, key) -> bool:
         """True when ``key`` is a variable of the graph."""

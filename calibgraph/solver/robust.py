@@ -61,16 +61,19 @@ def screen_at_start(problem: Problem, views: list, est: Estimate) -> tuple[list,
 
 def reweight(views: list, norms: list, sigma_px: float, opts) -> tuple[list, float]:
     """(views with new robust weights for the active ones (0 beyond outlier_sigmas), the largest change)."""
-    out, change = [], 0.0
-    for v, r in zip(views, norms):
-        if not v.active:
-            out.append(v)
-            continue
-        r = r / (sigma_px * v.sigma_scale)
-        w = loss_weights(r, opts.loss, opts.loss_scale)
-        w[r > opts.outlier_sigmas] = 0.0
-        change = max(change, float(np.abs(w - v.w).max()))
-        out.append(replace(v, w=w))
+    act = [i for i, v in enumerate(views) if v.active]
+    if not act:
+        return list(views), 0.0
+    # every active view's corners at once, each in its own view's sigmas
+    r = np.concatenate([norms[i] / (sigma_px * views[i].sigma_scale) for i in act])
+    w = loss_weights(r, opts.loss, opts.loss_scale)
+    w[r > opts.outlier_sigmas] = 0.0
+    old = np.concatenate([views[i].w for i in act])
+    change = float(np.abs(w - old).max()) if len(w) else 0.0
+    out = list(views)
+    ends = np.cumsum([len(views[i].w) for i in act])
+    for i, part in zip(act, np.split(w, ends[:-1])):
+        out[i] = views[i].evolve(w=part)
     return out, change
 
 

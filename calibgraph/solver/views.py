@@ -7,7 +7,8 @@ them, so every stage can be read as values in, values out.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -42,15 +43,29 @@ class View:
     reason: str = ""
     noise_scale: float = 1.0
     view_noise: float = 1.0
+    # the sign of the board normal's z in the camera frame at the view's best PnP pose (-1: the board
+    # seen from behind); None: not known (computed where needed)
+    facing: float | None = None
 
     def __post_init__(self):
         if self.w is None:
             object.__setattr__(self, "w", np.ones(len(self.ids)))
 
-    @property
+    @cached_property
     def kept(self) -> np.ndarray:
-        """(N,) True for the corners with a non-zero weight."""
+        """(N,) True for the corners with a non-zero weight (computed once: a view's ``w`` is not
+        changed in place, a new view is made)."""
         return self.w > 0
+
+    def evolve(self, **changes) -> "View":
+        """``dataclasses.replace(self, **changes)`` without running ``__init__`` again (the robust
+        rounds make thousands per round); ``w``, when changed, must be an array."""
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        if "w" in changes:
+            new.__dict__.pop("kept", None)
+        new.__dict__.update(changes)
+        return new
 
     @property
     def weight(self) -> np.ndarray:
@@ -104,7 +119,10 @@ def usable_views(problem: Problem) -> tuple[list, dict, list]:
     for v in bad:
         rejected.append(RejectedView(v.camera, v.capture, "no valid PnP solution (corners degenerate or ids wrong)"))
     bad_ids = {id(v) for v in bad}
-    return [v for v in views if id(v) not in bad_ids], cands, rejected
+    good = [v for v in views if id(v) not in bad_ids]
+    # each view's candidates, in the order view_candidates met them: its side of the board
+    firsts = {name: iter(vs) for name, vs in cands.items()}
+    return [replace(v, facing=float(np.sign(next(firsts[v.camera]).R[0][2, 2]))) for v in good], cands, rejected
 
 
 def captures_by_camera(views: list) -> dict:
