@@ -250,9 +250,10 @@ def _local_homographies(uv_px: np.ndarray, ij: np.ndarray, sel: np.ndarray, scal
     return G
 
 
-def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
+def _model(theta, U, ex, kap, coef, const, scale, s_r, jacobian=True):
     """Model grey levels (N, P), its Jacobian (15, N, P) (None unless ``jacobian``) and the
-    whiteness of the board (N, P) (the model with lo = 0, gain = 1).
+    whiteness of the board (N, P) (the model with lo = 0, gain = 1). ``coef`` (2, N, L, R) and
+    ``const`` (2, N, R): :func:`_axis_setup` of the u (board x) and the v (board y) lines.
 
     Sums over lines are written as batched matrix products: numpy reduces short trailing axes
     an order of magnitude slower. The two axes (u: the board's x lines, v: its y lines) are
@@ -263,9 +264,7 @@ def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
     sig = theta[:, 8][:, None, None]
     q = theta[:, 9:15]
     s = scale[:, None, None]
-    coef = np.stack([setup_u[0], setup_v[0]])  # (2, N, L, R)
-    const = np.stack([setup_u[1], setup_v[1]])  # (2, N, R)
-    Ga = np.stack([theta[:, 0:3], theta[:, 3:6]])  # (2, N, 3)
+    Ga = theta[:, 0:6].reshape(N, 2, 3).transpose(1, 0, 2)  # (2, N, 3): G's rows 0 and 1
     L = Ga[:, :, None, :] - kap[None, None, :, None] * G2[None, :, None, :]  # (2, N, L, 3) lines X = k, Y = k
     nrm = np.sqrt(L[..., 0] * L[..., 0] + L[..., 1] * L[..., 1])[:, :, None, :]  # (2, N, 1, L)
     num = U @ L.transpose(0, 1, 3, 2)  # (2, N, P, L)
@@ -314,8 +313,8 @@ def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
     corr_s = -gather((d1 * z1 + d2 * z2) * Cw).reshape(N, P) / sig[..., 0]
     J[8] = -gain * ((F_s[0] * Fv + Fu * F_s[1]) @ s_r + corr_s)
     # The excess's derivatives by each line's z, per line.
-    extra = np.stack([gather(d1 * Cw, NP * Lu, pix * Lu + lu_i).reshape(N, P, Lu),
-                      gather(d2 * Cw, NP * Lv, pix * Lv + lv_i).reshape(N, P, Lv)])
+    extra = gather(np.concatenate([d1 * Cw, d2 * Cw]), 2 * NP * Lu,
+                   np.concatenate([pix * Lu + lu_i, NP * Lu + pix * Lv + lv_i])).reshape(2, N, P, Lu)
     J[9] = 1.0
     J[10], J[11] = ex[..., 0], ex[..., 1]
     J[12] = white
@@ -346,7 +345,7 @@ def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
     Tv = (nu_k - rp * nv_k) / nrm[1, n_i, 0, lv_i][:, None]
     T2 = -(kap[lu_i][:, None] * Tu + kap[lv_i][:, None] * Tv)
     # the six rows' sums in one gather: row r of (0, 1, 3, 4, 6, 7) in bins r * N * P + pixel
-    T6 = np.stack([Tu[:, 0], Tu[:, 1], Tv[:, 0], Tv[:, 1], T2[:, 0], T2[:, 1]])  # (6, pairs)
+    T6 = np.concatenate([Tu.T, Tv.T, T2.T])  # (6, pairs)
     at6 = (np.arange(6)[:, None] * NP + pix[None, :]).ravel()
     add6 = gather((Rk[None, :] * T6).ravel(), 6 * NP, at6).reshape(6, N, P)
     J[[0, 1, 3, 4, 6, 7]] += add6
@@ -404,8 +403,8 @@ def _fit_corners(img: np.ndarray, target: Target, ij: np.ndarray, uv_all: np.nda
     kap = np.unique(np.add.outer(np.arange(-K, K + 1, dtype=float), pat.offsets).ravel())
     kap = kap[np.abs(kap) <= reach + 1e-9]
     centre_u, centre_v = ij[sel, 1] + 1.0, ij[sel, 0] + 1.0  # corner (i, j) from the board's outer edge
-    setup_u = _axis_setup(pat.lines_u, centre_u, kap)
-    setup_v = _axis_setup(pat.lines_v, centre_v, kap)
+    (cu, ku), (cv, kv) = _axis_setup(pat.lines_u, centre_u, kap), _axis_setup(pat.lines_v, centre_v, kap)
+    coef, const = np.stack([cu, cv]), np.stack([ku, kv])  # (2, N, L, R), (2, N, R)
 
     theta = np.zeros((N, N_PARAMS))
     theta[:, 0:3], theta[:, 3:6], theta[:, 6:8] = G[:, 0], G[:, 1], G[:, 2, :2]
@@ -423,7 +422,7 @@ def _fit_corners(img: np.ndarray, target: Target, ij: np.ndarray, uv_all: np.nda
     U, I, wgt = (np.take_along_axis(a, order[..., None] if a.ndim == 3 else order, axis=1) for a in (U, I, wgt))
     ex = np.take_along_axis(np.ascontiguousarray(ex), order[..., None], axis=1)
     # Photometry from a linear fit at the initial geometry.
-    _, _, white = _model(theta, U, ex, kap, setup_u, setup_v, pitch, pat.s_r, jacobian=False)
+    _, _, white = _model(theta, U, ex, kap, coef, const, pitch, pat.s_r, jacobian=False)
     A = np.stack([np.ones_like(white), ex[..., 0], ex[..., 1], white, white * ex[..., 0], white * ex[..., 1]], axis=1)
     Aw = A * wgt[:, None, :]
     AtA = Aw @ A.transpose(0, 2, 1) + 1e-9 * np.eye(6)
@@ -432,18 +431,16 @@ def _fit_corners(img: np.ndarray, target: Target, ij: np.ndarray, uv_all: np.nda
     def evaluate(th, rows):
         """Cost, residuals and Jacobian (n, 15, P) of the corners ``rows`` at parameters ``th``."""
         if rows.size == N:  # all of them (in order): no copies
-            M, J, _ = _model(th, U, ex, kap, setup_u, setup_v, pitch, pat.s_r)
+            M, J, _ = _model(th, U, ex, kap, coef, const, pitch, pat.s_r)
             r = I - M
             return (wgt * r * r).sum(1), r, np.moveaxis(J, 0, 1)
-        su, sv = (tuple(a[rows] for a in st) for st in (setup_u, setup_v))
-        M, J, _ = _model(th, U[rows], ex[rows], kap, su, sv, pitch[rows], pat.s_r)
+        M, J, _ = _model(th, U[rows], ex[rows], kap, coef[:, rows], const[:, rows], pitch[rows], pat.s_r)
         r = I[rows] - M
         return (wgt[rows] * r * r).sum(1), r, np.moveaxis(J, 0, 1)
 
     def corner_local(th):
-        G0, G1 = th[:, 0:3], th[:, 3:6]
-        Amat = np.stack([G0[:, :2], G1[:, :2]], axis=1)
-        return np.linalg.solve(Amat, -np.stack([G0[:, 2], G1[:, 2]], axis=1)[..., None])[..., 0]
+        """Where G's first two rows vanish: (G00 G01; G10 G11) x = -(G02, G12)."""
+        return np.linalg.solve(th[:, [0, 1, 3, 4]].reshape(-1, 2, 2), -th[:, [2, 5], None])[..., 0]
 
     allc = np.arange(N)
     c, r, J = evaluate(theta, allc)
