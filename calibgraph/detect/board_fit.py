@@ -451,8 +451,9 @@ def _fit_corners(img: np.ndarray, target: Target, ij: np.ndarray, uv_all: np.nda
         a = np.nonzero(active)[0]
         if a.size == 0:
             break
-        Jw = J[a] * wgt[a][:, None, :]
-        JtJ = Jw @ J[a].transpose(0, 2, 1)
+        Ja = J[a]
+        Jw = Ja * wgt[a][:, None, :]
+        JtJ = Jw @ Ja.transpose(0, 2, 1)
         g = (Jw @ r[a][..., None])[..., 0]
         D = np.einsum("naa->na", JtJ)
         damp = lam[a, None] * (D + 1e-6 * D.mean(1, keepdims=True))
