@@ -3,8 +3,8 @@
 The board fit (calibgraph/detect/board_fit.py) runs Levenberg-Marquardt for at most 20 iterations
 per batch of corners. This bench detects the MC-HEC recording (../shared/datasets/
 mchec_medium_workcell, copied to a temporary folder: no cache, nothing written to ../shared) as
-``calibgraph solve`` does, keeps the inputs of every ``--every``-th board fit (the grey frame, the
-detector's corners), and refits them:
+``calibgraph solve`` does, keeps the inputs of about one board fit in ``--every`` (the grey frame, the
+detector's corners; chosen by the corners, so the same boards every run), and refits them:
 
 - how many LM runs stop at the cap (model evaluations per run: the start, the photometry and one per
   iteration);
@@ -40,12 +40,10 @@ DATA = ROOT.parent / "shared" / "datasets" / "mchec_medium_workcell"
 CAP = 20
 
 
-def solve_with_cap(cap: int):
-    """(detections, result) of the recording, cold, with the board fit's iteration cap at ``cap``."""
-    import functools
-
+def run_path(refine, solve: bool = False):
+    """(detections, the solve's result or None) of a cold run of the recording (``calibgraph
+    solve``'s path) with ``refine`` as the search's checkerboard fit."""
     import calibgraph.cli.solve as cli_solve
-    import calibgraph.detect.board_fit as board_fit
     import calibgraph.detect.search as search
     import calibgraph.io.layouts as layouts
     import calibgraph.solver.batch as batch
@@ -53,7 +51,7 @@ def solve_with_cap(cap: int):
     from calibgraph.cli.main import build_parser
 
     real = search.refine_checkerboard
-    search.refine_checkerboard = functools.partial(board_fit.refine_checkerboard, max_iterations=cap)
+    search.refine_checkerboard = refine
     tmp = Path(tempfile.mkdtemp(prefix="bench_fit_"))
     try:
         ds_dir = tmp / DATA.name
@@ -62,10 +60,19 @@ def solve_with_cap(cap: int):
         opts = cli_solve.solver_options(build_parser().parse_args(["solve", str(ds_dir), "--quiet"]), ds)
         det = build.GuidedDatasetDetector(ds, progress=False, method="joint", options=opts)
         results = det.run()
-        return results, batch.solve(ds.to_problem(method="joint", options=opts, detector=det))
+        return results, batch.solve(ds.to_problem(method="joint", options=opts, detector=det)) if solve else None
     finally:
         search.refine_checkerboard = real
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def solve_with_cap(cap: int):
+    """(detections, result) of the recording, cold, with the board fit's iteration cap at ``cap``."""
+    import functools
+
+    import calibgraph.detect.board_fit as board_fit
+
+    return run_path(functools.partial(board_fit.refine_checkerboard, max_iterations=cap), solve=True)
 
 
 def compare_solves(a, b) -> list:
@@ -87,44 +94,30 @@ def compare_solves(a, b) -> list:
 
 
 def capture(every: int) -> list:
-    """The inputs of every ``every``-th board fit of a cold detection of the recording."""
+    """The inputs of about one in ``every`` board fits of a cold detection of the recording."""
     import threading
 
-    import calibgraph.cli.solve as cli_solve
-    import calibgraph.detect.search as search
-    import calibgraph.io.layouts as layouts
-    import calibgraph.solver.build as build
-    from calibgraph.cli.main import build_parser
+    import calibgraph.detect.board_fit as board_fit
 
-    kept, lock, n = [], threading.Lock(), [0]
-    real = search.refine_checkerboard
+    kept, lock = [], threading.Lock()
 
     def spy(grey, target, ids, uv, *a, **k):
-        with lock:
-            n[0] += 1
-            if n[0] % every == 0:
+        # one fit in ``every``, chosen by its detector corners (the same boards whatever order the
+        # detection's threads finish in)
+        if int(round(1000.0 * float(np.abs(uv).sum()))) % every == 0:
+            with lock:
                 kept.append((grey.copy(), target, np.array(ids), np.array(uv)))
-        return real(grey, target, ids, uv, *a, **k)
+        return board_fit.refine_checkerboard(grey, target, ids, uv, *a, **k)
 
-    search.refine_checkerboard = spy
-    tmp = Path(tempfile.mkdtemp(prefix="bench_fit_"))
-    try:
-        ds_dir = tmp / DATA.name
-        shutil.copytree(DATA, ds_dir)
-        ds = layouts.load_dataset(ds_dir)
-        opts = cli_solve.solver_options(build_parser().parse_args(["solve", str(ds_dir), "--quiet"]), ds)
-        build.GuidedDatasetDetector(ds, progress=False, method="joint", options=opts).run()
-    finally:
-        search.refine_checkerboard = real
-        shutil.rmtree(tmp, ignore_errors=True)
-    return kept
+    run_path(spy)
+    return sorted(kept, key=lambda b: float(np.abs(b[3]).sum()))
 
 
 def main() -> int:
     import calibgraph.detect.board_fit as board_fit
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--every", type=int, default=6, help="keep every n-th board fit")
+    ap.add_argument("--every", type=int, default=6, help="keep about one board fit in n")
     ap.add_argument("--solve", action="store_true", help="also solve the recording with the cap at 20 and at 30")
     args = ap.parse_args()
     if not DATA.is_dir():
@@ -169,8 +162,9 @@ def main() -> int:
     n_corners = int(sum(len(r.uv_px) for r in ref))
     lines = ["# The board fit's convergence on the MC-HEC recording's boards", "",
              f"{platform.node()}, {os.cpu_count()} cores, load average {load0[0]:.1f}/{load0[1]:.1f}/{load0[2]:.1f} at "
-             f"the start, {os.getloadavg()[0]:.1f} at the end; {time.time() - t0:.0f} s. {len(boards)} boards (every "
-             f"{args.every}th board fit of a cold detection of mchec_medium_workcell), {n_corners} corners. Made by "
+             f"the start, {os.getloadavg()[0]:.1f} at the end; {time.time() - t0:.0f} s. {len(boards)} boards (about one "
+             f"board fit in {args.every} of a cold detection of mchec_medium_workcell, chosen by its detector corners), "
+             f"{n_corners} corners. Made by "
              "scripts/bench_fit_convergence.py.", "",
              f"LM runs (first fits and second starts of the corners that failed): {len(runs)}; stopped at the "
              f"{CAP}-iteration cap: {at_cap}.", "",
