@@ -59,10 +59,11 @@ def look_blind(frame: Frame, target: Target, intrinsics: Intrinsics | None = Non
     key = None
     if (check_spec or gate) and target.kind == "checkerboard":
         try:
-            key = frame.digest()
+            digest = frame.digest()
         except DetectionError as e:
             return failed_detection(str(e), target, frame.name, t0, unreadable=True)
-        known, seen = _recall(key)
+        key = None if digest is None else (digest, PROBE_REDUCTION, PROBE_REDUCE_FROM_PX)
+        known, seen = _recall(key) if key is not None else (False, None)
         if known and seen is None:
             # looked at before (a frame deferred while the spec was in doubt, now settled): the
             # probe saw no chessboard in these very bytes, and would not now; nothing to decode
@@ -158,10 +159,12 @@ def _unseen(frame, target, check_spec) -> ImageDetection:
                             target, frame.name, deferred=check_spec)
 
 
-# What the probe saw in a frame, by a hash of the frame file's bytes: the probe is seeded, so a file
-# looked at again (a frame deferred while the spec was in doubt, searched once it is settled) gets
-# the same answer without probing or, when the answer was "none", decoding it again. A bounded,
-# thread-safe memo of this process; tests/test_detect_fast_paths.py checks it against probing afresh.
+# What the probe saw in a frame, by a hash of the frame file's bytes (and the probe's reduction
+# settings): the probe is seeded, so a file looked at again (a frame deferred while the spec was in
+# doubt, searched once it is settled) gets the same answer without probing or, when the answer was
+# "none", decoding it again (the dataset drivers' open_frame decodes every frame it hands over
+# first, though). A bounded, thread-safe memo of this process; tests/test_detect_fast_paths.py
+# checks it against probing afresh.
 _SEEN: OrderedDict = OrderedDict()
 _SEEN_LOCK = threading.Lock()
 _SEEN_MAX = 4096
