@@ -28,6 +28,8 @@ the up-scaled search finds.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import replace
 
 import numpy as np
@@ -54,11 +56,23 @@ def look_blind(frame: Frame, target: Target, intrinsics: Intrinsics | None = Non
     import time
 
     t0 = time.perf_counter()
+    key = None
+    if (check_spec or gate) and target.kind == "checkerboard":
+        try:
+            digest = frame.digest()
+        except DetectionError as e:
+            return failed_detection(str(e), target, frame.name, t0, unreadable=True)
+        key = None if digest is None else (digest, PROBE_REDUCTION, PROBE_REDUCE_FROM_PX)
+        known, seen = _recall(key) if key is not None else (False, None)
+        if known and seen is None:
+            # looked at before (a frame deferred while the spec was in doubt, now settled): the
+            # probe saw no chessboard in these very bytes, and would not now; nothing to decode
+            return replace(_unseen(frame, target, check_spec), time_s=time.perf_counter() - t0)
     try:
         grey = frame.grey()
     except DetectionError as e:
         return failed_detection(str(e), target, frame.name, t0, unreadable=True)
-    det = _look(frame, grey, target, intrinsics, check_spec, gate, options)
+    det = _look(frame, grey, target, intrinsics, check_spec, gate, options, key)
     return replace(det, time_s=time.perf_counter() - t0)  # the decoding included
 
 
@@ -111,18 +125,20 @@ def pattern_region(pattern: tuple, target: Target, shape: tuple, seen_size: tupl
             int(min(h, np.ceil(y1 + pad) + 1)))
 
 
-def _look(frame, grey, target, intrinsics, check_spec, gate, options) -> ImageDetection:
+def _look(frame, grey, target, intrinsics, check_spec, gate, options, key=None) -> ImageDetection:
     if not ((check_spec or gate) and target.kind == "checkerboard"):
         return detect_image(grey, target, intrinsics, source=frame.name, **options)
     declared = tuple(sorted((target.rows, target.cols)))
-    k = PROBE_REDUCTION if min(grey.shape) >= PROBE_REDUCE_FROM_PX else 1  # small squares vanish in small frames
-    seen = chessboard_seen(frame.reduced(k), k) if k > 1 else None
+    known, seen = _recall(key) if key is not None else (False, None)
+    if not known:
+        k = PROBE_REDUCTION if min(grey.shape) >= PROBE_REDUCE_FROM_PX else 1  # small squares vanish in small frames
+        seen = chessboard_seen(frame.reduced(k), k) if k > 1 else None
+        if seen is None:
+            seen = chessboard_seen(grey)
+        if key is not None:
+            _remember(key, seen)
     if seen is None:
-        seen = chessboard_seen(grey)
-    if seen is None:
-        return failed_detection("no chessboard seen by the quick probe" + ("; searched once the board spec is settled"
-                                                                           if check_spec else ""),
-                                target, frame.name, deferred=check_spec)
+        return _unseen(frame, target, check_spec)
     if gate and not check_spec and not seen.touches_border and 2 * seen.rows * seen.cols < target.n_points:
         # a few squares of something else (the arm's bands, a partial board well inside the frame)
         return failed_detection(f"the quick probe sees only a {seen.rows}x{seen.cols} chessboard", target, frame.name)
@@ -134,6 +150,37 @@ def _look(frame, grey, target, intrinsics, check_spec, gate, options) -> ImageDe
                                 pattern=_pattern(seen))
     det = detect_image(grey, target, intrinsics, source=frame.name, **options)
     return _part_of_larger(grey, target, det)
+
+
+def _unseen(frame, target, check_spec) -> ImageDetection:
+    """The look at a frame in which the probe saw no chessboard."""
+    return failed_detection("no chessboard seen by the quick probe" + ("; searched once the board spec is settled"
+                                                                       if check_spec else ""),
+                            target, frame.name, deferred=check_spec)
+
+
+# What the probe saw in a frame, by a hash of the frame file's bytes (and the probe's reduction
+# settings): the probe is seeded, so a file looked at again (a frame deferred while the spec was in
+# doubt, searched once it is settled) gets the same answer without probing or, when the answer was
+# "none", decoding it again (the dataset drivers' open_frame decodes every frame it hands over
+# first, though). A bounded, thread-safe memo of this process; tests/test_detect_fast_paths.py
+# checks it against probing afresh.
+_SEEN: OrderedDict = OrderedDict()
+_SEEN_LOCK = threading.Lock()
+_SEEN_MAX = 4096
+
+
+def _recall(key) -> tuple:
+    """(whether the frame ``key`` was probed, what the probe saw in it: None when nothing)."""
+    with _SEEN_LOCK:
+        return (key in _SEEN), _SEEN.get(key)
+
+
+def _remember(key, seen) -> None:
+    with _SEEN_LOCK:
+        _SEEN[key] = seen
+        while len(_SEEN) > _SEEN_MAX:
+            _SEEN.popitem(last=False)
 
 
 def _pattern(seen) -> tuple:

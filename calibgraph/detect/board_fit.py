@@ -250,54 +250,53 @@ def _local_homographies(uv_px: np.ndarray, ij: np.ndarray, sel: np.ndarray, scal
     return G
 
 
-def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
+def _model(theta, U, ex, kap, coef, const, scale, s_r, jacobian=True):
     """Model grey levels (N, P), its Jacobian (15, N, P) (None unless ``jacobian``) and the
-    whiteness of the board (N, P) (the model with lo = 0, gain = 1).
+    whiteness of the board (N, P) (the model with lo = 0, gain = 1). ``coef`` (2, N, L, R) and
+    ``const`` (2, N, R): :func:`_axis_setup` of the u (board x) and the v (board y) lines.
 
     Sums over lines are written as batched matrix products: numpy reduces short trailing axes
-    an order of magnitude slower."""
+    an order of magnitude slower. The two axes (u: the board's x lines, v: its y lines) are
+    computed as one stacked array (leading axis 2): the same arithmetic in half the numpy calls,
+    which is what a fit of a few corners costs."""
     N, P, _ = U.shape
     G2 = np.concatenate([theta[:, 6:8], np.ones((N, 1))], axis=1)
     sig = theta[:, 8][:, None, None]
     q = theta[:, 9:15]
     s = scale[:, None, None]
-    kap_col = np.broadcast_to(kap[None, :, None], (N, kap.size, 1))
-    axes = []
-    for Ga, (coef, const) in ((theta[:, 0:3], setup_u), (theta[:, 3:6], setup_v)):
-        L = Ga[:, None, :] - kap[None, :, None] * G2[:, None, :]  # (N, L, 3) lines X = k
-        nrm = np.linalg.norm(L[:, :, :2], axis=2)[:, None, :]  # (N, 1, L)
-        num = U @ L.transpose(0, 2, 1)  # (N, P, L)
-        z = s * num / (nrm * sig)  # signed pixel distance / sigma
-        Pz = _phi_cdf(z)
-        pz = np.exp(-0.5 * z * z) / _SQRT2PI
-        F = Pz @ coef + const[:, None, :]  # (N, P, R) the separable terms along this axis
-        # d/d sigma of Phi(d / sigma) = -phi(z) z / sigma
-        F_s = ((pz * z) @ coef) / -sig
-        axes.append((F, F_s, coef, pz, L, nrm, num, z, Pz))
-    (Fu, Fu_s, cu, pz_u, L_u, nrm_u, _, z_u, Pz_u), (Fv, Fv_s, cv, pz_v, L_v, nrm_v, _, z_v, Pz_v) = axes
+    Ga = theta[:, 0:6].reshape(N, 2, 3).transpose(1, 0, 2)  # (2, N, 3): G's rows 0 and 1
+    L = Ga[:, :, None, :] - kap[None, None, :, None] * G2[None, :, None, :]  # (2, N, L, 3) lines X = k, Y = k
+    nrm = np.sqrt(L[..., 0] * L[..., 0] + L[..., 1] * L[..., 1])[:, :, None, :]  # (2, N, 1, L)
+    num = U @ L.transpose(0, 1, 3, 2)  # (2, N, P, L)
+    z = s * num / (nrm * sig)  # signed pixel distance / sigma
+    Pz = _phi_cdf(z)
+    pz = np.exp(-0.5 * z * z) / _SQRT2PI
+    F = Pz @ coef + const[:, :, None, :]  # (2, N, P, R) the separable terms along each axis
+    Fu, Fv = F[0], F[1]
     # Where a u-line and a v-line meet at an angle, the blurred quadrant X > k, Y > l is the
     # bivariate normal Phi2(z_k, z_l; rho) with rho the cosine between the lines' normals, not
     # the product Phi(z_k) Phi(z_l); add the difference (zero for square pixels of a frontal
     # board; left out, a sheared board's small squares come out ~0.01 px outwards).
-    n_u = L_u[:, :, :2] / nrm_u[:, 0, :, None]
-    n_v = L_v[:, :, :2] / nrm_v[:, 0, :, None]
+    nl = L[..., :2] / nrm[:, :, 0, :, None]  # (2, N, L, 2) unit normals
+    n_u, n_v = nl[0], nl[1]
     rho = np.clip(n_u @ n_v.transpose(0, 2, 1), -0.95, 0.95)  # (N, Lu, Lv)
-    C = (cu * s_r) @ cv.transpose(0, 2, 1)  # (N, Lu, Lv) weight of each quadrant
+    C = (coef[0] * s_r) @ coef[1].transpose(0, 2, 1)  # (N, Lu, Lv) weight of each quadrant
     Lu, Lv = kap.size, kap.size
     # The excess vanishes (< 1e-7) unless the pixel is within ~5.5 sigma of both lines, i.e.
     # near their node: it is evaluated on those few (pixel, node) pairs only (and only where the
     # lines bound a printed quadrant: a square's edge never with a marker's), and its sums over
     # nodes are gathered from them (np.bincount) rather than over all (pixel, node) pairs.
-    near_u, near_v = np.abs(z_u) < 5.5, np.abs(z_v) < 5.5
-    n_i, p_i, lu_i, lv_i = np.nonzero(near_u[:, :, :, None] & near_v[:, :, None, :] & (C[:, None] != 0.0))
+    near = np.abs(z) < 5.5
+    n_i, p_i, lu_i, lv_i = np.nonzero(near[0][:, :, :, None] & near[1][:, :, None, :] & (C[:, None] != 0.0))
     Cw = C[n_i, lu_i, lv_i]
-    z1, z2 = z_u[n_i, p_i, lu_i], z_v[n_i, p_i, lv_i]
+    z1, z2 = z[0][n_i, p_i, lu_i], z[1][n_i, p_i, lv_i]
     ex_k, d1, d2, dr = _phi2_excess(z1, z2, rho[n_i, lu_i, lv_i],
-                                    phi_pdf=(pz_u[n_i, p_i, lu_i], pz_v[n_i, p_i, lv_i]),
-                                    phi_cdf=(Pz_u[n_i, p_i, lu_i], Pz_v[n_i, p_i, lv_i]))
+                                    phi_pdf=(pz[0][n_i, p_i, lu_i], pz[1][n_i, p_i, lv_i]),
+                                    phi_cdf=(Pz[0][n_i, p_i, lu_i], Pz[1][n_i, p_i, lv_i]))
     pix = n_i * P + p_i
+    NP = N * P
 
-    def gather(w, n_bins=N * P, at=pix):
+    def gather(w, n_bins=NP, at=pix):
         return np.bincount(at, weights=w, minlength=n_bins)
 
     white = 1.0 - (Fu * Fv) @ s_r - gather(ex_k * Cw).reshape(N, P)
@@ -306,44 +305,50 @@ def _model(theta, U, ex, kap, setup_u, setup_v, scale, s_r, jacobian=True):
     M = lo + gain * white
     if not jacobian:
         return M, None, white
+    # d/d sigma of Phi(d / sigma) = -phi(z) z / sigma
+    F_s = ((pz * z) @ coef) / -sig
     # Parameter-major (15, N, P): every row is written contiguously.
     J = np.empty((N_PARAMS, N, P))
     # d/d sigma through z = d / sigma: -(dz1 z1 + dz2 z2) / sigma
     corr_s = -gather((d1 * z1 + d2 * z2) * Cw).reshape(N, P) / sig[..., 0]
-    J[8] = -gain * ((Fu_s * Fv + Fu * Fv_s) @ s_r + corr_s)
+    J[8] = -gain * ((F_s[0] * Fv + Fu * F_s[1]) @ s_r + corr_s)
     # The excess's derivatives by each line's z, per line.
-    extra = (gather(d1 * Cw, N * P * Lu, pix * Lu + lu_i).reshape(N, P, Lu),
-             gather(d2 * Cw, N * P * Lv, pix * Lv + lv_i).reshape(N, P, Lv))
+    extra = gather(np.concatenate([d1 * Cw, d2 * Cw]), 2 * NP * Lu,
+                   np.concatenate([pix * Lu + lu_i, NP * Lu + pix * Lv + lv_i])).reshape(2, N, P, Lu)
     J[9] = 1.0
     J[10], J[11] = ex[..., 0], ex[..., 1]
     J[12] = white
     J[13], J[14] = white * ex[..., 0], white * ex[..., 1]
-    J[6:8] = 0.0
-    for axis, (_, _, coef, pz, L, nrm, num, _, _) in enumerate(axes):
-        other = Fv if axis == 0 else Fu
-        # dM/dd_l for each line l of this axis (N, P, L)
-        A = (-gain / sig[..., 0])[..., None] * (pz * ((other * s_r) @ coef.transpose(0, 2, 1)) + extra[axis])
-        # d(d_l)/dL_m = scale * (U_m / nrm - num L_m / nrm^3 [m < 2]), with L = Ga - kap G2
-        An = A / nrm
-        Bn = A * num / nrm**3
-        BL = Bn @ L[:, :, :2]  # (N, P, 2)
-        sA = s[..., 0] * An.sum(axis=2)
-        sK = s[..., 0] * (An @ kap_col)[..., 0]
-        BK = (Bn * kap) @ L[:, :, :2]
+    # dM/dd_l for each line l of each axis (2, N, P, L); the other axis's terms multiply
+    other = F[::-1] * s_r
+    A = (-gain / sig[..., 0])[..., None] * (pz * (other @ coef.transpose(0, 1, 3, 2)) + extra)
+    # d(d_l)/dL_m = scale * (U_m / nrm - num L_m / nrm^3 [m < 2]), with L = Ga - kap G2
+    An = A / nrm
+    Bn = A * num / nrm**3
+    BL = Bn @ L[..., :2]  # (2, N, P, 2)
+    s0 = s[..., 0]
+    sA = s0 * An.sum(axis=3)  # (2, N, P)
+    sK = s0 * (An @ kap)  # (2, N, P)
+    BK = (Bn * kap) @ L[..., :2]
+    for axis in (0, 1):
         for m in range(2):
-            J[3 * axis + m] = sA * U[..., m] - s[..., 0] * BL[..., m]
-            J[6 + m] -= sK * U[..., m] - s[..., 0] * BK[..., m]
-        J[3 * axis + 2] = sA
+            J[3 * axis + m] = sA[axis] * U[..., m] - s0 * BL[axis, ..., m]
+        J[3 * axis + 2] = sA[axis]
+    for m in range(2):
+        J[6 + m] = (0.0 - (sK[0] * U[..., m] - s0 * BK[0, ..., m])) - (sK[1] * U[..., m] - s0 * BK[1, ..., m])
     # ... and through rho = n_u . n_v, the cosine between the lines: d rho / d L_u[:2] =
     # (n_v - rho n_u) / |L_u[:2]| (and the same with u, v swapped); L_u = G0 - kap_k G2.
     Rk = -gain[n_i, p_i] * Cw * dr  # per (pixel, node) pair
-    Tu = (n_v[:, None, :, :] - rho[..., None] * n_u[:, :, None, :]) / nrm_u[:, 0, :, None, None]
-    Tv = (n_u[:, :, None, :] - rho[..., None] * n_v[:, None, :, :]) / nrm_v[:, 0, None, :, None]
-    T2 = -(kap[None, :, None, None] * Tu + kap[None, None, :, None] * Tv)
-    for rows, T in ((slice(0, 2), Tu), (slice(3, 5), Tv), (slice(6, 8), T2)):
-        Tk = T[n_i, lu_i, lv_i]  # (pairs, 2)
-        for m in range(2):
-            J[rows.start + m] += gather(Rk * Tk[:, m]).reshape(N, P)
+    rp = rho[n_i, lu_i, lv_i][:, None]
+    nu_k, nv_k = n_u[n_i, lu_i], n_v[n_i, lv_i]  # (pairs, 2)
+    Tu = (nv_k - rp * nu_k) / nrm[0, n_i, 0, lu_i][:, None]
+    Tv = (nu_k - rp * nv_k) / nrm[1, n_i, 0, lv_i][:, None]
+    T2 = -(kap[lu_i][:, None] * Tu + kap[lv_i][:, None] * Tv)
+    # the six rows' sums in one gather: row r of (0, 1, 3, 4, 6, 7) in bins r * N * P + pixel
+    T6 = np.concatenate([Tu.T, Tv.T, T2.T])  # (6, pairs)
+    at6 = (np.arange(6)[:, None] * NP + pix[None, :]).ravel()
+    add6 = gather((Rk[None, :] * T6).ravel(), 6 * NP, at6).reshape(6, N, P)
+    J[[0, 1, 3, 4, 6, 7]] += add6
     return M, J, white
 
 
@@ -398,8 +403,8 @@ def _fit_corners(img: np.ndarray, target: Target, ij: np.ndarray, uv_all: np.nda
     kap = np.unique(np.add.outer(np.arange(-K, K + 1, dtype=float), pat.offsets).ravel())
     kap = kap[np.abs(kap) <= reach + 1e-9]
     centre_u, centre_v = ij[sel, 1] + 1.0, ij[sel, 0] + 1.0  # corner (i, j) from the board's outer edge
-    setup_u = _axis_setup(pat.lines_u, centre_u, kap)
-    setup_v = _axis_setup(pat.lines_v, centre_v, kap)
+    (cu, ku), (cv, kv) = _axis_setup(pat.lines_u, centre_u, kap), _axis_setup(pat.lines_v, centre_v, kap)
+    coef, const = np.stack([cu, cv]), np.stack([ku, kv])  # (2, N, L, R), (2, N, R)
 
     theta = np.zeros((N, N_PARAMS))
     theta[:, 0:3], theta[:, 3:6], theta[:, 6:8] = G[:, 0], G[:, 1], G[:, 2, :2]
@@ -417,7 +422,7 @@ def _fit_corners(img: np.ndarray, target: Target, ij: np.ndarray, uv_all: np.nda
     U, I, wgt = (np.take_along_axis(a, order[..., None] if a.ndim == 3 else order, axis=1) for a in (U, I, wgt))
     ex = np.take_along_axis(np.ascontiguousarray(ex), order[..., None], axis=1)
     # Photometry from a linear fit at the initial geometry.
-    _, _, white = _model(theta, U, ex, kap, setup_u, setup_v, pitch, pat.s_r, jacobian=False)
+    _, _, white = _model(theta, U, ex, kap, coef, const, pitch, pat.s_r, jacobian=False)
     A = np.stack([np.ones_like(white), ex[..., 0], ex[..., 1], white, white * ex[..., 0], white * ex[..., 1]], axis=1)
     Aw = A * wgt[:, None, :]
     AtA = Aw @ A.transpose(0, 2, 1) + 1e-9 * np.eye(6)
@@ -425,26 +430,30 @@ def _fit_corners(img: np.ndarray, target: Target, ij: np.ndarray, uv_all: np.nda
 
     def evaluate(th, rows):
         """Cost, residuals and Jacobian (n, 15, P) of the corners ``rows`` at parameters ``th``."""
-        su, sv = (tuple(a[rows] for a in st) for st in (setup_u, setup_v))
-        M, J, _ = _model(th, U[rows], ex[rows], kap, su, sv, pitch[rows], pat.s_r)
+        if rows.size == N:  # all of them (in order): no copies
+            M, J, _ = _model(th, U, ex, kap, coef, const, pitch, pat.s_r)
+            r = I - M
+            return (wgt * r * r).sum(1), r, np.moveaxis(J, 0, 1)
+        M, J, _ = _model(th, U[rows], ex[rows], kap, coef[:, rows], const[:, rows], pitch[rows], pat.s_r)
         r = I[rows] - M
         return (wgt[rows] * r * r).sum(1), r, np.moveaxis(J, 0, 1)
 
     def corner_local(th):
-        G0, G1 = th[:, 0:3], th[:, 3:6]
-        Amat = np.stack([G0[:, :2], G1[:, :2]], axis=1)
-        return np.linalg.solve(Amat, -np.stack([G0[:, 2], G1[:, 2]], axis=1)[..., None])[..., 0]
+        """Where G's first two rows vanish: (G00 G01; G10 G11) x = -(G02, G12)."""
+        return np.linalg.solve(th[:, [0, 1, 3, 4]].reshape(-1, 2, 2), -th[:, [2, 5], None])[..., 0]
 
     allc = np.arange(N)
     c, r, J = evaluate(theta, allc)
+    loc = corner_local(theta)  # the corners, in local units, at the current parameters
     lam = np.full(N, 1e-3)
     active = np.ones(N, bool)
     for _ in range(max_iterations):
         a = np.nonzero(active)[0]
         if a.size == 0:
             break
-        Jw = J[a] * wgt[a][:, None, :]
-        JtJ = Jw @ J[a].transpose(0, 2, 1)
+        Ja = J[a]
+        Jw = Ja * wgt[a][:, None, :]
+        JtJ = Jw @ Ja.transpose(0, 2, 1)
         g = (Jw @ r[a][..., None])[..., 0]
         D = np.einsum("naa->na", JtJ)
         damp = lam[a, None] * (D + 1e-6 * D.mean(1, keepdims=True))
@@ -453,16 +462,17 @@ def _fit_corners(img: np.ndarray, target: Target, ij: np.ndarray, uv_all: np.nda
         cand[:, 8] = np.clip(cand[:, 8], 0.15, 5.0)
         c2, r2, J2 = evaluate(cand, a)
         better = c2 < c[a]
-        moved = np.linalg.norm(corner_local(cand) - corner_local(theta[a]), axis=1) * pitch[a]
+        loc2 = corner_local(cand)
+        moved = np.linalg.norm(loc2 - loc[a], axis=1) * pitch[a]
         b = a[better]
-        theta[b], c[b], r[b], J[b] = cand[better], c2[better], r2[better], J2[better]
+        theta[b], c[b], r[b], J[b], loc[b] = cand[better], c2[better], r2[better], J2[better], loc2[better]
         # Converged: a step that moves the corner by < 3e-4 px (a twentieth of the bias we care
         # about), whether taken or not (near the optimum the cost is flat to rounding) as long
         # as the damping did not shrink it; or no descent left.
         done = (moved < 3e-4) & (better | (lam[a] < 1.0))
         lam[a] = np.where(better, lam[a] / 3.0, lam[a] * 4.0)
         active[a] = ~(done | (lam[a] > 1e5))
-    uv = origin + corner_local(theta) * pitch[:, None]
+    uv = origin + loc * pitch[:, None]
     sigma = theta[:, 8]
     n_w = np.maximum(wgt.sum(1), 1.0)
     rms = np.sqrt(c / n_w)

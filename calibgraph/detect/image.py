@@ -67,6 +67,7 @@ class Frame:
         self.name = str(source) if self.path is not None else name
         self._full = None if self.path is not None else to_grey8(source, name or "image")
         self._data = None
+        self._digest = None
         self._reduced = {}
 
     def _bytes(self) -> np.ndarray:
@@ -82,6 +83,18 @@ class Frame:
             self._full = _decode(self._bytes(), self.path, cv2.IMREAD_UNCHANGED)
             self._data = None  # decoded: the file's bytes are not needed again
         return self._full
+
+    def digest(self) -> bytes | None:
+        """A hash of the file's bytes (None for an image array): what a result computed from the
+        image alone can be remembered by, whatever the file's name or time stamps."""
+        import hashlib
+
+        if self.path is None:
+            return None
+        if self._digest is None:
+            data = self._bytes() if self._full is None or self._data is not None else _read_bytes(self.path)
+            self._digest = hashlib.blake2b(data, digest_size=16).digest()
+        return self._digest
 
     @property
     def decoded(self) -> bool:
