@@ -6,8 +6,9 @@ When the fitted flange poses depart from FK further than stated in both rotation
 images: a small flange rotation moves a board's image much as a flange translation does. Helmert's
 steps then split the excess by the stated ratio, and a real arm's error, which repeats from pose to
 pose rather than being independent, need not follow that split. The split changes the calibration a
-user applies with the reported poses (RWHE-Calib's KUKA sets: both widened, 0.43 mm and 0.044 deg,
-predicted held-out poses 10-30 % worse than with the rotation kept at its stated accuracy).
+user applies with the reported poses (RWHE-Calib's KUKA sets: both widened, 0.21-0.43 mm and about
+0.04 deg, predicted held-out poses 2-29 % worse than with the rotation kept at its stated accuracy;
+scripts/results/bench_heldout.md).
 
 So the candidates -- both components widened (Helmert's answer), only the translation, only the
 rotation -- are cross-validated: the captures are dealt into :data:`FOLDS` folds; for each fold the
@@ -15,9 +16,8 @@ graph of the other captures is solved (from the current estimate) and the fold's
 predicted from the fold's reported FK (:meth:`Estimate.residuals` with no fitted robot poses), as the
 calibration is applied. The candidate with the smallest held-out RMS is used unless it is within
 :data:`TIE` of Helmert's (with the FK errors independent from pose to pose, as the model assumes, the
-candidates tie and Helmert's split stands). Skipped
-(Helmert's answer kept) with too few captures to hold any out, or when a fold would leave a camera
-with too few views.
+candidates tie and Helmert's split stands). Skipped (Helmert's answer kept) with too few captures
+to hold any out, or when a fold would leave a camera with too few views.
 
 The same folds say how far the 1-sigma can be trusted: :func:`jackknife_factor` compares the
 scatter of the chosen candidate's fold solves with the graph's covariance, and the final graph's
