@@ -39,8 +39,8 @@ def test_one_widened_component_is_not_cross_validated():
         raise AssertionError("no fold may be solved")
 
     ratio = FkRatio(10.0, 60.0, True, kept, c)
-    out, record, folds = fk_select.cross_validated_split(None, None, ratio, [], None, never, never)
-    assert out is ratio and record is None and folds is None
+    out, folds = fk_select.cross_validated_split(None, None, ratio, [], None, never)
+    assert out is ratio and out.cross_validation is None and folds is None
 
 
 def test_jackknife_factor_is_the_folds_scatter_over_the_covariance():

@@ -35,6 +35,7 @@ import gtsam
 import numpy as np
 
 from calibgraph.core.errors import ObservabilityError
+from calibgraph.solver.fk_check import widened
 
 FOLDS = 5
 # within this fraction of Helmert's held-out RMS the candidates predict alike and Helmert's split stands
@@ -65,19 +66,19 @@ def _held_out(views: list, fold: set) -> list:
             else v for v in views]
 
 
-def cross_validated_split(problem, stated_opts, ratio, views: list, est, resolve, widened) -> tuple:
-    """(the FkRatio to use, its ``cross_validation`` record or None, the chosen candidate's fold
-    estimates (one :class:`Estimate` per fold) or None).
+def cross_validated_split(problem, stated_opts, ratio, views: list, est, resolve) -> tuple:
+    """(the FkRatio to use, the chosen candidate's fold estimates (one :class:`Estimate` per fold) or
+    None). When the folds ran, the ratio's ``cross_validation`` holds their record; otherwise it is
+    ``ratio`` itself.
 
     ``problem``: the problem at the widened FK sigmas; ``stated_opts``: the options with the stated
     ones; ``ratio``: Helmert's :class:`~calibgraph.solver.fk_check.FkRatio`; ``est``: the estimate
-    at ``ratio``; ``resolve(problem, views, est) -> Estimate`` solves a graph from ``est``;
-    ``widened(options, ratio)`` the options at a ratio's sigmas."""
+    at ``ratio``; ``resolve(problem, views, est) -> Estimate`` solves a graph from ``est``."""
     if not (ratio.rotation.applied > 1.0 and ratio.translation.applied > 1.0):
-        return ratio, None, None
+        return ratio, None
     folds = _folds(views, max(MIN_VIEWS_LEFT, int(problem.options.min_views_per_camera)))
     if folds is None:
-        return ratio, None, None
+        return ratio, None
     candidates = {
         "both": ratio,
         "translation": replace(ratio, rotation=replace(ratio.rotation, applied=1.0)),
@@ -98,7 +99,7 @@ def cross_validated_split(problem, stated_opts, ratio, views: list, est, resolve
                     sse[v.capture] = sse.get(v.capture, 0.0) + float(np.sum(r[k] ** 2))
                     n += int(k.sum())
         except (ObservabilityError, RuntimeError, np.linalg.LinAlgError):
-            return ratio, None, None
+            return ratio, None
         per_capture[name] = sse
         rms[name] = float(np.sqrt(sum(sse.values()) / max(n, 1)))
     # how clearly the captures prefer each candidate to Helmert's split (reported, not a gate: a gate at
@@ -113,7 +114,7 @@ def cross_validated_split(problem, stated_opts, ratio, views: list, est, resolve
     best = min(rms, key=rms.get)
     chosen = best if rms[best] < (1.0 - TIE) * rms["both"] else "both"
     record = {"folds": FOLDS, "rms_px": rms, "t_vs_both": t_stat, "chosen": chosen}
-    return replace(candidates[chosen], cross_validation=record), record, fold_est[chosen]
+    return replace(candidates[chosen], cross_validation=record), fold_est[chosen]
 
 
 def jackknife_factor(est, fold_est: list, cov_of) -> tuple:

@@ -268,10 +268,10 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     if fk_ratio is not None and fk_ratio.widens and form == "view":
         # rotation, translation or both: the split that predicts held-out captures from the reported FK
         with timed(timings, "fk_split"):
-            chosen, record, fold_est = cross_validated_split(
+            chosen, fold_est = cross_validated_split(
                 problem, opts, fk_ratio, views, est,
-                lambda p, vs, e: _resolve(p, vs, slots, e, sigma, form, factors or None, None)[0], widened)
-        if record is not None and record["chosen"] != "both":
+                lambda p, vs, e: _resolve(p, vs, slots, e, sigma, form, factors or None, None)[0])
+        if fold_est is not None and chosen.cross_validation["chosen"] != "both":
             problem = problem.with_(options=widened(opts, chosen))
             est, run, _ = _resolve(problem, views, slots, est, sigma, form, factors or None, timings)
             iterations += run.iterations
@@ -307,13 +307,10 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
                 inflated = problem.with_(options=replace(problem.options,
                                                          fk_sigma_translation_m=problem.options.fk_sigma_translation_m * s,
                                                          fk_sigma_rotation_rad=problem.options.fk_sigma_rotation_rad * s))
-                with timed(timings, "lm"):
-                    graph, values = build_graph(views, slots, inflated, est, sigma_post * s, form, factors)
-                    run = levenberg_marquardt(graph, values, opts.max_iterations, form)
+                est, run, graph = _resolve(inflated, views, slots, est, sigma_post * s, form, factors, timings)
                 iterations += run.iterations
                 converged = converged and run.converged
                 values = run.values
-                est = extract(values, slots, views, est, problem.cameras, form)
                 linear, marg = reduced_marginals(graph, values, timings)
     else:
         marg = marginals(graph, values, form, timings)
