@@ -473,7 +473,7 @@ def markdown(results: list, meta: dict) -> str:
                      f"mm, {np.degrees(fk['stated_sigma_rotation_rad']):.4f} deg).")
         cvs = [(s.get("calibgraph_fk_noise") or {}).get("cross_validation") for s in rec["splits"]]
         if any(cvs):
-            chosen = [c["chosen"] if c else "not run" for c in cvs]
+            chosen = [("not run" if not c else c["chosen"] or "(jackknife only)") for c in cvs]
             jk = [c.get("jackknife_variance_factor", 1.0) for c in cvs if c]
             L.append(f"- The robot's error split the held-out captures chose (`fk_noise.cross_validation`), per train "
                      f"split: {', '.join(chosen)}; the folds' jackknife variance factor {min(jk):.2f}-{max(jk):.2f}.")

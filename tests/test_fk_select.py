@@ -11,7 +11,8 @@ from calibgraph.core.problem import SolverOptions
 from calibgraph.sim.kinematic_scene import make_kinematic_scene
 from calibgraph.sim.synthetic_corners import make_scene
 from calibgraph.solver.batch import solve
-from calibgraph.solver.fk_check import FkComponent, FkRatio
+from calibgraph.solver import optimise
+from calibgraph.solver.fk_check import FkComponent, FkRatio, fk_note, fk_record
 from calibgraph.solver.graph import Estimate
 from calibgraph.solver.views import View
 
@@ -113,3 +114,57 @@ def test_chosen_split_sets_the_sigmas_the_solve_used():
         assert f["used_sigma_translation_m"] == pytest.approx(stated_t) and f["used_sigma_rotation_rad"] > stated_r
     else:
         assert f["used_sigma_translation_m"] > stated_t and f["used_sigma_rotation_rad"] > stated_r
+
+
+def test_jackknife_alone_when_the_split_is_not_cross_validated(monkeypatch):
+    """The robot departs but its split is not cross-validated (one component widened, or the corners'
+    correlated noise explained the departure; here the split's folds are switched off): the folds'
+    jackknife still runs on the final graph, widens the 1-sigma where the fold solves scatter beyond
+    it, and says so; without it the 1-sigma is what the per-pose model gives."""
+    rng = np.random.default_rng(1001)
+    offsets = np.zeros(7)
+    offsets[1:6] = rng.uniform(0.5e-3, 2e-3, 5) * rng.choice([-1, 1], 5)
+    sc = make_kinematic_scene(offsets, n_poses=30, seed=1, pixel_sigma_px=0.1)[0]
+    monkeypatch.setattr(optimise, "cross_validated_split", lambda problem, opts, ratio, *a: (ratio, None))
+    r = solve(sc.problem)
+    cv = r.fk_noise["cross_validation"]
+    assert cv["chosen"] is None and cv["folds"] == fk_select.FOLDS and "rms_px" not in cv
+    assert cv["jackknife_variance_factor"] > 1.0
+    assert any("folds' camera poses scatter" in n for n in r.notes)
+    assert not any("held-out RMS" in n for n in r.notes)
+    monkeypatch.setattr(fk_select, "_folds", lambda *a: None)
+    r_old = solve(sc.problem)
+    assert "cross_validation" not in r_old.fk_noise
+    for n, c in r.cameras.items():
+        # the pixel and FK noises take the factor; the intrinsics' prior does not, so a camera's 1-sigma
+        # grows by up to its square root
+        ratio = np.asarray(c.sigma_translation_mm) / np.asarray(r_old.cameras[n].sigma_translation_mm)
+        assert np.all(ratio > 1.02) and np.all(ratio <= np.sqrt(cv["jackknife_variance_factor"]) * 1.02)
+
+
+def test_jackknife_note_and_record_with_the_robot_kept_as_stated():
+    opts = SolverOptions()
+    jk = {"folds": 5, "jackknife_variance_factor": 4.0, "jackknife_per_camera": {"a": 4.0}}
+    note = fk_note(opts, None, jk)
+    assert len(note) == 1 and "kept at its stated accuracy" in note[0] and "x2.00" in note[0]
+    assert fk_note(opts, None, {**jk, "jackknife_variance_factor": 1.0}) == []
+    assert fk_note(opts, None, None) == []
+    rec = fk_record(opts, None, jk)
+    assert rec["used_sigma_translation_m"] == rec["stated_sigma_translation_m"] == opts.fk_sigma_translation_m
+    assert rec["cross_validation"]["chosen"] is None and rec["cross_validation"]["jackknife_variance_factor"] == 4.0
+    assert fk_record(opts, None, None) is None
+    # one component widened, no split chosen: the note gives the jackknife, not a held-out comparison
+    comp = FkComponent(ratio=9.0, applied=9.0, dof=20.0, significant=True)
+    kept = FkComponent(ratio=1.5, applied=1.0, dof=20.0, significant=False)
+    ratio = FkRatio(4.0, 40.0, True, rotation=kept, translation=comp,
+                    cross_validation={"folds": 5, "chosen": None, **jk})
+    (line,) = fk_note(opts, ratio, jk)
+    assert "translation 3.0x" in line and "rotation within" in line and "held-out" not in line and "x2.00" in line
+
+
+def test_jackknife_folds_not_made_with_too_few_captures():
+    def never(*a):
+        raise AssertionError("no fold may be solved")
+
+    p = make_scene(n_poses=6, pixel_sigma_px=0.1, seed=0, reported_intrinsics="exact").problem
+    assert fk_select.jackknife_folds(p, [_view("a", k) for k in range(6)], None, never) is None

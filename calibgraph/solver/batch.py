@@ -35,7 +35,7 @@ from calibgraph.solver.assemble import (
 from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_inadequate_intrinsics
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
-from calibgraph.solver.fk_check import fk_note
+from calibgraph.solver.fk_check import fk_note, fk_record
 from calibgraph.solver.keys import B, C, K, S
 from calibgraph.solver.moved import solve_minding_moves
 from calibgraph.solver.noise_model import corner_noise_notes
@@ -181,7 +181,7 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
             cameras[n] = not_calibrated(problem, n, why, rejected)
     cameras = {n: cameras[n] for n in problem.cameras if n in cameras}
     T_mount_board, mount_cov, T_base_flange_est = mount_and_robot_poses(problem, groups)
-    fk_notes = next((n for n in (fk_note(problem.options, g.est.fk_ratio) for g in groups) if n), [])
+    fk_notes = next((n for n in (fk_note(problem.options, g.est.fk_ratio, g.est.jackknife) for g in groups) if n), [])
     robot_suspect = any(g.est.fk_ratio is not None and g.est.fk_ratio.significant for g in groups)
     scale, scale_sigma, scale_notes = board_scale(problem, groups, robot_suspect)
     notes = [*notes, *scale_notes, *intrinsics_notes(cameras)]
@@ -200,6 +200,7 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
     settings["intrinsics_source_default"] = settings.pop("intrinsics_source")
     settings["formulation_used"] = groups[0].est.formulation
     fk_ratio = groups[0].est.fk_ratio if len(groups) == 1 else None
+    jackknife = groups[0].est.jackknife if len(groups) == 1 else None
     return with_prediction(problem, Result(
         mode=problem.mode, method=problem.method, cameras=cameras, T_mount_board=T_mount_board,
         mount_covariance=mount_cov, pairs=pair_results([n for n in problem.cameras if cameras[n].calibrated], cameras,
@@ -210,5 +211,5 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
         rejected_views=tuple(rv for c in cameras.values() for rv in c.views_rejected),
         rejected_corners=tuple(rejected_corners), T_base_flange_est=T_base_flange_est, settings=settings,
         board_scale=scale, board_scale_sigma=scale_sigma, notes=tuple(notes), robot=robot,
-        fk_noise=fk_ratio.to_dict(problem.options) if fk_ratio is not None else None,
+        fk_noise=fk_record(problem.options, fk_ratio, jackknife),
     ), _pose_mount_covariances(problem, groups))

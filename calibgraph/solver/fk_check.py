@@ -194,10 +194,20 @@ def widened(options, ratio: FkRatio):
                    fk_sigma_rotation_rad=options.fk_sigma_rotation_rad * float(np.sqrt(ratio.rotation.applied)))
 
 
-def fk_note(options, ratio: FkRatio | None) -> list:
-    """One line when the robot poses disagree with the stated FK accuracy and the prior was widened."""
+def fk_note(options, ratio: FkRatio | None, jackknife: dict | None = None) -> list:
+    """One line when the robot poses disagree with the stated FK accuracy and the prior was widened,
+    or the folds' jackknife (``jackknife``: ``Estimate.jackknife``) widened the 1-sigma."""
+    cv = ratio.cross_validation if ratio is not None else None
+    f = float((jackknife or {}).get("jackknife_variance_factor", 1.0))
+    scatter = (f"the folds' camera poses scatter {f:.1f}x the variance the per-pose FK model gives (the arm's "
+               f"error repeats from pose to pose): the pixel and FK noises x{np.sqrt(f):.2f}, each 1-sigma up to that")
     if ratio is None or not ratio.widens:
-        return []
+        if f <= 1.0:
+            return []
+        return [f"robot: the fitted flange poses departed from forward kinematics until the corners' correlated "
+                f"noise was weighted, and the robot is kept at its stated accuracy; but {scatter} (state the "
+                f"arm's accuracy with --fk-sigma-mm/--fk-sigma-deg; joint zero offsets: --estimate-kinematics "
+                f"joint-offsets)"]
     o = options
     parts = []
     for c, what, stated, unit in ((ratio.translation, "translation", 1e3 * o.fk_sigma_translation_m, "mm"),
@@ -208,20 +218,30 @@ def fk_note(options, ratio: FkRatio | None) -> list:
             test = "" if c.significant else ", p < 0.05 but not < 0.001"
             parts.append(f"{what} {s:.1f}x the stated {stated:{fmt}} {unit}{test}: solved with "
                          f"{stated * float(np.sqrt(c.applied)):{fmt}} {unit}")
-        elif ratio.cross_validation is not None and c.ratio > 1.0:
+        elif cv is not None and cv.get("chosen") is not None and c.ratio > 1.0:
             parts.append(f"{what} {s:.1f}x the stated {stated:{fmt}} {unit} by the fit, kept at it: held-out "
                          f"captures predicted from the reported FK better so")
         else:
             parts.append(f"{what} within the stated {stated:{fmt}} {unit} ({s:.1f}x): kept")
-    cv = ratio.cross_validation
-    if cv is not None:
+    if cv is not None and cv.get("chosen") is not None:
         rms = cv["rms_px"]
         parts.append(f"{cv['folds']}-fold held-out RMS {rms[cv['chosen']]:.2f} px"
                      + ("" if cv["chosen"] == "both" else f" against {rms['both']:.2f} px with both widened"))
-        f = float(cv.get("jackknife_variance_factor", 1.0))
-        if f > 1.0:
-            parts.append(f"the folds' camera poses scatter {f:.1f}x the variance the per-pose FK model gives (the arm's "
-                         f"error repeats from pose to pose): every 1-sigma x{np.sqrt(f):.2f}")
+    if f > 1.0:
+        parts.append(scatter)
     return [f"robot: the fitted flange poses depart from forward kinematics further than the stated FK accuracy "
             f"allows ({'; '.join(parts)}); the 1-sigma is widened for it (state the arm's accuracy with "
             f"--fk-sigma-mm/--fk-sigma-deg; joint zero offsets: --estimate-kinematics joint-offsets)"]
+
+
+def fk_record(options, ratio: FkRatio | None, jackknife: dict | None) -> dict | None:
+    """result.json's ``fk_noise``: the FK check (:meth:`FkRatio.to_dict`); with the robot kept at its
+    stated accuracy and no ratio measurable (the corners' correlated noise weighted), the stated
+    sigmas and the folds' jackknife alone; None when neither ran."""
+    if ratio is not None:
+        return ratio.to_dict(options)
+    if jackknife is None:
+        return None
+    t, r = float(options.fk_sigma_translation_m), float(options.fk_sigma_rotation_rad)
+    return {"stated_sigma_translation_m": t, "stated_sigma_rotation_rad": r, "used_sigma_translation_m": t,
+            "used_sigma_rotation_rad": r, "cross_validation": {"chosen": None, **jackknife}}

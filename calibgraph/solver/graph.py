@@ -67,6 +67,9 @@ class Estimate:
     mount_cov_body: np.ndarray | None = None  # (6, 6) covariance of T_mount_board, GTSAM body frame
     mode_ratios: dict = field(default_factory=dict)  # camera -> noise_model.ModeRatio of the final graph
     fk_ratio: object | None = None  # fk_check.FkRatio of the final graph
+    # the folds' jackknife of the camera poses (fk_select), when the robot departed from its stated FK:
+    # {folds, jackknife_variance_factor, jackknife_per_camera}
+    jackknife: dict | None = None
     graph: object | None = field(default=None, repr=False)  # the final graph and its values (error budget)
     values: object | None = field(default=None, repr=False)
     linear: object | None = field(default=None, repr=False)  # reduced.Linear of the final graph, when formed

@@ -21,7 +21,7 @@ from calibgraph.solver.claims import contradicted
 from calibgraph.solver.factors import intrinsics_vector
 from calibgraph.solver.fk_check import (FK_COMPONENT_STEPS, fk_variance_ratio, rescaled, robot_pose_marginals,
                                          settled_components, widened)
-from calibgraph.solver.fk_select import cross_validated_split, jackknife_factor
+from calibgraph.solver.fk_select import cross_validated_split, jackknife_factor, jackknife_folds
 from calibgraph.solver.graph import (
     Estimate,
     build_graph,
@@ -221,6 +221,7 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     converged = rounds.settled
     solved = None  # (graph, values) of the last solve at ``est``, when this function made one
     fold_est = None  # the FK split's cross-validation folds' estimates (fk_select), when it ran
+    jackknife = None  # their jackknife record
     if opts.corner_noise == "per-view" and not opts.pixel_sigma_px:
         # each view its own noise level, now that the rounds have settled which corners and views are in
         residuals = est.residuals(views, problem.cameras)
@@ -236,6 +237,7 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     fk_ratio = fk_variance_ratio(problem, views, est, sigma, lin,
                                  marginal=_fk_marginals(problem, views, slots, est, sigma, form, None, timings, solved)
                                  ) if opts.fk_variance else None
+    departed = fk_ratio is not None and fk_ratio.widens  # the flange poses left the stated FK, at first sight
     if fk_ratio is not None and fk_ratio.widens:
         # the robot is less accurate than stated: the final graph uses the FK sigmas the fit implies,
         # and the corner-noise modes are judged on the residuals of that graph
@@ -277,6 +279,12 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
             iterations += run.iterations
             converged = converged and run.converged
         fk_ratio = chosen
+    if departed and fold_est is None and form == "view":
+        # the robot departed but its split was not cross-validated (one component widened, or the corners'
+        # correlated noise explained the departure): the folds still say whether the 1-sigma holds
+        with timed(timings, "fk_jackknife"):
+            fold_est = jackknife_folds(problem, views, est,
+                                       lambda p, vs, e: _resolve(p, vs, slots, e, sigma, form, factors or None, None)[0])
     if opts.pixel_sigma_px:
         sigma_post = opts.pixel_sigma_px
     else:
@@ -296,12 +304,15 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     linear = None
     if form == "view":
         linear, marg = reduced_marginals(graph, values, timings)
-        if fold_est is not None and fk_ratio is not None and fk_ratio.cross_validation is not None:
+        if fold_est is not None:
             # the folds' camera poses scatter more than the graph's covariance says: the robot's error
             # repeats from pose to pose; every noise of the graph takes the missing variance factor
             f, per = jackknife_factor(est, fold_est, lambda n: marg.marginalCovariance(C(slots[n])))
-            fk_ratio = replace(fk_ratio, cross_validation={**fk_ratio.cross_validation, "jackknife_variance_factor": f,
-                                                           "jackknife_per_camera": per})
+            jackknife = {"folds": len(fold_est), "jackknife_variance_factor": f, "jackknife_per_camera": per}
+            if fk_ratio is not None:
+                fk_ratio = replace(fk_ratio, cross_validation={**(fk_ratio.cross_validation or {"folds": len(fold_est),
+                                                                                               "chosen": None}),
+                                                               **jackknife})
             if f > 1.0:
                 s = float(np.sqrt(f))
                 inflated = problem.with_(options=replace(problem.options,
@@ -317,7 +328,7 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
     mount_cov = factors_ppp.mount_cov_body(marg, values) if form == "corner" else marg.marginalCovariance(B(0))
     return replace(est, iterations=iterations, converged=converged, cost=graph.error(values), sigma_px=sigma_post,
                    slots=slots, formulation=form, marginals=marg, mount_cov_body=mount_cov, mode_ratios=mode_ratios,
-                   fk_ratio=fk_ratio, graph=graph, values=values, linear=linear)
+                   fk_ratio=fk_ratio, jackknife=jackknife, graph=graph, values=values, linear=linear)
 
 
 def solve_joint(problem: Problem, names: list, views: list, starts: list, timings: dict | None = None) -> Group:
