@@ -161,6 +161,7 @@ def robust_rounds(problem: Problem, views: list, slots: dict, est: Estimate, for
     else:
         sigma = problem.options.pixel_sigma_px or warm_sigma_px
     iterations = 0
+    seen = [_active_set(views)]
     for _ in range(MAX_VIEW_ROUNDS):
         rounds = weighted_solves(problem, views, slots, est, sigma, form, timings)
         iterations += rounds.iterations
@@ -168,4 +169,22 @@ def robust_rounds(problem: Problem, views: list, slots: dict, est: Estimate, for
         views, changed = readmit_or_reject(rounds.views, rounds.norms, sigma, problem.options)
         if not changed:
             return Rounds(est, views, sigma, iterations, rounds.settled, rounds.norms)
+        now = _active_set(views)
+        if now in seen:
+            # the set of views came back to one it had: a view on the 50 % cut is set aside with the
+            # estimate that fits it worse and re-admitted with the other, round after round. Such a
+            # view is left out (its fit is borderline either way) and the rest solved once more.
+            flippers = set().union(*seen[seen.index(now):]) - set.intersection(*map(set, seen[seen.index(now):]))
+            views = [replace(v, active=False, reason="on the cut: set aside and re-admitted in turn from round to "
+                                                     "round (more than half its corners beyond "
+                                                     f"{problem.options.outlier_sigmas:g} sigma with it in)")
+                     if (v.camera, v.capture) in flippers else v for v in views]
+            rounds = weighted_solves(problem, views, slots, est, sigma, form, timings)
+            return Rounds(rounds.est, rounds.views, rounds.sigma_px, iterations + rounds.iterations, rounds.settled,
+                          rounds.norms)
+        seen.append(now)
     return Rounds(est, views, sigma, iterations, False, est.residual_norms(views, problem.cameras))
+
+
+def _active_set(views: list) -> frozenset:
+    return frozenset((v.camera, v.capture) for v in views if v.active)
