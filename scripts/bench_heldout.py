@@ -479,8 +479,14 @@ def markdown(results: list, meta: dict) -> str:
                      f"split: {', '.join(chosen)}; the folds' jackknife variance factor {min(jk):.2f}-{max(jk):.2f}.")
         if rec.get("best_peer"):
             cgm = np.mean([s["scores"]["calibgraph"]["rms_px"] for s in rec["splits"]])
+            # paired over the splits (each split's test captures scored by both): the difference's mean and
+            # standard error, the splits' overlap ignored (it makes the SE an underestimate, if anything)
+            d = np.array([s["scores"]["calibgraph"]["rms_px"] - s["scores"][rec["best_peer"][0]]["rms_px"]
+                          for s in rec["splits"]])
+            se = float(d.std(ddof=1) / np.sqrt(len(d)))
             L.append(f"- Best peer {rec['best_peer'][0]} {rec['best_peer'][1]:.3f} px; calibgraph {cgm:.3f} px "
-                     f"({'at least as good' if cgm <= rec['best_peer'][1] + 1e-9 else 'WORSE'}).")
+                     f"({'at least as good' if cgm <= rec['best_peer'][1] + 1e-9 else 'WORSE'}); calibgraph minus "
+                     f"{rec['best_peer'][0]}, paired over the {len(d)} splits: {d.mean():+.3f} +- {se:.3f} px (1 SE).")
         s = rec.get("calibgraph_sigma")
         if s:
             stated = np.array(s["stated_sigma_m"]); obs = np.array(s["observed_sigma_m"])

@@ -129,7 +129,7 @@ def test_jackknife_alone_when_the_split_is_not_cross_validated(monkeypatch):
     r = solve(sc.problem)
     cv = r.fk_noise["cross_validation"]
     assert cv["chosen"] is None and cv["folds"] == fk_select.FOLDS and "rms_px" not in cv
-    assert cv["jackknife_variance_factor"] > 1.0
+    assert cv["jackknife_applied"] == cv["jackknife_variance_factor"] > 1.0  # the robot widened: the factor stands
     assert any("folds' camera poses scatter" in n for n in r.notes)
     assert not any("held-out RMS" in n for n in r.notes)
     monkeypatch.setattr(fk_select, "_folds", lambda *a: None)
@@ -139,15 +139,15 @@ def test_jackknife_alone_when_the_split_is_not_cross_validated(monkeypatch):
         # the pixel and FK noises take the factor; the intrinsics' prior does not, so a camera's 1-sigma
         # grows by up to its square root
         ratio = np.asarray(c.sigma_translation_mm) / np.asarray(r_old.cameras[n].sigma_translation_mm)
-        assert np.all(ratio > 1.02) and np.all(ratio <= np.sqrt(cv["jackknife_variance_factor"]) * 1.02)
+        assert np.all(ratio > 1.02) and np.all(ratio <= np.sqrt(cv["jackknife_applied"]) * 1.02)
 
 
 def test_jackknife_note_and_record_with_the_robot_kept_as_stated():
     opts = SolverOptions()
-    jk = {"folds": 5, "jackknife_variance_factor": 4.0, "jackknife_per_camera": {"a": 4.0}}
+    jk = {"folds": 5, "jackknife_variance_factor": 4.0, "jackknife_applied": 4.0, "jackknife_per_camera": {"a": 4.0}}
     note = fk_note(opts, None, jk)
     assert len(note) == 1 and "kept at its stated accuracy" in note[0] and "x2.00" in note[0]
-    assert fk_note(opts, None, {**jk, "jackknife_variance_factor": 1.0}) == []
+    assert fk_note(opts, None, {**jk, "jackknife_variance_factor": 1.3, "jackknife_applied": 1.0}) == []
     assert fk_note(opts, None, None) == []
     rec = fk_record(opts, None, jk)
     assert rec["used_sigma_translation_m"] == rec["stated_sigma_translation_m"] == opts.fk_sigma_translation_m
@@ -168,3 +168,18 @@ def test_jackknife_folds_not_made_with_too_few_captures():
 
     p = make_scene(n_poses=6, pixel_sigma_px=0.1, seed=0, reported_intrinsics="exact").problem
     assert fk_select.jackknife_folds(p, [_view("a", k) for k in range(6)], None, never) is None
+
+
+def test_jackknife_applied_only_beyond_chance_with_the_robot_as_stated():
+    """With the robot kept at its stated accuracy a camera's factor scatters 0.4-1.7 when the per-pose
+    model is right (24 dof at 5 folds): below the one-sided 5 % point (about 1.6) the 1-sigma is left
+    as the graph gives it."""
+    assert fk_select.jackknife_applied(1.3, 5, False) == 1.0
+    assert fk_select.jackknife_applied(0.7, 5, False) == 1.0
+    assert fk_select.jackknife_applied(2.0, 5, False) == 2.0
+    rng = np.random.default_rng(0)  # honest folds: chi2(24)/24 applied in about 5 % of solves
+    f = rng.chisquare(24, 4000) / 24
+    assert 0.03 < np.mean([fk_select.jackknife_applied(x, 5, False) > 1 for x in f]) < 0.07
+    # the robot's prior widened: the model is known wrong, the folds' factor stands (at least 1)
+    assert fk_select.jackknife_applied(1.3, 5, True) == 1.3
+    assert fk_select.jackknife_applied(0.7, 5, True) == 1.0

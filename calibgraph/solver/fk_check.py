@@ -198,7 +198,7 @@ def fk_note(options, ratio: FkRatio | None, jackknife: dict | None = None) -> li
     """One line when the robot poses disagree with the stated FK accuracy and the prior was widened,
     or the folds' jackknife (``jackknife``: ``Estimate.jackknife``) widened the 1-sigma."""
     cv = ratio.cross_validation if ratio is not None else None
-    f = float((jackknife or {}).get("jackknife_variance_factor", 1.0))
+    f = float((jackknife or {}).get("jackknife_applied", 1.0))
     scatter = (f"the folds' camera poses scatter {f:.1f}x the variance the per-pose FK model gives (the arm's "
                f"error repeats from pose to pose): the pixel and FK noises x{np.sqrt(f):.2f}, each 1-sigma up to that")
     if ratio is None or not ratio.widens:

@@ -39,6 +39,7 @@ import numpy as np
 
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.solver.fk_check import widened
+from calibgraph.solver.noise_model import APPLY_Z
 
 FOLDS = 5
 # within this fraction of Helmert's held-out RMS the candidates predict alike and Helmert's split stands
@@ -133,6 +134,21 @@ def jackknife_folds(problem, views: list, est, resolve) -> list | None:
         return [resolve(problem, _held_out(views, fold), est) for fold in folds]
     except (ObservabilityError, RuntimeError, np.linalg.LinAlgError):
         return None
+
+
+def jackknife_applied(factor: float, folds: int, robot_widened: bool) -> float:
+    """The variance factor the 1-sigma takes. With the robot's FK prior widened (the FK check found its
+    errors beyond the per-pose model's), the model is known to be wrong and the folds' ``factor`` (at
+    least 1) is the best measure of how far. With the robot kept at its stated accuracy, only when the
+    folds' scatter exceeds the graph's covariance beyond chance (the FK check's one-sided test on its
+    log, with one camera's 6 (K-1) degrees of freedom: cameras share the robot, so their factors are not
+    independent), else 1: with the model right a camera's factor is 0.4-1.7 (correlated corner noise,
+    three cameras, three seeds), and a 1-sigma widened by chance would be blamed on the robot."""
+    if robot_widened:
+        return max(1.0, float(factor))
+    dof = 6.0 * (folds - 1)
+    z = np.log(max(factor, 1e-12)) / np.sqrt(2.0 / dof)
+    return float(factor) if z > APPLY_Z else 1.0
 
 
 def jackknife_factor(est, fold_est: list, cov_of) -> tuple:

@@ -21,7 +21,7 @@ from calibgraph.solver.claims import contradicted
 from calibgraph.solver.factors import intrinsics_vector
 from calibgraph.solver.fk_check import (FK_COMPONENT_STEPS, fk_variance_ratio, rescaled, robot_pose_marginals,
                                          settled_components, widened)
-from calibgraph.solver.fk_select import cross_validated_split, jackknife_factor, jackknife_folds
+from calibgraph.solver.fk_select import cross_validated_split, jackknife_applied, jackknife_factor, jackknife_folds
 from calibgraph.solver.graph import (
     Estimate,
     build_graph,
@@ -308,13 +308,15 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
             # the folds' camera poses scatter more than the graph's covariance says: the robot's error
             # repeats from pose to pose; every noise of the graph takes the missing variance factor
             f, per = jackknife_factor(est, fold_est, lambda n: marg.marginalCovariance(C(slots[n])))
-            jackknife = {"folds": len(fold_est), "jackknife_variance_factor": f, "jackknife_per_camera": per}
+            applied = jackknife_applied(f, len(fold_est), fk_ratio is not None and fk_ratio.widens)
+            jackknife = {"folds": len(fold_est), "jackknife_variance_factor": f, "jackknife_applied": applied,
+                         "jackknife_per_camera": per}
             if fk_ratio is not None:
                 fk_ratio = replace(fk_ratio, cross_validation={**(fk_ratio.cross_validation or {"folds": len(fold_est),
                                                                                                "chosen": None}),
                                                                **jackknife})
-            if f > 1.0:
-                s = float(np.sqrt(f))
+            if applied > 1.0:
+                s = float(np.sqrt(applied))
                 inflated = problem.with_(options=replace(problem.options,
                                                          fk_sigma_translation_m=problem.options.fk_sigma_translation_m * s,
                                                          fk_sigma_rotation_rad=problem.options.fk_sigma_rotation_rad * s))
