@@ -46,6 +46,7 @@ import numpy as np
 from calibgraph.core.transforms import pose_error
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.factors import fk_noise, pad_views, padded_view_residuals
+from calibgraph.solver.noise_model import VIEW_PRIOR_DOF
 from calibgraph.solver.robust import loss_weights
 
 MIN_GROUP_VIEWS = 2     # a side of a split needs this many views (one view is a single outlier, not a pose)
@@ -56,6 +57,8 @@ SELF_CONSISTENT = 2.0   # each side's scatter within this factor (RMS) of the po
 AT_NOISE = 2.0          # the two poses leave the camera's corners within this factor (RMS) of the solve's
                         # pixel sigma: a camera whose views do not fit even on their own (a wrong lens model,
                         # another target) has an error no cut in time explains
+VIEW_LEVEL_PASSES = 4   # fixed-point passes for a noisy view's own level (its corner sigma about its own pose)
+VIEW_LEVEL_Z = 3.0      # a view is noisy when its own fit's chi-square per dof is this many standard errors above 1
 LINEARISE_AGAIN = 1e-3  # re-linearise a camera when the views' mean is this far (rad, m) from T_lin
 
 
@@ -233,16 +236,38 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
     padded = pad_views(mine, est.board_scale)[:3]
     sigma_v = sigma_px * np.array([v.sigma_scale for v in mine])  # each view's own corner sigma
     for _ in range(3):
-        ok, zeta, info, rss, n_obs = _view_tangents(padded, T_lin, T_F, est, intr, sigma_v, A, d, problem.options)
+        T_at = T_lin
+        ok, Z, IN, rss, n_obs = _view_tangents(padded, T_lin, T_F, est, intr, sigma_v, A, d, problem.options)
         if ok.sum() < MIN_GROUP_VIEWS + 1:  # too few for any split
             return None
-        zeta, info = zeta[ok], info[ok]
+        zeta, info = Z[ok], IN[ok]
         mean = np.linalg.solve(info.sum(axis=0), np.einsum("nij,nj->i", info, zeta))
         if np.max(np.abs(mean)) < LINEARISE_AGAIN:
             break
         T_lin = (_pose(T_lin) * gtsam.Pose3.Expmap(mean)).matrix()  # the views' mean: linearise there
+    # A view whose corners scatter about its own best pose beyond chance at its camera's sigma (a blurred,
+    # edge-on or badly fitted board) is weighed at its own level: it says that much less on where the
+    # camera stands, however far off it is. A knock's pose error is fitted away in that own fit, so a
+    # knocked camera's views keep their weight. The level is shrunk towards the camera's as the final
+    # graph's view_noise is, and found as a fixed point (the corners are re-weighted against the view's
+    # own fit at the sigma tried); only those views are solved again.
+    t = np.ones(len(mine))
+    for _ in range(VIEW_LEVEL_PASSES):
+        red = np.maximum(n_obs - 6.0, 1.0)
+        level = (VIEW_PRIOR_DOF + rss) / (VIEW_PRIOR_DOF + red)
+        beyond = rss / red > 1.0 + VIEW_LEVEL_Z * np.sqrt(2.0 / red)
+        sel = ok & np.where(t > 1.0, np.abs(level - 1.0) > 0.05, beyond)
+        if not sel.any():
+            break
+        t[sel] = np.maximum(t[sel] * np.sqrt(level[sel]), 1.0)
+        i = np.flatnonzero(sel)
+        ok_i, Z[i], IN[i], rss[i], n_obs[i] = _view_tangents(tuple(a[i] for a in padded), T_at, T_F[i], est, intr,
+                                                             sigma_v[i] * t[i], A[i], d[i], problem.options)
+        ok[i] &= ok_i
+    if ok.sum() < MIN_GROUP_VIEWS + 1:
+        return None
     caps = np.array([v.capture for v in mine])[ok]
-    return ViewPoses(name, caps, zeta, info, np.asarray(T_lin), rss[ok].astype(float), n_obs[ok].astype(float))
+    return ViewPoses(name, caps, Z[ok], IN[ok], np.asarray(T_at), rss[ok].astype(float), n_obs[ok].astype(float))
 
 
 def _fits(L: np.ndarray, e: np.ndarray, sq: np.ndarray) -> tuple:
