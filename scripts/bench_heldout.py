@@ -12,6 +12,11 @@ is listed as skipped, with the reason):
   grid, a Kinect-class 640 x 480 camera) and ``test_set_charuco`` (eye-to-hand, 16 poses; the same
   files as ``../shared/datasets/rct_static_camera_charuco``), read by calibgraph's RCT reader with
   the intrinsics the files give (calibgraph's defaults decide how far it trusts them).
+* the MC-HEC recording (``../shared/datasets/mchec_medium_workcell``: four fixed cameras, a Franka arm
+  holding a 3 x 4-corner board, 251 captures; copied into the work folder): one record per camera.
+  calibgraph solves the four cameras jointly on each split's train captures (the split is of that
+  camera's captures; every camera's views of those captures are used) and is scored on that
+  camera's test views; the OpenCV methods calibrate that camera alone from its own train views.
 
 Protocol per set: the captures in index order; 5 random splits (``numpy.random.default_rng(seed)``,
 seeds 0-4, 2/3 train, 1/3 test) and odd/even (train on the odd positions and test on the even, and
@@ -55,6 +60,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -87,6 +93,7 @@ RWHE = {  # name -> (folder, rows, cols, pitch_m)
     "kuka_3": ("kuka_3", 8, 11, 0.060),  # 9 x 12 squares, ArUco markers in the white ones (not 7 x 8)
 }
 IC = {"ic_10x10": "test_set_10x10", "ic_charuco": "test_set_charuco"}
+SHARED = {"mchec": "mchec_medium_workcell"}  # multi-camera sets in ../shared/datasets: one record per camera
 SEEDS = (0, 1, 2, 3, 4)
 METHODS = ("calibgraph",) + CV_METHODS
 
@@ -153,6 +160,13 @@ def prepare(name: str, args, work: Path):
         why = extract(args.rwhe, f"Datasets/{folder}", raw)
         return (None, why) if why else (rwhe_dataset(raw, work / "sets" / name, rows, cols, pitch), "")
     dest = work / "sets" / name
+    if name in SHARED:
+        src = REPO.parent / "shared" / "datasets" / SHARED[name]
+        if not src.exists():
+            return None, f"{src} is not here"
+        if not dest.exists():  # a copy: the solve may write its detection cache beside the dataset
+            shutil.copytree(src, dest)
+        return dest, ""
     why = extract(args.ic, f"examples/data/{IC[name]}", dest)
     return (None, why) if why else (dest, "")
 
@@ -327,7 +341,6 @@ def opencv_sb(ds):
 
 
 def run_set(name: str, folder: Path, py: str | None) -> dict:
-    t0 = time.time()
     ds = load_dataset(folder)
     detection = "calibgraph's dataset detection (as `calibgraph solve` runs it)"
     try:
@@ -345,6 +358,49 @@ def run_set(name: str, folder: Path, py: str | None) -> dict:
             detection = (f"OpenCV's findChessboardCornersSB (calibgraph refuses the set: {str(e).splitlines()[0]}; its "
                          f"image detector alone finds {found} of {len(ds.captures)} boards), the same corners for "
                          f"every method")
+    return evaluate(name, problem, py, lambda train: fit_calibgraph(problem, train), detection, ds)
+
+
+def run_multicam(name: str, folder: Path, py: str | None) -> list:
+    """One record per camera of a multi-camera set: calibgraph solves all cameras jointly on each
+    split's train captures (every camera's views of them) and is scored on that camera's test
+    views; the OpenCV methods calibrate that camera alone from its own train views."""
+    ds = load_dataset(folder)
+    problem, _ = build_problem(ds, "joint", SolverOptions(), progress=False)
+    joint = {}
+
+    def fit(cam, train):
+        key = frozenset(train)
+        if key not in joint:
+            try:
+                joint[key] = solve(subset(problem, train))
+            except CalibgraphError as e:
+                joint[key] = e
+        r = joint[key]
+        if isinstance(r, CalibgraphError):
+            raise r
+        c = r.cameras[cam]
+        if not c.calibrated:
+            raise CalibgraphError(f"not calibrated: {c.why}")
+        return {"X": c.T_ref_cam, "mount": r.T_mount_board, "intr": c.solved_intrinsics, "scale": r.board_scale,
+                "cov": c.covariance, "rms_fit_px": c.reprojection_rms_px, "fk_noise": r.fk_noise,
+                "prediction": c.prediction, "notes": [x for x in r.notes if not x.startswith("camera ") or
+                                                      x.startswith(f"camera {cam}:")]}
+
+    out = []
+    for cam in problem.cameras:
+        own = problem.with_(cameras={cam: problem.cameras[cam]},
+                            detections=tuple(d for d in problem.detections if d.camera == cam))
+        detection = ("calibgraph's dataset detection (as `calibgraph solve` runs it); calibgraph solves the four cameras "
+                     "jointly on each split's train captures, the OpenCV methods this camera alone")
+        out.append(evaluate(f"{name} {cam}", own, py, lambda train, cam=cam: fit(cam, train), detection, ds))
+    return out
+
+
+def evaluate(name: str, problem, py: str | None, fit, detection: str, ds) -> dict:
+    """The bench on one camera's detections (``problem``: that camera's); ``fit(train)`` gives
+    calibgraph's model (:func:`fit_calibgraph`'s keys) or raises CalibgraphError."""
+    t0 = time.time()
     detected = sorted({d.capture for d in problem.detections})
     problem = subset(problem, set(detected))
     n = len(detected)
@@ -359,7 +415,7 @@ def run_set(name: str, folder: Path, py: str | None) -> dict:
     cg = []
     for train, test, label in splits:
         try:
-            cg.append(fit_calibgraph(problem, train))
+            cg.append(fit(train))
         except CalibgraphError as e:
             cg.append({"error": str(e).splitlines()[0]})
     cv_models, version = opencv_models(py, problem, [(tr, te) for tr, te, _ in splits]) if py else ([{}] * len(splits), "")
@@ -377,7 +433,7 @@ def run_set(name: str, folder: Path, py: str | None) -> dict:
         out["splits"].append(row)
         print(f"[{name}] {label}: " + ", ".join(f"{k} {v['rms_px']:.2f}" for k, v in row["scores"].items()), flush=True)
     # the all-capture fit: floor, expected error, cross-method differences
-    full = fit_calibgraph(problem, set(detected))
+    full = fit(set(detected))
     out["fit_all"] = {"rms_px_predicted_same_captures": score(full, problem, set(detected)),
                       "prediction": full["prediction"], "fk_noise": full["fk_noise"], "notes": full["notes"],
                       "sigma": np.sqrt(np.diag(full["cov"])).tolist()}
@@ -515,7 +571,7 @@ def markdown(results: list, meta: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--sets", default="kuka_1,kuka_2,kuka_3,ic_10x10,ic_charuco")
+    ap.add_argument("--sets", default="kuka_1,kuka_2,kuka_3,ic_10x10,ic_charuco,mchec")
     ap.add_argument("--out", type=Path, default=REPO / "scripts" / "results")
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_heldout"), help="extracted sets and the OpenCV venv")
     ap.add_argument("--rwhe", type=Path, default=MIRROR / "ihtishamaliktk+RWHE-Calib" / "repo")
@@ -534,7 +590,10 @@ def main(argv=None) -> int:
             results.append({"set": name, "skipped": skip})
             continue
         try:
-            results.append(run_set(name, folder, py))
+            if name in SHARED:
+                results += run_multicam(name, folder, py)
+            else:
+                results.append(run_set(name, folder, py))
         except CalibgraphError as e:  # e.g. calibgraph's detector refuses the set: said, not hidden
             results.append({"set": name, "skipped": f"calibgraph refused the set: {str(e).splitlines()[0]}"})
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
