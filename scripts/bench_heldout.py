@@ -216,12 +216,17 @@ def subset(problem, keep: set):
 
 def fit_calibgraph(problem, train: set) -> dict:
     r = solve(subset(problem, train))
-    cam = next(iter(r.cameras.values()))
+    return camera_model(r, next(iter(r.cameras)), list(r.notes))
+
+
+def camera_model(r, name: str, notes: list) -> dict:
+    """Camera ``name`` of result ``r`` as the bench uses it; CalibgraphError when it is not calibrated."""
+    cam = r.cameras[name]
     if not cam.calibrated:
         raise CalibgraphError(f"not calibrated: {cam.why}")
     return {"X": cam.T_ref_cam, "mount": r.T_mount_board, "intr": cam.solved_intrinsics, "scale": r.board_scale,
             "cov": cam.covariance, "rms_fit_px": cam.reprojection_rms_px, "fk_noise": r.fk_noise,
-            "prediction": cam.prediction, "notes": list(r.notes)}
+            "prediction": cam.prediction, "notes": notes}
 
 
 def opencv_inputs(problem, train: set) -> tuple:
@@ -379,13 +384,7 @@ def run_multicam(name: str, folder: Path, py: str | None) -> list:
         r = joint[key]
         if isinstance(r, CalibgraphError):
             raise r
-        c = r.cameras[cam]
-        if not c.calibrated:
-            raise CalibgraphError(f"not calibrated: {c.why}")
-        return {"X": c.T_ref_cam, "mount": r.T_mount_board, "intr": c.solved_intrinsics, "scale": r.board_scale,
-                "cov": c.covariance, "rms_fit_px": c.reprojection_rms_px, "fk_noise": r.fk_noise,
-                "prediction": c.prediction, "notes": [x for x in r.notes if not x.startswith("camera ") or
-                                                      x.startswith(f"camera {cam}:")]}
+        return camera_model(r, cam, [x for x in r.notes if not x.startswith("camera ") or x.startswith(f"camera {cam}:")])
 
     out = []
     for cam in problem.cameras:

@@ -46,7 +46,7 @@ import numpy as np
 from calibgraph.core.transforms import pose_error
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.factors import fk_noise, pad_views, padded_view_residuals
-from calibgraph.solver.noise_model import VIEW_PRIOR_DOF
+from calibgraph.solver.noise_model import shrunk_level
 from calibgraph.solver.robust import loss_weights
 
 MIN_GROUP_VIEWS = 2     # a side of a split needs this many views (one view is a single outlier, not a pose)
@@ -254,7 +254,7 @@ def view_poses(problem, name: str, views: list, est, T_lin, sigma_px: float, per
     t = np.ones(len(mine))
     for _ in range(VIEW_LEVEL_PASSES):
         red = np.maximum(n_obs - 6.0, 1.0)
-        level = (VIEW_PRIOR_DOF + rss) / (VIEW_PRIOR_DOF + red)
+        level = shrunk_level(rss, red)
         beyond = rss / red > 1.0 + VIEW_LEVEL_Z * np.sqrt(2.0 / red)
         sel = ok & np.where(t > 1.0, np.abs(level - 1.0) > 0.05, beyond)
         if not sel.any():

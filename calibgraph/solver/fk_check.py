@@ -33,7 +33,7 @@ from calibgraph.core.problem import Problem
 from calibgraph.solver.keys import F
 from calibgraph.solver.linearise import Linearised, linearise
 from calibgraph.solver.reduced import linearise_graph
-from calibgraph.solver.noise_model import APPLY_Z, MODE_MIN_CORNERS, NOTE_Z, view_mode_basis
+from calibgraph.solver.noise_model import APPLY_Z, MODE_MIN_CORNERS, NOTE_Z, log_ratio_z, view_mode_basis
 
 # A component with less redundancy than this takes the pooled factor; Helmert steps after the first.
 MIN_COMPONENT_DOF = 2.0
@@ -55,7 +55,7 @@ class FkComponent:
     @classmethod
     def of(cls, energy: float, red: float) -> "FkComponent":
         ratio = energy / red
-        z = np.log(max(ratio, 1e-12)) / np.sqrt(2.0 / red)
+        z = log_ratio_z(ratio, red)
         return cls(float(ratio), float(ratio) if z > APPLY_Z else 1.0, float(red), bool(z > NOTE_Z))
 
     def to_dict(self) -> dict:

@@ -39,7 +39,7 @@ import numpy as np
 
 from calibgraph.core.errors import ObservabilityError
 from calibgraph.solver.fk_check import widened
-from calibgraph.solver.noise_model import APPLY_Z
+from calibgraph.solver.noise_model import APPLY_Z, log_ratio_z
 
 FOLDS = 5
 # within this fraction of Helmert's held-out RMS the candidates predict alike and Helmert's split stands
@@ -65,6 +65,10 @@ def _folds(views: list, min_views: int) -> list | None:
     return folds
 
 
+def _min_views(problem) -> int:
+    return max(MIN_VIEWS_LEFT, int(problem.options.min_views_per_camera))
+
+
 def _held_out(views: list, fold: set) -> list:
     return [replace(v, active=False, reason="held out (FK split cross-validation)") if v.capture in fold and v.active
             else v for v in views]
@@ -80,7 +84,7 @@ def cross_validated_split(problem, stated_opts, ratio, views: list, est, resolve
     at ``ratio``; ``resolve(problem, views, est) -> Estimate`` solves a graph from ``est``."""
     if not (ratio.rotation.applied > 1.0 and ratio.translation.applied > 1.0):
         return ratio, None
-    folds = _folds(views, max(MIN_VIEWS_LEFT, int(problem.options.min_views_per_camera)))
+    folds = _folds(views, _min_views(problem))
     if folds is None:
         return ratio, None
     candidates = {
@@ -127,7 +131,7 @@ def jackknife_folds(problem, views: list, est, resolve) -> list | None:
     or the robot judged as stated once the corners' correlated noise was weighted): the per-pose
     model's covariance is then as much in question as when both widen. None when the folds cannot
     be made or a fold cannot be solved."""
-    folds = _folds(views, max(MIN_VIEWS_LEFT, int(problem.options.min_views_per_camera)))
+    folds = _folds(views, _min_views(problem))
     if folds is None:
         return None
     try:
@@ -146,9 +150,7 @@ def jackknife_applied(factor: float, folds: int, robot_widened: bool) -> float:
     three cameras, three seeds), and a 1-sigma widened by chance would be blamed on the robot."""
     if robot_widened:
         return max(1.0, float(factor))
-    dof = 6.0 * (folds - 1)
-    z = np.log(max(factor, 1e-12)) / np.sqrt(2.0 / dof)
-    return float(factor) if z > APPLY_Z else 1.0
+    return float(factor) if log_ratio_z(factor, 6.0 * (folds - 1)) > APPLY_Z else 1.0
 
 
 def jackknife_factor(est, fold_est: list, cov_of) -> tuple:

@@ -31,6 +31,12 @@ APPLY_Z = 1.645
 NOTE_Z = 3.09
 
 
+def log_ratio_z(ratio: float, *dofs: float) -> float:
+    """The one-sided test statistic of a variance ratio: log(ratio) over its sd, sqrt(sum 2 / dof) for
+    the degrees of freedom of the variances compared (one when the other is the model's own)."""
+    return float(np.log(max(ratio, 1e-12)) / np.sqrt(sum(2.0 / d for d in dofs)))
+
+
 @dataclass(frozen=True)
 class ModeRatio:
     """Low-order to remaining residual variance of one camera's views.
@@ -100,7 +106,7 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
         if n_views < 5 or rest <= 0 or r_low < 1.0 or r_rest < 1.0:
             continue  # fewer than 5 views: too little to estimate a variance factor from
         ratio = (low / r_low) / (rest / r_rest)
-        z = np.log(max(ratio, 1e-12)) / np.sqrt(2.0 / r_low + 2.0 / r_rest)
+        z = log_ratio_z(ratio, r_low, r_rest)
         out[cam] = ModeRatio(float(ratio), float(ratio) if z > APPLY_Z else 1.0, int(round(r_low)),
                              int(round(r_rest)), bool(z > NOTE_Z), float(low_px2))
     return out
@@ -143,6 +149,13 @@ CAMERA_SIGMA_MIN_CORNERS = 40
 # kept within this range of it (beyond, the robust weights and view rejection take over).
 VIEW_PRIOR_DOF = 20
 VIEW_NOISE_RANGE = (1 / 3, 3.0)
+
+
+def shrunk_level(sum_sq, dof):
+    """A view's variance level from ``sum_sq`` (its squared residuals in units of its camera's level)
+    over ``dof`` residuals, shrunk towards 1 as if the camera's level had VIEW_PRIOR_DOF of its own
+    (numbers or arrays)."""
+    return (VIEW_PRIOR_DOF + sum_sq) / (VIEW_PRIOR_DOF + dof)
 
 
 def _high_order(v, r) -> tuple[float, int]:
@@ -277,8 +290,7 @@ def camera_noise_scales(views: list, residuals: list, per_view: bool = True) -> 
         t = 1.0
         if per_view and pn > 0 and level[v.camera] > 0:
             ratio = pe / pn / level[v.camera]
-            t = min(max(math.sqrt((VIEW_PRIOR_DOF + pn * ratio) / (VIEW_PRIOR_DOF + pn)), VIEW_NOISE_RANGE[0]),
-                    VIEW_NOISE_RANGE[1])
+            t = min(max(math.sqrt(shrunk_level(pn * ratio, pn)), VIEW_NOISE_RANGE[0]), VIEW_NOISE_RANGE[1])
         change = max(change, abs(scales[v.camera] / v.noise_scale - 1.0))
         change_view = max(change_view, abs(t / v.view_noise - 1.0))
         out.append(v if (v.noise_scale, v.view_noise) == (scales[v.camera], t)

@@ -269,12 +269,14 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
         if redo is not None:
             problem, est, fk_ratio, mode_ratios, factors, it = redo
             iterations += it
+
+    def fold_solve(p, vs, e):  # a fold of the FK split's cross-validation or of the jackknife
+        return _resolve(p, vs, slots, e, sigma, form, factors or None, None)[0]
+
     if fk_ratio is not None and fk_ratio.widens and form == "view":
         # rotation, translation or both: the split that predicts held-out captures from the reported FK
         with timed(timings, "fk_split"):
-            chosen, fold_est = cross_validated_split(
-                problem, opts, fk_ratio, views, est,
-                lambda p, vs, e: _resolve(p, vs, slots, e, sigma, form, factors or None, None)[0])
+            chosen, fold_est = cross_validated_split(problem, opts, fk_ratio, views, est, fold_solve)
         if fold_est is not None and chosen.cross_validation["chosen"] != "both":
             problem = problem.with_(options=widened(opts, chosen))
             est, run, _ = _resolve(problem, views, slots, est, sigma, form, factors or None, timings)
@@ -285,8 +287,7 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
         # the robot departed but its split was not cross-validated (one component widened, or the corners'
         # correlated noise explained the departure): the folds still say whether the 1-sigma holds
         with timed(timings, "fk_jackknife"):
-            fold_est = jackknife_folds(problem, views, est,
-                                       lambda p, vs, e: _resolve(p, vs, slots, e, sigma, form, factors or None, None)[0])
+            fold_est = jackknife_folds(problem, views, est, fold_solve)
     if opts.pixel_sigma_px:
         sigma_post = opts.pixel_sigma_px
     else:

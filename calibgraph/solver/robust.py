@@ -174,7 +174,8 @@ def robust_rounds(problem: Problem, views: list, slots: dict, est: Estimate, for
             # the set of views came back to one it had: a view on the 50 % cut is set aside with the
             # estimate that fits it worse and re-admitted with the other, round after round. Such a
             # view is left out (its fit is borderline either way) and the rest solved once more.
-            flippers = set().union(*seen[seen.index(now):]) - set.intersection(*map(set, seen[seen.index(now):]))
+            cycle = seen[seen.index(now):]
+            flippers = set().union(*cycle) - set.intersection(*map(set, cycle))
             views = [replace(v, active=False, reason="on the cut: set aside and re-admitted in turn from round to "
                                                      "round (more than half its corners beyond "
                                                      f"{problem.options.outlier_sigmas:g} sigma with it in)")
