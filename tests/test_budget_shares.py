@@ -55,6 +55,27 @@ def solved(request):
     return request.param, sc, solve(sc.problem)
 
 
+def test_covariance_by_noise_source_sums_to_the_pose_covariance(solved):
+    """Each noise source's part of a camera's 6x6 covariance, in the result's axes: the parts sum to
+    ``covariance``, their translation traces are ``shares_by_noise_source``, and each is a covariance
+    (symmetric, positive semi-definite)."""
+    cell, sc, r = solved
+    for n, c in r.cameras.items():
+        b = c.error_budget
+        parts = {src: np.asarray(v) for src, v in b["covariance_by_noise_source"].items()}
+        assert set(parts) == set(b["shares_by_noise_source"]), b
+        total = sum(parts.values())
+        assert np.allclose(total, c.covariance, rtol=1e-6, atol=1e-6 * np.abs(c.covariance).max()), (cell, n)
+        tr = np.trace(c.covariance[3:, 3:])
+        for src, P in parts.items():
+            assert np.allclose(P, P.T, atol=1e-9 * np.abs(c.covariance).max())
+            assert np.linalg.eigvalsh(P).min() >= -1e-9 * np.abs(c.covariance).max(), (cell, n, src)
+            assert np.trace(P[3:, 3:]) / tr == pytest.approx(b["shares_by_noise_source"][src], abs=1e-6)
+    # the demo's factory-class intrinsics carry part of every camera's noise, shared by any recapture
+    assert all(np.trace(np.asarray(c.error_budget["covariance_by_noise_source"]["intrinsics"])[3:, 3:]) > 0
+               for c in r.cameras.values())
+
+
 def test_shares_bound_the_advice_and_a_resolve_with_the_intrinsics_known(solved):
     cell, sc, r = solved
     for n, c in r.cameras.items():

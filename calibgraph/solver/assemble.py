@@ -3,6 +3,8 @@ covariance in reference axes, residuals, camera pairs, the board mount, the robo
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from calibgraph.core.errors import CalibgraphError, ObservabilityError
@@ -55,6 +57,7 @@ def error_budgets(problem: Problem, group: Group, lin: Linear) -> dict:
     out, doubled = {}, doubled_information(lin)
     doubled_cov = np.linalg.inv(doubled)  # one inverse for every camera's "twice the poses"
     for n, b in budgets(lin, keys).items():
+        b = replace(b, cov_by_noise={src: to_ref_axes(est.T_ref_cam[n], c) for src, c in b.cov_by_noise.items()})
         sigma_n = camera_pixel_sigma(group, n)
         size = intrinsics_size(problem, n, est) if keys[n][1] is not None else 6
         session = _session_information(problem, est, n, sigma_n, size)

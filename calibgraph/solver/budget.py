@@ -24,12 +24,18 @@ adds ``Sigma J_s^T J_s Sigma`` to the covariance, and these parts sum to ``Sigma
 where the scatter comes from, not what removing a source would save: a tight intrinsics prior carries
 little of the noise even when the views leave the focal length, and so the pose, loosely known.
 
+``covariance_by_noise_source`` (source -> 6x6, rotation first, the camera pose's reference axes like
+its ``covariance``; they sum to it): the same split of the whole pose covariance. The corners' and the
+robot's parts are redrawn by every new set of captures; the intrinsics' and the board's (their priors'
+errors) are shared by every solve with those priors, however many captures: a cross-validation's
+split-to-split scatter can show only the first two (scripts/bench_heldout.py).
+
 Both are computed on the graph reduced to its global variables (:mod:`calibgraph.solver.reduced`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -56,11 +62,15 @@ class Budget:
     shares: dict
     own_intrinsics: float
     by_noise: dict
+    # source -> (6, 6) its part of the pose covariance (GTSAM's body frame here; reference axes once
+    # the caller has turned them, as ``covariance_by_noise_source``)
+    cov_by_noise: dict = field(default_factory=dict)
 
     def to_dict(self, advice: str = "") -> dict:
         return {"sigma_translation_norm_mm": self.sigma_mm, "shares": dict(self.shares),
                 "own_intrinsics_share": self.own_intrinsics, "shares_by_noise_source": dict(self.by_noise),
-                "share_labels": dict(SHARE_LABELS), "advice": advice}
+                "share_labels": dict(SHARE_LABELS), "advice": advice,
+                "covariance_by_noise_source": {src: np.asarray(c).tolist() for src, c in self.cov_by_noise.items()}}
 
 
 def _translation_variances(L: Linear, S: np.ndarray, keys: list) -> np.ndarray:
@@ -88,12 +98,12 @@ def budgets(L: Linear, cameras: dict) -> dict:
     factors; each "known exactly" share from the reduced information with that source's multiplied
     by :data:`KNOWN_EXACTLY`."""
     names = list(cameras)
-    X = columns(L, L.S, [(cameras[n][0], TRANSLATION) for n in names])
-    m = 3 * len(names)
-    parts = {src: np.zeros(m) for src in SOURCES}
+    X = columns(L, L.S, [(cameras[n][0], slice(0, 6)) for n in names])
+    m = 6 * len(names)
+    parts = {src: np.zeros((m, m)) for src in SOURCES}  # each source's part of the poses' joint covariance
     for src, keys, blocks in L.factors:
         JX = sum(blocks[k] @ X[k] for k in keys)
-        parts[src] += np.sum(JX * JX, axis=0)
+        parts[src] += JX.T @ JX
     cam_keys = [cameras[n][0] for n in names]
     total = _translation_variances(L, L.S, cam_keys)
     present = {src for src, _, _ in L.factors}
@@ -101,14 +111,15 @@ def budgets(L: Linear, cameras: dict) -> dict:
                    else total) for src in SOURCES}
     out = {}
     for i, n in enumerate(names):
-        sl, v = slice(3 * i, 3 * i + 3), total[i]
+        pose, v = slice(6 * i, 6 * i + 6), total[i]
+        cov = {src: p[pose, pose] for src, p in parts.items()}
 
         def gone(rest: float) -> float:
             return float(min(max(1.0 - rest / v, 0.0), 1.0)) if v > 0 else 0.0
-        by_noise = {src: (float(p[sl].sum()) / v if v > 0 else 0.0) for src, p in parts.items()}
+        by_noise = {src: (float(np.trace(c[TRANSLATION, TRANSLATION])) / v if v > 0 else 0.0) for src, c in cov.items()}
         own_key = cameras[n][1]
         own = gone(conditioned_variance(L, cam_keys[i], [own_key])) if own_key is not None and own_key in L.index else 0.0
-        out[n] = Budget(1e3 * np.sqrt(max(v, 0.0)), {src: gone(known[src][i]) for src in SOURCES}, own, by_noise)
+        out[n] = Budget(1e3 * np.sqrt(max(v, 0.0)), {src: gone(known[src][i]) for src in SOURCES}, own, by_noise, cov)
     return out
 
 
