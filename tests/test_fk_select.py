@@ -162,6 +162,21 @@ def test_jackknife_note_and_record_with_the_robot_kept_as_stated():
     assert "translation 3.0x" in line and "rotation within" in line and "held-out" not in line and "x2.00" in line
 
 
+def test_robot_note_offers_joint_offsets_only_where_the_captures_have_joint_angles():
+    """The note's remedy for an arm less accurate than stated: --estimate-kinematics joint-offsets where
+    the captures record joint angles; where they do not (RWHE-Calib's sets, poses only) it says the
+    angles are needed; with the offsets estimated already it does not offer them again."""
+    comp = FkComponent(ratio=9.0, applied=9.0, dof=20.0, significant=True)
+    ratio = FkRatio(9.0, 40.0, True, rotation=comp, translation=comp)
+    (with_q,) = fk_note(SolverOptions(), ratio, None, joint_angles=True)
+    (without_q,) = fk_note(SolverOptions(), ratio, None, joint_angles=False)
+    (estimated,) = fk_note(SolverOptions(kinematics="joint-offsets"), ratio, None, joint_angles=True)
+    assert "--estimate-kinematics joint-offsets" in with_q and "q_rad" not in with_q
+    assert "needs the joint angles (q_rad)" in without_q
+    assert "estimated already" in estimated
+    assert all("--fk-sigma-mm" in n for n in (with_q, without_q, estimated))
+
+
 def test_jackknife_folds_not_made_with_too_few_captures():
     def never(*a):
         raise AssertionError("no fold may be solved")

@@ -194,9 +194,23 @@ def widened(options, ratio: FkRatio):
                    fk_sigma_rotation_rad=options.fk_sigma_rotation_rad * float(np.sqrt(ratio.rotation.applied)))
 
 
-def fk_note(options, ratio: FkRatio | None, jackknife: dict | None = None) -> list:
+def _remedy(options, joint_angles: bool) -> str:
+    """What a user can do about an arm less accurate than stated: state its accuracy, and for joint
+    zero offsets estimate them where the captures record joint angles (or say they must)."""
+    if getattr(options, "kinematics", "none") == "joint-offsets":
+        offsets = "joint zero offsets are estimated already: the rest is not one the arm's zero offsets explain"
+    elif joint_angles:
+        offsets = "joint zero offsets: --estimate-kinematics joint-offsets"
+    else:
+        offsets = ("joint zero offsets: --estimate-kinematics joint-offsets, which needs the joint angles "
+                   "(q_rad) recorded with each capture; these captures have none")
+    return f"state the arm's accuracy with --fk-sigma-mm/--fk-sigma-deg; {offsets}"
+
+
+def fk_note(options, ratio: FkRatio | None, jackknife: dict | None = None, joint_angles: bool = True) -> list:
     """One line when the robot poses disagree with the stated FK accuracy and the prior was widened,
-    or the folds' jackknife (``jackknife``: ``Estimate.jackknife``) widened the 1-sigma."""
+    or the folds' jackknife (``jackknife``: ``Estimate.jackknife``) widened the 1-sigma.
+    ``joint_angles``: every capture records its joint angles (the joint-offset remedy is open)."""
     cv = ratio.cross_validation if ratio is not None else None
     f = float((jackknife or {}).get("jackknife_applied", 1.0))
     scatter = (f"the folds' camera poses scatter {f:.1f}x the variance the per-pose FK model gives (the arm's "
@@ -205,9 +219,8 @@ def fk_note(options, ratio: FkRatio | None, jackknife: dict | None = None) -> li
         if f <= 1.0:
             return []
         return [f"robot: the fitted flange poses departed from forward kinematics until the corners' correlated "
-                f"noise was weighted, and the robot is kept at its stated accuracy; but {scatter} (state the "
-                f"arm's accuracy with --fk-sigma-mm/--fk-sigma-deg; joint zero offsets: --estimate-kinematics "
-                f"joint-offsets)"]
+                f"noise was weighted, and the robot is kept at its stated accuracy; but {scatter} "
+                f"({_remedy(options, joint_angles)})"]
     o = options
     parts = []
     for c, what, stated, unit in ((ratio.translation, "translation", 1e3 * o.fk_sigma_translation_m, "mm"),
@@ -230,8 +243,7 @@ def fk_note(options, ratio: FkRatio | None, jackknife: dict | None = None) -> li
     if f > 1.0:
         parts.append(scatter)
     return [f"robot: the fitted flange poses depart from forward kinematics further than the stated FK accuracy "
-            f"allows ({'; '.join(parts)}); the 1-sigma is widened for it (state the arm's accuracy with "
-            f"--fk-sigma-mm/--fk-sigma-deg; joint zero offsets: --estimate-kinematics joint-offsets)"]
+            f"allows ({'; '.join(parts)}); the 1-sigma is widened for it ({_remedy(options, joint_angles)})"]
 
 
 def fk_record(options, ratio: FkRatio | None, jackknife: dict | None) -> dict | None:
