@@ -154,6 +154,34 @@ def test_cli_report(tmp_path):
     assert main(["report", str(tmp_path / "missing.json")]) == 2
 
 
+def test_result_commands_take_the_dataset_folder_solve_wrote_into(tmp_path, capsys):
+    """``calibgraph solve DATASET`` writes DATASET/result.json: report, view and export given the folder
+    read that file (the report lands beside it); a folder with no result is one line and exit 2."""
+    from calibgraph.cli.main import main
+
+    d, *_ = make_sim_result()
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    d.save(ds / "result.json")
+    assert main(["report", str(ds)]) == 0
+    assert (ds / "report.html").stat().st_size > 10000 and not (tmp_path / "report.html").exists()
+    assert main(["export", str(ds), "--format", "yaml", "--out", str(tmp_path / "exp")]) == 0
+    assert (tmp_path / "exp" / "result.yaml").is_file()
+    try:
+        import rerun  # noqa: F401 - view writes a rerun recording
+    except ImportError:
+        pass
+    else:
+        assert main(["view", str(ds), "--rrd", str(tmp_path / "v.rrd")]) == 0 and (tmp_path / "v.rrd").is_file()
+    capsys.readouterr()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["report", str(empty)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no result.json or result.yaml" in err[0] and f"calibgraph solve {empty}" in err[0]
+    assert list(empty.iterdir()) == []
+
+
 # -- real browser --------------------------------------------------------------------------------------
 def test_report_renders_in_headless_chromium(tmp_path):
     d, *_ = make_sim_result()

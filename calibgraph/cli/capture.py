@@ -240,7 +240,7 @@ def _verify(args, log) -> int:
     from calibgraph.core.errors import InputError
     from calibgraph.io.files import read_input_bytes
     from calibgraph.sim.planning_world import planning_world
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.result import load_result, result_path
     from calibgraph.solver.verify import DEFAULT_ALPHA, stored_model
 
     if args.result is None:
@@ -249,6 +249,7 @@ def _verify(args, log) -> int:
         raise InputError("capture --verify plans its own poses from --result; drop --trajectory.")
     if args.verify_poses < 1:
         raise InputError(f"capture --verify: --verify-poses must be >= 1, got {args.verify_poses}.")
+    args.result = result_path(args.result)  # the stored calibration's dataset folder: its result.json
     result_sha = hashlib.sha256(read_input_bytes(args.result, "result")).hexdigest()  # a pipe is refused, not read
     stored = load_result(args.result)
     model = stored_model(stored, str(args.result))

@@ -19,8 +19,9 @@ def add_parser(sub):
                                       "camera_info, YAML)",
                        description="Export camera poses (and intrinsics when known) in standard formats. "
                                    "Frames and units are stated in every file.")
-    p.add_argument("result", type=Path, help="result.json or result.yaml written by `calibgraph solve` "
-                                              "(a dataset folder for --format mchec)")
+    p.add_argument("result", type=Path, help="result.json or result.yaml written by `calibgraph solve` (or the "
+                                              "dataset folder it wrote result.json into; a dataset folder for --format "
+                                              "mchec)")
     p.add_argument("--format", dest="fmt", choices=tuple(FORMATS) + ("mchec",), required=True, action="append",
                    help="output format; repeat for several (robot: the corrected arm URDF and joint_offsets.yaml of a "
                         "result solved with --estimate-kinematics; urdf writes them too)")
@@ -49,7 +50,7 @@ def _planned(result, args) -> list:
 def run(args) -> int:
     from calibgraph.io.output_guard import check_output_file, check_output_folder, keep_previous
     from calibgraph.report.exports import export, renamed
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.result import load_result, result_path
 
     if "mchec" in args.fmt:
         from calibgraph.core.errors import InputError
@@ -63,6 +64,7 @@ def run(args) -> int:
         export_mchec(args.result, args.out)
         print(f"wrote {args.out} (Multi-Camera-Hand-Eye-Calibration layout)")
         return 0
+    args.result = result_path(args.result)  # a dataset folder: the result.json solve wrote into it
     result = load_result(args.result)
     check_output_folder(args.out, "export folder")  # never a dataset or inside one
     planned = _planned(result, args)

@@ -10,7 +10,8 @@ def add_parser(sub):
                        description="Per-camera poses with 1-sigma, reprojection errors, views used and rejected, "
                                    "pass/fail against tolerances, residual plots, image coverage, workspace "
                                    "uncertainty maps and provenance, in one HTML file.")
-    p.add_argument("result", type=Path, help="result.json or result.yaml written by `calibgraph solve`")
+    p.add_argument("result", type=Path, help="result.json or result.yaml written by `calibgraph solve` (or the dataset "
+                                             "folder it wrote result.json into)")
     p.add_argument("--out", type=Path, default=None, help="output HTML (default: report.html beside RESULT)")
     p.add_argument("--config", type=Path, default=None,
                    help="tolerances YAML (default: datasets/tolerances/default.yaml)")
@@ -26,8 +27,9 @@ def run(args) -> int:
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file
     from calibgraph.report.html import dataset_mismatch, report_verdicts, write_report
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.result import load_result, result_path
 
+    args.result = result_path(args.result)  # a dataset folder: the result.json solve wrote into it
     result = load_result(args.result)
     # the report may go into the top folder of the result's own dataset (the one it names or sits in)
     out = check_output_file(args.out or args.result.with_name("report.html"), "report", "report file", "report.html",

@@ -61,9 +61,10 @@ def run(args) -> int:
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file
     from calibgraph.solver.build import build_problem
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.result import load_result, result_path
     from calibgraph.solver.verify import DEFAULT_ALPHA, check_fresh_data, verify
 
+    args.result = result_path(args.result)  # the stored calibration's dataset folder: its result.json
     stored = load_result(args.result)
     dataset = load_dataset(args.dataset)
     if not dataset.captures:

@@ -11,7 +11,8 @@ def add_parser(sub):
     p = sub.add_parser("view", help="show the calibration in the rerun viewer (or save a .rrd)",
                        description="Robot base, flange and board poses, camera frustums with their images, detected "
                                    "vs reprojected corners, residuals per capture, outliers highlighted.")
-    p.add_argument("result", type=Path, help="result.json or result.yaml")
+    p.add_argument("result", type=Path,
+                   help="result.json or result.yaml (or the dataset folder `calibgraph solve` wrote result.json into)")
     p.add_argument("--dataset", type=Path, default=None,
                    help="dataset folder: images, detections and recorded flange poses "
                         "(default: the dataset named in RESULT, if it exists)")
@@ -23,8 +24,9 @@ def add_parser(sub):
 def run(args) -> int:
     from calibgraph.io.output_guard import check_output_file
     from calibgraph.report.rerun_view import rerun_cli, write_rrd
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.result import load_result, result_path
 
+    args.result = result_path(args.result)  # a dataset folder: the result.json solve wrote into it
     result = load_result(args.result)
     dataset = args.dataset
     if dataset is None and result.dataset and Path(result.dataset).is_dir():

@@ -446,6 +446,23 @@ def as_result(result, where: str = "result") -> Result:
     raise InputError(f"{where}: expected a calibgraph Result, got {type(result).__name__}.")
 
 
+RESULT_NAMES = ("result.json", "result.yaml")  # what ``calibgraph solve DATASET`` writes by default, in that order
+
+
+def result_path(path) -> Path:
+    """The result file a user means by ``path``: the file itself, or for a folder (a dataset that
+    ``calibgraph solve`` wrote its default ``result.json`` into) the result file in it; a folder with
+    none is refused in one line that says how to make one."""
+    p = Path(path)
+    if not p.is_dir():
+        return p
+    for name in RESULT_NAMES:
+        if (p / name).is_file():
+            return p / name
+    raise InputError(f"{p}: a folder with no {' or '.join(RESULT_NAMES)} in it: solve it first "
+                     f"(calibgraph solve {p}) or give the result file.")
+
+
 def load_result(path) -> Result:
     """Read a result.json / result.yaml written by :meth:`Result.save` (of this or an earlier
     calibgraph) as a :class:`Result`; anything else is refused in one line (:class:`InputError`)."""
@@ -481,7 +498,7 @@ def load_result_dict(path) -> dict:
     """Read a result.json / result.yaml written by :meth:`Result.save` as plain data (its format
     checked; :func:`load_result` gives the :class:`Result`). Only a regular file is read (a FIFO or
     a device would block or never end)."""
-    p = Path(path)
+    p = result_path(path)
     try:
         text = read_input_bytes(p, "result").decode("utf-8")
     except UnicodeDecodeError:
