@@ -152,7 +152,9 @@ def _arg_cases(base):
          "needs a dataset folder"),
         ("report: no result", ["report"], 2, "required: result"),
         ("report: result does not exist", ["report", base / "nope.json"], 2, "nope.json"),
-        ("report: result is a dataset folder", ["report", ds], 2, "result"),
+        # a dataset folder stands for the result.json solve wrote into it; a folder with none is refused
+        ("report: result is a folder with no result in it", ["report", ds / "captures"], 2,
+         ["no result.json or result.yaml", "solve it first"]),
         ("report: --config does not exist", ["report", res, "--out", base / "r.html", "--config", base / "no.yaml"], 2,
          "no.yaml"),
         ("view: no result", ["view"], 2, "required: result"),

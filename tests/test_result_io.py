@@ -197,8 +197,8 @@ def test_foreign_newer_or_malformed_result_is_refused_in_one_line(tmp_path, chan
 def test_unreadable_files_are_refused_without_blocking(tmp_path):
     with pytest.raises(InputError, match="cannot read result"):
         cg.load_result(tmp_path / "missing.json")
-    with pytest.raises(InputError, match="is a folder"):
-        cg.load_result(tmp_path)
+    with pytest.raises(InputError, match="a folder with no result.json or result.yaml in it: solve it first"):
+        cg.load_result(tmp_path)  # a folder is read as the dataset solve wrote result.json into
     (tmp_path / "bin.json").write_bytes(b"\xff\xfe\x00garbage")
     with pytest.raises(InputError, match="not a calibgraph result"):
         cg.load_result(tmp_path / "bin.json")

@@ -36,7 +36,7 @@ from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_inadequate_intrinsics
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note, fk_record
-from calibgraph.solver.keys import B, C, K, S
+from calibgraph.solver.keys import B, C, K, O, S
 from calibgraph.solver.moved import solve_minding_moves
 from calibgraph.solver.noise_model import corner_noise_notes
 from calibgraph.solver.observability import check_before_solve
@@ -70,31 +70,51 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
 
 def _pose_mount_covariances(problem: Problem, groups: list) -> dict:
     """camera -> (joint body-frame covariance of its pose, the board mount and, when estimated, its
-    intrinsics K(c) and the board scale S(0); K(c)'s size or 0; whether S(0) is in) (the view
-    formulation's joint graph only; {} otherwise)."""
+    intrinsics K(c), the board scale S(0) and the joint offsets O(0); K(c)'s size or 0; whether S(0)
+    is in; O(0)'s size or 0) (the view formulation's joint graph only; {} otherwise)."""
     est = groups[0].est
     if problem.method != "joint" or est.formulation != "view":
         return {}
+    n_o = len(est.values.atVector(O(0))) if est.values.exists(O(0)) else 0
     out = {}
     for n in groups[0].names:
         if n in est.slots:
             s = est.slots[n]
             n_k = len(est.values.atVector(K(s))) if est.values.exists(K(s)) else 0
             scale = est.marginals.has(S(0))
-            keys = [C(s), B(0)] + ([K(s)] if n_k else []) + ([S(0)] if scale else [])
+            keys = [C(s), B(0)] + ([K(s)] if n_k else []) + ([S(0)] if scale else []) + ([O(0)] if n_o else [])
             try:
-                out[n] = (est.marginals.joint(keys), n_k, scale)
+                out[n] = (est.marginals.joint(keys), n_k, scale, n_o)
             except (RuntimeError, KeyError, IndexError):
                 continue
     return out
 
 
+def _corrected_flange_poses(problem: Problem, result: Result) -> dict | None:
+    """With joint offsets estimated: capture -> (FK(q + offsets), its flange-frame Jacobian on the free
+    offsets (6, n_free)): how a user applies the calibration then (the corrected arm model and the
+    reported joint angles). None without kinematics or offsets."""
+    ks = kin.setup(problem)
+    if ks is None or not result.robot or result.robot.get("joint_offsets_rad") is None:
+        return None
+    o = np.asarray(result.robot["joint_offsets_rad"], float)
+    caps = [c for c in problem.captures if c.q_rad is not None]
+    if not caps:
+        return None
+    T, J = ks.chain.fk_jacobian(np.array([c.q_rad for c in caps]) + o)
+    return {c.index: (T[i], J[i][:, list(ks.free)]) for i, c in enumerate(caps)}
+
+
 def with_prediction(problem: Problem, result: Result, pose_mount_cov: dict | None = None) -> Result:
     """``result`` with each calibrated camera's expected error for a new pose predicted from its
-    reported FK, and a note saying it (:mod:`calibgraph.solver.prediction`); as it was with
-    kinematics estimated (a new pose's FK then comes from its joint angles and the offsets)."""
+    reported FK, and a note saying it (:mod:`calibgraph.solver.prediction`); with joint offsets
+    estimated, from its reported joint angles through the corrected arm model, the offsets'
+    uncertainty in the calibration part."""
+    corrected = None
     if problem.options.kinematics != "none":
-        return result
+        corrected = _corrected_flange_poses(problem, result)
+        if corrected is None:
+            return result
     fk = result.fk_noise or {}
     # a component the held-out captures kept at its stated sigma still departs as far as the fit says
     # (fk_select): a new pose's FK error is that size, whatever weight the graph gave it
@@ -103,7 +123,7 @@ def with_prediction(problem: Problem, result: Result, pose_mount_cov: dict | Non
                                                                                 problem.options.fk_sigma_translation_m)),
                                fk.get("prediction_sigma_rotation_rad", fk.get("used_sigma_rotation_rad",
                                                                               problem.options.fk_sigma_rotation_rad)),
-                               pose_mount_cov)
+                               pose_mount_cov, corrected=corrected)
     if not pred:
         return result
     cameras = {n: replace(c, prediction=pred[n]) if n in pred else c for n, c in result.cameras.items()}

@@ -24,6 +24,11 @@ each corner's miss with its depth over the focal length (the miss at the board's
 the line of sight). The figure assumes what the solve assumes: the FK error of a new pose is
 independent of the calibration poses' (a kinematic error that repeats from pose to pose predicts
 better; one that grows outside the calibrated workspace worse).
+
+With joint zero offsets estimated (``kinematics='joint-offsets'``) a new pose's flange pose is
+``FK(q + o)`` of its reported joint angles through the arm model with the estimated offsets (what
+``calibgraph export --format robot`` gives the user), and the offsets join the calibration part's
+joint covariance, entering through each pose's flange Jacobian on them.
 """
 
 from __future__ import annotations
@@ -79,7 +84,8 @@ def _project_views(T_ref_cam, T_base_flange, T_mount_board, mode: str, intr, p_b
 
 
 def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma_rotation_rad: float,
-                        pose_mount_cov: dict | None = None, per_view: bool = False, numeric: bool = False) -> dict:
+                        pose_mount_cov: dict | None = None, per_view: bool = False, numeric: bool = False,
+                        corrected: dict | None = None) -> dict:
     """camera -> {expected_rms_px, expected_rms_mm, parts_px: {robot, calibration, corners}, ...}
     for the calibrated cameras (module docstring); the FK sigmas are those the solve used.
     ``pose_mount_cov``: camera -> (the joint covariance of its pose and the board mount in GTSAM's
@@ -94,7 +100,12 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
     view, the slow path the test compares with (same numbers to rounding; 16 cameras x 480 poses:
     5.4 s view by view). The Jacobians are analytic (the chain rule through the same projection,
     :func:`_analytic_jacobians`); ``numeric=True`` takes them by central differences of
-    :func:`_project_views`, the slower reference the test compares with (16 x 480: 0.55 s)."""
+    :func:`_project_views`, the slower reference the test compares with (16 x 480: 0.55 s).
+
+    ``corrected`` (joint offsets estimated): capture -> (FK(q + offsets), its flange-frame Jacobian on
+    the free offsets): a new pose's flange pose comes from its reported joint angles through the
+    corrected arm, and the offsets' uncertainty (their rows of the joint covariance, which must then be
+    given) enters the calibration part through that Jacobian."""
     fk_cov = np.diag([fk_sigma_rotation_rad ** 2] * 3 + [fk_sigma_translation_m ** 2] * 3)
     caps = {c.index: c for c in problem.captures}
     out = {}
@@ -106,22 +117,25 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
             continue
         views = []
         for k, rec in cam.residuals_px.items():
-            if rec["rejected"] or k not in caps:
+            if rec["rejected"] or k not in caps or (corrected is not None and k not in corrected):
                 continue
             ids = rec["ids"][rec["weight"] > 0]
             if len(ids):
-                views.append((caps[k].T_base_flange, problem.points_board_m[ids] * result.board_scale))
+                T_bf, J_o = corrected[k] if corrected is not None else (caps[k].T_base_flange, None)
+                views.append((T_bf, problem.points_board_m[ids] * result.board_scale, J_o))
         if not views:
             continue
-        joint, n_k, has_scale = (pose_mount_cov or {}).get(name) or (None, 0, False)
+        joint, n_k, has_scale, n_o = (pose_mount_cov or {}).get(name) or (None, 0, False, 0)
         if joint is None or cam.T_mount_board is not None:
             joint = None
+        if corrected is not None and (joint is None or n_o != views[0][2].shape[1]):
+            continue  # the offsets' uncertainty is not known here: no figure rather than an understated one
         stack = [[v] for v in views] if per_view else [views]
         parts = [_camera_parts(problem.mode, intr, cam.T_ref_cam, cam.covariance, M, M_cov, joint, n_k, has_scale,
                                result.board_scale, vs, fk_cov, numeric) for vs in stack]
         robot, calib = (np.concatenate([p[i] for p in parts]) for i in (0, 1))
         depth2 = np.concatenate([p[2] for p in parts])  # per view: sum over its corners of (1e3 depth / fx)^2
-        n_view = np.array([len(p) for _, p in views], float)
+        n_view = np.array([len(v[1]) for v in views], float)
         mode_factor = max(float((cam.corner_noise or {}).get("applied", 1.0)), 1.0)
         # the corners' own noise, with the whole-board part the solve found in its views (6 image modes
         # at ``mode_factor`` times the corners' variance: shared pixels, or a robot or camera error)
@@ -133,21 +147,23 @@ def expected_prediction(problem, result, fk_sigma_translation_m: float, fk_sigma
         out[name] = {"expected_rms_px": float(np.sqrt(sums.sum() / n)), "expected_rms_mm": float(np.sqrt(mm2 / n)),
                      "parts_px": {"robot": float(parts[0]), "calibration": float(parts[1]), "corners": float(parts[2])},
                      "fk_sigma_translation_m": float(fk_sigma_translation_m),
-                     "fk_sigma_rotation_rad": float(fk_sigma_rotation_rad), "corners": n}
+                     "fk_sigma_rotation_rad": float(fk_sigma_rotation_rad), "corners": n,
+                     "predicted_from": "joint angles" if corrected is not None else "flange poses"}
     return out
 
 
 def _camera_parts(mode, intr, X, X_cov, M, M_cov, joint, n_k, has_scale, board_scale, views, fk_cov, numeric=False):
-    """For ``views`` ([(T_base_flange, board points)]) of one camera: per view, the robot and the
-    calibration parts' 2-D mean square summed over its corners, and its corners' (1e3 depth / fx)^2
-    summed; every view at once."""
-    T_bf = np.stack([T for T, _ in views])
-    P = np.concatenate([p for _, p in views])
-    which = np.repeat(np.arange(len(views)), [len(p) for _, p in views])
+    """For ``views`` ([(T_base_flange, board points, the flange pose's Jacobian on the joint offsets or
+    None)]) of one camera: per view, the robot and the calibration parts' 2-D mean square summed over
+    its corners, and its corners' (1e3 depth / fx)^2 summed; every view at once."""
+    T_bf = np.stack([v[0] for v in views])
+    P = np.concatenate([v[1] for v in views])
+    which = np.repeat(np.arange(len(views)), [len(v[1]) for v in views])
     n_views = len(views)
+    J_o = np.stack([v[2] for v in views]) if views[0][2] is not None else None
     jacobians = _numeric_jacobians if numeric else _analytic_jacobians
     J_robot, J_cal, J_X, J_M, depth = jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, which,
-                                                joint is not None, M_cov is not None)
+                                                joint is not None, M_cov is not None, J_o)
     robot = _per_view(J_robot, fk_cov, which, n_views)
     if joint is not None:
         calib = _per_view(J_cal, joint, which, n_views)
@@ -159,7 +175,8 @@ def _camera_parts(mode, intr, X, X_cov, M, M_cov, joint, n_k, has_scale, board_s
     return robot, calib, depth2
 
 
-def _numeric_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, which, joint: bool, mount: bool):
+def _numeric_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, which, joint: bool, mount: bool,
+                       J_o: np.ndarray | None = None):
     """:func:`_analytic_jacobians` by central differences of :func:`_project_views` (every view
     projected at once per perturbation): the slow reference."""
     def project(X_=X, T_bf_=T_bf, M_=M, intr_=intr, P_=P):
@@ -170,26 +187,34 @@ def _numeric_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, w
     if joint:
         Xp, Mp = gtsam.Pose3(X), gtsam.Pose3(M)
         k0 = np.concatenate([[intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2]], intr.dist8[:max(n_k - 4, 0)]])
+        n_o = 0 if J_o is None else J_o.shape[2]
+        n_s = 12 + n_k + int(has_scale)
 
         def joint_project(e):
             intr_ = intr.with_pinhole(k0 + e[12:12 + n_k]) if n_k else intr
             P_ = P * (1.0 + e[12 + n_k] / board_scale) if has_scale else P
-            return project(Xp.retract(e[:6]).matrix(), T_bf, Mp.retract(e[6:12]).matrix(), intr_, P_)[0]
+            # the offsets move each flange pose by Exp(J_o d) at the flange (FK(q + o + d) = FK(q + o) Exp(J d))
+            T_ = T_bf if not n_o else np.stack([T @ gtsam.Pose3.Expmap(J @ e[n_s:]).matrix()
+                                                 for T, J in zip(T_bf, J_o)])
+            return project(Xp.retract(e[:6]).matrix(), T_, Mp.retract(e[6:12]).matrix(), intr_, P_)[0]
 
-        J_cal = _jacobian(joint_project, 12 + n_k + int(has_scale))
+        J_cal = _jacobian(joint_project, n_s + n_o)
     else:
         J_X = _jacobian(lambda e: project(X_=_left(X, e))[0])
         J_M = _jacobian(lambda e: project(M_=_left(M, e))[0]) if mount else None
     return J_robot, J_cal, J_X, J_M, project()[1][:, 2]
 
 
-def _analytic_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, which, joint: bool, mount: bool = True):
+def _analytic_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, which, joint: bool, mount: bool = True,
+                        J_o: np.ndarray | None = None):
     """The Jacobians :func:`_camera_parts` takes numerically, by the chain rule (each (2N, n), rows u,
     v of each corner): on the robot pose of each corner's own capture (the FK prior's perturbation at
     the flange, :func:`_flange_step`), on [camera pose, mount (GTSAM's right perturbations), the
     intrinsics' ``n_k`` entries, the board scale] when ``joint`` (else None), on the camera pose
     and on the mount perturbed as their covariances are (:func:`_left`) otherwise; and the corners'
-    depths. (``mount``: the numeric reference's switch; the mount's Jacobian costs nothing extra here.)"""
+    depths. (``mount``: the numeric reference's switch; the mount's Jacobian costs nothing extra here.)
+    ``J_o`` (views, 6, n_o): each view's flange pose on the joint offsets; with ``joint`` their columns
+    close the calibration Jacobian (the robot's, through that chain)."""
     T_rm = _inv_stack(T_bf) if mode == "eye_in_hand" else T_bf
     R_c, t_c = X[:3, :3], X[:3, 3]
     R_b, t_b = M[:3, :3], M[:3, 3]
@@ -222,6 +247,8 @@ def _analytic_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, 
             blocks.append(Jk)
         if has_scale:
             blocks.append(np.einsum("nij,nj->ni", JB, P)[:, :, None] / board_scale)
+        if J_o is not None:
+            blocks.append(J_robot.reshape(N, 2, 6) @ J_o[which])
         J_cal = rows(*blocks)
     else:
         J_X = rows(_cross_rows(JR, q - t_c), -JR)  # X = (exp(w) R_c, t_c + v)
@@ -256,7 +283,10 @@ def _per_view(J: np.ndarray, cov: np.ndarray, which: np.ndarray, n_views: int) -
 
 def prediction_notes(prediction: dict) -> list:
     """One line per camera: what a held-out test would say."""
-    return [f"camera {name}: a new robot pose's corners, predicted from its reported FK, are expected to miss by "
+    how = {"joint angles": "from its reported joint angles through the arm model with the estimated offsets",
+           "flange poses": "from its reported FK"}
+    return [f"camera {name}: a new robot pose's corners, predicted {how[p.get('predicted_from', 'flange poses')]}, are "
+            f"expected to miss by "
             f"{p['expected_rms_px']:.2f} px RMS ({p['expected_rms_mm']:.2f} mm at the board): robot "
             f"{p['parts_px']['robot']:.2f} px, calibration {p['parts_px']['calibration']:.2f} px, corner noise "
             f"{p['parts_px']['corners']:.2f} px" for name, p in prediction.items()]
