@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 import shutil
 import subprocess
 import sys
@@ -489,6 +490,8 @@ SIM_CASES = {
     "iid": "per-pose FK noise at the stated 0.1 mm / 0.01 deg, independent from pose to pose (the solver's model)",
     "offsets": "joint zero offsets of 0.5-2 mrad on joints 2-6, not estimated (an error that repeats from pose to "
                "pose, as a real arm's does); the robot's FK stated at 0.1 mm / 0.01 deg",
+    "offsets_estimated": "the same cells solved with `--estimate-kinematics joint-offsets` (their captures record the "
+                         "joint angles)",
 }
 
 
@@ -501,7 +504,10 @@ def sim_scene(case: str, seed: int):
     rng = np.random.default_rng(1000 + seed)
     offsets = np.zeros(7)
     offsets[1:6] = rng.uniform(0.5e-3, 2e-3, 5) * rng.choice([-1, 1], 5)
-    return make_kinematic_scene(offsets, n_poses=30, seed=seed, pixel_sigma_px=0.1)[0]
+    sc = make_kinematic_scene(offsets, n_poses=30, seed=seed, pixel_sigma_px=0.1)[0]
+    if case == "offsets_estimated":
+        sc = replace(sc, problem=sc.problem.with_(options=replace(sc.problem.options, kinematics="joint-offsets")))
+    return sc
 
 
 def sim_control(seeds: list) -> list:
@@ -516,7 +522,11 @@ def sim_control(seeds: list) -> list:
             caps = sorted({d.capture for d in sc.problem.detections})
             splits = make_splits(caps)
             n, m = len(caps), len(splits[0][0])
-            rs = [solve(subset(sc.problem, train)) for train, _, _ in splits]
+            try:
+                rs = [solve(subset(sc.problem, train)) for train, _, _ in splits]
+            except CalibgraphError as e:  # said, not hidden: the seed is left out of the case
+                print(f"[sim {case} seed {seed}] a split was refused: {str(e).splitlines()[0]}", flush=True)
+                continue
             rand = [i for i, (_, _, lab) in enumerate(splits) if lab.startswith("random")]
             halves = [i for i, (_, _, lab) in enumerate(splits) if lab.startswith("train ")]
             for name in sc.problem.cameras:
