@@ -54,6 +54,12 @@ say without test data), and each OpenCV method's all-capture hand-eye pose again
 
     python scripts/bench_heldout.py [--sets kuka_1,...] [--out scripts/results] [--cv4-python PY]
                                     [--rwhe GITDIR] [--ic GITDIR] [--work DIR] [--tag NAME]
+                                    [--dataset NAME=PATH ...] [--sim-seeds 1,2,...]
+
+Any dataset folder calibgraph reads can be added with ``--dataset NAME=PATH`` (``--sets ''`` for it
+alone). Where every capture records joint angles (eye-to-hand), calibgraph also runs with
+``--estimate-kinematics joint-offsets`` (row "calibgraph joint-offsets"), its test corners predicted
+from the reported joint angles through the arm with the estimated offsets.
 """
 
 from __future__ import annotations
@@ -83,9 +89,11 @@ from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.core.problem import SolverOptions  # noqa: E402
 from calibgraph.detect.search import detect_image  # noqa: E402
 from calibgraph.core.transforms import inv, log_so3, make_T, project_to_so3  # noqa: E402
+from calibgraph.io.dataset import write_capture, write_header  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
 from calibgraph.solver.batch import solve  # noqa: E402
 from calibgraph.solver.build import build_problem  # noqa: E402
+from calibgraph.solver.kinematics import load_chain  # noqa: E402
 from calibgraph.solver.prediction import predicted_uv  # noqa: E402
 from calibgraph.sim.kinematic_scene import make_kinematic_scene  # noqa: E402
 from calibgraph.sim.synthetic_corners import make_scene  # noqa: E402
@@ -99,7 +107,10 @@ RWHE = {  # name -> (folder, rows, cols, pitch_m)
 IC = {"ic_10x10": "test_set_10x10", "ic_charuco": "test_set_charuco"}
 SHARED = {"mchec": "mchec_medium_workcell"}  # multi-camera sets in ../shared/datasets: one record per camera
 SEEDS = (0, 1, 2, 3, 4)
-METHODS = ("calibgraph",) + CV_METHODS
+# calibgraph with its defaults; where every capture records joint angles (eye-to-hand) also with
+# --estimate-kinematics joint-offsets, applied as a user then applies it (the corrected arm, the reported angles)
+CG_METHODS = ("calibgraph", "calibgraph joint-offsets")
+METHODS = CG_METHODS + CV_METHODS
 
 
 # ---------------------------------------------------------------------------------------------
@@ -198,11 +209,13 @@ def score(model: dict, problem, test: set) -> dict:
     """Held-out residuals of the test captures' detections under ``model`` (X, mount, intr, scale)."""
     X, M, intr, scale = model["X"], model["mount"], model["intr"], model.get("scale", 1.0)
     caps = {c.index: c for c in problem.captures}
+    applied = model.get("T_bf") or {}  # with joint offsets: FK(q + offsets) of the reported angles
     px, mm = [], []
     for d in problem.detections:
         if d.capture not in test:
             continue
-        uv, pc = predicted_uv(X, caps[d.capture].T_base_flange, M, problem.mode, intr, problem.points_board_m[d.ids] * scale)
+        T_bf = applied.get(d.capture, caps[d.capture].T_base_flange)
+        uv, pc = predicted_uv(X, T_bf, M, problem.mode, intr, problem.points_board_m[d.ids] * scale)
         e = uv - d.uv_px
         px.append(np.hypot(e[:, 0], e[:, 1]))
         mm.append(px[-1] * 1e3 * pc[:, 2] / intr.K[0, 0])
@@ -218,17 +231,46 @@ def subset(problem, keep: set):
                          detections=tuple(d for d in problem.detections if d.capture in keep))
 
 
-def fit_calibgraph(problem, train: set) -> dict:
-    r = solve(subset(problem, train))
-    return camera_model(r, next(iter(r.cameras)), list(r.notes))
+def calibgraph_fits(problem) -> dict:
+    """method -> fit(camera, train) -> that camera's model (:func:`camera_model`), raising
+    CalibgraphError: "calibgraph" with its defaults and, where every capture records joint angles
+    (eye-to-hand), "calibgraph joint-offsets" (``--estimate-kinematics joint-offsets``). One solve per
+    method and train set, shared by the cameras."""
+    variants = {"calibgraph": problem}
+    if problem.mode == "eye_to_hand" and problem.captures and all(c.q_rad is not None for c in problem.captures):
+        variants["calibgraph joint-offsets"] = problem.with_(options=replace(problem.options, kinematics="joint-offsets"))
+    solved = {}
+
+    def fit_of(meth, p):
+        def fit(cam, train):
+            key = (meth, frozenset(train))
+            if key not in solved:
+                try:
+                    solved[key] = solve(subset(p, train))
+                except CalibgraphError as e:
+                    solved[key] = e
+            r = solved[key]
+            if isinstance(r, CalibgraphError):
+                raise r
+            return camera_model(r, cam, [x for x in r.notes if not x.startswith("camera ") or x.startswith(f"camera {cam}:")],
+                                p)
+        return fit
+
+    return {meth: fit_of(meth, p) for meth, p in variants.items()}
 
 
-def camera_model(r, name: str, notes: list) -> dict:
-    """Camera ``name`` of result ``r`` as the bench uses it; CalibgraphError when it is not calibrated."""
+def camera_model(r, name: str, notes: list, problem=None) -> dict:
+    """Camera ``name`` of result ``r`` as the bench uses it; CalibgraphError when it is not calibrated.
+    With joint offsets estimated (``r.robot``), ``T_bf``: each capture of ``problem`` at FK(q + offsets)."""
     cam = r.cameras[name]
     if not cam.calibrated:
         raise CalibgraphError(f"not calibrated: {cam.why}")
-    return {"X": cam.T_ref_cam, "mount": r.T_mount_board, "intr": cam.solved_intrinsics, "scale": r.board_scale,
+    T_bf = None
+    if problem is not None and r.robot and r.robot.get("joint_offsets_rad") is not None:
+        chain = load_chain(problem.options.kinematics_model)
+        o = np.asarray(r.robot["joint_offsets_rad"], float)
+        T_bf = {c.index: chain.fk_jacobian(np.asarray(c.q_rad, float) + o)[0] for c in problem.captures}
+    return {"X": cam.T_ref_cam, "mount": r.T_mount_board, "intr": cam.solved_intrinsics, "scale": r.board_scale, "T_bf": T_bf,
             "cov": cam.covariance, "cov_redrawn": redrawn_covariance(cam),
             "rms_fit_px": cam.reprojection_rms_px, "fk_noise": r.fk_noise,
             "prediction": cam.prediction, "notes": notes}
@@ -386,7 +428,9 @@ def run_set(name: str, folder: Path, py: str | None) -> dict:
             detection = (f"OpenCV's findChessboardCornersSB (calibgraph refuses the set: {str(e).splitlines()[0]}; its "
                          f"image detector alone finds {found} of {len(ds.captures)} boards), the same corners for "
                          f"every method")
-    return evaluate(name, problem, py, lambda train: fit_calibgraph(problem, train), detection, ds)
+    cam = next(iter(problem.cameras))
+    return evaluate(name, problem, py, {m: (lambda train, f=f: f(cam, train)) for m, f in calibgraph_fits(problem).items()},
+                    detection, ds)
 
 
 def run_multicam(name: str, folder: Path, py: str | None) -> list:
@@ -395,33 +439,23 @@ def run_multicam(name: str, folder: Path, py: str | None) -> list:
     views; the OpenCV methods calibrate that camera alone from its own train views."""
     ds = load_dataset(folder)
     problem, _ = build_problem(ds, "joint", SolverOptions(), progress=False)
-    joint = {}
-
-    def fit(cam, train):
-        key = frozenset(train)
-        if key not in joint:
-            try:
-                joint[key] = solve(subset(problem, train))
-            except CalibgraphError as e:
-                joint[key] = e
-        r = joint[key]
-        if isinstance(r, CalibgraphError):
-            raise r
-        return camera_model(r, cam, [x for x in r.notes if not x.startswith("camera ") or x.startswith(f"camera {cam}:")])
-
+    fits = calibgraph_fits(problem)
     out = []
     for cam in problem.cameras:
         own = problem.with_(cameras={cam: problem.cameras[cam]},
                             detections=tuple(d for d in problem.detections if d.camera == cam))
-        detection = ("calibgraph's dataset detection (as `calibgraph solve` runs it); calibgraph solves the four cameras "
-                     "jointly on each split's train captures, the OpenCV methods this camera alone")
-        out.append(evaluate(f"{name} {cam}", own, py, lambda train, cam=cam: fit(cam, train), detection, ds))
+        detection = (f"calibgraph's dataset detection (as `calibgraph solve` runs it); calibgraph solves the "
+                     f"{len(problem.cameras)} cameras jointly on each split's train captures, the OpenCV methods this "
+                     f"camera alone")
+        out.append(evaluate(f"{name} {cam}", own, py, {m: (lambda train, f=f, cam=cam: f(cam, train))
+                                                        for m, f in fits.items()}, detection, ds))
     return out
 
 
-def evaluate(name: str, problem, py: str | None, fit, detection: str, ds) -> dict:
-    """The bench on one camera's detections (``problem``: that camera's); ``fit(train)`` gives
-    calibgraph's model (:func:`fit_calibgraph`'s keys) or raises CalibgraphError."""
+def evaluate(name: str, problem, py: str | None, fits: dict, detection: str, ds) -> dict:
+    """The bench on one camera's detections (``problem``: that camera's); ``fits``: calibgraph method ->
+    fit(train) giving its model (:func:`camera_model`'s keys) or raising CalibgraphError ("calibgraph"
+    always)."""
     t0 = time.time()
     detected = sorted({d.capture for d in problem.detections})
     problem = subset(problem, set(detected))
@@ -434,28 +468,32 @@ def evaluate(name: str, problem, py: str | None, fit, detection: str, ds) -> dic
            "intrinsics_given": next(iter(problem.cameras.values())).known,
            "joint_angles": any(c.q_rad is not None for c in ds.captures), "splits": []}
     print(f"[{name}] {n} captures detected of {len(ds.captures)}, mode {problem.mode}", flush=True)
-    cg = []
+    cgs = {meth: [] for meth in fits}
     for train, test, label in splits:
-        try:
-            cg.append(fit(train))
-        except CalibgraphError as e:
-            cg.append({"error": str(e).splitlines()[0]})
+        for meth, fit in fits.items():
+            try:
+                cgs[meth].append(fit(train))
+            except CalibgraphError as e:
+                cgs[meth].append({"error": str(e).splitlines()[0]})
+    cg = cgs["calibgraph"]
     cv_models, version = opencv_models(py, problem, [(tr, te) for tr, te, _ in splits]) if py else ([{}] * len(splits), "")
     out["cv2_version"] = version
-    for (train, test, label), c, cv in zip(splits, cg, cv_models):
+    for i, ((train, test, label), c, cv) in enumerate(zip(splits, cg, cv_models)):
         row = {"label": label, "test": sorted(test)}
         models = dict(cv)
+        for meth in fits:
+            if "error" not in cgs[meth][i]:
+                models[meth] = cgs[meth][i]
+            else:
+                row[f"{meth}_error".replace(" ", "_")] = cgs[meth][i]["error"]
         if "error" not in c:
-            models["calibgraph"] = c
             row["calibgraph_fk_noise"] = c["fk_noise"]
             row["calibgraph_prediction"] = c["prediction"]
-        else:
-            row["calibgraph_error"] = c["error"]
         row["scores"] = {meth: score(mod, problem, test) for meth, mod in models.items()}
         out["splits"].append(row)
         print(f"[{name}] {label}: " + ", ".join(f"{k} {v['rms_px']:.2f}" for k, v in row["scores"].items()), flush=True)
     # the all-capture fit: floor, expected error, cross-method differences
-    full = fit(set(detected))
+    full = fits["calibgraph"](set(detected))
     out["fit_all"] = {"rms_px_predicted_same_captures": score(full, problem, set(detected)),
                       "prediction": full["prediction"], "fk_noise": full["fk_noise"], "notes": full["notes"],
                       "sigma": np.sqrt(np.diag(full["cov"])).tolist()}
@@ -469,9 +507,9 @@ def evaluate(name: str, problem, py: str | None, fit, detection: str, ds) -> dic
     halves = [i for i, (_, _, lab) in enumerate(splits) if lab.startswith("train ")]
     out["spread"] = {}
     per_method_X = {meth: [] for meth in METHODS}
-    for i, (c, cv) in enumerate(zip(cg, cv_models)):
+    for i, cv in enumerate(cv_models):
         for meth in METHODS:
-            mod = c if meth == "calibgraph" else cv.get(meth)
+            mod = cgs[meth][i] if meth in cgs else cv.get(meth)
             per_method_X[meth].append(None if mod is None or "error" in mod else mod["X"])
     for meth, Xs in per_method_X.items():
         if all(Xs[i] is not None for i in rand):
@@ -508,6 +546,22 @@ def sim_scene(case: str, seed: int):
     if case == "offsets_estimated":
         sc = replace(sc, problem=sc.problem.with_(options=replace(sc.problem.options, kinematics="joint-offsets")))
     return sc
+
+
+def write_offsets_set(seed: int, work: Path) -> Path:
+    """The "offsets" case's cell of ``seed`` (:func:`sim_scene`) written as a dataset folder (its
+    detections stored, its captures with the reported joint angles)."""
+    sc = sim_scene("offsets", seed)
+    root = work / f"joint_offsets_seed{seed}"
+    if not root.exists():
+        prob = sc.problem
+        write_header(root, prob.target, dict(prob.cameras), mode=prob.mode)
+        by_cap = {}
+        for d in prob.detections:
+            by_cap.setdefault(d.capture, {})[d.camera] = {"image": None, "ids": d.ids, "uv_px": d.uv_px}
+        for c in prob.captures:
+            write_capture(root, c, by_cap.get(c.index, {}))
+    return root
 
 
 def sim_control(seeds: list) -> list:
@@ -590,11 +644,11 @@ def table(rec: dict) -> list:
         px = [s["scores"][meth]["rms_px"] for s in rec["splits"]]
         mm = [s["scores"][meth]["rms_mm"] for s in rec["splits"]]
         sp = rec["spread"].get(meth, {})
-        better = "" if meth == "calibgraph" or None in cg else \
+        better = "" if meth in CG_METHODS or None in cg else \
             f"{sum(a <= b for a, b in zip(cg, px))} of {len(px)}"
         L.append(f"| {meth} | **{np.mean(px):.3f}** | {' '.join(f'{x:.2f}' for x in px)} | {np.mean(mm):.3f} | {better} | "
                  f"{sp.get('rms_translation_mm', float('nan')):.2f} / {sp.get('rms_rotation_deg', float('nan')):.3f} |")
-        if meth != "calibgraph" and (best_peer is None or np.mean(px) < best_peer[1]):
+        if meth not in CG_METHODS and (best_peer is None or np.mean(px) < best_peer[1]):
             best_peer = (meth, float(np.mean(px)))
     rec["best_peer"] = best_peer
     return L
@@ -632,8 +686,10 @@ def markdown(results: list, meta: dict) -> str:
          f"({meta['date']}); OpenCV {meta.get('cv2_version') or '(not run)'} in a separate venv for the peers.",
          "", "Protocol, split overlap correction and methods: the script's docstring. RMS is of the 2-D residual's "
          "length. calibgraph runs with its defaults (unknown intrinsics estimated where the set gives none); the "
-         "OpenCV methods with intrinsics from `calibrateCamera` on the same train corners. No set records joint "
-         "angles, so `--estimate-kinematics joint-offsets` could not take part.", ""]
+         "OpenCV methods with intrinsics from `calibrateCamera` on the same train corners. Where every capture records "
+         "joint angles (eye-to-hand), `calibgraph joint-offsets` is calibgraph with `--estimate-kinematics "
+         "joint-offsets`, its test corners predicted from the reported joint angles through the arm with the "
+         "estimated offsets (as a user applies it); sets without joint angles have no such row.", ""]
     for rec in results:
         if "skipped" in rec:
             L += [f"## {rec['set']}: skipped", "", rec["skipped"], ""]
@@ -676,6 +732,15 @@ def markdown(results: list, meta: dict) -> str:
             L.append(f"- Best peer {rec['best_peer'][0]} {rec['best_peer'][1]:.3f} px; calibgraph {cgm:.3f} px "
                      f"({'at least as good' if cgm <= rec['best_peer'][1] + 1e-9 else 'WORSE'}); calibgraph minus "
                      f"{rec['best_peer'][0]}, paired over the {len(d)} splits: {d.mean():+.3f} +- {se:.3f} px (1 SE).")
+        ko = [s_["scores"].get("calibgraph joint-offsets", {}).get("rms_px") for s_ in rec["splits"]]
+        refused = [s_["calibgraph_joint-offsets_error"] for s_ in rec["splits"] if "calibgraph_joint-offsets_error" in s_]
+        if refused:
+            L.append(f"- calibgraph joint-offsets refused on {len(refused)} of {len(ko)} train splits (first: {refused[0]}).")
+        elif all(x is not None for x in ko):
+            d = np.array(ko) - np.array([s_["scores"]["calibgraph"]["rms_px"] for s_ in rec["splits"]])
+            L.append(f"- calibgraph joint-offsets {np.mean(ko):.3f} px (predicted from the reported joint angles); minus "
+                     f"calibgraph with its defaults, paired over the {len(d)} splits: {d.mean():+.3f} +- "
+                     f"{d.std(ddof=1) / np.sqrt(len(d)):.3f} px (1 SE).")
         s = rec.get("calibgraph_sigma")
         if s:
             L += [""] + sigma_table(s, rec.get("calibgraph_sigma_redrawn"))
@@ -700,6 +765,11 @@ def main(argv=None) -> int:
     ap.add_argument("--ic", type=Path, default=MIRROR / "ros-industrial+industrial_calibration" / "repo")
     ap.add_argument("--cv4-python", default=None)
     ap.add_argument("--tag", default="", help="suffix of the result files (bench_heldout_TAG.md)")
+    ap.add_argument("--dataset", action="append", default=[], metavar="NAME=PATH",
+                    help="also any dataset folder calibgraph reads (its layouts), copied into --work first; repeatable")
+    ap.add_argument("--sim-joint-offsets", default="", metavar="SEEDS",
+                    help="also simulated eye-to-hand sets whose arm has joint zero offsets and whose captures record "
+                         "joint angles (seeds, comma-separated): the joint-offset row on a set with a truth")
     ap.add_argument("--sim-seeds", default="1,2,3,4,5,6,7,8,9", help="seeds of the simulated control ('' to skip it)")
     args = ap.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
@@ -707,7 +777,24 @@ def main(argv=None) -> int:
     if py is None:
         print(f"OpenCV peers skipped: {why}", file=sys.stderr)
     results = []
-    for name in args.sets.split(","):
+    specs = list(args.dataset)
+    for seed in [int(x) for x in args.sim_joint_offsets.split(",") if x.strip()]:
+        specs.append(f"sim_joint_offsets_seed{seed}={write_offsets_set(seed, args.work / 'sim')}")
+    for spec in specs:
+        name, _, path = spec.partition("=")
+        src = Path(path or name)
+        if not src.is_dir():
+            results.append({"set": name, "skipped": f"{src} is not a dataset folder"})
+            continue
+        dest = args.work / "sets" / f"dataset_{name}"
+        if not dest.exists():  # a copy: the solve writes its detection cache beside the dataset, never into the user's
+            shutil.copytree(src, dest)
+        try:
+            multi = len(load_dataset(dest).cameras) > 1
+            results += run_multicam(name, dest, py) if multi else [run_set(name, dest, py)]
+        except CalibgraphError as e:
+            results.append({"set": name, "skipped": f"calibgraph refused the set: {str(e).splitlines()[0]}"})
+    for name in [x for x in args.sets.split(",") if x]:
         folder, skip = prepare(name, args, args.work)
         if folder is None:
             results.append({"set": name, "skipped": skip})
