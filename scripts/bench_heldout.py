@@ -89,7 +89,7 @@ from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.core.problem import SolverOptions  # noqa: E402
 from calibgraph.detect.search import detect_image  # noqa: E402
 from calibgraph.core.transforms import inv, log_so3, make_T, project_to_so3  # noqa: E402
-from calibgraph.io.dataset import write_capture, write_header  # noqa: E402
+from calibgraph.io.dataset import write_problem  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
 from calibgraph.solver.batch import solve  # noqa: E402
 from calibgraph.solver.build import build_problem  # noqa: E402
@@ -554,13 +554,7 @@ def write_offsets_set(seed: int, work: Path) -> Path:
     sc = sim_scene("offsets", seed)
     root = work / f"joint_offsets_seed{seed}"
     if not root.exists():
-        prob = sc.problem
-        write_header(root, prob.target, dict(prob.cameras), mode=prob.mode)
-        by_cap = {}
-        for d in prob.detections:
-            by_cap.setdefault(d.capture, {})[d.camera] = {"image": None, "ids": d.ids, "uv_px": d.uv_px}
-        for c in prob.captures:
-            write_capture(root, c, by_cap.get(c.index, {}))
+        write_problem(root, sc.problem)
     return root
 
 

@@ -20,7 +20,7 @@ from calibgraph import solve
 from calibgraph.core.problem import Detection
 from calibgraph.core.targets import a4_board_54
 from calibgraph.core.transforms import exp_so3, make_T
-from calibgraph.io.dataset import write_capture, write_header
+from calibgraph.io.dataset import write_problem
 from calibgraph.sim.synthetic_corners import make_scene
 from calibgraph.solver.result import Result
 
@@ -181,12 +181,7 @@ def knocked_result():
 
 def write_sim_dataset(root: Path, prob) -> Path:
     """Write a problem as a calibgraph dataset folder (detections stored, no images)."""
-    write_header(root, a4_board_54(), dict(prob.cameras), mode=prob.mode)
-    by_cap = {}
-    for d in prob.detections:
-        by_cap.setdefault(d.capture, {})[d.camera] = {"image": None, "ids": d.ids, "uv_px": d.uv_px}
-    for c in prob.captures:
-        write_capture(root, c, by_cap.get(c.index, {}))
+    write_problem(root, prob, a4_board_54())
     return root
 
 

@@ -149,6 +149,18 @@ def write_capture(root, capture: Capture, views: dict) -> Path:
     return p
 
 
+def write_problem(root, problem, target: Target | None = None) -> Path:
+    """A problem's captures (with their joint angles) and detections as a dataset folder: detections
+    stored, no images (simulated sets for tests and benches). ``target``: default the problem's."""
+    write_header(root, target or problem.target, dict(problem.cameras), mode=problem.mode)
+    by_cap = {}
+    for d in problem.detections:
+        by_cap.setdefault(d.capture, {})[d.camera] = {"image": None, "ids": d.ids, "uv_px": d.uv_px}
+    for c in problem.captures:
+        write_capture(root, c, by_cap.get(c.index, {}))
+    return Path(root)
+
+
 def is_calibgraph_dataset(root) -> bool:
     return (Path(root) / "dataset.yaml").is_file()
 
