@@ -675,7 +675,9 @@ def sigma_table(s: dict, r: dict | None) -> list:
 
 
 def markdown(results: list, meta: dict) -> str:
-    L = ["# Held-out prediction on real hand-eye sets (issue 38)", "",
+    simulated = any(str(r.get("set", "")).startswith("sim_") for r in results)
+    L = ["# Held-out prediction on " + ("hand-eye sets (sets named sim_... are simulated, with a truth)" if simulated
+                                         else "real hand-eye sets") + " (issue 38)", "",
          f"Made by `python scripts/bench_heldout.py {meta['argv']}` at commit {meta['commit']} "
          f"({meta['date']}); OpenCV {meta.get('cv2_version') or '(not run)'} in a separate venv for the peers.",
          "", "Protocol, split overlap correction and methods: the script's docstring. RMS is of the 2-D residual's "
