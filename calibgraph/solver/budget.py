@@ -99,11 +99,11 @@ def budgets(L: Linear, cameras: dict) -> dict:
     by :data:`KNOWN_EXACTLY`."""
     names = list(cameras)
     X = columns(L, L.S, [(cameras[n][0], slice(0, 6)) for n in names])
-    m = 6 * len(names)
-    parts = {src: np.zeros((m, m)) for src in SOURCES}  # each source's part of the poses' joint covariance
+    n_c = len(names)
+    parts = {src: np.zeros((n_c, 6, 6)) for src in SOURCES}  # each source's part of each camera's pose covariance
     for src, keys, blocks in L.factors:
-        JX = sum(blocks[k] @ X[k] for k in keys)
-        parts[src] += JX.T @ JX
+        JX = sum(blocks[k] @ X[k] for k in keys).reshape(-1, n_c, 6)
+        parts[src] += np.einsum("rci,rcj->cij", JX, JX)
     cam_keys = [cameras[n][0] for n in names]
     total = _translation_variances(L, L.S, cam_keys)
     present = {src for src, _, _ in L.factors}
@@ -111,8 +111,8 @@ def budgets(L: Linear, cameras: dict) -> dict:
                    else total) for src in SOURCES}
     out = {}
     for i, n in enumerate(names):
-        pose, v = slice(6 * i, 6 * i + 6), total[i]
-        cov = {src: p[pose, pose] for src, p in parts.items()}
+        v = total[i]
+        cov = {src: p[i] for src, p in parts.items()}
 
         def gone(rest: float) -> float:
             return float(min(max(1.0 - rest / v, 0.0), 1.0)) if v > 0 else 0.0
