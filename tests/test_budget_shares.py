@@ -76,6 +76,33 @@ def test_covariance_by_noise_source_sums_to_the_pose_covariance(solved):
                for c in r.cameras.values())
 
 
+def test_corners_part_is_the_sum_over_the_view_factors(monkeypatch):
+    """The corners' part of each camera's covariance is taken as the rest (the covariance less the few
+    prior factors' parts), not summed over the many view factors: the same to rounding as the sum."""
+    from calibgraph.solver.covariance import from_ref_axes
+    from calibgraph.solver.reduced import columns
+
+    direct, real = {}, batch.error_budgets
+
+    def spy(problem, group, lin):  # the last call's sums (the one the result keeps)
+        direct.clear()
+        names = list(group.names)
+        X = columns(lin, lin.S, [(C(group.est.slots[n]), slice(0, 6)) for n in names])
+        for src, keys, blocks in lin.factors:
+            if src == "corners":
+                JX = sum(blocks[k] @ X[k] for k in keys)
+                for i, n in enumerate(names):
+                    direct[n] = direct.get(n, 0.0) + JX[:, 6 * i:6 * i + 6].T @ JX[:, 6 * i:6 * i + 6]
+        return real(problem, group, lin)
+
+    monkeypatch.setattr(batch, "error_budgets", spy)
+    for kw in ({"seed": 1}, {"seed": 4, "mode": "eye_in_hand"}):
+        r = batch.solve(make_scene(n_poses=24, **kw).problem)
+        for n, c in r.cameras.items():
+            rest = from_ref_axes(c.T_ref_cam, np.asarray(c.error_budget["covariance_by_noise_source"]["corners"]))
+            assert np.allclose(rest, direct[n], rtol=0, atol=1e-8 * np.abs(direct[n]).max()), (kw, n)
+
+
 def test_shares_bound_the_advice_and_a_resolve_with_the_intrinsics_known(solved):
     cell, sc, r = solved
     for n, c in r.cameras.items():

@@ -102,8 +102,13 @@ def budgets(L: Linear, cameras: dict) -> dict:
     n_c = len(names)
     parts = {src: np.zeros((n_c, 6, 6)) for src in SOURCES}  # each source's part of each camera's pose covariance
     for src, keys, blocks in L.factors:
+        if src == "corners":
+            continue  # the many view factors: their part is the rest (the parts sum to the covariance exactly)
         JX = sum(blocks[k] @ X[k] for k in keys).reshape(-1, n_c, 6)
         parts[src] += np.einsum("rci,rcj->cij", JX, JX)
+    for i, n in enumerate(names):
+        own = X[cameras[n][0]][:, 6 * i:6 * i + 6]  # the camera's own covariance block
+        parts["corners"][i] = 0.5 * (own + own.T) - sum(parts[src][i] for src in SOURCES if src != "corners")
     cam_keys = [cameras[n][0] for n in names]
     total = _translation_variances(L, L.S, cam_keys)
     present = {src for src, _, _ in L.factors}
