@@ -11,6 +11,7 @@ relative sd of ~3.4 %, so 15 % is > 4 sd.
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -214,6 +215,24 @@ def test_intrinsics_command_on_a_rendered_session(session, tmp_path, capsys):
     assert abs(e[0]) < 4 * sig["fx"] and sig["fx"] < 1e-3 * VGA.K[0, 0]
     # the target file beside the images' folder is found without --target
     assert main(["intrinsics", str(session / "cam0"), "--out", str(tmp_path / "again.yaml"), "--quiet"]) == 0
+
+
+def test_intrinsics_of_a_dataset_camera_folder_take_the_datasets_board(session, tmp_path, capsys):
+    """DATASET/images/CAM given without --target: the board the dataset's header names, and said so;
+    a dataset.yaml that names no board is passed over (one line, exit 2, as with none)."""
+    import yaml
+
+    ds = tmp_path / "ds"
+    shutil.copytree(session / "cam0", ds / "images" / "cam0")
+    (ds / "dataset.yaml").write_text(yaml.safe_dump({"format": "calibgraph-dataset/1", "mode": "eye_to_hand",
+                                                     "target": a4_board_54().to_dict(), "cameras": {}}))
+    capsys.readouterr()
+    assert main(["intrinsics", str(ds / "images" / "cam0"), "--out", str(tmp_path / "c.yaml")]) == 0
+    assert f"from {ds / 'dataset.yaml'}" in capsys.readouterr().err
+    (ds / "dataset.yaml").write_text(yaml.safe_dump({"format": "something else"}))
+    assert main(["intrinsics", str(ds / "images" / "cam0"), "--out", str(tmp_path / "d.yaml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no --target given" in err[0] and not (tmp_path / "d.yaml").exists()
 
 
 def test_intrinsics_over_an_earlier_camera_file_keeps_it(session, tmp_path, capsys):

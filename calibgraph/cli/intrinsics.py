@@ -76,8 +76,24 @@ def _target_path(args) -> Path:
     for cand in (args.images / "target.yaml", args.images.parent / "target.yaml"):
         if cand.is_file():
             return cand
-    raise InputError(f"no --target given and no target.yaml in {args.images} or its parent; give the board's spec "
-                     "(target: {kind, rows, cols, pitch_m}, rows/cols counting inner corners).")
+    # a calibgraph dataset's camera folder (DATASET/images/CAM): the board its header names
+    for header in (args.images.parent / "dataset.yaml", args.images.parent.parent / "dataset.yaml"):
+        if header.is_file() and _names_a_target(header):
+            return header
+    raise InputError(f"no --target given and no target.yaml in {args.images} or its parent (nor a calibgraph "
+                     "dataset.yaml above it); give the board's spec (target: {kind, rows, cols, pitch_m}, rows/cols "
+                     "counting inner corners).")
+
+
+def _names_a_target(header: Path) -> bool:
+    from calibgraph.core.errors import InputError
+    from calibgraph.io.files import read_yaml
+
+    try:
+        d = read_yaml(header, "dataset header")
+    except InputError:
+        return False
+    return isinstance(d, dict) and isinstance(d.get("target"), dict)
 
 
 def run(args) -> int:
@@ -95,8 +111,8 @@ def run(args) -> int:
     out = check_output_file(args.out, "camera file", "camera file", "camera.yaml", inputs=[target_file, *paths])
     target = load_target(target_file)
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
-    say(f"detecting the {target.kind} ({target.rows}x{target.cols} points of {target.pitch_m * 1e3:g} mm) in "
-        f"{len(paths)} images of {args.images}")
+    say(f"detecting the {target.kind} ({target.rows}x{target.cols} points of {target.pitch_m * 1e3:g} mm"
+        f"{'' if args.target is not None else f', from {target_file}'}) in {len(paths)} images of {args.images}")
 
     r = calibrate_images(paths, target, model=args.model, progress=not args.quiet, where=str(target_file))
     kept = write_keeping_previous(out, lambda: write_camera_file(out, r.to_dict(target)))
