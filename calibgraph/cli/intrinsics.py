@@ -23,7 +23,8 @@ def add_parser(sub):
                    help="folder of the camera's images (png, jpg, ...); none with --live")
     p.add_argument("--target", type=Path, default=None,
                    help="target spec YAML (target: {kind, rows, cols, pitch_m}; rows/cols count inner corners); "
-                        "default: target.yaml in IMAGES_DIR or its parent")
+                        "default: target.yaml in IMAGES_DIR or its parent, else the board of a calibgraph "
+                        "dataset.yaml one or two folders up")
     p.add_argument("--out", type=Path, required=True, help="camera file to write (YAML)")
     p.add_argument("--model", choices=tuple(DISTORTION_MODELS), default=DEFAULT_MODEL,
                    help=f"distortion coefficients to estimate (default {DEFAULT_MODEL})")
