@@ -93,7 +93,8 @@ from calibgraph.io.dataset import write_problem  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
 from calibgraph.solver.batch import solve  # noqa: E402
 from calibgraph.solver.build import build_problem  # noqa: E402
-from calibgraph.solver.kinematics import load_chain  # noqa: E402
+from calibgraph.solver.kinematics import corrected_flange_poses  # noqa: E402
+from calibgraph.solver.kinematics import setup as kin_setup  # noqa: E402
 from calibgraph.solver.prediction import predicted_uv  # noqa: E402
 from calibgraph.sim.kinematic_scene import make_kinematic_scene  # noqa: E402
 from calibgraph.sim.synthetic_corners import make_scene  # noqa: E402
@@ -267,9 +268,8 @@ def camera_model(r, name: str, notes: list, problem=None) -> dict:
         raise CalibgraphError(f"not calibrated: {cam.why}")
     T_bf = None
     if problem is not None and r.robot and r.robot.get("joint_offsets_rad") is not None:
-        chain = load_chain(problem.options.kinematics_model)
-        o = np.asarray(r.robot["joint_offsets_rad"], float)
-        T_bf = {c.index: chain.fk_jacobian(np.asarray(c.q_rad, float) + o)[0] for c in problem.captures}
+        poses = corrected_flange_poses(kin_setup(problem), r.robot["joint_offsets_rad"])
+        T_bf = {k: T for k, (T, _) in poses.items()}
     return {"X": cam.T_ref_cam, "mount": r.T_mount_board, "intr": cam.solved_intrinsics, "scale": r.board_scale, "T_bf": T_bf,
             "cov": cam.covariance, "cov_redrawn": redrawn_covariance(cam),
             "rms_fit_px": cam.reprojection_rms_px, "fk_noise": r.fk_noise,
@@ -548,13 +548,11 @@ def sim_scene(case: str, seed: int):
     return sc
 
 
-def write_offsets_set(seed: int, work: Path) -> Path:
-    """The "offsets" case's cell of ``seed`` (:func:`sim_scene`) written as a dataset folder (its
-    detections stored, its captures with the reported joint angles)."""
-    sc = sim_scene("offsets", seed)
-    root = work / f"joint_offsets_seed{seed}"
+def write_offsets_set(seed: int, root: Path) -> Path:
+    """The "offsets" case's cell of ``seed`` (:func:`sim_scene`) written as the dataset folder ``root``
+    (its detections stored, its captures with the reported joint angles)."""
     if not root.exists():
-        write_problem(root, sc.problem)
+        write_problem(root, sim_scene("offsets", seed).problem)
     return root
 
 
@@ -775,7 +773,8 @@ def main(argv=None) -> int:
     results = []
     specs = list(args.dataset)
     for seed in [int(x) for x in args.sim_joint_offsets.split(",") if x.strip()]:
-        specs.append(f"sim_joint_offsets_seed{seed}={write_offsets_set(seed, args.work / 'sim')}")
+        name = f"sim_joint_offsets_seed{seed}"  # written where the loop below looks for its copy: not copied again
+        specs.append(f"{name}={write_offsets_set(seed, args.work / 'sets' / f'dataset_{name}')}")
     for spec in specs:
         name, _, path = spec.partition("=")
         src = Path(path or name)

@@ -97,12 +97,7 @@ def _corrected_flange_poses(problem: Problem, result: Result) -> dict | None:
     ks = kin.setup(problem)
     if ks is None or not result.robot or result.robot.get("joint_offsets_rad") is None:
         return None
-    o = np.asarray(result.robot["joint_offsets_rad"], float)
-    caps = [c for c in problem.captures if c.q_rad is not None]
-    if not caps:
-        return None
-    T, J = ks.chain.fk_jacobian(np.array([c.q_rad for c in caps]) + o)
-    return {c.index: (T[i], J[i][:, list(ks.free)]) for i, c in enumerate(caps)}
+    return kin.corrected_flange_poses(ks, result.robot["joint_offsets_rad"]) or None
 
 
 def with_prediction(problem: Problem, result: Result, pose_mount_cov: dict | None = None) -> Result:

@@ -197,7 +197,7 @@ def widened(options, ratio: FkRatio):
 def _remedy(options, joint_angles: bool) -> str:
     """What a user can do about an arm less accurate than stated: state its accuracy, and for joint
     zero offsets estimate them where the captures record joint angles (or say they must)."""
-    if getattr(options, "kinematics", "none") == "joint-offsets":
+    if options.kinematics == "joint-offsets":
         offsets = "joint zero offsets are estimated already: the rest is not one the arm's zero offsets explain"
     elif joint_angles:
         offsets = "joint zero offsets: --estimate-kinematics joint-offsets"

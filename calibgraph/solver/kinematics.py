@@ -182,6 +182,17 @@ def offsets_from_poses(ks: KinematicSetup, T_base_flange: dict, prior_sigma: flo
     return o
 
 
+def corrected_flange_poses(ks: KinematicSetup, offsets_rad) -> dict:
+    """capture -> (FK(q + offsets), its flange-frame Jacobian on the free offsets (6, n_free)): the
+    flange poses as a user applies a calibration with joint offsets (the corrected arm, the reported
+    angles). ``offsets_rad``: all n joints' offsets (result.json's ``robot.joint_offsets_rad``)."""
+    caps = list(ks.q_rad)
+    if not caps:
+        return {}
+    T, J = ks.chain.fk_jacobian(np.array([ks.q_rad[k] for k in caps]) + np.asarray(offsets_rad, float))
+    return {k: (T[i], J[i][:, list(ks.free)]) for i, k in enumerate(caps)}
+
+
 def robot_result(ks: KinematicSetup, o_free: np.ndarray, cov: np.ndarray, labels: list, prior_sigma: float,
                  staging: str) -> dict:
     """``result.json``'s ``robot`` section: offsets and their 1-sigma (all joints, fixed ones 0 with
