@@ -543,9 +543,9 @@ def sim_scene(case: str, seed: int):
     offsets = np.zeros(7)
     offsets[1:6] = rng.uniform(0.5e-3, 2e-3, 5) * rng.choice([-1, 1], 5)
     sc = make_kinematic_scene(offsets, n_poses=30, seed=seed, pixel_sigma_px=0.1)[0]
-    if case == "offsets_estimated":
-        sc = replace(sc, problem=sc.problem.with_(options=replace(sc.problem.options, kinematics="joint-offsets")))
-    return sc
+    # "offsets": the per-pose FK model, the offsets unmodelled (not left to the default's choice)
+    kinematics = "joint-offsets" if case == "offsets_estimated" else "none"
+    return replace(sc, problem=sc.problem.with_(options=replace(sc.problem.options, kinematics=kinematics)))
 
 
 def write_offsets_set(seed: int, root: Path) -> Path:

@@ -75,6 +75,8 @@ def test_unmodelled_joint_offsets_the_folds_make_the_sigma_more_honest(seed, mon
     offsets = np.zeros(7)
     offsets[1:6] = rng.uniform(0.5e-3, 2e-3, 5) * rng.choice([-1, 1], 5)
     sc = make_kinematic_scene(offsets, n_poses=30, seed=seed, pixel_sigma_px=0.1)[0]
+    # the per-pose FK model asked for: the default would estimate the offsets (test_kinematics_auto.py)
+    sc = replace(sc, problem=sc.problem.with_(options=replace(sc.problem.options, kinematics="none")))
 
     def errors(r):
         e = np.concatenate([1e3 * (c.T_ref_cam[:3, 3] - sc.truth.T_ref_cam[n][:3, 3]) for n, c in r.cameras.items()])
@@ -125,6 +127,7 @@ def test_jackknife_alone_when_the_split_is_not_cross_validated(monkeypatch):
     offsets = np.zeros(7)
     offsets[1:6] = rng.uniform(0.5e-3, 2e-3, 5) * rng.choice([-1, 1], 5)
     sc = make_kinematic_scene(offsets, n_poses=30, seed=1, pixel_sigma_px=0.1)[0]
+    sc = replace(sc, problem=sc.problem.with_(options=replace(sc.problem.options, kinematics="none")))
     monkeypatch.setattr(optimise, "cross_validated_split", lambda problem, opts, ratio, *a: (ratio, None))
     r = solve(sc.problem)
     cv = r.fk_noise["cross_validation"]
@@ -168,13 +171,15 @@ def test_robot_note_offers_joint_offsets_only_where_the_captures_have_joint_angl
     angles are needed; with the offsets estimated already it does not offer them again."""
     comp = FkComponent(ratio=9.0, applied=9.0, dof=20.0, significant=True)
     ratio = FkRatio(9.0, 40.0, True, rotation=comp, translation=comp)
-    (with_q,) = fk_note(SolverOptions(), ratio, None, joint_angles=True)
+    (with_q,) = fk_note(SolverOptions(kinematics="none"), ratio, None, joint_angles=True)
     (without_q,) = fk_note(SolverOptions(), ratio, None, joint_angles=False)
     (estimated,) = fk_note(SolverOptions(kinematics="joint-offsets"), ratio, None, joint_angles=True)
+    (auto,) = fk_note(SolverOptions(), ratio, None, joint_angles=True)  # the default tries them: its note says how
     assert "--estimate-kinematics joint-offsets" in with_q and "q_rad" not in with_q
     assert "needs the joint angles (q_rad)" in without_q
     assert "estimated already" in estimated
-    assert all("--fk-sigma-mm" in n for n in (with_q, without_q, estimated))
+    assert "see the note on them below" in auto and "--estimate-kinematics" not in auto
+    assert all("--fk-sigma-mm" in n for n in (with_q, without_q, estimated, auto))
 
 
 def test_jackknife_folds_not_made_with_too_few_captures():

@@ -230,7 +230,7 @@ def _run(args) -> int:
     for f, msg in ds.problems:
         print(f"warning: {f}: {msg}", file=sys.stderr)
     opts = solver_options(args, ds)
-    if opts.kinematics != "none":
+    if opts.kinematics == "joint-offsets":
         missing = [c.index for c in ds.captures if c.q_rad is None]
         if missing:
             from calibgraph.core.errors import InputError

@@ -63,6 +63,8 @@ def mode_frames(mode: str | None) -> ModeFrames:
 METHODS = ("joint", "single")
 LOSSES = ("huber", "cauchy", "none")
 INTRINSICS_MODES = ("auto", "estimate", "fixed")
+# the robot error model: chosen by the held-out captures, the per-pose FK prior, or joint zero offsets
+KINEMATICS_MODES = ("auto", "none", "joint-offsets")
 # 1-sigma of given intrinsics by source: (focal, relative; principal point, fraction of the image
 # width; k1 and k2). Factory values of RGB-D cameras are often 1-2 % off in focal length; a proper
 # calibration file is good to a few tenths of a percent.
@@ -267,9 +269,13 @@ class SolverOptions:
             'corner' (one C++ ProjectionFactorPPP per corner, Cal3DS2 distortion only) or 'auto'
             (corner when every camera fits Cal3DS2 and the graph has at least 1000 views, else
             view). ``refine_intrinsics`` always uses view. Both give the same estimate.
-        kinematics: 'none' (default: the FK prior on each flange pose) or 'joint-offsets' (the flange
-            poses follow from the reported joint angles plus estimated joint zero offsets, see
-            :mod:`calibgraph.solver.kinematics`; needs ``q_rad`` in every capture).
+        kinematics: 'auto' (default), 'none' or 'joint-offsets'. 'none': the FK prior on each flange
+            pose. 'joint-offsets': the flange poses follow from the reported joint angles plus
+            estimated joint zero offsets (:mod:`calibgraph.solver.kinematics`; needs ``q_rad`` in every
+            capture). 'auto': 'none', and where the arm departs from its stated FK accuracy and every
+            capture records joint angles that the kinematic model maps to the recorded flange poses
+            (eye-to-hand, method joint), both are cross-validated and the one predicting held-out
+            captures clearly better is used (:mod:`calibgraph.solver.kinematics_select`).
         kinematics_model: the arm's kinematic model: 'franka' (Panda / FR3, built in) or a URDF path.
         joint_offset_prior_rad: 1-sigma prior of each estimated joint offset.
         kinematics_staging: 'staged' (cameras with an inflated FK prior, then offsets, then all
@@ -318,10 +324,12 @@ class SolverOptions:
         const=False))
     board_scale_sigma: float = _flag(0.02)
     formulation: str = _flag("auto")
-    kinematics: str = _flag("none", CliFlag(
+    kinematics: str = _flag("auto", CliFlag(
         "--estimate-kinematics", "joint-offsets: estimate the arm's joint zero offsets in the same graph (needs q_rad "
-        "in every capture; eye-to-hand, method joint); result.json gains a 'robot' section", str,
-        choices=("none", "joint-offsets")))
+        "in every capture; eye-to-hand, method joint); result.json gains a 'robot' section. none: the per-pose FK "
+        "prior only. auto (default): none, unless the arm departs from its FK, the captures record joint angles and "
+        "the offsets predict held-out captures clearly better (5-fold cross-validation)", str,
+        choices=KINEMATICS_MODES))
     kinematics_model: str = _flag("franka", CliFlag(
         "--kinematic-model", "the arm's kinematic model for --estimate-kinematics: franka (Panda / FR3, default) or a "
         "URDF path", str))
@@ -353,8 +361,8 @@ class SolverOptions:
             raise InputError(f"solver: board_scale_sigma must be positive, got {self.board_scale_sigma}.")
         if self.formulation not in ("auto", "view", "corner"):
             raise InputError(f"solver: formulation must be 'auto', 'view' or 'corner', got {self.formulation!r}.")
-        if self.kinematics not in ("none", "joint-offsets"):
-            raise InputError(f"solver: kinematics must be 'none' or 'joint-offsets', got {self.kinematics!r}.")
+        if self.kinematics not in KINEMATICS_MODES:
+            raise InputError(f"solver: kinematics must be one of {KINEMATICS_MODES}, got {self.kinematics!r}.")
         if self.kinematics_staging not in ("staged", "joint"):
             raise InputError(f"solver: kinematics_staging must be 'staged' or 'joint', got {self.kinematics_staging!r}.")
         if not (np.isfinite(self.joint_offset_prior_rad) and self.joint_offset_prior_rad > 0):

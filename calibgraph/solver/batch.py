@@ -37,6 +37,7 @@ from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note, fk_record
 from calibgraph.solver.keys import B, C, K, O, S
+from calibgraph.solver.kinematics_select import choose_kinematics
 from calibgraph.solver.moved import solve_minding_moves
 from calibgraph.solver.noise_model import corner_noise_notes
 from calibgraph.solver.observability import check_before_solve
@@ -65,6 +66,10 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
     """
     t0 = time.perf_counter()
     result = solve_minding_moves(problem, lambda p: solve_once(p, initial, seed, timings))
+    if problem.options.kinematics == "auto":
+        with timed(timings, "kinematics_select"):
+            result = choose_kinematics(problem, result,
+                                       lambda p: solve_minding_moves(p, lambda q: solve_once(q, initial, seed)))
     return replace(result, solve_time_s=time.perf_counter() - t0)
 
 
@@ -106,7 +111,7 @@ def with_prediction(problem: Problem, result: Result, pose_mount_cov: dict | Non
     estimated, from its reported joint angles through the corrected arm model, the offsets'
     uncertainty in the calibration part."""
     corrected = None
-    if problem.options.kinematics != "none":
+    if problem.options.kinematics == "joint-offsets":
         corrected = _corrected_flange_poses(problem, result)
         if corrected is None:
             return result
@@ -215,6 +220,7 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
     # the default applies only to cameras whose intrinsics do not state a source: each camera's own
     # provenance is in its intrinsics record (source_given, source_stated, source_used)
     settings["intrinsics_source_default"] = settings.pop("intrinsics_source")
+    settings["kinematics_used"] = "joint-offsets" if problem.options.kinematics == "joint-offsets" else "none"
     settings["formulation_used"] = groups[0].est.formulation
     fk_ratio = groups[0].est.fk_ratio if len(groups) == 1 else None
     jackknife = groups[0].est.jackknife if len(groups) == 1 else None

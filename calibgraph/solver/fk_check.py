@@ -127,7 +127,7 @@ def fk_variance_ratio(problem: Problem, views, est, sigma_px: float, lin: Linear
     Without it the redundancy takes F(k)'s covariance given the rest, which is smaller than its
     marginal (the cameras, mount and intrinsics come from the same views): the redundancy comes out
     too large and the ratio too small (about 0.8 on synthetic cells where the stated accuracy holds)."""
-    if problem.options.kinematics != "none":
+    if problem.options.kinematics == "joint-offsets":
         return None
     lin = lin or linearise(problem, views, est, sigma_px)
     prior_at = {v.capture: v.T_ref_mount for v in views}
@@ -199,6 +199,8 @@ def _remedy(options, joint_angles: bool) -> str:
     zero offsets estimate them where the captures record joint angles (or say they must)."""
     if options.kinematics == "joint-offsets":
         offsets = "joint zero offsets are estimated already: the rest is not one the arm's zero offsets explain"
+    elif joint_angles and options.kinematics == "auto":
+        offsets = "joint zero offsets: see the note on them below"
     elif joint_angles:
         offsets = "joint zero offsets: --estimate-kinematics joint-offsets"
     else:

@@ -137,7 +137,7 @@ def formulation(problem: Problem, names, n_views: int, est: Estimate | None = No
     joint offsets is refused); 'auto' takes 'corner' when every camera fits Cal3DS2, nothing but
     poses is estimated and the graph has at least CORNER_FORMULATION_MIN_VIEWS views."""
     f = problem.options.formulation
-    if problem.options.kinematics != "none":
+    if problem.options.kinematics == "joint-offsets":
         if f == "corner":
             raise InputError("solver: formulation 'corner' has no kinematic factors; use 'view' or 'auto' with "
                              "--estimate-kinematics.")

@@ -36,7 +36,6 @@ import numpy as np
 from calibgraph.core.errors import InputError, ObservabilityError
 from calibgraph.core.kinematics import SerialChain, chain_from_urdf, franka_chain
 
-KINEMATICS_MODES = ("none", "joint-offsets")
 STAGE1_FK_INFLATION = 30.0
 # a joint "moves" when its angle spans at least this much over the captures (rad, ~3 degrees)
 MIN_JOINT_MOTION_RAD = 0.05
@@ -81,7 +80,7 @@ def setup(problem) -> KinematicSetup | None:
     """The :class:`KinematicSetup` of a problem whose options ask for kinematics, else None.
     Refuses (InputError) captures without joint angles, eye-in-hand and 'single' method."""
     opts = problem.options
-    if opts.kinematics == "none":
+    if opts.kinematics != "joint-offsets":  # 'none', or 'auto' before it chose (kinematics_select)
         return None
     chain = load_chain(opts.kinematics_model)
     missing = [c.index for c in problem.captures if c.q_rad is None]

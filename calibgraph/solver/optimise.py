@@ -182,7 +182,7 @@ def _fk_marginals(problem: Problem, views: list, slots: dict, est: Estimate, sig
     """capture -> marginal covariance of F(k) in the view graph at ``est`` (the FK check's
     redundancy; :func:`calibgraph.solver.fk_check.robot_pose_marginals`); None in the corner form.
     ``solved``: (that graph, its values at ``est``) when the caller has just solved it."""
-    if form != "view" or problem.options.kinematics != "none":
+    if form != "view" or problem.options.kinematics == "joint-offsets":
         return None
     with timed(timings, "marginals"):
         graph, values = solved or build_graph(views, slots, problem, est, sigma, form, factors)

@@ -6,8 +6,9 @@ import time
 from contextlib import contextmanager
 
 # PnP candidates, the initialiser's consensus and its translation solve, graph building, LM runs,
-# elimination for the marginals
-STAGES = ("candidates", "initialise", "refine_translations", "build_graph", "lm", "marginals")
+# elimination for the marginals, and the robot error model's cross-validation (kinematics_select; it
+# times its solves as a whole)
+STAGES = ("candidates", "initialise", "refine_translations", "build_graph", "lm", "marginals", "kinematics_select")
 
 
 @contextmanager

@@ -1,0 +1,108 @@
+"""The default robot error model (``kinematics='auto'``): joint zero offsets estimated where the arm
+departs from its FK as offsets do and they predict held-out captures clearly better; the per-pose
+FK model, to the digit, everywhere else (calibgraph.solver.kinematics_select)."""
+
+from dataclasses import replace
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+from calibgraph.core.errors import InputError
+from calibgraph.core.problem import SolverOptions
+from calibgraph.core.transforms import make_T
+from calibgraph.sim.kinematic_scene import make_kinematic_scene
+from calibgraph.solver import kinematics_select
+from calibgraph.solver.batch import solve
+
+
+def _offsets(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(1000 + seed)
+    o = np.zeros(7)
+    o[1:6] = rng.uniform(0.5e-3, 2e-3, 5) * rng.choice([-1, 1], 5)
+    return o
+
+
+@lru_cache(maxsize=4)
+def _offset_scene(seed: int):
+    """3 cameras at 1.5, 3 and 5 m, 30 captures, joint offsets of 0.5-2 mrad on joints 2-6, factory-class
+    intrinsics reported."""
+    return make_kinematic_scene(_offsets(seed), n_poses=30, seed=seed, pixel_sigma_px=0.1)[0]
+
+
+def _with(problem, **kw):
+    return problem.with_(options=replace(problem.options, **kw))
+
+
+def _z(r, sc) -> np.ndarray:
+    return np.concatenate([1e3 * (c.T_ref_cam[:3, 3] - sc.truth.T_ref_cam[n][:3, 3]) / np.asarray(c.sigma_translation_mm)
+                           for n, c in r.cameras.items()])
+
+
+def _same(a, b):
+    for n, c in a.cameras.items():
+        assert np.array_equal(c.T_ref_cam, b.cameras[n].T_ref_cam)
+        assert np.array_equal(c.covariance, b.cameras[n].covariance)
+
+
+def test_the_default_is_auto_and_the_modes_are_named():
+    assert SolverOptions().kinematics == "auto"
+    with pytest.raises(InputError, match="'auto', 'none', 'joint-offsets'"):
+        SolverOptions(kinematics="offsets")
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_joint_offsets_estimated_by_default_where_the_held_out_captures_prefer_them(seed):
+    """Unmodelled, these offsets leave the cameras outside their 1-sigma (max |error / 1-sigma| 4.9 and
+    6.1); the default estimates them, as --estimate-kinematics joint-offsets does, and says why."""
+    sc = _offset_scene(seed)
+    r = solve(sc.problem)
+    sel = r.settings["kinematics_selection"]
+    assert r.settings["kinematics"] == "auto" and r.settings["kinematics_used"] == "joint-offsets"
+    assert sel["chosen"] == "joint-offsets" and sel["folds"] == kinematics_select.FOLDS
+    assert sel["rms_px"]["joint-offsets"] < (1 - kinematics_select.MARGIN) * sel["rms_px"]["none"]
+    assert sel["t"] < -kinematics_select.T_MIN
+    assert r.robot and r.robot["estimated"] == [2, 3, 4, 5, 6]
+    assert any(n.startswith("robot: the arm departs from its forward kinematics as joint zero offsets do") for n in r.notes)
+    _same(r, solve(_with(sc.problem, kinematics="joint-offsets")))
+    r_none = solve(_with(sc.problem, kinematics="none"))
+    assert "kinematics_selection" not in r_none.settings and r_none.settings["kinematics_used"] == "none"
+    # nine axes: |z| > 3 somewhere has probability 2.4 % with an honest 1-sigma
+    assert np.abs(_z(r_none, sc)).max() > 3.0
+    assert np.abs(_z(r, sc)).max() < 3.0
+
+
+def test_an_arm_with_independent_errors_keeps_the_per_pose_model():
+    """FK errors 3x the stated accuracy, independent from pose to pose, no offsets: the arm departs, the
+    offsets are tried, predict worse, and the result is the per-pose model's to the digit."""
+    opts = SolverOptions(fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=float(np.radians(0.01)))
+    sc = make_kinematic_scene(None, n_poses=30, seed=2, pixel_sigma_px=0.1, options=opts,
+                              fk_sigma_translation_m=3e-4, fk_sigma_rotation_rad=float(np.radians(0.03)))[0]
+    r = solve(sc.problem)
+    sel = r.settings["kinematics_selection"]
+    assert sel["tried"] and sel["chosen"] == "none" and r.settings["kinematics_used"] == "none"
+    assert sel["rms_px"]["joint-offsets"] > sel["rms_px"]["none"]
+    assert r.robot is None
+    assert any("joint zero offsets were tried and predict no clearly better" in n for n in r.notes)
+    _same(r, solve(_with(sc.problem, kinematics="none")))
+
+
+def test_nothing_is_tried_where_the_arm_is_as_stated():
+    sc = make_kinematic_scene(None, n_poses=30, seed=1, pixel_sigma_px=0.1)[0]
+    r = solve(sc.problem)
+    assert r.settings["kinematics_used"] == "none" and "kinematics_selection" not in r.settings
+    assert not any("joint zero offsets" in n for n in r.notes)
+    _same(r, solve(_with(sc.problem, kinematics="none")))
+
+
+def test_not_tried_when_the_model_does_not_map_the_angles_to_the_recorded_poses():
+    """Poses recorded for a tool frame 10 cm beyond the flange: the built-in arm model does not
+    reproduce them, so the offsets are not tried and the note says what to give."""
+    sc = _offset_scene(1)
+    tool = make_T(np.eye(3), np.array([0.0, 0.0, 0.1]))
+    p = sc.problem.with_(captures=tuple(replace(c, T_base_flange=c.T_base_flange @ tool) for c in sc.problem.captures))
+    r = solve(p)
+    sel = r.settings["kinematics_selection"]
+    assert sel == {"tried": False, "why_not": sel["why_not"]} and "100.0 mm" in sel["why_not"]
+    assert r.settings["kinematics_used"] == "none" and r.robot is None
+    assert any(n.startswith("robot: joint zero offsets were not tried") and "--kinematic-model" in n for n in r.notes)
