@@ -31,6 +31,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import sys
 import time
@@ -354,7 +355,7 @@ def main(argv=None) -> int:
         text, auto_rows = auto_selection(args.auto_seeds)
         OUT.mkdir(parents=True, exist_ok=True)
         (OUT / "bench_kinematics_auto.json").write_text(json.dumps(auto_rows, indent=1, default=float))
-        (OUT / "bench_kinematics_auto.md").write_text("# bench_kinematics --auto-only\n\n" + (auto_selection.__doc__ or "")
+        (OUT / "bench_kinematics_auto.md").write_text("# bench_kinematics --auto-only\n\n" + inspect.cleandoc(auto_selection.__doc__ or "")
                                                       + "\n\n" + text + "\n")
         print(text)
         return 0
