@@ -268,7 +268,9 @@ def camera_model(r, name: str, notes: list, problem=None) -> dict:
         raise CalibgraphError(f"not calibrated: {cam.why}")
     T_bf = None
     if problem is not None and r.robot and r.robot.get("joint_offsets_rad") is not None:
-        poses = corrected_flange_poses(kin_setup(problem), r.robot["joint_offsets_rad"])
+        # the default ('auto') may have chosen the offsets: the arm set up as the offset model has it
+        poses = corrected_flange_poses(kin_setup(problem.with_(options=replace(problem.options, kinematics="joint-offsets"))),
+                                       r.robot["joint_offsets_rad"])
         T_bf = {k: T for k, (T, _) in poses.items()}
     return {"X": cam.T_ref_cam, "mount": r.T_mount_board, "intr": cam.solved_intrinsics, "scale": r.board_scale, "T_bf": T_bf,
             "cov": cam.covariance, "cov_redrawn": redrawn_covariance(cam),

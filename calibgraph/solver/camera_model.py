@@ -129,10 +129,15 @@ def board_scale(problem: Problem, groups: list, robot_suspect: bool = False) -> 
     d = np.linalg.norm(pts[1:] - pts[:1], axis=1)
     pitch = float(d[d > 1e-9].min()) if np.any(d > 1e-9) else 0.0
     if robot_suspect:
+        angles = bool(problem.captures) and all(c.q_rad is not None for c in problem.captures)
+        offsets = ("joint zero offsets are tried by default (the note on them below)"
+                   if angles and problem.options.kinematics == "auto" else
+                   "try --estimate-kinematics joint-offsets" if angles else
+                   "joint zero offsets could be estimated with the joint angles (q_rad) recorded with each capture")
         return s, sigma, [f"the board's fitted scale is {100 * (s - 1):+.2f} % (± {100 * sigma:.2f} %) off its spec, but "
                           "the robot poses also depart from forward kinematics (below): kinematic errors such as joint "
                           "zero offsets scale the board's apparent size too, so this is not taken for a misprint; "
-                          "measure the board with a ruler, and try --estimate-kinematics joint-offsets"]
+                          f"measure the board with a ruler; {offsets}"]
     return s, sigma, [f"the board is {100 * (s - 1):+.2f} % (± {100 * sigma:.2f} %) the size the target spec declares: "
                       f"printed at {100 * s:.1f} %" + (f" (pitch {1e3 * pitch * s:.2f} mm, not {1e3 * pitch:.2f} mm)"
                                                        if pitch else "")

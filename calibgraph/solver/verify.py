@@ -30,7 +30,7 @@ cameras.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -44,6 +44,7 @@ from calibgraph.solver.factors import fk_noise
 from calibgraph.solver.views import MIN_CORNERS_PER_VIEW
 from calibgraph.solver.factors import make_calibration_factor, view_residual
 from calibgraph.solver.keys import B, C, F, S
+from calibgraph.solver.kinematics import load_chain
 from calibgraph.solver.result import Result, as_result, solved_target, target_differences
 
 __all__ = ["CameraCheck", "VerifyResult", "verify", "chi2_sf_6", "chi2_isf_6", "stored_model", "StoredModel",
@@ -317,6 +318,33 @@ def _check(name, views, vals, marg, slots, model, T_fb, alpha) -> CameraCheck:
         rms_px=float(np.sqrt(np.mean(r ** 2))) if r.size else float("nan"), T_base_cam_new=T_new)
 
 
+def applied_flange_poses(problem: Problem, result: Result) -> tuple:
+    """(``problem`` with each capture's flange pose as the stored calibration applies it, notes). A
+    calibration that estimated the arm's joint zero offsets (``result.robot``) was solved with the
+    flange at FK(q + offsets): the fresh captures' reported joint angles are put through the same arm
+    model with those offsets. Without joint angles the reported poses are kept, with a note: their
+    error includes the offsets', which a camera's test may then read as a move."""
+    rb = result.robot or {}
+    if rb.get("joint_offsets_rad") is None or not problem.captures:
+        return problem, []
+    o = np.asarray(rb["joint_offsets_rad"], float)
+    if any(c.q_rad is None or c.q_rad.size != o.size for c in problem.captures):
+        return problem, [f"the stored calibration estimated the arm's joint zero offsets, but these captures do not all "
+                         f"record {o.size} joint angles (q_rad): their reported flange poses carry the offsets' error, "
+                         "which the test may read as a camera or mount move; record the joint angles (calibgraph "
+                         "capture does)"]
+    source = str(rb.get("model_source") or result.settings.get("kinematics_model") or "franka")
+    chain = load_chain(source)
+    if chain.n_joints != o.size:
+        raise InputError(f"verify: the stored result has {o.size} joint offsets but its arm model {source!r} has "
+                         f"{chain.n_joints} joints.")
+    T = chain.fk(np.array([c.q_rad for c in problem.captures]) + o)
+    captures = tuple(replace(c, T_base_flange=T[i]) for i, c in enumerate(problem.captures))
+    return problem.with_(captures=captures), [
+        "flange poses from the reported joint angles through the arm model with the stored calibration's joint "
+        "zero offsets, as it was solved"]
+
+
 def verify(problem: Problem, result: Result, alpha: float = DEFAULT_ALPHA, where: str = "result",
            target: Target | None = None) -> VerifyResult:
     """Test every camera of the stored ``result`` against the views of ``problem`` (the fresh
@@ -328,6 +356,8 @@ def verify(problem: Problem, result: Result, alpha: float = DEFAULT_ALPHA, where
     result = as_result(result, where)
     model = stored_model(result, where)
     notes = check_fresh_data(result, problem.cameras, target, where)
+    problem, applied = applied_flange_poses(problem, result)
+    notes += applied
     views = []
     for det in problem.detections:
         if det.camera in model.T_base_cam and len(det.ids) >= MIN_CORNERS_PER_VIEW:
