@@ -130,3 +130,13 @@ def test_verify_applies_the_stored_joint_offsets_to_the_fresh_joint_angles():
     v_no_q = verify(fresh.with_(captures=tuple(replace(c, q_rad=None) for c in fresh.captures)), r)
     assert any("carry the offsets' error" in n for n in v_no_q.notes)
     assert v_no_q.verdict != "unchanged"
+
+
+def test_an_unreadable_arm_model_is_a_note_not_a_refusal_when_the_offsets_were_not_asked_for(tmp_path):
+    sc = _offset_scene(1)
+    r = solve(_with(sc.problem, kinematics_model=str(tmp_path / "missing_arm.urdf")))
+    assert r.settings["kinematics_used"] == "none" and r.robot is None
+    assert any(n.startswith("robot: joint zero offsets were not tried (the kinematic model could not be read")
+               for n in r.notes)
+    with pytest.raises(InputError):  # asked for, it is refused as before
+        solve(_with(sc.problem, kinematics="joint-offsets", kinematics_model=str(tmp_path / "missing_arm.urdf")))

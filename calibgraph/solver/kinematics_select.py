@@ -60,7 +60,10 @@ def why_not_tried(problem) -> str | None:
     if problem.mode != "eye_to_hand" or problem.method != "joint":
         return "joint offsets are estimated for eye-to-hand cells solved jointly only"
     model = problem.options.kinematics_model
-    chain = kin.load_chain(model)
+    try:
+        chain = kin.load_chain(model)
+    except CalibgraphError as e:  # not asked for: the per-pose result stands, the note says why
+        return f"the kinematic model could not be read: {e}"
     sizes = {c.q_rad.size for c in caps}
     if sizes != {chain.n_joints}:
         return (f"the captures record {'/'.join(str(s) for s in sorted(sizes))} joint angles, the kinematic model "
