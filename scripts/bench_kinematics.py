@@ -335,6 +335,30 @@ def auto_selection(seeds, n: int = 30) -> tuple[str, list]:
     return "\n".join(lines), rows
 
 
+def auto_cost(ns=(30, 120, 250), seed: int = 1) -> tuple[str, list]:
+    """What the default's selection costs as the captures grow: the offsets arm of :func:`auto_selection`
+    (seed ``seed``) at ``ns`` captures, the default solve's wall time and the selection's part of it."""
+    lines = ["Cost as the captures grow (joint offsets 0.5-2 mrad, seed "
+             f"{seed}, 3 cameras; wall time on this machine):", "",
+             "| captures | chosen | default solve s | of it the selection s | per-pose model alone s | camera error default | "
+             "forced none |", "|---|---|---|---|---|---|---|"]
+    rows = []
+    for n in ns:
+        sc = make_kinematic_scene(offsets_for(seed), n_poses=n, seed=seed, pixel_sigma_px=0.1)[0]
+        timings = {}
+        t0 = time.perf_counter()
+        r = solve(sc.problem, timings=timings)
+        t = time.perf_counter() - t0
+        r_none, t_none = run_solve(sc.problem, "none")
+        e, e0 = camera_errors(r, sc.truth), camera_errors(r_none, sc.truth)
+        rows.append({"captures": n, "chosen": r.settings["kinematics_used"], "time_s": t,
+                     "selection_s": timings.get("kinematics_select", 0.0), "none_time_s": t_none})
+        lines.append(f"| {n} | {r.settings['kinematics_used']} | {t:.1f} | {timings.get('kinematics_select', 0.0):.1f} | "
+                     f"{t_none:.1f} | {e[0]:.2f} mm ({e[2]:.2f}) | {e0[0]:.2f} mm ({e0[2]:.2f}) |")
+        print(lines[-1], flush=True)
+    return "\n".join(lines), rows
+
+
 def auto_small_sets(seeds) -> tuple[str, list]:
     """The selection's two statistics on small train sets, where its t test has the least power: each
     seed's 30-capture synthetic cell (joint offsets, or independent FK errors 3x stated) cut as
@@ -409,8 +433,9 @@ def main(argv=None) -> int:
     if args.auto_only:
         text, auto_rows = auto_selection(args.auto_seeds)
         small, small_rows = auto_small_sets(args.auto_seeds)
-        text += "\n\n" + small
-        auto_rows = {"cells": auto_rows, "small_sets": small_rows}
+        cost, cost_rows = auto_cost()
+        text += "\n\n" + small + "\n\n" + cost
+        auto_rows = {"cells": auto_rows, "small_sets": small_rows, "cost": cost_rows}
         OUT.mkdir(parents=True, exist_ok=True)
         (OUT / "bench_kinematics_auto.json").write_text(json.dumps(auto_rows, indent=1, default=float))
         (OUT / "bench_kinematics_auto.md").write_text("# bench_kinematics --auto-only\n\n" + inspect.cleandoc(auto_selection.__doc__ or "")
