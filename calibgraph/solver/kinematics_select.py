@@ -160,17 +160,24 @@ def choose_kinematics(problem, per_pose, resolve):
         record = {"tried": False, "why_not": why}
         note = f"robot: joint zero offsets were not tried ({why}); the per-pose FK model is kept"
         return replace(per_pose, settings={**used, "kinematics_selection": record}, notes=per_pose.notes + (note,))
-    jo = problem.with_(options=replace(problem.options, kinematics="joint-offsets"))
+    def kept(why: str):
+        record = {"tried": True, "chosen": "none", "why_not": why}
+        note = f"robot: joint zero offsets were tried and could not be estimated ({why}); the per-pose FK model is kept"
+        return replace(per_pose, settings={**used, "kinematics_selection": record}, notes=per_pose.notes + (note,))
+
     try:
-        offsets = resolve(jo)
         cv = cross_validate(problem, per_pose, resolve)
     except CalibgraphError as e:
-        record = {"tried": True, "chosen": "none", "why_not": str(e)}
-        note = f"robot: joint zero offsets were tried and could not be estimated ({e}); the per-pose FK model is kept"
-        return replace(per_pose, settings={**used, "kinematics_selection": record}, notes=per_pose.notes + (note,))
+        return kept(str(e))
     rms = cv["rms_px"]
-    chosen = ("joint-offsets" if rms["joint-offsets"] < (1.0 - MARGIN) * rms["none"] and cv["t"] < -T_MIN
-              and offsets.robot else "none")
+    chosen = "joint-offsets" if rms["joint-offsets"] < (1.0 - MARGIN) * rms["none"] and cv["t"] < -T_MIN else "none"
+    if chosen == "joint-offsets":  # all captures solved with the offsets only where they are used
+        try:
+            offsets = resolve(problem.with_(options=replace(problem.options, kinematics="joint-offsets")))
+        except CalibgraphError as e:
+            return kept(str(e))
+        if not offsets.robot:
+            return kept("the solve with them gave no offsets")
     record = {"tried": True, "chosen": chosen, **cv, "margin": MARGIN, "t_min": T_MIN}
     figures = (f"held-out captures predicted to {rms['joint-offsets']:.3f} px RMS with the offsets, "
                f"{rms['none']:.3f} px with the per-pose FK model ({FOLDS}-fold cross-validation, paired t "
