@@ -660,3 +660,29 @@ def test_a_run_records_what_made_it_and_takes_over_the_lock_of_a_killed_run(tmp_
     with pytest.raises(InputError, match="different trajectory"):
         _run(make_fake_cell(n_cameras=2, n_poses=5, seed=21), out, resume=True)
     assert not (out / ".calibgraph.lock").exists()
+
+
+def test_a_holder_that_has_not_yet_written_who_it_is_is_still_named(tmp_path):
+    """Two runs started together: the first has the lock's flock but has not yet written its details
+    when the second is refused. The refusal waits for them and names the holder's run (it said "a
+    capture", with no pid, under load: CI's two-solves case)."""
+    import fcntl
+    import threading
+
+    from calibgraph.io.lock import LOCK_NAME, lock_folder
+
+    fd = os.open(tmp_path / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held, still empty
+
+    def write_later():
+        time.sleep(0.3)
+        os.pwrite(fd, json.dumps({"pid": 4242, "host": "cell-pc", "mode": "solve", "started_unix_s": time.time()}).encode(), 0)
+
+    t = threading.Thread(target=write_later)
+    t.start()
+    try:
+        with pytest.raises(InputError, match=r"process 4242 on cell-pc, `calibgraph solve`"):
+            lock_folder(tmp_path, "solve")
+    finally:
+        t.join()
+        os.close(fd)

@@ -27,6 +27,9 @@ except ImportError:  # pragma: no cover - not on the platforms calibgraph runs o
     fcntl = None
 
 LOCK_NAME = ".calibgraph.lock"
+# a refused run waits up to this long (tries x seconds) for a holder that has the flock but has not yet
+# written its details (two runs started together), so the refusal can name it
+HOLDER_WAIT_TRIES, HOLDER_WAIT_S = 100, 0.02
 RUN_NAMES = {"sim": "`calibgraph sim`", "trajectory": "a trajectory capture (`calibgraph capture --trajectory`)",
              "auto": "`calibgraph capture --auto`", "verify": "`calibgraph capture --verify`",
              "solve": "`calibgraph solve`", "import": "`calibgraph import`"}
@@ -41,6 +44,8 @@ def _holder(fd: int) -> dict:
 
 
 def _describe(h: dict) -> str:
+    if not h:
+        return "a run that is just starting and has not yet written who it is"
     when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(h["started_unix_s"])) if "started_unix_s" in h else "?"
     return (f"process {h.get('pid', '?')} on {h.get('host', '?')}, {RUN_NAMES.get(h.get('mode'), 'a capture')}, "
             f"started {when}")
@@ -78,6 +83,11 @@ def lock_folder(out: Path, mode: str, log=None) -> int:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
         if _held_by_another(fd):
             h = _holder(fd)
+            for _ in range(HOLDER_WAIT_TRIES):  # the holder is between its flock and writing who it is
+                if h:
+                    break
+                time.sleep(HOLDER_WAIT_S)
+                h = _holder(fd)
             os.close(fd)
             raise InputError(f"{out}: another calibgraph run is writing this dataset ({_describe(h)}); wait for it to "
                              "end (or stop it), then run again (nothing was changed).")
