@@ -238,7 +238,7 @@ def calibgraph_fits(problem) -> dict:
     (eye-to-hand), "calibgraph joint-offsets" (``--estimate-kinematics joint-offsets``). One solve per
     method and train set, shared by the cameras."""
     variants = {"calibgraph": problem}
-    if problem.mode == "eye_to_hand" and problem.captures and all(c.q_rad is not None for c in problem.captures):
+    if problem.mode == "eye_to_hand" and problem.records_joint_angles:
         variants["calibgraph joint-offsets"] = problem.with_(options=replace(problem.options, kinematics="joint-offsets"))
     solved = {}
 

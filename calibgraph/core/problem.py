@@ -443,6 +443,11 @@ class Problem:
     def capture_by_index(self) -> dict:
         return {c.index: c for c in self.captures}
 
+    @property
+    def records_joint_angles(self) -> bool:
+        """Every capture records its joint angles (what joint zero offsets need)."""
+        return bool(self.captures) and all(c.q_rad is not None for c in self.captures)
+
     def detections_of(self, camera: str) -> list:
         return [d for d in self.detections if d.camera == camera]
 

@@ -47,7 +47,7 @@ from calibgraph.core.transforms import R_to_quat_xyzw
 from calibgraph.core.version import __version__
 from calibgraph.io.files import atomic_write_text, atomic_write_via, output_folder, read_opencv_storage
 from calibgraph.io.layouts import as_dataset
-from calibgraph.solver.kinematics import load_chain
+from calibgraph.solver.kinematics import stored_arm
 from calibgraph.solver.result import as_result
 
 FORMATS = ("urdf", "ros2-launch", "opencv-yaml", "camera-info", "yaml", "json", "robot")
@@ -416,15 +416,7 @@ def write_robot_exports(result, out_dir) -> list:
 
     result = as_result(result, "export")
     rb = result.robot
-    o = np.asarray(rb["joint_offsets_rad"], float)
-    source = rb.get("model_source") or result.settings.get("kinematics_model") or "franka"
-    try:
-        chain = load_chain(str(source))
-    except InputError as e:
-        raise InputError(f"export: cannot read the arm's kinematic model the result was solved with ({e}); run the export "
-                         "where that URDF is, or solve again.") from None
-    if chain.n_joints != o.size:
-        raise InputError(f"export: the result has {o.size} joint offsets but the model {source!r} has {chain.n_joints} joints.")
+    chain, o, source = stored_arm(result, "export")
     out = Path(out_dir)
     name = _safe(str(rb.get("model") or chain.name))
     urdf = out / f"{name}_corrected.urdf"

@@ -201,7 +201,7 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
             cameras[n] = not_calibrated(problem, n, why, rejected)
     cameras = {n: cameras[n] for n in problem.cameras if n in cameras}
     T_mount_board, mount_cov, T_base_flange_est = mount_and_robot_poses(problem, groups)
-    angles = bool(problem.captures) and all(c.q_rad is not None for c in problem.captures)
+    angles = problem.records_joint_angles
     fk_notes = next((n for n in (fk_note(problem.options, g.est.fk_ratio, g.est.jackknife, angles) for g in groups)
                      if n), [])
     robot_suspect = any(g.est.fk_ratio is not None and g.est.fk_ratio.significant for g in groups)

@@ -129,7 +129,7 @@ def board_scale(problem: Problem, groups: list, robot_suspect: bool = False) -> 
     d = np.linalg.norm(pts[1:] - pts[:1], axis=1)
     pitch = float(d[d > 1e-9].min()) if np.any(d > 1e-9) else 0.0
     if robot_suspect:
-        angles = bool(problem.captures) and all(c.q_rad is not None for c in problem.captures)
+        angles = problem.records_joint_angles
         offsets = ("joint zero offsets are tried by default (the note on them below)"
                    if angles and problem.options.kinematics == "auto" else
                    "try --estimate-kinematics joint-offsets" if angles else

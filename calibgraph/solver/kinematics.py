@@ -181,6 +181,24 @@ def offsets_from_poses(ks: KinematicSetup, T_base_flange: dict, prior_sigma: flo
     return o
 
 
+def stored_arm(result, where: str) -> tuple:
+    """(the arm's kinematic model, its joint offsets (n,), the model's source) of a result that
+    estimated joint offsets (its ``robot`` section): the model the solve used, else the settings', else
+    the built-in Franka. InputError, prefixed ``where``, when the model cannot be read or has another
+    number of joints."""
+    rb = result.robot
+    o = np.asarray(rb["joint_offsets_rad"], float)
+    source = str(rb.get("model_source") or result.settings.get("kinematics_model") or "franka")
+    try:
+        chain = load_chain(source)
+    except InputError as e:
+        raise InputError(f"{where}: cannot read the arm's kinematic model the result was solved with ({e}); run the "
+                         f"{where} where that URDF is, or solve again.") from None
+    if chain.n_joints != o.size:
+        raise InputError(f"{where}: the result has {o.size} joint offsets but the model {source!r} has {chain.n_joints} joints.")
+    return chain, o, source
+
+
 def corrected_flange_poses(ks: KinematicSetup, offsets_rad) -> dict:
     """capture -> (FK(q + offsets), its flange-frame Jacobian on the free offsets (6, n_free)): the
     flange poses as a user applies a calibration with joint offsets (the corrected arm, the reported

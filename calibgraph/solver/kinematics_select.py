@@ -152,8 +152,7 @@ def choose_kinematics(problem, per_pose, resolve):
     which (``kinematics_used``) and why (``kinematics_selection``); a note says it when the arm
     departs from its FK."""
     used = {**per_pose.settings, "kinematics": "auto", "kinematics_used": "none"}
-    angles = bool(problem.captures) and all(c.q_rad is not None for c in problem.captures)
-    if not angles or not robot_departs(per_pose):  # without angles the robot note names what they would open
+    if not problem.records_joint_angles or not robot_departs(per_pose):  # without angles the robot note names what they would open
         return replace(per_pose, settings=used)
     why = why_not_tried(problem)
     if why is not None:

@@ -44,7 +44,7 @@ from calibgraph.solver.factors import fk_noise
 from calibgraph.solver.views import MIN_CORNERS_PER_VIEW
 from calibgraph.solver.factors import make_calibration_factor, view_residual
 from calibgraph.solver.keys import B, C, F, S
-from calibgraph.solver.kinematics import load_chain
+from calibgraph.solver.kinematics import stored_arm
 from calibgraph.solver.result import Result, as_result, solved_target, target_differences
 
 __all__ = ["CameraCheck", "VerifyResult", "verify", "chi2_sf_6", "chi2_isf_6", "stored_model", "StoredModel",
@@ -333,11 +333,7 @@ def applied_flange_poses(problem: Problem, result: Result) -> tuple:
                          f"record {o.size} joint angles (q_rad): their reported flange poses carry the offsets' error, "
                          "which the test may read as a camera or mount move; record the joint angles (calibgraph "
                          "capture does)"]
-    source = str(rb.get("model_source") or result.settings.get("kinematics_model") or "franka")
-    chain = load_chain(source)
-    if chain.n_joints != o.size:
-        raise InputError(f"verify: the stored result has {o.size} joint offsets but its arm model {source!r} has "
-                         f"{chain.n_joints} joints.")
+    chain = stored_arm(result, "verify")[0]
     T = chain.fk(np.array([c.q_rad for c in problem.captures]) + o)
     captures = tuple(replace(c, T_base_flange=T[i]) for i, c in enumerate(problem.captures))
     return problem.with_(captures=captures), [
