@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from calibgraph.core.errors import ObservabilityError
-from calibgraph.core.problem import Problem
+from calibgraph.core.problem import Problem, with_repeatability
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.assemble import (
     camera_result,
@@ -65,6 +65,7 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
         InputError: formulation 'corner' was asked for a camera with k3..k6 distortion.
     """
     t0 = time.perf_counter()
+    problem = problem.with_(options=with_repeatability(problem.options))
     result = solve_minding_moves(problem, lambda p: solve_once(p, initial, seed, timings))
     if problem.options.kinematics == "auto":
         with timed(timings, "kinematics_select"):

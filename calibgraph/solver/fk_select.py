@@ -38,6 +38,7 @@ import gtsam
 import numpy as np
 
 from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.problem import configuration_folds
 from calibgraph.solver.fk_check import widened
 from calibgraph.solver.noise_model import APPLY_Z, log_ratio_z
 
@@ -50,13 +51,15 @@ TIE = 0.005
 MIN_VIEWS_LEFT = 3
 
 
-def _folds(views: list, min_views: int) -> list | None:
-    """FOLDS sets of capture indices (dealt in capture order), or None when holding one out would
-    leave a camera below ``min_views`` active views or a fold empty."""
-    caps = sorted({v.capture for v in views if v.active})
-    if len(caps) < 2 * FOLDS:
+def _folds(problem, views: list, min_views: int) -> list | None:
+    """FOLDS sets of capture indices (the configurations dealt in capture order, a revisit in its
+    configuration's fold: :func:`~calibgraph.core.problem.configuration_folds`), or None when holding
+    one out would leave a camera below ``min_views`` active views or a fold empty."""
+    active = {v.capture for v in views if v.active}
+    config = problem.configurations
+    if len({config.get(k, k) for k in active}) < 2 * FOLDS:
         return None
-    folds = [set(caps[i::FOLDS]) for i in range(FOLDS)]
+    folds = [f & active for f in configuration_folds([problem.capture_by_index[k] for k in active], FOLDS)]
     cams = {v.camera for v in views if v.active}
     for fold in folds:
         for cam in cams:
@@ -84,7 +87,7 @@ def cross_validated_split(problem, stated_opts, ratio, views: list, est, resolve
     at ``ratio``; ``resolve(problem, views, est) -> Estimate`` solves a graph from ``est``."""
     if not (ratio.rotation.applied > 1.0 and ratio.translation.applied > 1.0):
         return ratio, None
-    folds = _folds(views, _min_views(problem))
+    folds = _folds(problem, views, _min_views(problem))
     if folds is None:
         return ratio, None
     candidates = {
@@ -131,7 +134,7 @@ def jackknife_folds(problem, views: list, est, resolve) -> list | None:
     or the robot judged as stated once the corners' correlated noise was weighted): the per-pose
     model's covariance is then as much in question as when both widen. None when the folds cannot
     be made or a fold cannot be solved."""
-    folds = _folds(views, _min_views(problem))
+    folds = _folds(problem, views, _min_views(problem))
     if folds is None:
         return None
     try:

@@ -92,12 +92,15 @@ def setup(problem) -> KinematicSetup | None:
     if wrong:
         raise InputError(f"capture {wrong[0]}: {problem.capture_by_index[wrong[0]].q_rad.size} joint angles, but the "
                          f"kinematic model {chain.name!r} has {chain.n_joints} joints.")
-    if problem.mode != "eye_to_hand" or problem.method != "joint":
-        raise InputError("--estimate-kinematics is implemented for eye-to-hand, method 'joint' (fixed cameras, board "
-                         "on the flange, one shared mount).")
+    if problem.method != "joint":
+        raise InputError("--estimate-kinematics is implemented for method 'joint' (one shared board mount).")
     n = chain.n_joints
-    fixed = ((1, "a rotation of the whole arm about the base axis: the fixed cameras' poses absorb it"),
-             (n, "a rotation of the flange about its axis: the board mount's roll absorbs it"))
+    if problem.mode == "eye_to_hand":
+        fixed = ((1, "a rotation of the whole arm about the base axis: the fixed cameras' poses absorb it"),
+                 (n, "a rotation of the flange about its axis: the board mount's roll absorbs it"))
+    else:
+        fixed = ((1, "a rotation of the whole arm about the base axis: the fixed board's pose absorbs it"),
+                 (n, "a rotation of the flange about its axis: the cameras' poses on the flange absorb it"))
     free = tuple(range(1, n - 1))
     return KinematicSetup(chain, free, fixed, {c.index: c.q_rad for c in problem.captures})
 
@@ -136,22 +139,26 @@ def check_after_solve(ks: KinematicSetup, sigma_free: np.ndarray, prior_sigma: f
                 "joints before and after it at varied angles, or solve without --estimate-kinematics.")
 
 
-def make_kinematic_factor(key_flange, key_offsets, q_rad: np.ndarray, ks: KinematicSetup, noise) -> gtsam.CustomFactor:
-    """r = Log(FK(q + o)^-1 F) with F = T_base_flange at ``key_flange`` and the free offsets at
+def make_kinematic_factor(key_flange, key_offsets, q_rad: np.ndarray, ks: KinematicSetup, noise,
+                          mode: str = "eye_to_hand") -> gtsam.CustomFactor:
+    """r = Log(FK(q + o)^-1 T_base_flange) with the robot pose at ``key_flange`` (T_base_flange itself
+    eye-to-hand, its inverse T_flange_base eye-in-hand, as F(k) is) and the free offsets at
     ``key_offsets``; ``noise``: the FK noise model (rotation first, flange axes)."""
     q = np.asarray(q_rad, float)
     free = list(ks.free)
     chain = ks.chain
+    inverse = mode == "eye_in_hand"
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H):
         F = values.atPose3(key_flange)
         o = ks.full(values.atVector(key_offsets))
         T_fk, J = chain.fk_jacobian(q + o)
-        E = gtsam.Pose3(T_fk).between(F)
+        E = gtsam.Pose3(T_fk).between(F.inverse() if inverse else F)
         e = gtsam.Pose3.Logmap(E)
         if H is not None:
             J_log = gtsam.Pose3.LogmapDerivative(E)
-            H[0] = J_log
+            # eye-in-hand: F Exp(x) -> F^-1 becomes Exp(-x) F^-1, so E -> E Exp(-Ad(F) x)
+            H[0] = -J_log @ F.AdjointMap() if inverse else J_log
             # FK(q + o + d) = FK Exp(J d): E -> Exp(-J d) E = E Exp(-Ad(E^-1) J d)
             H[1] = -J_log @ E.inverse().AdjointMap() @ J[:, free]
         return e

@@ -32,6 +32,7 @@ from dataclasses import replace
 import numpy as np
 
 from calibgraph.core.errors import CalibgraphError
+from calibgraph.core.problem import configuration_folds
 from calibgraph.core.transforms import inv, log_so3
 from calibgraph.solver import kinematics as kin
 
@@ -57,8 +58,8 @@ def robot_departs(result) -> bool:
 def why_not_tried(problem) -> str | None:
     """Why joint offsets cannot be tried on ``problem``, whose captures all record joint angles (None: they can)."""
     caps = problem.captures
-    if problem.mode != "eye_to_hand" or problem.method != "joint":
-        return "joint offsets are estimated for eye-to-hand cells solved jointly only"
+    if problem.method != "joint":
+        return "joint offsets are estimated for cells solved jointly (one shared board mount) only"
     model = problem.options.kinematics_model
     try:
         chain = kin.load_chain(model)
@@ -102,7 +103,8 @@ def _misses(problem, result, test: set, flange: dict, skip_views: set, skip_corn
         keep = np.array([(d.camera, d.capture, int(i)) not in skip_corners for i in d.ids], bool)
         if not keep.any():
             continue
-        T_cam_board = inv(cam.T_ref_cam) @ flange[d.capture] @ result.T_mount_board
+        T_ref_mount = flange[d.capture] if problem.mode == "eye_to_hand" else inv(flange[d.capture])
+        T_cam_board = inv(cam.T_ref_cam) @ T_ref_mount @ result.T_mount_board
         p = problem.points_board_m[np.asarray(d.ids)[keep]] * result.board_scale
         e = cam.solved_intrinsics.project(p @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]) - np.asarray(d.uv_px)[keep]
         out[(d.camera, d.capture)] = (float(np.sum(e ** 2)), int(keep.sum()))
@@ -115,7 +117,9 @@ def cross_validate(problem, per_pose, resolve) -> dict:
     solve with the per-pose model (its rejected views and corners are left out of the scoring);
     ``resolve(problem)``: a solve. Raises CalibgraphError when a fold cannot be solved."""
     caps = sorted(c.index for c in problem.captures)
-    folds = [set(caps[i::FOLDS]) for i in range(FOLDS)]
+    folds = configuration_folds(problem.captures, FOLDS)  # a revisit of a held-out target is held out with it
+    if len(folds) < FOLDS:
+        raise CalibgraphError(f"{len(folds)} distinct arm configurations, too few for {FOLDS} folds")
     skip_views = {(v.camera, v.capture) for v in per_pose.rejected_views}
     skip_corners = {(c, k, i) for c, k, i, _ in per_pose.rejected_corners}
     reported = {c.index: c.T_base_flange for c in problem.captures}
