@@ -392,10 +392,25 @@ def _open3dv_pose(txt: bytes) -> np.ndarray:
     return _pose(_euler("xyz", v[:3], True), v[3:6] / 1000.0)
 
 
-def _write_open3dv(rs: RealSet, out: Path) -> Path:
+def _opencv_circles(img: bytes, t: dict):
+    """OpenCV's asymmetric-grid centres (on the inverted image when the dots are white on black), in
+    OpenCV's order, which is calibgraph's acircles order (point (i, j) at pitch (2j + i % 2, i))."""
+    import cv2
+
+    g = cv2.imdecode(np.frombuffer(img, np.uint8), cv2.IMREAD_GRAYSCALE)
+    for im in (g, 255 - g):
+        ok, c = cv2.findCirclesGrid(im, (int(t["cols"]), int(t["rows"])), flags=cv2.CALIB_CB_ASYMMETRIC_GRID)
+        if ok:
+            return np.arange(int(t["rows"]) * int(t["cols"])), c.reshape(-1, 2).astype(float)
+    return None
+
+
+def _write_open3dv(rs: RealSet, out: Path, corners: str = "none") -> Path:
     """Open3DV/EyeInHand_calibration ``input_EyeInHand`` / ``input_EyeToHand``: pos<i>.bmp (the
     depth .tiff is not needed), pos<i>.txt (the flange pose), param.txt (K, then k1 k2 p1 p2 k3 of the
-    camera; the projector's follow)."""
+    camera; the projector's follow). ``corners='opencv'`` also stores OpenCV's circle centres as each
+    view's detection (calibgraph then does not detect): to check the poses' convention with calibgraph's
+    solver while its detector cannot read white-on-black grids; never to measure calibgraph's detection."""
     rev = rs.commit or "HEAD"
     p = np.array([float(x) for x in git_show(rs.git_dir, rev, f"{rs.path}/param.txt").decode().split()])
     K = np.array([[p[0], p[1], p[2]], [p[3], p[4], p[5]], [0, 0, 1.0]])
@@ -410,7 +425,8 @@ def _write_open3dv(rs: RealSet, out: Path) -> Path:
             o = _Out(out, rs, Target.from_dict(rs.target), {"cam": Intrinsics(K=K, dist=dist, width_px=w, height_px=h,
                                                                                source="calibration")}, rs.mode)
         T = _open3dv_pose(git_show(rs.git_dir, rev, name[:-4] + ".txt"))
-        o.capture(k, T, {"cam": (img, "bmp")})
+        det = _opencv_circles(img, rs.target) if corners == "opencv" else None
+        o.capture(k, T, {"cam": (img, "bmp")}, detections={"cam": det} if det is not None else None)
     return o.finish()
 
 
@@ -437,14 +453,19 @@ def _write_diana(rs: RealSet, out: Path) -> Path:
     import io
 
     rev = rs.commit or "HEAD"
-    poses = np.load(io.BytesIO(git_show(rs.git_dir, rev, f"{rs.path}/pose.npy")))
-    names = sorted((n for n in git_ls(rs.git_dir, rev, rs.path) if n.endswith(".png")),
-                   key=lambda n: int(n.rsplit("/img", 1)[1].split(".")[0]))
-    if len(names) != len(poses):
-        raise SetError(f"{rs.name}: {len(poses)} poses for {len(names)} images")
-    cam_dir = rs.path.rsplit("/", 1)[0] + "/camera_intrinsic"
+    base, sessions = rs.path.rsplit("/", 1)
+    pairs = []
+    for sess in sessions.split(","):  # 'img_2,img_3,img_4': sessions merged in that order
+        folder = f"{base}/{sess}"
+        poses = np.load(io.BytesIO(git_show(rs.git_dir, rev, f"{folder}/pose.npy")))
+        names = sorted((n for n in git_ls(rs.git_dir, rev, folder) if n.endswith(".png")),
+                       key=lambda n: int(n.rsplit("/img", 1)[1].split(".")[0]))
+        if len(names) != len(poses):
+            raise SetError(f"{rs.name}: {folder}: {len(poses)} poses for {len(names)} images")
+        pairs += list(zip(names, poses))
+    cam_dir = base + "/camera_intrinsic"
     o = None
-    for k, (name, v) in enumerate(zip(names, poses)):
+    for k, (name, v) in enumerate(pairs):
         img = git_show(rs.git_dir, rev, name)
         if o is None:
             w, h = _image_size(img)
@@ -528,11 +549,11 @@ def _franka_reference() -> dict:
 
 
 def _diana_reference() -> dict:
-    T = np.array([[0.79714, -0.52757, 0.29381, 0.07861], [-0.60010, -0.63721, 0.48362, -0.95941],
-                  [-0.06794, -0.56182, -0.82446, 0.94239], [0, 0, 0, 1.0]])
-    return {"T_base_cam_approx": T.tolist(), "method": "OpenCV calibrateHandEye TSAI (main.py: img_4's 20 poses)",
-            "source": "xiaoBOSS97/handeye_calibration eye2hand_cam1/H_cam2base.npy (rounded to 1e-5 here; read the "
-                      "file for full precision)"}
+    T = [[0.7970567495204657, -0.5276100865851356, 0.29381649813700994, 0.07859204259363001],
+         [-0.6000728673490627, -0.6372236546251244, 0.4835892553166111, -0.9593985913526044],
+         [-0.06791974613721688, -0.5617593884572166, -0.824507912372483, 0.9423926616996707], [0.0, 0.0, 0.0, 1.0]]
+    return {"T_base_cam": T, "method": "OpenCV calibrateHandEye TSAI (main.py: img_4's 20 poses)",
+            "source": "xiaoBOSS97/handeye_calibration eye2hand_cam1/H_cam2base.npy (cam2base = T_base_cam)"}
 
 
 def _doosan_reference() -> dict:
@@ -550,8 +571,10 @@ def _sets() -> list:
             ("kuka_1", 17, 28, 0.020, "calib.io checkerboard 18 x 29 squares"),
             ("kuka_2", 17, 24, 0.015, "calib.io checkerboard 18 x 25 squares"),
             ("kuka_3", 8, 11, 0.060, "9 x 12 squares with ArUco markers in the white ones (read as a checkerboard)")):
+        size = (1920, 1200) if n == "kuka_2" else (1928, 1208)
         S.append(RealSet(f"rwhe_{n}", rwhe[0], None, f"Datasets/{n}", rwhe[1], "KUKA (RWHE-Calib)", "eye_in_hand",
-                         "unknown", (0, 0), {"kind": "checkerboard", "rows": rows, "cols": cols, "pitch_m": pitch},
+                         f"{size[0]} x {size[1]} mono", size,
+                         {"kind": "checkerboard", "rows": rows, "cols": cols, "pitch_m": pitch},
                          {"kuka_1": 30, "kuka_2": 28, "kuka_3": 29}.get(n, 0), False, None, _write_rwhe,
                          notes=f"{note}; square sizes from getSquareSize4dataset.m; no intrinsics given",
                          group="rwhe", intrinsics="none (unknown)"))
@@ -562,23 +585,23 @@ def _sets() -> list:
                      15, False, None, _write_ic, notes="read by calibgraph's RCT reader; the intrinsics the files give",
                      group="ic", intrinsics="calibration (cal_data.yaml)"))
     S.append(RealSet("ic_charuco", ic[0], None, "examples/data/test_set_charuco", ic[1], "industrial_calibration example",
-                     "eye_to_hand", "from cal_data.yaml", (0, 0),
+                     "eye_to_hand", "1600 x 1200", (1600, 1200),
                      {"kind": "charuco", "rows": 6, "cols": 4, "pitch_m": 0.036195, "marker_m": 0.018256,
-                      "dictionary": "DICT_6X6_250"}, 16, False, None, _write_ic,
+                      "dictionary": "DICT_6X6_250", "legacy_charuco": True}, 16, False, None, _write_ic,
                      notes="the same files as ../shared/datasets/rct_static_camera_charuco", group="ic",
                      intrinsics="calibration (cal_data.yaml)"))
     S.append(RealSet("mchec_medium_workcell", "", None, "mchec_medium_workcell",
                      "Apache-2.0 (MC-HEC, davidea97/Multi-Camera-Hand-Eye-Calibration@6bbc900)",
                      "Franka (MC-HEC's medium workcell)", "eye_to_hand", "4 fixed cameras, 1920 x 1080", (1920, 1080),
-                     {"kind": "checkerboard", "rows": 4, "cols": 3, "pitch_m": 0.05}, 251, False, None, _write_shared,
-                     notes="../shared; read by calibgraph's MC-HEC reader (CalibrationInfo.yaml: 4 x 3 inner corners, "
-                           "50 mm); README_SOURCE.txt calls it a SIMULATED (rendered) workcell of the MC-HEC authors; "
+                     {"kind": "checkerboard", "rows": 3, "cols": 4, "pitch_m": 0.05}, 251, False, None, _write_shared,
+                     notes="../shared; read by calibgraph's MC-HEC reader (CalibrationInfo.yaml: 4 rows x 3 columns "
+                           "as MC-HEC counts them, 3 x 4 points as calibgraph's reader writes them, 50 mm); README_SOURCE.txt calls it a SIMULATED (rendered) workcell of the MC-HEC authors; "
                            "its GT/ held back", group="mchec", intrinsics="calibration (intrinsic_pars_file.yaml)"))
     S.append(RealSet("rct_static_camera_charuco", "", None, "rct_static_camera_charuco",
                      "Apache-2.0 (industrial_calibration's example data)", "industrial_calibration example",
-                     "eye_to_hand", "from cal_data.yaml", (0, 0),
+                     "eye_to_hand", "1600 x 1200", (1600, 1200),
                      {"kind": "charuco", "rows": 6, "cols": 4, "pitch_m": 0.036195, "marker_m": 0.018256,
-                      "dictionary": "DICT_6X6_250"}, 16, False, None, _write_shared,
+                      "dictionary": "DICT_6X6_250", "legacy_charuco": True}, 16, False, None, _write_shared,
                      notes="../shared; read by calibgraph's RCT reader; same files as ic_charuco", group="ic",
                      intrinsics="calibration (cal_data.yaml)"))
     for n, poses in (("visp_eye_in_hand_2022", 8), ("visp_eye_in_hand_2025", 8)):
@@ -634,6 +657,12 @@ def _sets() -> list:
                                "may have been moved between sessions (not said)" if cam == "cam1" else
                                "the second camera; no intrinsics file (unknown)",
                          group="diana", intrinsics="calibration (cameraMatrix.npy)" if cam == "cam1" else "none (unknown)"))
+    S.append(RealSet("diana_cam1_s2_s4", dia[0], None, "eye2hand_cam1/img_2,img_3,img_4", dia[1],
+                     "Agile Robots Diana (DianaApi)", "eye_to_hand", "640 x 480 colour", (640, 480),
+                     {"kind": "checkerboard", "rows": 6, "cols": 9, "pitch_m": 0.040}, 81, False, _diana_reference(),
+                     _write_diana, notes="sessions img_2, img_3, img_4 of camera 1 merged in that order (captures "
+                     "0-46, 47-60, 61-80): solved alone they agree on T_base_cam within ~7 mm (VERIFIED); a "
+                     "multi-session set of one fixed camera", group="diana", intrinsics="calibration (cameraMatrix.npy)"))
     S.append(RealSet("doosan_a0509", "jpjp210202/Hand-Eye-Calibration-Doosan-A0509-IntelRealSenseA457-ChArUco", None,
                      "data", "MIT", "Doosan A0509 (RoboDK robot.Pose())", "eye_in_hand",
                      "Intel RealSense D435 colour 1280 x 720", (1280, 720),
@@ -664,10 +693,37 @@ def _sets() -> list:
 
 SETS = {s.name: s for s in _sets()}
 
-# What the converters' output gave when solved (filled from the verification runs; CATALOG.md has the
-# full notes). Keys: calibgraph commit solved with, views used / given, reprojection RMS px, hand-eye
-# translation (mm, T_flange_cam eye-in-hand / T_base_cam eye-to-hand), what it said.
-VERIFIED: dict = {}
+# What each converter's output gave (real_sets.py verify / crosscheck, calibgraph at ea9dc88 with its
+# defaults, OpenCV 4.14): views used, reprojection RMS, the hand-eye translation (T_flange_cam eye-in-hand,
+# T_base_cam eye-to-hand, mm) and, from OpenCV on its own detections, PARK's translation and the AX = XB
+# residual with the poses as written against inverted (the convention check). /work/data/real/CATALOG.md
+# has calibgraph's notes per set.
+VERIFIED = {
+    "rwhe_kuka_1": "30 views, rms 0.107 px, t (257, 33, -104) mm; OpenCV PARK t (259, 33, -104) mm, AX=XB 0.08 deg as written vs 61.2 inverted",
+    "rwhe_kuka_2": "28 views, rms 0.136 px, t (28, -104, -78) mm; OpenCV PARK t (14, -108, -82) mm, AX=XB 0.07 deg as written vs 54.9 inverted",
+    "rwhe_kuka_3": "29 views, rms 0.081 px, t (254, 34, -105) mm (within 4 mm of kuka_1's); OpenCV's SB detector finds none of these ArUco-filled boards",
+    "ic_10x10": "15 views, rms 0.546 px, t (-84, 22, 93) mm",
+    "ic_charuco": "16 views, rms 0.537 px, t (-19, 1265, 289) mm; OpenCV PARK t (-31, 1269, 279) mm, AX=XB 1.78 deg as written vs 115.5 inverted",
+    "mchec_medium_workcell": "camera1: 67 views, rms 0.113 px, t (-1190, 1899, 1154) mm; camera2: 116 views, rms 0.117 px, t (1766, 2059, 1155) mm; camera3: 117 views, rms 0.126 px, t (1898, -1907, 1155) mm; camera4: 83 views, rms 0.11 px, t (-1046, -2031, 1153) mm",
+    "rct_static_camera_charuco": "16 views, rms 0.537 px, t (-19, 1265, 289) mm",
+    "franka_handeye_s1": "12 views, rms 3.51 px, t (51, -32, 69) mm; OpenCV PARK t (40, -30, 67) mm, AX=XB 0.81 deg as written vs 78.4 inverted",
+    "franka_handeye_s2": "12 views, rms 3.551 px, t (51, -32, 69) mm; OpenCV PARK t (40, -29, 66) mm, AX=XB 0.83 deg as written vs 78.5 inverted",
+    "franka_handeye_s3": "12 views, rms 3.582 px, t (51, -33, 67) mm, 11.8 mm / 0.82 deg from the published result; OpenCV PARK t (40, -29, 65) mm (the published TSAI: 40, -29, 65), AX=XB 0.70 deg as written vs 78.5 inverted",
+    "franka_handeye_all": "13 views, rms 4.016 px, t (44, -34, 66) mm, 6.1 mm / 1.46 deg from the published result; OpenCV PARK t (39, -29, 66) mm, AX=XB 1.60 deg as written vs 76.2 inverted",
+    "open3dv_eye_in_hand": "calibgraph detection stopped by hand after 11 min on the first of 8 images (no message); OpenCV PARK t (220, 69, -178) mm, AX=XB 0.06 deg as written vs 37.9 inverted; with OpenCV's circle centres stored (--corners opencv): 8/8 views, rms 0.027 px, t (221, 68, -177) mm",
+    "open3dv_eye_to_hand": "calibgraph refused: no acircles of 11x7 points (as dataset.yaml declares) in the first 5 frames of the camera: check the target spec (kind, rows, cols) in dataset.yaml ag; OpenCV PARK t (910, 116, 1351) mm, AX=XB 0.14 deg as written vs 48.6 inverted; with OpenCV's circle centres stored (--corners opencv): 5/5 views, rms 0.047 px, t (907, 116, 1344) mm",
+    "leo038_eye_in_hand": "20 views, rms 0.233 px, t (-40, 60, 18) mm; OpenCV PARK t (-43, 66, 10) mm, AX=XB 0.33 deg as written vs 37.9 inverted",
+    "diana_cam1_s1": "calibgraph refused: board mount: the robot poses barely rotate the board (spread 0.00 deg): pure translation leaves the board mount and the camera translation unobservabl; OpenCV: degenerate too (pure translations)",
+    "diana_cam1_s2": "20 of 47 views (27 rejected whole: 54 of 54 corners beyond 5 sigma), rms 0.072 px, t (74, -961, 943) mm; OpenCV PARK t (75, -967, 935) mm, AX=XB 0.85 deg as written vs 29.0 inverted",
+    "diana_cam1_s3": "13 of 14 views, rms 0.175 px, t (82, -961, 941) mm; OpenCV PARK t (80, -960, 947) mm, AX=XB 0.95 deg as written vs 95.6 inverted",
+    "diana_cam1_s4": "17 views, rms 0.084 px, t (81, -962, 938) mm, 5.8 mm / 0.15 deg from the published result; a move claimed between captures 1 and 2 (3.6 mm); OpenCV PARK t (75, -953, 949) mm, AX=XB 0.53 deg as written vs 54.2 inverted",
+    "diana_cam2_s1": "19 views, rms 0.074 px, t (963, -115, 1033) mm; OpenCV PARK t (958, -111, 1030) mm, AX=XB 0.99 deg as written vs 74.2 inverted",
+    "doosan_a0509": "3 of 31 views (the overlays), rms 2.524 px, t (-24, 95, -13) mm, 4.10 deg from the published rotation; OpenCV's CharucoDetector finds 2 of 31 boards; from the repo's own board poses (boardpose_NNN.npz): PARK t (-18, 32, -12) mm, AX=XB 0.61 deg as written vs 64.7 inverted",
+    "sthandeye_calib_a": "calibgraph refused: no checkerboard of 9x11 inner corners (as dataset.yaml declares) in the first 19 frames of the camera; the images show a 9x9 grid: check rows/cols of ; OpenCV PARK t (-30, -42, 68) mm, AX=XB 0.99 deg as written vs 23.6 inverted",
+    "sthandeye_calib_b": "calibgraph refused: no checkerboard of 9x11 inner corners (as dataset.yaml declares) in the first 16 frames of the camera; the images show a 9x10 grid: check rows/cols of; OpenCV PARK t (-33, -39, 70) mm, AX=XB 0.58 deg as written vs 110.0 inverted",
+    "sthandeye_20231006": "7 views, rms 0.551 px, t (20, 32, -42) mm; WARNING: the solver did not converge (24 iterations): the estimates m; OpenCV PARK t (21, 45, -62) mm, AX=XB 2.66 deg as written vs 9.7 inverted",
+    "diana_cam1_s2_s4": "50 of 81 views, rms 0.262 px, t (79, -962, 942) mm, 2.5 mm / 0.26 deg from the published result",
+}
 
 
 def availability(rs: RealSet) -> str:
@@ -679,9 +735,10 @@ def availability(rs: RealSet) -> str:
     return _need_snapshot(rs)
 
 
-def write(name: str, out) -> Path:
+def write(name: str, out, corners: str = "none") -> Path:
     """Write the set ``name`` as a calibgraph-dataset/1 folder at ``out`` (new or empty; a finished copy
-    of the same set is returned as it is)."""
+    of the same set is returned as it is). ``corners='opencv'`` (circle-grid sets only) stores OpenCV's
+    detections in the capture files, for checking the pose convention where calibgraph's detector fails."""
     if name not in SETS:
         raise SetError(f"no set {name!r}; `python scripts/real_sets.py list` names them")
     rs = SETS[name]
@@ -689,6 +746,12 @@ def write(name: str, out) -> Path:
     if why:
         raise SetError(f"{name}: {why}")
     out = Path(out)
+    if corners != "none":
+        if rs.writer is not _write_open3dv:
+            raise SetError(f"{name}: --corners opencv is offered for the circle-grid sets (open3dv_*) only")
+        if _check_out(out, name):
+            return out
+        return rs.writer(rs, out, corners=corners)
     if _check_out(out, name):
         return out
     return rs.writer(rs, out)
@@ -699,7 +762,7 @@ def write(name: str, out) -> Path:
 # ---------------------------------------------------------------------------------------------
 def _reference_T(rs: RealSet):
     ref = rs.reference or {}
-    for k in ("T_flange_cam", "T_base_cam", "T_base_cam_approx"):
+    for k in ("T_flange_cam", "T_base_cam"):
         if k in ref:
             return np.asarray(ref[k], float), None
     if "T_flange_cam_rotation_only" in ref:
@@ -750,8 +813,10 @@ def summarise(rs: RealSet, result: Path, code, output: str) -> dict:
             d["to_ref_mm"] = round(float(1e3 * np.linalg.norm(T[:3, 3] - T_ref[:3, 3])), 2)
             R_ref = T_ref[:3, :3]
         if R_ref is not None:
-            cosang = (np.trace(T[:3, :3] @ R_ref.T) - 1) / 2
-            d["to_ref_deg"] = round(float(np.degrees(np.arccos(np.clip(cosang, -1, 1)))), 3)
+            from scipy.spatial.transform import Rotation
+
+            D = _orthonormal(T[:3, :3]) @ _orthonormal(R_ref).T
+            d["to_ref_deg"] = round(float(np.degrees(Rotation.from_matrix(D).magnitude())), 3)
         cams[name] = d
     s["cameras"] = cams
     return s
@@ -828,6 +893,8 @@ def main(argv=None) -> int:
     p = sub.add_parser("write", help="write a set as a calibgraph-dataset/1 folder")
     p.add_argument("name")
     p.add_argument("--out", type=Path, required=True, help="a new or empty folder (not in the snapshots or ../shared)")
+    p.add_argument("--corners", choices=("none", "opencv"), default="none",
+                   help="opencv: store OpenCV's circle centres as detections (open3dv_* only; a convention check)")
     p = sub.add_parser("verify", help="write sets under WORK/sets and solve them with calibgraph (WORK/results)")
     p.add_argument("names", nargs="*", help="default: every available set")
     p.add_argument("--work", type=Path, default=Path("/work/data/real"))
@@ -859,7 +926,7 @@ def main(argv=None) -> int:
             for n in a.names or [n for n, rs in SETS.items() if not availability(rs)]:
                 print(json.dumps({"set": n, **verify(n, a.work, *a.flag)}), flush=True)
             return 0
-        out = write(a.name, a.out)
+        out = write(a.name, a.out, corners=a.corners)
         print(f"{a.name}: {out} ({len(list((out / 'captures').glob('*.json')))} captures)")
         return 0
     except SetError as e:
