@@ -688,6 +688,16 @@ def _sets() -> list:
         S.append(RealSet(n, st[0], st_rev, f"calibration_data/{folder}", st[1], "unknown arm (st_handeye_graph users)",
                          "eye_in_hand", f"{size[0]} x {size[1]} colour", size, target, poses, False, None,
                          _write_sthandeye, notes=note, group="sthandeye", intrinsics="calibration (camera_info.yaml)"))
+    S.append(RealSet("gitglob_ur_eye_in_hand", "gitglob/eye_in_hand_calibration", "50d50d2", "images",
+                     "none stated (no LICENSE file)", "UR (freedrive.py), TCP pose as rotation vector + m", "eye_in_hand",
+                     "RealSense 1280 x 720", (1280, 720), {}, 41, False, None, None,
+                     why_listed="ChArUco 7 x 5 on a custom random dictionary (aruco.Dictionary_create(17, 5, seed 42)): "
+                                "calibgraph reads predefined dictionaries only", group="gitglob"))
+    S.append(RealSet("ethz_hand_eye_calibration", "ethz-asl/hand_eye_calibration", None, "datasets",
+                     "not checked (not converted)", "Tango devices vs Vicon (pose streams)", "eye_in_hand", "none", (0, 0),
+                     {}, 1, False, None, None,
+                     why_listed="pose streams only (CSV), no images: the image data is on ETH's Research Collection",
+                     group="ethz"))
     return S
 
 
@@ -724,6 +734,15 @@ VERIFIED = {
     "sthandeye_20231006": "7 views, rms 0.551 px, t (20, 32, -42) mm; WARNING: the solver did not converge (24 iterations): the estimates m; OpenCV PARK t (21, 45, -62) mm, AX=XB 2.66 deg as written vs 9.7 inverted",
     "diana_cam1_s2_s4": "50 of 81 views, rms 0.262 px, t (79, -962, 942) mm, 2.5 mm / 0.26 deg from the published result",
 }
+
+
+def in_place(name: str) -> Path | None:
+    """The folder calibgraph reads as it is for a set listed without a converter (the ViSP samples in
+    ../shared, read by the ViSP layout reader), when it is here; else None."""
+    rs = SETS[name]
+    if rs.writer is None and not rs.repo and (SHARED / rs.path).exists():
+        return SHARED / rs.path
+    return None
 
 
 def availability(rs: RealSet) -> str:
