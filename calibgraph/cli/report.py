@@ -27,7 +27,7 @@ def run(args) -> int:
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file
     from calibgraph.report.html import dataset_mismatch, report_verdicts, write_report
-    from calibgraph.solver.result import load_result, result_path
+    from calibgraph.solver.result import load_result, result_path, solved_target
 
     args.result = result_path(args.result)  # a dataset folder: the result.json solve wrote into it
     result = load_result(args.result)
@@ -35,9 +35,11 @@ def run(args) -> int:
     out = check_output_file(args.out or args.result.with_name("report.html"), "report", "report file", "report.html",
                             inputs=[args.result, args.config],
                             datasets=[result.dataset, args.dataset, args.result.parent])
-    dataset = load_dataset(args.dataset) if args.dataset is not None else None
+    board = solved_target(result)  # the board of a layout that names none (ViSP's): the one it was solved with
+    dataset = load_dataset(args.dataset, fallback_target=board) if args.dataset is not None else None
     if dataset is None and result.dataset and Path(result.dataset).is_dir():
-        named = load_dataset(result.dataset)  # the dataset the result names, when it is still there and still its own
+        # the dataset the result names, when it is still there and still its own
+        named = load_dataset(result.dataset, fallback_target=board)
         differ = dataset_mismatch(result, named)
         if differ:
             print(f"warning: {result.dataset} (named in {args.result}) no longer holds the data of this result "

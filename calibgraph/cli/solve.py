@@ -19,8 +19,9 @@ EXIT_NOT_CALIBRATED = 3  # the result is written, but a camera could not be cali
 
 def add_parser(sub):
     p = sub.add_parser("solve", help="calibrate all cameras of a dataset folder",
-                       description="Solve a dataset (calibgraph, industrial_calibration or MC-HEC layout).")
+                       description="Solve a dataset (calibgraph, industrial_calibration, MC-HEC or ViSP layout).")
     p.add_argument("dataset", type=Path, help="dataset folder")
+    add_target_flag(p)
     p.add_argument("--out", type=Path, default=None, help="result file (.json or .yaml); default DATASET/result.json")
     p.add_argument("--method", choices=("joint", "single"), default="joint",
                    help="joint: one shared board mount (default); single: each camera alone")
@@ -31,6 +32,14 @@ def add_parser(sub):
     p.add_argument("--rrd", type=Path, default=None, help="also write a rerun recording")
     p.add_argument("--quiet", action="store_true")
     return p
+
+
+def add_target_flag(parser) -> None:
+    """``--target SPEC.yaml``: the board of a dataset layout that names none (ViSP's)."""
+    parser.add_argument("--target", type=Path, default=None, metavar="SPEC.yaml",
+                        help="the board of a ViSP hand-eye folder (target: {kind, rows, cols, pitch_m}, rows/cols "
+                             "counting inner corners); wins over its target.yaml and chessboard-data.txt; refused "
+                             "for layouts that name their own board")
 
 
 def add_solver_flags(parser) -> None:
@@ -214,15 +223,16 @@ def _run(args) -> int:
     from calibgraph.io.camera_file import apply_camera_files, read_camera_file_args
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file, write_keeping_previous
+    from calibgraph.io.specs import target_option
     from calibgraph.solver.batch import solve
 
     out = args.out or (args.dataset / "result.json")
     files = read_camera_file_args(args.intrinsics)
-    ds = load_dataset(args.dataset)
+    ds = load_dataset(args.dataset, target=target_option(args.target))
     if files:
         ds = replace(ds, cameras=apply_camera_files(ds.cameras, files, f"dataset {args.dataset}"))
     # said now, not after solving; the previous result stays until the new one is whole, and is kept then
-    inputs = camera_file_paths(args.intrinsics)
+    inputs = camera_file_paths(args.intrinsics) + ([args.target] if args.target is not None else [])
     check_output_file(out, "result", "result file", "result.json", inputs=inputs, datasets=[args.dataset])
     if args.rrd:
         check_output_file(args.rrd, "recording", "rerun recording", "calibgraph.rrd", inputs=inputs + [out],

@@ -61,12 +61,13 @@ def run(args) -> int:
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file
     from calibgraph.solver.build import build_problem
-    from calibgraph.solver.result import load_result, result_path
+    from calibgraph.solver.result import load_result, result_path, solved_target
     from calibgraph.solver.verify import DEFAULT_ALPHA, check_fresh_data, verify
 
     args.result = result_path(args.result)  # the stored calibration's dataset folder: its result.json
     stored = load_result(args.result)
-    dataset = load_dataset(args.dataset)
+    # a fresh ViSP folder that names no board is checked with the stored calibration's
+    dataset = load_dataset(args.dataset, fallback_target=solved_target(stored))
     if not dataset.captures:
         raise InputError(f"{args.dataset}: no captures to verify with.")
     check_fresh_data(stored, dataset.cameras, dataset.target, str(args.result))  # before detecting anything
