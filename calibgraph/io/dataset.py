@@ -205,9 +205,12 @@ def read_calibgraph_dataset(root) -> Dataset:
     head = read_yaml(root / "dataset.yaml", "dataset header")
     fmt = str(head.get("format", FORMAT))
     if fmt != FORMAT:
-        newer = fmt.startswith("calibgraph-dataset/")
+        version = fmt.rpartition("/")[2] if fmt.startswith("calibgraph-dataset/") else ""
+        age = ("older" if int(version) < int(FORMAT.rpartition("/")[2]) else "newer") if version.isdigit() else None
         raise InputError(f"{root / 'dataset.yaml'}: format {fmt!r} " + (
-            f"is newer than this calibgraph reads ({FORMAT}); upgrade calibgraph." if newer else
+            f"is newer than this calibgraph reads ({FORMAT}); upgrade calibgraph." if age == "newer" else
+            f"is older than the one this calibgraph reads ({FORMAT}): write the dataset's header as docs/formats.md "
+            "describes, or capture (import) it again with this calibgraph." if age == "older" else
             f"is not a calibgraph dataset ({FORMAT})."))
     if "target" not in head or "cameras" not in head:
         raise InputError(f"{root / 'dataset.yaml'}: needs 'target' and 'cameras' sections (see README, Dataset format).")

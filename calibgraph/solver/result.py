@@ -523,9 +523,26 @@ def check_result_dict(d, where: str = "result") -> None:
     fmt = str(d.get("format", RESULT_FORMAT))
     if fmt != RESULT_FORMAT:
         if fmt.startswith("calibgraph-result/"):
-            raise InputError(f"{where}: result format {fmt!r} is newer than this calibgraph "
-                             f"({d.get('calibgraph_version', '?')} wrote it) reads ({RESULT_FORMAT}); upgrade calibgraph.")
+            wrote = f"{d.get('calibgraph_version', '?')} wrote it"
+            age = format_age(fmt, RESULT_FORMAT)
+            if age == "older":
+                raise InputError(f"{where}: result format {fmt!r} is older than the one this calibgraph reads "
+                                 f"({RESULT_FORMAT}; {wrote}); solve its dataset again with this calibgraph "
+                                 f"(calibgraph solve {d.get('dataset') or 'DATASET'}) for a result it reads.")
+            if age == "newer":
+                raise InputError(f"{where}: result format {fmt!r} is newer than this calibgraph ({wrote}) reads "
+                                 f"({RESULT_FORMAT}); upgrade calibgraph.")
         raise InputError(f"{where}: format {fmt!r} is not a calibgraph result ({RESULT_FORMAT}).")
+
+
+def format_age(fmt: str, current: str) -> str | None:
+    """'older' or 'newer' when ``fmt`` is another version of the format ``current`` ('name/N', N an
+    integer), else None (not a version of it)."""
+    name, _, n = current.rpartition("/")
+    head, _, m = str(fmt).rpartition("/")
+    if head != name or not m.isdigit() or not n.isdigit() or int(m) == int(n):
+        return None
+    return "older" if int(m) < int(n) else "newer"
 
 
 def note_camera(note: str, names) -> str | None:
