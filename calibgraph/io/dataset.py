@@ -41,6 +41,7 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
 from calibgraph.core.targets import Target
+from calibgraph.core.version import format_age
 from calibgraph.io.files import atomic_write_text, read_input_bytes, read_yaml
 
 FORMAT = "calibgraph-dataset/1"
@@ -205,8 +206,7 @@ def read_calibgraph_dataset(root) -> Dataset:
     head = read_yaml(root / "dataset.yaml", "dataset header")
     fmt = str(head.get("format", FORMAT))
     if fmt != FORMAT:
-        version = fmt.rpartition("/")[2] if fmt.startswith("calibgraph-dataset/") else ""
-        age = ("older" if int(version) < int(FORMAT.rpartition("/")[2]) else "newer") if version.isdigit() else None
+        age = format_age(fmt, FORMAT)
         raise InputError(f"{root / 'dataset.yaml'}: format {fmt!r} " + (
             f"is newer than this calibgraph reads ({FORMAT}); upgrade calibgraph." if age == "newer" else
             f"is older than the one this calibgraph reads ({FORMAT}): write the dataset's header as docs/formats.md "

@@ -4,6 +4,7 @@ calibgraph writes a file: atomically, and only onto a regular file or a new path
 from __future__ import annotations
 
 import errno
+import glob
 import hashlib
 import os
 import stat
@@ -273,7 +274,7 @@ def _remove_stale_temporaries(target: Path) -> None:
     leftovers = []
     for stem in stems:
         try:
-            leftovers += list(target.parent.glob(f".{_glob_escape(stem)}.tmp*"))
+            leftovers += list(target.parent.glob(f".{glob.escape(stem)}.tmp*"))
         except (OSError, ValueError):
             continue
     for p in leftovers:
@@ -291,13 +292,6 @@ def _remove_stale_temporaries(target: Path) -> None:
             p.unlink()
         except OSError:
             pass
-
-
-def _glob_escape(name: str) -> str:
-    """``name`` with glob's special characters taken literally."""
-    import glob
-
-    return glob.escape(name)
 
 
 def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") -> Path:

@@ -132,12 +132,10 @@ def held_by_force(problem: Problem, views: list, slots: dict, est: Estimate, sig
     lin = _linearised(problem, views, slots, est, sigma_px, held, scale)
     notes = [c.held_note(intrinsics_vector(problem.cameras[c.camera]))
              for c in _tested(problem, lin, slots, held)]
-    if scale and S(0) in lin.index:
-        free = list(lin.index)
-        idx = np.concatenate([np.arange(lin.index[k].start, lin.index[k].stop) for k in free])
-        at = int(np.flatnonzero(idx == lin.index[S(0)].start)[0])
-        step = float(lin.step(free)[S(0)][0])
-        sigma = float(np.sqrt(np.linalg.inv(lin.S[np.ix_(idx, idx)])[at, at]))
+    if scale and S(0) in lin.index:  # the Gauss-Newton step of everything, and the scale's 1-sigma then
+        step = float(lin.step(list(lin.index))[S(0)][0])
+        at = lin.index[S(0)].start
+        sigma = float(np.sqrt(lin.covariance[at, at]))
         if abs(step) > BOARD_SCALE_SIGMAS * sigma:
             who = f"camera {next(iter(slots))}: its views" if problem.method == "single" else "the views"
             notes.append(f"{who} ask for the board at {100 * step:+.2f} % (± {100 * sigma:.2f} %) of the size the "

@@ -175,13 +175,9 @@ def angles_mismatch(problem) -> AngleMapping | None:
     return None if m.maps else m
 
 
-def check_recorded_angles(model: str, captures, flag: str = "--estimate-kinematics joint-offsets") -> None:
-    """Refuse (InputError, one line) joint offsets asked for on captures whose recorded joint angles
-    the kinematic model does not map to their recorded flange poses: what ``auto`` checks before it
-    tries them. The offsets would be fitted to angles that do not give these poses (in degrees, say:
-    every offset zero and the cameras tens of mm off; noisy angles: offsets of tens of mrad)."""
+def require_angles(chain: SerialChain, captures, flag: str = "--estimate-kinematics") -> None:
+    """Refuse (InputError) captures without joint angles, or with another number than ``chain`` has joints."""
     caps = list(captures)
-    chain = load_chain(model)
     missing = [c.index for c in caps if c.q_rad is None]
     if missing:
         raise InputError(f"{flag} needs the joint angles (q_rad) of every capture; {len(missing)} of {len(caps)} "
@@ -192,6 +188,16 @@ def check_recorded_angles(model: str, captures, flag: str = "--estimate-kinemati
         raise InputError(f"{flag}: capture {wrong[0].index} records {wrong[0].q_rad.size} joint angles, but the "
                          f"kinematic model {chain.name!r} has {chain.n_joints} joints: give the arm's URDF with "
                          "--kinematic-model.")
+
+
+def check_recorded_angles(model: str, captures, flag: str = "--estimate-kinematics joint-offsets") -> None:
+    """Refuse (InputError, one line) joint offsets asked for on captures whose recorded joint angles
+    the kinematic model does not map to their recorded flange poses: what ``auto`` checks before it
+    tries them. The offsets would be fitted to angles that do not give these poses (in degrees, say:
+    every offset zero and the cameras tens of mm off; noisy angles: offsets of tens of mrad)."""
+    caps = list(captures)
+    chain = load_chain(model)
+    require_angles(chain, caps, flag)
     m = angle_mapping(chain, caps, model)
     if not m.maps:
         raise InputError(f"{flag}: {m.describe()}. The offsets would be fitted to angles that do not give these "
@@ -206,15 +212,7 @@ def setup(problem) -> KinematicSetup | None:
     if opts.kinematics != "joint-offsets":  # 'none', or 'auto' before it chose (kinematics_select)
         return None
     chain = load_chain(opts.kinematics_model)
-    missing = [c.index for c in problem.captures if c.q_rad is None]
-    if missing:
-        raise InputError(f"--estimate-kinematics needs the joint angles (q_rad) of every capture; {len(missing)} of "
-                         f"{len(problem.captures)} captures have none (first: capture {missing[0]}). Record them "
-                         "(calibgraph capture does) or solve without the option.")
-    wrong = [c.index for c in problem.captures if c.q_rad.size != chain.n_joints]
-    if wrong:
-        raise InputError(f"capture {wrong[0]}: {problem.capture_by_index[wrong[0]].q_rad.size} joint angles, but the "
-                         f"kinematic model {chain.name!r} has {chain.n_joints} joints.")
+    require_angles(chain, problem.captures)
     if problem.mode != "eye_to_hand" or problem.method != "joint":
         raise InputError("--estimate-kinematics is implemented for eye-to-hand, method 'joint' (fixed cameras, board "
                          "on the flange, one shared mount).")

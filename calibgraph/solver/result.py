@@ -63,7 +63,7 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import CalibgraphError, InputError
 from calibgraph.core.problem import MODES, mode_frames
 from calibgraph.core.targets import Target
-from calibgraph.core.version import __version__
+from calibgraph.core.version import __version__, format_age
 from calibgraph.io.files import atomic_write_text, read_input_bytes, read_yaml
 from calibgraph.solver.result_values import (
     exactly_equal,
@@ -534,15 +534,6 @@ def check_result_dict(d, where: str = "result") -> None:
                                  f"({RESULT_FORMAT}); upgrade calibgraph.")
         raise InputError(f"{where}: format {fmt!r} is not a calibgraph result ({RESULT_FORMAT}).")
 
-
-def format_age(fmt: str, current: str) -> str | None:
-    """'older' or 'newer' when ``fmt`` is another version of the format ``current`` ('name/N', N an
-    integer), else None (not a version of it)."""
-    name, _, n = current.rpartition("/")
-    head, _, m = str(fmt).rpartition("/")
-    if head != name or not m.isdigit() or not n.isdigit() or int(m) == int(n):
-        return None
-    return "older" if int(m) < int(n) else "newer"
 
 
 def note_camera(note: str, names) -> str | None:
