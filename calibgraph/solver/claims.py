@@ -45,23 +45,23 @@ class Contradiction:
     chi2: float
     change: np.ndarray  # (6,) the change of [fx, fy, cx, cy, k1, k2] the data ask for
 
-    def note(self, given: np.ndarray) -> str:
+    def _evidence(self, given: np.ndarray) -> str:
+        """The test and the change the data ask for, as the notes say them."""
         d = self.change
-        return (f"camera {self.camera}: its intrinsics are declared exact, but its views contradict them (likelihood-ratio "
-                f"chi-square {self.chi2:.0f} on 6 dof; the data ask for fx {100 * d[0] / given[0]:+.2f} %, "
-                f"fy {100 * d[1] / given[1]:+.2f} %, cx {d[2]:+.1f} px, cy {d[3]:+.1f} px, k1 {d[4]:+.3f}, "
-                f"k2 {d[5]:+.3f}): solved with them freed under a wide prior (estimates and 1-sigma in the result); "
-                "fix the camera's intrinsics file or calibrate it (calibgraph intrinsics)")
+        return (f"likelihood-ratio chi-square {self.chi2:.0f} on 6 dof; the data ask for fx {100 * d[0] / given[0]:+.2f} %, "
+                f"fy {100 * d[1] / given[1]:+.2f} %, cx {d[2]:+.1f} px, cy {d[3]:+.1f} px, k1 {d[4]:+.3f}, k2 {d[5]:+.3f}")
+
+    def note(self, given: np.ndarray) -> str:
+        return (f"camera {self.camera}: its intrinsics are declared exact, but its views contradict them "
+                f"({self._evidence(given)}): solved with them freed under a wide prior (estimates and 1-sigma in the "
+                "result); fix the camera's intrinsics file or calibrate it (calibgraph intrinsics)")
 
     def held_note(self, given: np.ndarray) -> str:
         """The note of intrinsics held by --fixed-intrinsics that the views reject (they stay held)."""
-        d = self.change
         return (f"camera {self.camera}: --fixed-intrinsics holds its given intrinsics, but its views reject them "
-                f"(likelihood-ratio chi-square {self.chi2:.0f} on 6 dof; the data ask for fx {100 * d[0] / given[0]:+.2f} %, "
-                f"fy {100 * d[1] / given[1]:+.2f} %, cx {d[2]:+.1f} px, cy {d[3]:+.1f} px, k1 {d[4]:+.3f}, "
-                f"k2 {d[5]:+.3f}): its pose and 1-sigma are conditional on intrinsics the data contradict (what other "
-                "notes say of whole boards moving or of the robot may be their doing); without --fixed-intrinsics "
-                "they are estimated")
+                f"({self._evidence(given)}): its pose and 1-sigma are conditional on intrinsics the data contradict "
+                "(what other notes say of whole boards moving or of the robot may be their doing); without "
+                "--fixed-intrinsics they are estimated")
 
 
 def exact_claims(problem: Problem, names) -> list:
