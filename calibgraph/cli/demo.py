@@ -171,7 +171,11 @@ def _write_and_print(args, result, out: Path, ds_dir: Path, source, solve_line: 
         except ImportError as e:
             print(f"report skipped: {e}", file=sys.stderr)
         else:
-            p = write_report(result, out / "report.html", dataset=load_dataset(ds_dir), result_path=result_path)
+            p = out / "report.html"
+            kept = write_keeping_previous(p, lambda: write_report(result, p, dataset=load_dataset(ds_dir),
+                                                                  result_path=result_path))
+            if kept is not None:
+                print(f"kept the previous report as {kept} (edited since calibgraph wrote it, or too old to tell)")
             print(f"wrote {p}")
     if args.rrd:
         try:

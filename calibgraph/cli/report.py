@@ -25,7 +25,7 @@ def run(args) -> int:
     import sys
 
     from calibgraph.io.layouts import load_dataset
-    from calibgraph.io.output_guard import check_output_file
+    from calibgraph.io.output_guard import check_output_file, write_keeping_previous
     from calibgraph.report.html import dataset_mismatch, report_verdicts, write_report
     from calibgraph.solver.result import load_result, result_path, solved_target
 
@@ -46,7 +46,12 @@ def run(args) -> int:
                   f"({differ[0]}); reporting from the result alone", file=sys.stderr)
         else:
             dataset = named
-    path = write_report(result, out, config=args.config, dataset=dataset, result_path=args.result)
+    # a report edited since calibgraph wrote it is kept beside it (as report.1.html), as a replaced result is
+    kept = write_keeping_previous(out, lambda: write_report(result, out, config=args.config, dataset=dataset,
+                                                            result_path=args.result))
+    path = out
+    if kept is not None:
+        print(f"kept the previous report as {kept} (edited since calibgraph wrote it, or too old to tell)")
     verdicts = report_verdicts(result, config=args.config, dataset=dataset)
     failing = {n: v["reasons"] for n, v in verdicts.items() if not v["pass"]}
     if failing or not result.converged:

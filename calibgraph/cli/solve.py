@@ -240,14 +240,10 @@ def _run(args) -> int:
     for f, msg in ds.problems:
         print(f"warning: {f}: {msg}", file=sys.stderr)
     opts = solver_options(args, ds)
-    if opts.kinematics == "joint-offsets":
-        missing = [c.index for c in ds.captures if c.q_rad is None]
-        if missing:
-            from calibgraph.core.errors import InputError
+    if opts.kinematics == "joint-offsets":  # said now, before detection: the angles must give the recorded poses
+        from calibgraph.solver.kinematics import check_recorded_angles
 
-            raise InputError(f"--estimate-kinematics {opts.kinematics} needs the joint angles (q_rad) of every capture; "
-                             f"{len(missing)} of {len(ds.captures)} captures in {args.dataset} have none (first: capture "
-                             f"{missing[0]}). Record them (calibgraph capture does) or solve without the option.")
+        check_recorded_angles(opts.kinematics_model, ds.captures, f"--estimate-kinematics {opts.kinematics}")
     problem, detector = build_problem(ds, args.method, opts, progress=not args.quiet)
     print_problems(getattr(detector, "problems", []) or [])
     if not args.quiet:

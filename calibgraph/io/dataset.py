@@ -41,6 +41,7 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
 from calibgraph.core.targets import Target
+from calibgraph.core.version import format_age
 from calibgraph.io.files import atomic_write_text, read_input_bytes, read_yaml
 
 FORMAT = "calibgraph-dataset/1"
@@ -205,9 +206,11 @@ def read_calibgraph_dataset(root) -> Dataset:
     head = read_yaml(root / "dataset.yaml", "dataset header")
     fmt = str(head.get("format", FORMAT))
     if fmt != FORMAT:
-        newer = fmt.startswith("calibgraph-dataset/")
+        age = format_age(fmt, FORMAT)
         raise InputError(f"{root / 'dataset.yaml'}: format {fmt!r} " + (
-            f"is newer than this calibgraph reads ({FORMAT}); upgrade calibgraph." if newer else
+            f"is newer than this calibgraph reads ({FORMAT}); upgrade calibgraph." if age == "newer" else
+            f"is older than the one this calibgraph reads ({FORMAT}): write the dataset's header as docs/formats.md "
+            "describes, or capture (import) it again with this calibgraph." if age == "older" else
             f"is not a calibgraph dataset ({FORMAT})."))
     if "target" not in head or "cameras" not in head:
         raise InputError(f"{root / 'dataset.yaml'}: needs 'target' and 'cameras' sections (see README, Dataset format).")

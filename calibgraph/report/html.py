@@ -28,6 +28,7 @@ from pathlib import Path
 
 from calibgraph.core.errors import InputError
 from calibgraph.io.files import atomic_write_text
+from calibgraph.io.output_guard import with_fingerprint
 from calibgraph.io.layouts import as_dataset
 from calibgraph.report.convergence import convergence_section
 from calibgraph.report.markup import CSS, esc
@@ -100,7 +101,7 @@ def write_report(result, out_html, config=None, dataset=None, result_path=None) 
     ]
     doc = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
            f"<title>{esc(title)}</title><style>{CSS}</style></head><body>\n" + "\n".join(parts) + "\n</body></html>\n")
-    atomic_write_text(out_html, doc)
+    atomic_write_text(out_html, with_fingerprint(doc))  # a page edited by hand is then kept when replaced
     return Path(out_html)
 
 

@@ -62,10 +62,13 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
         :class:`Result`.
     Raises:
         ObservabilityError: a camera has too few views or the motion leaves a parameter undetermined.
-        InputError: formulation 'corner' was asked for a camera with k3..k6 distortion.
+        InputError: formulation 'corner' was asked for a camera with k3..k6 distortion; joint offsets
+            were asked for and the recorded joint angles do not give the recorded flange poses.
     """
     t0 = time.perf_counter()
     problem = problem.with_(options=with_repeatability(problem.options))
+    if problem.options.kinematics == "joint-offsets":  # asked for: checked as 'auto' checks before it tries them
+        kin.check_recorded_angles(problem.options.kinematics_model, problem.captures)
     result = solve_minding_moves(problem, lambda p: solve_once(p, initial, seed, timings))
     if problem.options.kinematics == "auto":
         with timed(timings, "kinematics_select"):
@@ -176,7 +179,12 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
     names = list(problem.cameras)
     if problem.method == "single":
         groups = [solve_single(problem, n, views, s, timings) for n, s in zip(names, starts)]
-        return groups, [n for g in groups for n in g.notes]
+        notes = [n for g in groups for n in g.notes]
+        if problem.options.intrinsics == "auto":  # judged per camera as the joint graph judges its cameras
+            judged = [widen_inadequate_intrinsics(problem, g, timings) for g in groups]
+            groups = [g for g, _ in judged]
+            notes += [n for _, w in judged for n in w]
+        return groups, notes
     ks = kin.setup(problem)
     if ks is not None:
         kin.check_motion(ks, sorted({v.capture for v in views}))

@@ -115,11 +115,20 @@ def widen_inadequate_intrinsics(problem: Problem, group: Group, timings: dict | 
 def board_scale(problem: Problem, groups: list, robot_suspect: bool = False) -> tuple[float, float | None, list]:
     """(estimated board scale, its 1-sigma, notes) of the joint graph — (1, None, []) when not
     estimated — with a note when the board's printed size differs from the declared one by more
-    than 3 sigma. ``robot_suspect``: the robot poses depart from forward kinematics, and a scale
+    than 3 sigma. With several graphs (--method single) each camera's scale is judged so, and the
+    result keeps no shared scale (1, None, notes naming the cameras). ``robot_suspect``: the robot poses depart from forward kinematics, and a scale
     departure is then as likely the arm's kinematics as the print (the note says so, and blames
     neither)."""
+    if not problem.options.board_scale:
+        return 1.0, None, []
+    if len(groups) != 1:  # --method single: each camera's graph its own scale, each judged as the joint one is
+        notes = []
+        for g in groups:
+            s, sigma, said = board_scale(problem, [g], robot_suspect)
+            notes += [f"camera {g.names[0]} (its own graph, --method single): {n}" for n in said]
+        return 1.0, None, notes
     est = groups[0].est
-    if not problem.options.board_scale or len(groups) != 1 or est.marginals is None or not est.marginals.has(S(0)):
+    if est.marginals is None or not est.marginals.has(S(0)):
         return 1.0, None, []
     s = est.board_scale
     sigma = float(np.sqrt(max(est.marginals.marginalCovariance(S(0))[0, 0], 0.0)))

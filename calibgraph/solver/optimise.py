@@ -17,7 +17,7 @@ from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.problem import Problem
 from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.claims import contradicted
+from calibgraph.solver.claims import contradicted, held_by_force
 from calibgraph.solver.factors import intrinsics_vector
 from calibgraph.solver.fk_check import (FK_COMPONENT_STEPS, RERUN_RATIO, RERUN_SIGMA, FkComponent, FkRatio,
                                          fk_variance_ratio, free_robot_ratio, high_order_level, rescaled, robot_pose_marginals, settled_components, widened)
@@ -161,6 +161,8 @@ def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str
         est = replace(est, free_intrinsics=est.free_intrinsics | {worst.camera})
         form = formulation(problem, names, len(views), est)
         rounds = robust_rounds(problem, views, slots, est, form, timings)
+    # what a forced option holds is judged as the default judges it, before the misfit is explained elsewhere
+    notes += held_by_force(problem, rounds.views, slots, rounds.est, rounds.sigma_px)
     est = final_graph(problem, names, rounds, slots, form, timings)
     if problem is not stated:  # the FK check's figures against the accuracy the user stated
         est = replace(est, fk_ratio=against_stated(est.fk_ratio, stated.options, problem.options))
