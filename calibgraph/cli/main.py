@@ -15,7 +15,8 @@ import sys
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.version import __version__
 
-COMMANDS = ("demo", "sim", "capture", "detect", "intrinsics", "solve", "target", "report", "view", "export", "verify", "import")
+COMMANDS = ("demo", "sim", "capture", "detect", "intrinsics", "solve", "check", "target", "report", "view", "export", "verify",
+            "import")
 # a command whose name is a Python keyword lives in <name>_.py
 MODULES = {"import": "import_"}
 

@@ -13,10 +13,20 @@ import numpy as np
 
 from calibgraph.core.errors import InputError
 from calibgraph.io.files import read_yaml
+from calibgraph.io.shipped import resolve_shipped, shipped_root
 
-DEFAULT_TOLERANCES = Path(__file__).resolve().parents[1] / "datasets" / "tolerances" / "default.yaml"
 
-# used when the file is missing (an installed wheel has no datasets/ folder)
+def _default_tolerances() -> Path:
+    try:
+        return shipped_root() / "tolerances" / "default.yaml"
+    except InputError:
+        return Path("datasets/tolerances/default.yaml")  # an installation without its shipped files: the built-ins
+
+
+# the shipped file (the clone's datasets/tolerances/default.yaml, or the wheel's copy of it)
+DEFAULT_TOLERANCES = _default_tolerances()
+
+# used when the file is missing
 BUILTIN_TOLERANCES = {
     "defaults": {
         "max_sigma_translation_mm": 1.0,
@@ -59,6 +69,7 @@ def load_tolerances(config=None) -> dict:
         if isinstance(src, dict):
             d = src
         else:
+            src = resolve_shipped(src, "tolerances")  # a shipped name or datasets/tolerances/... from any folder
             d = read_yaml(src, "tolerance config (a mapping with 'defaults', 'cameras', 'workspace')", empty_ok=True)
         unknown = set(d) - {"format", "defaults", "cameras", "workspace", "description"}
         if unknown:
