@@ -15,6 +15,7 @@ from calibgraph.report.findings import advice_for
 from calibgraph.report.html import (
     compute_residuals,
     load_tolerances,
+    report_verdicts,
     write_report,
 )
 from calibgraph.solver.result import load_result
@@ -72,7 +73,9 @@ def test_report_numbers_equal_result_json(tmp_path):
     for n, c in d["cameras"].items():
         vals = p.rows[(n, "summary")]
         T = np.asarray(c["T_base_cam"])
-        expect = [*T[:3, 3], None, None, None, *c["sigma_translation_mm"], *c["sigma_rotation_deg"],
+        # each 1σ as one figure, the norm, with its axes beside it
+        expect = [*T[:3, 3], None, None, None, np.linalg.norm(c["sigma_translation_mm"]), *c["sigma_translation_mm"],
+                  np.linalg.norm(c["sigma_rotation_deg"]), *c["sigma_rotation_deg"],
                   c["reprojection_rms_px"], c["reprojection_max_px"], c["views_used"], len(c["views_rejected"])]
         assert len(vals) == len(expect)
         for got, want in zip(vals, expect):
@@ -96,7 +99,7 @@ def test_report_numbers_equal_result_json(tmp_path):
 def test_pass_fail_follows_tolerances(tmp_path):
     d, *_ = make_sim_result()
     names = list(d.cameras)
-    worst_t = {n: max(c.sigma_translation_mm) for n, c in d.cameras.items()}
+    worst_t = {n: float(np.linalg.norm(c.sigma_translation_mm)) for n, c in d.cameras.items()}  # the 1σ norm
     # cam limits straddle the values: the first camera passes the translation check, the last fails it
     lo, hi = min(worst_t.values()), max(worst_t.values())
     cfg = {"defaults": {"max_sigma_translation_mm": (lo + hi) / 2, "max_sigma_rotation_deg": None,
@@ -108,6 +111,12 @@ def test_pass_fail_follows_tolerances(tmp_path):
     assert "Overall: FAIL" in text and f"failing: {', '.join(failing)}" in text
     cfg["defaults"]["max_sigma_translation_mm"] = hi * 1.01
     assert "Overall: PASS" in write_report(d, tmp_path / "r2.html", config=cfg).read_text()
+    # an old tolerance file's key limits the norm now, not the largest axis: a limit between the two fails
+    n0 = names[0]
+    between = (max(d.cameras[n0].sigma_translation_mm) + worst_t[n0]) / 2
+    cfg["cameras"] = {n0: {"max_sigma_translation_mm": between}}
+    reasons = report_verdicts(d, config=cfg)[n0]["reasons"]
+    assert reasons == [f"1σ translation (mm) {worst_t[n0]:.4g} not <= {between:g}"], reasons
 
 
 def test_tolerance_file_errors_are_clear(tmp_path):

@@ -59,7 +59,7 @@ def test_rendered_report_says_budget_advice_notes_and_intrinsics_source(tmp_path
         c = res.cameras[n]
         cam = camera_section(text, names, n)
         assert findings.advice_for(n, c) in top, n
-        assert "What the 1σ is made of" in cam and "by noise source" in cam
+        assert "What its 1σ translation of" in cam and "is made of" in cam and "by noise source" in cam
         for src, share in c.error_budget["shares"].items():  # each share, in words and as a percentage
             assert f"{findings.source_label(src)} {findings.percent(share)}" in cam, (n, src)
         assert f"Advice: {c.error_budget['advice']}" in cam

@@ -50,8 +50,9 @@ def share_sets(budget: dict | None) -> list:
         if key == "share_labels":
             continue
         if _is_shares(v):
-            out.append((str(given.get(key) or SET_LABELS.get(key) or humanise(key).replace("shares ", ""))
-                        .strip(), {str(k): float(x) for k, x in v.items()}))
+            label = str(given.get(key) or SET_LABELS.get(key) or humanise(key).replace("shares ", "")).strip()
+            # one wording for shares that add up: the console's (results before it said "sums to 1")
+            out.append((label.replace("(sums to 1)", "(sums to 100 %)"), {str(k): float(x) for k, x in v.items()}))
         elif isinstance(v, dict) and v and all(_is_shares(x) for x in v.values()):
             out += [(str(lab), {str(k): float(x) for k, x in x_.items()}) for lab, x_ in v.items()]
     return out
