@@ -291,7 +291,9 @@ def test_report_says_budget_advice_notes_intrinsics_and_a_move(tmp_path):
     for n, c in res.cameras.items():
         sec = page.split(f'id="cam-{n}"')[1].split('<div class="cam"')[0]
         sec_text = _report_text_of(sec)
-        assert c.error_budget["advice"] in sec_text and advice_for(n, c) in text.split("Summary")[0]
+        # the advice is said once, in the box at the top; the camera's section points to it
+        assert advice_for(n, c) in text.split("Summary")[0] and text.count(advice_for(n, c)) == 1
+        assert "What would shrink it most: its advice in What would improve this calibration" in sec_text
         for src, share in c.error_budget["shares"].items():
             assert f'data-source="{src}"' in sec and f'data-value="{share!r}"' in sec
         assert "by noise source" in sec_text
@@ -338,3 +340,52 @@ def test_a_camera_not_calibrated_says_why_and_has_its_notes(tmp_path):
     assert "Not calibrated" in sec and res.cameras["cam0"].why in sec and "Moved during capture" in sec
     assert sec.split("after the move (the pose reported)")[1].lstrip().startswith("not calibrated")
     assert res.camera_notes("cam0") and all(t in sec for t in res.camera_notes("cam0"))
+
+
+# -- a report that speaks plainly (issue 47): a FAIL says what fixes it, --strict exits non-zero --------------
+def test_a_failing_views_check_says_how_many_more_poses_where_and_with_which_command(tmp_path):
+    """Too few views: how many more (the tolerance's count less the views used), how many poses that is at
+    the rate the camera saw the board, the parts of its image its corners never reached, and the command
+    of the run that made the dataset, naming the workcell it recorded."""
+    from types import SimpleNamespace
+
+    from calibgraph.report.remedies import fixes, unseen_regions
+    from calibgraph.report.tolerances import camera_verdict
+
+    d, *_ = make_sim_result()
+    n, c = next(iter(d.cameras.items()))
+    tol = load_tolerances({"defaults": {"min_views_used": c.views_used + 3}})
+    v = camera_verdict(n, c, tol, None)
+    assert not v["pass"] and ("min_views_used", c.views_used, c.views_used + 3) in v["failed"]
+    # corners only in the image's top-left ninth: every other part is named
+    res = {0: {"uv_detected_px": [[10.0, 10.0], [50.0, 40.0]]}}
+    assert unseen_regions(res, 900, 600) == ["top", "top-right", "left", "centre", "right", "bottom-left", "bottom",
+                                             "bottom-right"]
+    cell = tmp_path / "cell.yaml"
+    cell.write_text("{}\n")
+    run = {"mode": "sim", "workcell_file": str(cell)}
+    seen = c.views_used + len(c.views_rejected)
+    (line,) = fixes(n, c, v, res, SimpleNamespace(width_px=900, height_px=600), run, n_captures=2 * seen)
+    assert line.startswith(f"{n}: 3 more views needed (it has {c.views_used}; the tolerance asks for {c.views_used + 3})")
+    assert f"{seen} of {2 * seen} poses: about 6 more poses" in line
+    assert f"--workcell {cell}" in line and f"--poses {2 * seen + 6}" in line, line
+
+
+def test_report_strict_exits_3_on_fail_and_0_on_pass(tmp_path, capsys):
+    """`report --strict`: exit 3 when the verdict is FAIL (the report written, each failing check with
+    its fix on the console); 0 on PASS; without --strict 0 either way (the documented default)."""
+    from calibgraph.cli.main import main
+
+    d, *_ = make_sim_result()
+    res = d.save(tmp_path / "result.json")
+    fail = tmp_path / "fail.yaml"
+    fail.write_text(f"defaults: {{min_views_used: {max(c.views_used for c in d.cameras.values()) + 1}}}\n")
+    assert main(["report", str(res), "--out", str(tmp_path / "a.html"), "--config", str(fail), "--strict"]) == 3
+    out = capsys.readouterr().out
+    assert "verdict: FAIL" in out and "to fix: " in out and "more view" in out and (tmp_path / "a.html").is_file()
+    assert main(["report", str(res), "--out", str(tmp_path / "b.html"), "--config", str(fail)]) == 0
+    ok = tmp_path / "ok.yaml"
+    ok.write_text("defaults: {min_views_used: 1, max_sigma_translation_mm: 1000, max_sigma_rotation_deg: 1000, "
+                  "max_reprojection_rms_px: 100, max_reprojection_max_px: 1000, max_workspace_sigma_mm: null}\n")
+    assert main(["report", str(res), "--out", str(tmp_path / "c.html"), "--config", str(ok), "--strict"]) == 0
+    assert "verdict: PASS" in capsys.readouterr().out

@@ -142,7 +142,7 @@ def _trajectory(args, log) -> int:
     if args.speed_scale is not None:
         traj = Trajectory(poses=traj.poses, speed_scale=args.speed_scale)
     inputs = {"workcell_sha256": wc.sha256, "trajectory_sha256": traj.sha256()}
-    with _claim(args, "trajectory", inputs, log, claim_dataset):
+    with _claim(args, "trajectory", inputs, log, claim_dataset, workcell=args.workcell):
         dev = _devices(args, driver, wc, wc, log, dry_run_shows="check every pose against the safety limits",
                        plans_without_robot="planning from the first pose instead of the robot's joints")
         with _run_on(dev, args):
@@ -215,7 +215,7 @@ def _auto(args, log) -> int:
             dev.close()
         print(rep.summary())
         return 0
-    with _claim(args, "auto", _input_hashes(wc, world), log, claim_dataset):
+    with _claim(args, "auto", _input_hashes(wc, world), log, claim_dataset, workcell=args.workcell or args.sim_world):
         pworld = planning_world(cell)
         dev = devices(skip_hidden=True)
         with _run_on(dev, args), _live_view(args, T_flange_board=cell.T_flange_board) as watch:
@@ -388,8 +388,9 @@ def _run_on(dev, args):
             dev.close()
 
 
-def _claim(args, mode: str, inputs: dict, log, claim_dataset):
-    """The dataset claim of a run (nothing to claim in a dry run, which writes nothing)."""
+def _claim(args, mode: str, inputs: dict, log, claim_dataset, workcell=None):
+    """The dataset claim of a run (nothing to claim in a dry run, which writes nothing); ``workcell``:
+    the file the cameras were read from, recorded for the advice to name."""
     if args.dry_run:
         return contextlib.nullcontext()
     from calibgraph.io.output_guard import check_output_folder
@@ -400,7 +401,7 @@ def _claim(args, mode: str, inputs: dict, log, claim_dataset):
     files = getattr(args, "camera_files", None)  # a resume must use the same camera files (or none, as its run)
     inputs = {**inputs, "camera_files_sha256": content_sha256(
         {n: i.to_dict() for n, i in sorted(files.items())}) if files else None}
-    return claim_dataset(args.out, mode, inputs, args.resume, log)
+    return claim_dataset(args.out, mode, inputs, args.resume, log, files={"workcell_file": workcell})
 
 
 def _devices(args, driver, wc, world, log, **kw):

@@ -88,7 +88,7 @@ def run(args) -> int:
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     # the dataset is claimed before anything is built: a dataset of another run is refused untouched,
     # a file or a read-only folder is said now, not after simulating
-    with claim_dataset(args.out, "sim", inputs, args.resume, say) as claim:
+    with claim_dataset(args.out, "sim", inputs, args.resume, say, files={"workcell_file": args.workcell}) as claim:
         output_folder(args.out, "dataset folder")
         say(f"building the simulated workcell {cell.name!r}: {len(cell.cameras)} cameras, board "
             f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm, "

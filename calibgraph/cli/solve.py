@@ -29,7 +29,13 @@ def add_parser(sub):
                    help="camera NAME's intrinsics from a camera file (calibgraph intrinsics): its values and "
                         "covariance become the camera's prior (repeatable)")
     p.add_argument("--rrd", type=Path, default=None, help="also write a rerun recording")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--strict", action="store_true",
+                   help=f"also judge the result against the report's tolerances, print the verdict and exit "
+                        f"{EXIT_NOT_CALIBRATED} on FAIL (the result is still written); default: exit 0 when every camera "
+                        "is calibrated, whatever the tolerances")
+    p.add_argument("--config", type=Path, default=None,
+                   help="with --strict: the tolerances YAML (as report --config; default datasets/tolerances/default.yaml)")
+    p.add_argument("--quiet", action="store_true", help="no progress, no table (warnings and errors still go to stderr)")
     return p
 
 
@@ -193,6 +199,24 @@ def print_problems(problems, per_kind: int = 3) -> None:
             print(f"warning: ... and {len(items) - per_kind} more images like these", file=sys.stderr)
 
 
+def name_inputs(result, workcell=None, camera_files: dict | None = None):
+    """``result`` naming the user's own files: each advice's ``--workcell CELL.yaml`` the workcell the
+    dataset was captured with (when it records one), and each camera's intrinsics the camera file it
+    was given with ``--intrinsics NAME=FILE`` (``intrinsics.file``)."""
+    from calibgraph.solver.session_plan import name_workcell
+
+    camera_files = camera_files or {}
+    cams = {}
+    for n, c in result.cameras.items():
+        b, intr = c.error_budget, c.intrinsics
+        if b and b.get("advice") and workcell is not None:
+            b = {**b, "advice": name_workcell(b["advice"], workcell)}
+        if intr is not None and n in camera_files:
+            intr = {**intr, "file": str(camera_files[n])}
+        cams[n] = replace(c, error_budget=b, intrinsics=intr)
+    return replace(result, cameras=cams)
+
+
 def camera_file_paths(items) -> list:
     """The files of ``--intrinsics NAME=CAM.yaml`` arguments (inputs no output may replace)."""
     return [Path(s.partition("=")[2]) for s in items if "=" in s]
@@ -212,6 +236,7 @@ def run(args) -> int:
 
 def _run(args) -> int:
     from calibgraph.io.camera_file import apply_camera_files, read_camera_file_args
+    from calibgraph.io.dataset import recorded_workcell
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file, write_keeping_previous
     from calibgraph.solver.batch import solve
@@ -222,8 +247,16 @@ def _run(args) -> int:
     if files:
         ds = replace(ds, cameras=apply_camera_files(ds.cameras, files, f"dataset {args.dataset}"))
     # said now, not after solving; the previous result stays until the new one is whole, and is kept then
-    inputs = camera_file_paths(args.intrinsics)
+    inputs = camera_file_paths(args.intrinsics) + ([args.config] if args.config is not None else [])
     check_output_file(out, "result", "result file", "result.json", inputs=inputs, datasets=[args.dataset])
+    if args.config is not None:
+        if not args.strict:
+            from calibgraph.core.errors import InputError
+
+            raise InputError("--config (tolerances) is read only with --strict; add --strict or drop --config.")
+        from calibgraph.report.tolerances import load_tolerances
+
+        load_tolerances(args.config)  # a bad tolerance file is said now, not after solving
     if args.rrd:
         check_output_file(args.rrd, "recording", "rerun recording", "calibgraph.rrd", inputs=inputs + [out],
                           datasets=[args.dataset])
@@ -245,6 +278,7 @@ def _run(args) -> int:
             print(note)
     result = solve(problem)
     result = replace(result, dataset=str(args.dataset), target=ds.target.to_dict())
+    result = name_inputs(result, recorded_workcell(args.dataset), dict(zip(files, camera_file_paths(args.intrinsics))))
     kept = write_keeping_previous(out, lambda: result.save(out))
     if kept is not None:
         print(f"kept the previous result as {kept}")
@@ -266,4 +300,10 @@ def _run(args) -> int:
                 print(f"wrote {args.rrd}")
     for name, why in result.not_calibrated.items():
         print(f"calibgraph solve: camera {name} is NOT calibrated: {why}", file=sys.stderr)
+    if args.strict:
+        from calibgraph.cli.report import print_verdict
+        from calibgraph.report.html import report_verdicts
+
+        if not print_verdict(result, report_verdicts(result, config=args.config, dataset=ds)):
+            return EXIT_NOT_CALIBRATED
     return EXIT_NOT_CALIBRATED if result.not_calibrated else 0

@@ -19,6 +19,7 @@ from calibgraph.report.markup import badge, esc, matrix, num, vec
 from calibgraph.report.tolerances import CHECKS, DEFAULT_TOLERANCES, covariance_problem, sigma_norm
 from calibgraph.report.workspace import coverage_plot
 from calibgraph.solver.result import FRAME_CONVENTION, RESULT_FORMAT, intrinsics_provenance, sigmas_from_cov
+from calibgraph.solver.session_plan import name_workcell
 from calibgraph.solver.uncertainty import weakest_directions
 
 
@@ -36,13 +37,18 @@ def banner_html(result, title: str, verdicts: dict) -> str:
          f'{esc(why)}' + (f" — failing: {esc(', '.join(failed))}" if failed else "") + "</div>"]
     if failed:
         h.append('<ul id="failing-reasons">' + "".join(
-            f"<li>{esc(n)}: {esc('; '.join(verdicts[n]['reasons']))}{_notes_link(result, n)}</li>" for n in failed)
-                 + "</ul>")
+            f"<li>{esc(n)}: {esc('; '.join(verdicts[n]['reasons']))}{_notes_link(result, n)}"
+            + ("".join(f'<br><span class="fix">To fix: {esc(_strip_name(n, f))}</span>' for f in verdicts[n].get("fixes", [])))
+            + "</li>" for n in failed) + "</ul>")
         k = len(result.cell_notes)
         if k:
             h.append(f'<p class="note">The solver also left <a href="#cell-notes">{k} note{"s" if k != 1 else ""} on the '
                      "whole cell</a> (board, robot) that bear on every camera.</p>")
     return "\n".join(h)
+
+
+def _strip_name(n: str, text: str) -> str:
+    return text[len(n) + 2:] if text.startswith(f"{n}: ") else text
 
 
 def _notes_link(result, n: str) -> str:
@@ -333,17 +339,19 @@ BUDGET_COLOURS = {"corners": "#1f77b4", "intrinsics": "#ff7f0e", "robot_fk": "#2
 OTHER_COLOURS = ("#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f", "#d62728")
 
 
-def improve_html(result) -> str:
+def improve_html(result, workcell=None) -> str:
     """The box at the top: what would improve this calibration, each camera's advice with its
-    numbers (its 1σ now, what the remedy would bring it to), the cameras not calibrated and why,
-    and how many notes the page carries."""
+    numbers (its 1σ now, what the remedy would bring it to; the commands naming ``workcell``, the cell
+    file the dataset was captured with, where the result's advice has the placeholder), the cameras
+    not calibrated and why, and how many notes the page carries. The page says each advice here only."""
     items = []
     for n, c in result.cameras.items():
         link = f'<a href="#cam-{esc(n)}">{esc(n)}</a>'
         if not c.calibrated:
             items.append(f'<li data-camera="{esc(n)}">{link}: <b>not calibrated</b> — {esc(c.why)}</li>')
         elif findings.advice(c):
-            items.append(f'<li data-camera="{esc(n)}">{link}: <span class="advice">{esc(findings.advice_for(n, c))}</span></li>')
+            text = name_workcell(findings.advice_for(n, c), workcell)
+            items.append(f'<li data-camera="{esc(n)}">{link}: <span class="advice">{esc(text)}</span></li>')
     n_notes = len(result.notes)
     if not items and not n_notes:
         return ""
@@ -376,8 +384,11 @@ def budget_html(c) -> str:
             f"{esc(lab)}: " + (esc(findings.percent(v)) if unit == "share" else num(v, ".4g", f" {unit}" if unit else ""))
             for lab, v, unit in extra) + "</p>")
     for key, text in findings.budget_texts(b):
-        cls = "advice" if key == "advice" else "note"
-        h.append(f'<p class="{cls}"><b>{"Advice" if key == "advice" else esc(findings.humanise(key))}:</b> {esc(text)}</p>')
+        if key == "advice":  # said once, in the box at the top
+            h.append('<p class="note">What would shrink it most: its advice in <a href="#improve">What would improve '
+                     "this calibration</a>.</p>")
+        else:
+            h.append(f'<p class="note"><b>{esc(findings.humanise(key))}:</b> {esc(text)}</p>')
     h.append("</div>")
     return "\n".join(h)
 

@@ -110,17 +110,20 @@ def covariance_problem(cov) -> str | None:
 
 def camera_verdict(name: str, cam, tol: dict, worst_ws_mm) -> dict:
     """One :class:`~calibgraph.solver.result.CameraResult` against its tolerances:
-    ``{'pass', 'rows': [(label, value, op, limit, ok)], 'reasons': [why it fails]}``. A row with
-    ``ok`` None could not be evaluated (a value that is not a number)."""
+    ``{'pass', 'rows': [(label, value, op, limit, ok)], 'reasons': [why it fails], 'failed': [(key,
+    value, limit)] of the failing checks}`` (key: the tolerance's, 'covariance' or 'calibrated'). A
+    row with ``ok`` None could not be evaluated (a value that is not a number)."""
     if not cam.calibrated:
-        return {"pass": False, "rows": [], "reasons": [f"not calibrated: {cam.why}"]}
+        return {"pass": False, "rows": [], "reasons": [f"not calibrated: {cam.why}"],
+                "failed": [("calibrated", False, True)]}
     limits = dict(tol["defaults"])
     limits.update(tol["cameras"].get(name, {}))
-    rows, reasons = [], []
+    rows, reasons, failed = [], [], []
     bad_cov = covariance_problem(cam.covariance)
     rows.append(("covariance", bad_cov or "positive definite", "is", "positive definite", bad_cov is None))
     if bad_cov:
         reasons.append(bad_cov)
+        failed.append(("covariance", bad_cov, "positive definite"))
     for key, label, get, op in CHECKS:
         lim = limits.get(key)
         if lim is None:
@@ -132,5 +135,6 @@ def camera_verdict(name: str, cam, tol: dict, worst_ws_mm) -> dict:
         ok = float(v) <= float(lim) if op == "<=" else float(v) >= float(lim)
         if not ok:
             reasons.append(f"{label} {float(v):.4g} not {op} {lim:g}")
+            failed.append((key, float(v), lim))
         rows.append((label, v, op, lim, ok))
-    return {"pass": not reasons, "rows": rows, "reasons": reasons}
+    return {"pass": not reasons, "rows": rows, "reasons": reasons, "failed": failed}
