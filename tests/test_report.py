@@ -389,3 +389,39 @@ def test_report_strict_exits_3_on_fail_and_0_on_pass(tmp_path, capsys):
                   "max_reprojection_rms_px: 100, max_reprojection_max_px: 1000, max_workspace_sigma_mm: null}\n")
     assert main(["report", str(res), "--out", str(tmp_path / "c.html"), "--config", str(ok), "--strict"]) == 0
     assert "verdict: PASS" in capsys.readouterr().out
+
+
+def test_plots_keep_legends_off_the_data_and_draw_the_camera_on_the_workspace_map():
+    """The residual scatter's legend stands right of its frame, each key drawn as its series is (a
+    cross for the rejected corners); a heat map's label is dark text on a white halo; a camera beyond
+    the workspace map is drawn on its edge (a diamond) with an arrow the way it looks."""
+    import re
+
+    import numpy as np
+
+    from calibgraph.report import svgplot
+    from calibgraph.report.workspace import camera_marker
+
+    svg = svgplot.scatter([{"x": [0, 1], "y": [0, 1], "label": "corner (used)"},
+                           {"x": [1], "y": [1], "label": "rejected corner", "marker": "x", "color": svgplot.RED}],
+                          width=640)
+    frame = re.search(r'<rect x="([\d.]+)" y="[\d.]+" width="([\d.]+)"[^>]*fill="none" stroke="#333"', svg)
+    right_edge = float(frame.group(1)) + float(frame.group(2))
+    keys = [float(x) for x in re.findall(r'<text x="([\d.]+)" y="[\d.]+">(?:corner|rejected)', svg)]
+    assert len(keys) == 2 and min(keys) > right_edge, (keys, right_edge)
+    cross = re.findall(rf'<path d="M([\d.]+),[^"]*" stroke="{svgplot.RED}"', svg)
+    assert len(cross) == 2 and float(cross[1]) > right_edge  # the data's cross and the legend's
+    # a camera 3 m beyond a 1.2 m map, looking back at the robot along +y
+    T = np.eye(4)
+    T[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # optical z along base +y
+    T[:3, 3] = [0.0, -3.0, 0.8]
+    xe, ye = np.linspace(-0.6, 0.6, 5), np.linspace(-0.6, 0.6, 5)
+    m = camera_marker("cam0", T, xe, ye)
+    assert m["dir"] == (0.0, 1.0) and "3.0 m off the map" in m["label"]
+    svg = svgplot.heatmap(np.ones((4, 4)), xe, ye, markers=[m, {"x": 0, "y": 0, "label": "robot base"}])
+    assert 'stroke="#fff" stroke-width="3" paint-order="stroke">robot base</text>' in svg
+    frame = re.search(r'<rect x="[\d.]+" y="([\d.]+)" width="[\d.]+" height="([\d.]+)" fill="none" stroke="#333"', svg)
+    bottom = float(frame.group(1)) + float(frame.group(2))
+    diamond = re.search(r'<path d="M([\d.]+),([\d.]+)L[^"]*Z" fill="#ff7f0e"', svg)
+    assert diamond and abs(float(diamond.group(2)) + 7 - bottom) < 0.2, (diamond, bottom)  # on the map's lower edge
+    assert re.search(r'<line [^>]*stroke="#111" stroke-width="2"/>', svg)  # the arrow the way it looks
