@@ -50,8 +50,17 @@ from calibgraph.acquire.devices import ROBOT_DRIVERS  # the registry's robot dri
 
 
 def add_parser(sub):
+    import argparse
+
+    # the help in plain text: the module's examples without its reStructuredText markup
+    examples = "\n".join(ln for ln in __doc__.splitlines() if ln.startswith("    calibgraph "))
     p = sub.add_parser("capture", help="drive the robot and record a dataset (real or simulated cell)",
-                       description=__doc__.split("\n\n")[0])
+                       description="Drive the robot through the acquisition loop (move, settle, grab, check, write) "
+                                   "and record a dataset: a fixed trajectory (default), --auto (discover the cameras, "
+                                   "choose each pose by information gain, stop at the tolerance) or --verify (has a "
+                                   "camera moved since a stored calibration?). A real robot never moves without "
+                                   "--i-have-cleared-the-cell; --dry-run plans and checks every pose, moves nothing.",
+                       epilog="examples:\n" + examples, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--workcell", type=Path, default=None,
                    help="workcell YAML (robot, cameras, safety); with --auto the cell without placements")
     p.add_argument("--trajectory", type=Path, default=None,
@@ -76,7 +85,7 @@ def add_parser(sub):
                         "tolerance): a viewer where there is a display, else a .rrd beside --out (or --rrd)")
     p.add_argument("--rrd", type=Path, default=None, metavar="FILE",
                    help="write the live view into this rerun recording instead of opening a viewer")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (the summary, warnings and errors still print)")
     a = p.add_argument_group("autonomous calibration (--auto)")
     a.add_argument("--auto", action="store_true",
                    help="discover the cameras, choose each pose by expected information gain, stop at the tolerance")

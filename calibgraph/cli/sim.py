@@ -39,7 +39,7 @@ def add_parser(sub):
                    help="instead of a dataset, write a close-range intrinsics session to --out: N hand-held images "
                         "per camera of the board at 0.3-0.8 m (OUT/<camera>/*.png, OUT/target.yaml, "
                         "OUT/ground_truth.json) for calibgraph intrinsics; no robot, no OpenGL")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (warnings and errors still print)")
     return p
 
 

@@ -114,18 +114,19 @@ def format_summary(result, truth=None) -> str:
     ref = frames.camera_key
     lines = [f"mode {result.mode}, method {result.method}, pixel sigma {result.pixel_sigma_px:.3f} px, "
              f"solved in {result.solve_time_s:.2f} s{oracle_label(result)}"]
-    hdr = f"{'camera':10s} {'x [m]':>8s} {'y [m]':>8s} {'z [m]':>8s} {'1σ t [mm]':>16s} {'1σ r [deg]':>20s} {'rms px':>7s} {'views':>9s}"
+    w = max([10, *(len(n) for n in result.cameras)])  # a long camera name widens the column, not the row
+    hdr = f"{'camera':{w}s} {'x [m]':>8s} {'y [m]':>8s} {'z [m]':>8s} {'1σ t [mm]':>16s} {'1σ r [deg]':>20s} {'rms px':>7s} {'views':>9s}"
     if truth is not None:
         hdr += f" {'err mm':>7s} {'err deg':>8s} {'err/1σ':>7s}"
     lines += [f"{ref} per camera:", hdr]
     for n, c in result.cameras.items():
         if not c.calibrated:
-            lines.append(f"{n:10s} NOT CALIBRATED: {c.why}")
+            lines.append(f"{n:{w}s} NOT CALIBRATED: {c.why}")
             continue
         t = c.T_ref_cam[:3, 3]
         st = "/".join(f"{v:.2f}" for v in c.sigma_translation_mm)
         sr = "/".join(f"{v:.3f}" for v in c.sigma_rotation_deg)
-        row = (f"{n:10s} {t[0]:8.4f} {t[1]:8.4f} {t[2]:8.4f} {st:>16s} {sr:>20s} {c.reprojection_rms_px:7.3f} "
+        row = (f"{n:{w}s} {t[0]:8.4f} {t[1]:8.4f} {t[2]:8.4f} {st:>16s} {sr:>20s} {c.reprojection_rms_px:7.3f} "
                f"{c.views_used:4d}/{c.views_used + len(c.views_rejected):<4d}")
         if truth is not None and n in truth:
             e_m, e_deg = pose_error(c.T_ref_cam, truth[n])
@@ -169,11 +170,12 @@ def robot_lines(robot: dict | None) -> list:
     o, s = robot["joint_offsets_rad"], robot["joint_offsets_sigma_rad"]
     names = robot.get("joint_names") or [f"joint{i + 1}" for i in range(len(o))]
     lines = [f"robot joint zero offsets ({robot.get('model', '?')}; physical angle = reported + offset), mrad:"]
+    w = max([10, *(len(str(n)) for n in names)])
     for i, (n, v, sg) in enumerate(zip(names, o, s)):
         if sg is None:
-            lines.append(f"  {n:10s} held at 0")
+            lines.append(f"  {n:{w}s} held at 0")
         else:
-            lines.append(f"  {n:10s} {1e3 * v:+8.3f} ± {1e3 * sg:.3f}  ({v / sg:+.1f} σ from zero)")
+            lines.append(f"  {n:{w}s} {1e3 * v:+8.3f} ± {1e3 * sg:.3f}  ({v / sg:+.1f} σ from zero)")
     for f in robot.get("fixed", []):
         lines.append(f"  joint {f['joint']} fixed: {f['reason']}")
     strong = [c for c in robot.get("strongest_correlations", []) if abs(c["correlation"]) >= 0.5]

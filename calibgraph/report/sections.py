@@ -476,7 +476,13 @@ def camera_notes_html(result, n: str) -> str:
     notes = result.camera_notes(n)
     if not notes:
         return ""
-    return ('<div class="notes"><b>Notes</b><ul>' + "".join(f"<li>{esc(t)}</li>" for t in notes) + "</ul></div>")
+    return ('<div class="notes"><b>Notes</b><ul>' + "".join(f"<li>{note_html(t)}</li>" for t in notes) + "</ul></div>")
+
+
+def note_html(text: str) -> str:
+    """A solver's note: its plain sentence, then its technical detail (after 'Detail: ') set smaller."""
+    plain, sep, detail = str(text).partition(" Detail: ")
+    return esc(plain) + (f' <span class="detail">Detail: {esc(detail)}</span>' if sep else "")
 
 
 def cell_notes_html(result) -> str:
@@ -485,5 +491,5 @@ def cell_notes_html(result) -> str:
     if not notes:
         return ('<h2 id="cell-notes">Notes on the whole cell</h2>\n<p class="note">None: the solver found nothing to '
                 "say about the board or the robot.</p>")
-    body = "<ul>" + "".join(f"<li>{esc(t)}</li>" for t in notes) + "</ul>"
+    body = "<ul>" + "".join(f"<li>{note_html(t)}</li>" for t in notes) + "</ul>"
     return f'<h2 id="cell-notes">Notes on the whole cell</h2>\n<div class="notes cell">{body}</div>'
