@@ -136,10 +136,7 @@ def _trajectory(args, log) -> int:
     from calibgraph.plan.trajectory import Trajectory, load_trajectory
 
     wc = read_workcell(args.workcell)
-    if wc.safety.default_model:
-        print(f"warning: {args.workcell} declares no safety: section; every pose is checked against a default cell "
-              f"model: Franka {wc.robot.get('model', 'fr3')} joint limits and kinematics, {wc.safety.describe()}. "
-              "Declare the cell's safety: section (workspace box, boxes) for a real cell.", file=sys.stderr)
+    _warn_default_safety(args.workcell, wc)
     driver = wc.robot_driver(args.robot)
     traj_path = args.trajectory
     if traj_path is None:
@@ -209,6 +206,7 @@ def _auto(args, log) -> int:
         raise InputError("capture --auto on a real robot needs --workcell CELL.yaml (cameras, obstacles, safety).")
     cell = (wc.planning_cell(strip_placements=driver == "sim") if wc is not None else world.planning_cell())
     safety = _safety(wc)
+    _warn_default_safety(args.workcell, wc)  # as a trajectory run says it, dry run or not
 
     def devices(**kw):
         return _devices(args, driver, wc, world, log, names=cell.camera_names, dry_run_shows="see the survey",
@@ -358,6 +356,15 @@ def _cell_and_world(args, what: str):
     if driver == "sim" and world is None and wc is not None and wc.has_placements:
         world = wc  # the workcell is the simulated world; the planner sees it without placements
     return wc, world, driver
+
+
+def _warn_default_safety(path, wc) -> None:
+    """The warning of a workcell that declares no safety: section (every run that checks poses
+    against it: a trajectory, --auto, a dry run of either)."""
+    if wc is not None and wc.safety.default_model:
+        print(f"warning: {path} declares no safety: section; every pose is checked against a default cell "
+              f"model: Franka {wc.robot.get('model', 'fr3')} joint limits and kinematics, {wc.safety.describe()}. "
+              "Declare the cell's safety: section (workspace box, boxes) for a real cell.", file=sys.stderr)
 
 
 def _safety(wc):
