@@ -190,7 +190,7 @@ def _arg_cases(base):
         ("verify: result does not exist", ["verify", "--result", base / "nope.json", ds], 2, "nope.json"),
         ("verify: result is not a result", ["verify", "--result", spec, ds], 2, "not a calibgraph result"),
         ("verify: dataset does not exist", ["verify", "--result", res, base / "nope"], 2, "nope"),
-        ("import: no format", ["import"], 2, "required: format, bag, --out"),
+        ("import: no format", ["import"], 2, "required: FORMAT"),
         ("import: --format bogus", ["import", "rosbag1", base / "bag", "--out", base / "x"], 2, "invalid choice"),
         ("import rosbag2: bag does not exist", ["import", "rosbag2", base / "nobag", "--out", base / "x"], 2,
          "no such bag"),

@@ -195,8 +195,8 @@ def workcell_spec(d, where: str, hardware: bool = True) -> WorkcellSpec:
     if hardware:
         unknown = set(robot) - ROBOT_KEYS - SIM_ROBOT_KEYS
         if unknown:
-            raise InputError(f"{where}: robot: unknown keys {sorted(unknown)}; allowed: "
-                             f"{sorted(ROBOT_KEYS | SIM_ROBOT_KEYS)}.")
+            raise InputError(f"{where}: robot: unknown keys {', '.join(sorted(unknown))}; allowed: "
+                             f"{', '.join(sorted(ROBOT_KEYS | SIM_ROBOT_KEYS))}.")
         for name, c in cams.items():
             drv = (c or {}).get("driver", "sim") if isinstance(c, dict) or c is None else None
             if drv not in CAMERA_DRIVERS:

@@ -18,7 +18,28 @@ def add_parser(sub):
     p.add_argument("--dataset", type=Path, default=None,
                    help="the dataset RESULT was solved from: adds intrinsics, image coverage and residuals the result "
                         "lacks (default: the dataset named in RESULT, if it exists); another dataset is refused")
+    p.add_argument("--strict", action="store_true",
+                   help=f"exit {EXIT_FAIL} when the verdict is FAIL (the report is still written); default: exit 0 "
+                        "whatever the verdict")
     return p
+
+
+EXIT_FAIL = 3  # with --strict: the report is written, and its verdict is FAIL
+
+
+def print_verdict(result, verdicts: dict) -> bool:
+    """Print 'verdict: PASS' or 'verdict: FAIL (...)' with, under a FAIL, the step that fixes each
+    failing check; True when it passed."""
+    failing = {n: v for n, v in verdicts.items() if not v["pass"]}
+    if not failing and result.converged:
+        print("verdict: PASS")
+        return True
+    why = ["the solver did not converge"] if not result.converged else []
+    print("verdict: FAIL (" + "; ".join(why + [f"{n}: {', '.join(v['reasons'])}" for n, v in failing.items()]) + ")")
+    for v in failing.values():
+        for f in v.get("fixes", []):
+            print(f"  to fix: {f}")
+    return False
 
 
 def run(args) -> int:
@@ -52,12 +73,6 @@ def run(args) -> int:
     path = out
     if kept is not None:
         print(f"kept the previous report as {kept} (edited since calibgraph wrote it, or too old to tell)")
-    verdicts = report_verdicts(result, config=args.config, dataset=dataset)
-    failing = {n: v["reasons"] for n, v in verdicts.items() if not v["pass"]}
-    if failing or not result.converged:
-        why = ["the solver did not converge"] if not result.converged else []
-        print("verdict: FAIL (" + "; ".join(why + [f"{n}: {', '.join(r)}" for n, r in failing.items()]) + ")")
-    else:
-        print("verdict: PASS")
+    passed = print_verdict(result, report_verdicts(result, config=args.config, dataset=dataset))
     print(f"wrote {path}")
-    return 0
+    return EXIT_FAIL if args.strict and not passed else 0

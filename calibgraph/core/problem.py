@@ -496,7 +496,7 @@ class Problem:
             if d.camera not in self.cameras:
                 raise InputError(
                     f"detection for unknown camera {d.camera!r} (capture {d.capture}); "
-                    f"known cameras: {sorted(self.cameras)}."
+                    f"known cameras: {', '.join(sorted(self.cameras))}."
                 )
             if d.capture not in known:
                 raise InputError(f"camera {d.camera!r}: detection refers to capture {d.capture}, which has no robot pose.")

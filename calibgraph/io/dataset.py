@@ -162,6 +162,24 @@ def write_problem(root, problem, target: Target | None = None) -> Path:
     return Path(root)
 
 
+def recorded_run(root) -> dict:
+    """What made a calibgraph dataset (``made_by`` of its ``dataset.yaml``: mode, input hashes,
+    ``workcell_file``); {} when it does not say (not recorded, another layout, an unreadable header)."""
+    try:
+        d = read_yaml(Path(root) / "dataset.yaml", "dataset header")
+    except (InputError, OSError):
+        return {}
+    rec = d.get("made_by") if isinstance(d, dict) else None
+    return dict(rec) if isinstance(rec, dict) else {}
+
+
+def recorded_workcell(root) -> Path | None:
+    """The workcell file a calibgraph dataset records it was captured with (``made_by.workcell_file``)
+    when that file is still there; None otherwise."""
+    f = recorded_run(root).get("workcell_file")
+    return Path(f) if isinstance(f, str) and Path(f).is_file() else None
+
+
 def is_calibgraph_dataset(root) -> bool:
     return (Path(root) / "dataset.yaml").is_file()
 

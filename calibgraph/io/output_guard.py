@@ -55,7 +55,7 @@ _OTHERS = {
     "a ground truth file": lambda h: b"calibgraph-ground-truth/" in h[:4096],
     "an image": lambda h: h.startswith((b"\x89PNG", b"\xff\xd8\xff", b"BM", b"II*\x00", b"MM\x00*", b"P5", b"P6")),
 }
-KEPT = ("result", "camera file")  # kinds whose replaced file is kept as NAME.<n>.EXT
+KEPT = ("result", "camera file", "verdict")  # kinds whose replaced file is kept as NAME.<n>.EXT
 # a report's own SHA-256 (of its text without this tag), so that one edited by hand is kept when replaced
 _FINGERPRINT = re.compile(rb'<meta name="calibgraph-sha256" content="([0-9a-f]{64})">')
 
@@ -142,6 +142,8 @@ def check_output_file(path, kind: str, what: str, example: str, inputs=(), datas
     folder, a device, a read-only folder). Returns ``path``."""
     if kind not in KINDS:
         raise ValueError(f"unknown output kind {kind!r}")
+    if Path(path).is_dir():  # the fix names a file this check accepts
+        raise InputError(f"{path}: is a folder; name a file (e.g. {_file_for_folder(path, example, datasets)}).")
     target = writable_target(path, example)  # a symlink is judged by the file it points to
     where = _resolved(target)
     if target.exists():
@@ -168,6 +170,23 @@ def check_output_file(path, kind: str, what: str, example: str, inputs=(), datas
                          f"as that dataset's own result, report or cache, in its top folder: choose a {what} outside "
                          "it (nothing was changed).")
     return output_file(path, what, example)
+
+
+def _file_for_folder(folder, example: str, datasets=()) -> Path:
+    """A file named ``example`` that :func:`check_output_file` would accept for a command given the
+    folder ``folder``: inside it, unless that is inside a dataset: then the top folder of that dataset
+    when it is one of the command's own, else beside the dataset."""
+    f = Path(folder) / example
+    inside = dataset_above(_resolved(f))
+    own = {_resolved(d) for d in datasets if d is not None}
+    if inside is None or (_resolved(f).parent == inside and inside in own):
+        return f
+    # climb the path as given (to keep it relative) to the dataset's folder
+    p = Path(folder)
+    while _resolved(p) != inside and p != p.parent:
+        p = p.parent
+    p = p if _resolved(p) == inside else inside
+    return p / example if inside in own else p.parent / example
 
 
 def check_output_folder(path, what: str, claimed: bool = False, empty: bool = False) -> Path:

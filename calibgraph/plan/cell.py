@@ -154,7 +154,7 @@ class CameraHint:
             raise InputError(f"{where}: hint must be a mapping (position_m + sigma_m, direction or azimuth_deg).")
         unknown = set(d) - {"position_m", "sigma_m", "direction", "azimuth_deg", "elevation_deg"}
         if unknown:
-            raise InputError(f"{where}: hint: unknown keys {sorted(unknown)}; allowed: position_m, sigma_m, direction, "
+            raise InputError(f"{where}: hint: unknown keys {', '.join(sorted(unknown))}; allowed: position_m, sigma_m, direction, "
                              "azimuth_deg, elevation_deg.")
         direction = d.get("direction")
         if direction is None and "azimuth_deg" in d:
@@ -204,7 +204,7 @@ class CellDescription:
         if not names:
             raise InputError(f"cell {self.name!r}: no cameras listed; add a 'cameras' section.")
         if len(set(names)) != len(names):
-            raise InputError(f"cell {self.name!r}: duplicate camera names {names}.")
+            raise InputError(f"cell {self.name!r}: duplicate camera names {', '.join(map(str, names))}.")
         object.__setattr__(self, "cameras", tuple(self.cameras))
         object.__setattr__(self, "obstacles", tuple(self.obstacles))
         check_pose(np.asarray(self.T_flange_board, float), f"cell {self.name!r}: mount")
@@ -262,7 +262,7 @@ def cell_from_dict(d: dict, where: str = "cell") -> CellDescription:
         c = dict(c or {})
         placed = PLACEMENT_KEYS & set(c)
         if placed:
-            raise InputError(f"{where}: camera {name!r} gives its placement ({sorted(placed)}); the autonomous loop "
+            raise InputError(f"{where}: camera {name!r} gives its placement ({', '.join(sorted(placed))}); the autonomous loop "
                              "finds placements itself: remove them or give a rough hint instead.")
         intr = None
         if "intrinsics" in c:

@@ -178,7 +178,7 @@ class Workcell:
         if not names and not self.planning_only:
             raise InputError(f"workcell {self.name!r}: no cameras; add a 'ring' or 'cameras' section.")
         if len(set(names)) != len(names):
-            raise InputError(f"workcell {self.name!r}: duplicate camera names {names}.")
+            raise InputError(f"workcell {self.name!r}: duplicate camera names {', '.join(map(str, names))}.")
         object.__setattr__(self, "cameras", tuple(self.cameras))
         object.__setattr__(self, "obstacles", tuple(self.obstacles))
 
@@ -276,7 +276,7 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
              "obstacles", "keep_out"}
     unknown = set(d) - known
     if unknown:
-        raise InputError(f"{where}: unknown keys {sorted(unknown)}; allowed: {sorted(known)}.")
+        raise InputError(f"{where}: unknown keys {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(known))}.")
     try:
         realism = Realism(**(d.get("realism") or {}))
     except TypeError as e:
@@ -310,7 +310,7 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
         raise InputError(f"{where}: robot must be a mapping (fk_sigma_translation_m, fk_sigma_rotation_deg, joint_offsets_rad).")
     unknown = set(robot) - {"fk_sigma_translation_m", "fk_sigma_rotation_deg", "joint_offsets_rad"}
     if unknown:
-        raise InputError(f"{where}: robot: unknown keys {sorted(unknown)}; allowed: fk_sigma_translation_m, "
+        raise InputError(f"{where}: robot: unknown keys {', '.join(sorted(unknown))}; allowed: fk_sigma_translation_m, "
                          "fk_sigma_rotation_deg, joint_offsets_rad.")
     offsets = robot.get("joint_offsets_rad", [0.0] * 7)
     try:

@@ -104,7 +104,8 @@ def widen_inadequate_intrinsics(problem: Problem, group: Group, timings: dict | 
         new = intrinsics_vector(g2.est.camera_model(n, problem.cameras))
         rms2 = radial_structure(g2.est, g2.views, n, problem.cameras)[0]
         src = intrinsics_source(problem.cameras[n], problem.options)
-        notes.append(f"camera {n}: the data disagree with its given ({src}) intrinsics (chi-square {d2:.0f} on 6 dof; "
+        notes.append(f"camera {n}: its given ({src}) intrinsics do not fit its images, so they were estimated from "
+                     f"them instead. Detail: the data disagree with its given ({src}) intrinsics (chi-square {d2:.0f} on 6 dof; "
                      f"residual {rms:.2f} -> {rms2:.2f} px): estimated with a wide prior, fx {100 * (new[0] / given[0] - 1):+.2f} %, "
                      f"fy {100 * (new[1] / given[1] - 1):+.2f} %, cx {new[2] - given[2]:+.1f} px, cy {new[3] - given[3]:+.1f} px, "
                      f"k1 {new[4] - given[4]:+.3f}, k2 {new[5] - given[5]:+.3f} (1-sigma in the result; "

@@ -292,7 +292,9 @@ def fk_note(options, ratio: FkRatio | None, jackknife: dict | None = None, joint
     if ratio is None or not ratio.widens:
         if f <= 1.0:
             return []
-        return [f"robot: the fitted flange poses departed from forward kinematics until the corners' correlated "
+        return [f"robot: the arm's error repeats from pose to pose, so every camera's 1-sigma is widened for it (by up "
+                f"to {np.sqrt(f):.2f}x). Detail: the fitted flange poses departed from forward kinematics until the "
+                f"corners' correlated "
                 f"noise was weighted, and the robot is kept at its stated accuracy; but {scatter} "
                 f"({_remedy(options, joint_angles)})"]
     o = options
@@ -316,7 +318,8 @@ def fk_note(options, ratio: FkRatio | None, jackknife: dict | None = None, joint
                      + ("" if cv["chosen"] == "both" else f" against {rms['both']:.2f} px with both widened"))
     if f > 1.0:
         parts.append(scatter)
-    return [f"robot: the fitted flange poses depart from forward kinematics further than the stated FK accuracy "
+    return [f"robot: the arm is less accurate than stated, so every camera's 1-sigma is widened for it. Detail: "
+            f"the fitted flange poses depart from forward kinematics further than the stated FK accuracy "
             f"allows ({'; '.join(parts)}); the 1-sigma is widened for it ({_remedy(options, joint_angles)})"]
 
 

@@ -384,8 +384,9 @@ def corner_noise_notes(mode_ratios: dict) -> list:
             continue
         if m.applied > 1.0:
             test = "" if m.significant else ", p < 0.05 but not < 0.001"
-            out.append(f"camera {name}: its residuals move whole boards (each view's shift, rotation, scale and "
-                       f"shear in the image vary {m.ratio:.2f}x what the other residuals imply{test}: corners of "
-                       f"small squares share pixels, or an unmodelled camera or robot error); its views are "
-                       f"weighted and its 1-sigma widened for it")
+            out.append(f"camera {name}: its corners err together, whole boards at a time, so each of its views counts "
+                       f"for less and its 1-sigma is widened for it. Detail: its residuals move whole boards (each "
+                       f"view's shift, rotation, scale and shear in the image vary {m.ratio:.2f}x what the other "
+                       f"residuals imply{test}: corners of small squares share pixels, or an unmodelled camera or "
+                       f"robot error)")
     return out
