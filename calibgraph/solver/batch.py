@@ -33,7 +33,8 @@ from calibgraph.solver.assemble import (
     robot_result,
 )
 from calibgraph.solver.reduced import linearise_graph
-from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_inadequate_intrinsics
+from calibgraph.solver.camera_model import (board_scale, hold_unseparable_scale, intrinsics_notes,
+                                           widen_inadequate_intrinsics)
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note, fk_record
 from calibgraph.solver.keys import B, C, K, O, S
@@ -196,6 +197,7 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
     if problem.options.intrinsics == "auto":
         group, widened = widen_inadequate_intrinsics(problem, group, timings)
         notes += widened
+    group = hold_unseparable_scale(problem, group, timings)
     return [group], notes
 
 

@@ -74,6 +74,9 @@ class Estimate:
     graph: object | None = field(default=None, repr=False)  # the final graph and its values (error budget)
     values: object | None = field(default=None, repr=False)
     linear: object | None = field(default=None, repr=False)  # reduced.Linear of the final graph, when formed
+    # (scale, 1-sigma) the board's scale was estimated at before it was held at its declared value
+    # (camera_model.hold_unseparable_scale), when it was
+    held_scale: tuple | None = None
 
     def camera_model(self, name: str, cameras: dict) -> Intrinsics:
         """The intrinsics camera ``name`` is projected with: estimated, else given (``cameras``)."""
