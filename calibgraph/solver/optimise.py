@@ -395,9 +395,11 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
             iterations += run.iterations
             converged = converged and run.converged
         fk_ratio = chosen
-    if departed and fold_est is None and form == "view":
+    whole_boards = any(m.significant or m.separable is False and m.taken_as is not None for m in mode_ratios.values())
+    if (departed or whole_boards) and fold_est is None and form == "view":
         # the robot departed but its split was not cross-validated (one component widened, or the corners'
-        # correlated noise explained the departure): the folds still say whether the 1-sigma holds
+        # correlated noise explained the departure), or whole boards misfit beyond chance: the folds still say
+        # whether the 1-sigma holds
         with timed(timings, "fk_jackknife"):
             fold_est = jackknife_folds(problem, views, est, fold_solve)
     if opts.pixel_sigma_px:
