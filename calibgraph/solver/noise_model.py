@@ -29,6 +29,10 @@ N_MODES = 6
 # applied above z = 1.645 (p < 0.05) and called significant above z = 3.09 (p < 0.001).
 APPLY_Z = 1.645
 NOTE_Z = 3.09
+# the modes' redundancy left with the robot poses free must be at least this (4 views' six modes) for the
+# corners' correlated noise to be told from the robot's error (a far camera's single views leave a few
+# near-degenerate directions, whose ratio is no evidence: 24x from 3 dof at 5 m with independent corners)
+MIN_SEPARABLE_DOF = 24
 
 
 def log_ratio_z(ratio: float, *dofs: float) -> float:
@@ -82,9 +86,10 @@ def separated(at_fk: dict, robot_free: dict) -> dict:
         f = robot_free.get(cam)
         if m.applied <= 1.0:
             out[cam] = m
-        elif f is not None and f.applied > 1.0:
-            out[cam] = ModeRatio(f.ratio, f.applied, f.dof_modes, f.dof_rest, f.significant, f.energy_modes_px2,
-                                 True, m.ratio)
+        elif f is not None and f.applied > 1.0 and f.dof_modes >= MIN_SEPARABLE_DOF:
+            # freeing the robot poses can only take misfit away: the corners' part is at most the excess at FK
+            r = min(f.ratio, m.ratio)
+            out[cam] = ModeRatio(r, r, f.dof_modes, f.dof_rest, f.significant, f.energy_modes_px2, True, m.ratio)
         else:
             out[cam] = ModeRatio(m.ratio, 1.0, m.dof_modes, m.dof_rest, False, m.energy_modes_px2, False, m.ratio)
     return out
