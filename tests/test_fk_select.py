@@ -115,7 +115,7 @@ def test_unmodelled_joint_offsets_the_folds_make_the_sigma_more_honest(seed, mon
     assert cv["chosen"] == (best if rms[best] < (1 - fk_select.TIE) * rms["both"] else "both")
     assert cv["jackknife_variance_factor"] > 1.0
     assert any("folds' camera poses scatter" in n for n in r_cv.notes)
-    monkeypatch.setattr(fk_select, "_folds", lambda *a: None)  # the path before: Helmert's split, no folds
+    monkeypatch.setattr(fk_select, "_folds", lambda *a, **k: None)  # the path before: Helmert's split, no folds
     r_old = solve(sc.problem)
     assert "cross_validation" not in r_old.fk_noise
     (e_cv, z_cv), (e_old, z_old) = errors(r_cv), errors(r_old)
@@ -159,7 +159,7 @@ def test_jackknife_alone_when_the_split_is_not_cross_validated(monkeypatch):
     assert cv["jackknife_applied"] == cv["jackknife_variance_factor"] > 1.0  # the robot widened: the factor stands
     assert any("folds' camera poses scatter" in n for n in r.notes)
     assert not any("held-out RMS" in n for n in r.notes)
-    monkeypatch.setattr(fk_select, "_folds", lambda *a: None)
+    monkeypatch.setattr(fk_select, "_folds", lambda *a, **k: None)
     r_old = solve(sc.problem)
     assert "cross_validation" not in r_old.fk_noise
     for n, c in r.cameras.items():
@@ -211,7 +211,16 @@ def test_jackknife_folds_not_made_with_too_few_captures():
         raise AssertionError("no fold may be solved")
 
     p = make_scene(n_poses=6, pixel_sigma_px=0.1, seed=0, reported_intrinsics="exact").problem
-    assert fk_select.jackknife_folds(p, [_view("a", k) for k in range(6)], None, never) is None
+    assert fk_select.jackknife_folds(p, [_view("a", k) for k in range(5)], None, never) is None
+
+
+def test_jackknife_of_a_small_set_holds_out_one_configuration_at_a_time():
+    """6-9 configurations (ViSP's 8 poses): one fold each; fewer than 6: none."""
+    p = _problem(8)
+    folds = fk_select._folds(p, [_view("a", k) for k in range(8)], 3, small=True)
+    assert sorted(len(f) for f in folds) == [1] * 8 and set().union(*folds) == set(range(8))
+    assert fk_select._folds(p, [_view("a", k) for k in range(8)], 3) is None  # not for the FK split's cross-validation
+    assert fk_select._folds(_problem(5), [_view("a", k) for k in range(5)], 3, small=True) is None
 
 
 def test_jackknife_applied_only_beyond_chance_with_the_robot_as_stated():
