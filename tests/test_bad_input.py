@@ -1313,11 +1313,12 @@ def test_i46_forced_intrinsics_and_board_scale_still_say_what_the_data_reject(tm
             ("solve --method single: a board 1 % off its declared pitch",
              ["solve", pitch, "--method", "single"], ["camera cam0 (its own graph, --method single): the board is -0.9"]),
             ("solve --intrinsics: a camera file the data reject",
-             ["solve", ds, "--intrinsics", f"cam0={cam}"], ["camera cam0: the data disagree with its given (calibration) "
-                                                            "intrinsics", "estimated with a wide prior"]),
+             ["solve", ds, "--intrinsics", f"cam0={cam}"], ["camera cam0: its given (calibration) intrinsics do not fit its images",
+                                                            "the data disagree with its given (calibration) intrinsics",
+                                                            "estimated with a wide prior"]),
             ("solve --method single --intrinsics: a camera file the data reject",
              ["solve", ds, "--method", "single", "--intrinsics", f"cam0={cam}"],
-             ["camera cam0: the data disagree with its given (calibration) intrinsics"])):
+             ["camera cam0", "the data disagree with its given (calibration) intrinsics"])):
         check(case, [*argv, "--out", out], 0, said, watch=watch, tmp=tmp_path, new_ok=[out])
     held = json.loads(out.read_text())
     assert held["cameras"]["cam0"]["intrinsics"]["source_used"] == "wide"

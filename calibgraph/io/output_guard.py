@@ -142,6 +142,7 @@ def check_output_file(path, kind: str, what: str, example: str, inputs=(), datas
     folder, a device, a read-only folder). Returns ``path``."""
     if kind not in KINDS:
         raise ValueError(f"unknown output kind {kind!r}")
+    check_path_limits(path, what)  # before any look at the path, which a name past NAME_MAX makes raise
     if Path(path).is_dir():  # the fix names a file this check accepts
         raise InputError(f"{path}: is a folder; name a file (e.g. {_file_for_folder(path, example, datasets)}).")
     target = writable_target(path, example)  # a symlink is judged by the file it points to
