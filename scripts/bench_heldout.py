@@ -28,6 +28,12 @@ eye-in-hand and its inverse eye-to-hand) and scored against the detected corners
 miss times its depth over the focal length: the miss at the board's distance, across the line of
 sight, as calibgraph's expected figure is stated).
 
+Configurations: where captures revisit a joint target (``Problem.configurations``: the same joint
+angles, or where none are recorded the same flange pose, within the arm's repeatability), the splits
+deal configurations, not captures: every visit of a target goes to the same side, so that no held-out
+capture is predicted from a revisit of its own pose (a real arm's error repeats with its configuration).
+N and m below then count configurations; a set without revisits is split exactly as capture by capture.
+
 Methods: ``calibgraph`` (the solver with its defaults; unknown intrinsics estimated in the joint
 graph where the set gives none), OpenCV 4.x ``calibrateHandEye`` TSAI, PARK, HORAUD, ANDREFF,
 DANIILIDIS and ``calibrateRobotWorldHandEye`` SHAH, LI, each with intrinsics from ``calibrateCamera``
@@ -47,7 +53,7 @@ with their degrees of freedom (4 and 1); the ratio stated / observed per axis is
 5 degrees of freedom a ratio's own scatter is about 30 %: one set's ratio says little, the pattern over
 sets and axes says more.
 
-Small sets (fewer than ``SMALL_SET`` = 12 captures with the board, at least 5; ViSP's samples have 8):
+Small sets (fewer than ``SMALL_SET`` = 12 configurations with the board, at least 5 captures; ViSP's samples have 8):
 2/3-1/3 splits would train on 5 captures, so they are held out one at a time instead (leave-one-out,
 n splits, train n - 1, test the one left out). The held-out RMS per method is then the mean over the
 n splits, and calibgraph minus the best peer is paired over them with the SE sd / sqrt(n) (the test
@@ -132,7 +138,7 @@ SHARED = {"mchec": "mchec_medium_workcell"}  # multi-camera sets in ../shared/da
 # ViSP's hand-eye folders in ../shared/datasets, read as they are (a copy); the board for a folder that names none
 VISP = {"visp_2022": ("visp_eye_in_hand_2022", {"kind": "checkerboard", "rows": 6, "cols": 9, "pitch_m": 0.0262}),
         "visp_2025": ("visp_eye_in_hand_2025", None)}
-SMALL_SET = 12  # fewer captures with the board: leave-one-out (module docstring)
+SMALL_SET = 12  # fewer configurations with the board: leave-one-out (module docstring)
 MIN_CAPTURES = 5
 SEEDS = (0, 1, 2, 3, 4)
 # calibgraph with its defaults; where every capture records joint angles (eye-to-hand) also with
@@ -269,15 +275,16 @@ def subset(problem, keep: set):
                          detections=tuple(d for d in problem.detections if d.capture in keep))
 
 
-def calibgraph_fits(problem) -> dict:
+def calibgraph_fits(problem, solved: dict | None = None) -> dict:
     """method -> fit(camera, train) -> that camera's model (:func:`camera_model`), raising
     CalibgraphError: "calibgraph" with its defaults and, where every capture records joint angles
     (eye-to-hand), "calibgraph joint-offsets" (``--estimate-kinematics joint-offsets``). One solve per
-    method and train set, shared by the cameras."""
+    method and train set, shared by the cameras. ``solved``: the (method, frozenset(train)) -> Result
+    (or CalibgraphError) cache to fill and reuse (a caller's own solve of a train set, or one to read)."""
     variants = {"calibgraph": problem}
     if problem.mode == "eye_to_hand" and problem.records_joint_angles:
         variants["calibgraph joint-offsets"] = problem.with_(options=replace(problem.options, kinematics="joint-offsets"))
-    solved = {}
+    solved = {} if solved is None else solved
 
     def fit_of(meth, p):
         def fit(cam, train):
@@ -361,22 +368,41 @@ def opencv_models(py: str, problem, splits: list) -> tuple[list, str]:
 # ---------------------------------------------------------------------------------------------
 # the bench
 # ---------------------------------------------------------------------------------------------
-def make_splits(indices: list) -> list:
-    """[(train, test, label)]: 5 random 2/3-1/3 splits and the odd/even halves both ways."""
-    n = len(indices)
+def units(indices: list, config: dict | None = None) -> list:
+    """The split units of the captures ``indices``: [(first capture, its captures)] in index order, one per
+    configuration (``config``: capture -> the first capture at its joint target, ``Problem.configurations``),
+    so that every visit of a joint target goes to the same side of a split and no held-out capture is
+    predicted from a revisit of its own pose. Without ``config`` (or without revisits) each capture alone."""
+    groups = {}
+    for k in sorted(indices):
+        groups.setdefault((config or {}).get(k, k), []).append(k)
+    return sorted(groups.items())
+
+
+def make_splits(indices: list, config: dict | None = None) -> list:
+    """[(train, test, label)]: 5 random 2/3-1/3 splits and the odd/even halves both ways, of the
+    configurations (:func:`units`; the captures themselves where none is revisited)."""
+    u = units(indices, config)
+    n = len(u)
     m = int(round(2 * n / 3))
+
+    def caps(idx):
+        return {k for i in idx for k in u[i][1]}
+
     out = []
     for s in SEEDS:
         perm = np.random.default_rng(s).permutation(n)
-        out.append(({indices[i] for i in perm[:m]}, {indices[i] for i in perm[m:]}, f"random seed {s}"))
-    odd, even = set(indices[1::2]), set(indices[0::2])
+        out.append((caps(perm[:m]), caps(perm[m:]), f"random seed {s}"))
+    odd, even = caps(range(1, n, 2)), caps(range(0, n, 2))
     out += [(odd, even, "train odd"), (even, odd, "train even")]
     return out
 
 
-def loo_splits(indices: list) -> list:
-    """[(train, test, label)]: each capture held out once (leave-one-out), for sets under SMALL_SET."""
-    return [(set(indices) - {k}, {k}, f"leave out {k}") for k in indices]
+def loo_splits(indices: list, config: dict | None = None) -> list:
+    """[(train, test, label)]: each configuration (:func:`units`; each capture where none is revisited)
+    held out once (leave-one-out), for sets of fewer than SMALL_SET configurations."""
+    return [(set(indices) - set(g), set(g), f"leave out {k}" if len(g) == 1 else
+             f"leave out {k} (configuration of captures {', '.join(map(str, g))})") for k, g in units(indices, config)]
 
 
 def is_loo(splits: list) -> bool:
@@ -484,12 +510,32 @@ def opencv_sb(ds):
     return ds.to_problem(method="joint", options=SolverOptions(), detector=detect)
 
 
-def run_set(name: str, folder: Path, py: str | None) -> dict:
-    ds = load_dataset(folder)
-    detection = "calibgraph's dataset detection (as `calibgraph solve` runs it)"
+DEFAULT_DETECTION = "calibgraph's dataset detection (as `calibgraph solve` runs it)"
+
+
+def run_set(name: str, folder: Path, py: str | None, target=None, solved: dict | None = None) -> dict:
+    """The bench on a one-camera set (``target``: the board of a layout that names none, as --target)."""
+    ds = load_dataset(folder, target=target)
+    problem, detection, _ = detect_set(name, ds)
+    return evaluate_set(name, problem, py, detection, ds, solved)
+
+
+def evaluate_set(name: str, problem, py: str | None, detection: str, ds, solved: dict | None = None) -> dict:
+    """:func:`evaluate` of a one-camera ``problem`` with calibgraph's fits (``solved``: their cache)."""
+    cam = next(iter(problem.cameras))
+    return evaluate(name, problem, py, {m: (lambda train, f=f: f(cam, train))
+                                        for m, f in calibgraph_fits(problem, solved).items()}, detection, ds)
+
+
+def detect_set(name: str, ds) -> tuple:
+    """(problem, how its corners were found, '' or the line `calibgraph solve` refuses the set with): the
+    dataset detection as `calibgraph solve` runs it; where it refuses, calibgraph's image detector on each
+    image alone, and OpenCV's SB chessboard detector where that finds too few."""
+    detection, refused = DEFAULT_DETECTION, ""
     try:
         problem, _ = build_problem(ds, "joint", SolverOptions(), progress=False)
     except CalibgraphError as e:
+        refused = str(e).splitlines()[0]
         print(f"[{name}] dataset detection refused ({str(e).splitlines()[0]}); each image on its own", flush=True)
         problem = each_image(ds)
         detection = (f"calibgraph's image detector on each image alone (`calibgraph solve` refuses the set: "
@@ -502,18 +548,21 @@ def run_set(name: str, folder: Path, py: str | None) -> dict:
             detection = (f"OpenCV's findChessboardCornersSB (calibgraph refuses the set: {str(e).splitlines()[0]}; its "
                          f"image detector alone finds {found} of {len(ds.captures)} boards), the same corners for "
                          f"every method")
-    cam = next(iter(problem.cameras))
-    return evaluate(name, problem, py, {m: (lambda train, f=f: f(cam, train)) for m, f in calibgraph_fits(problem).items()},
-                    detection, ds)
+    return problem, detection, refused
 
 
-def run_multicam(name: str, folder: Path, py: str | None) -> list:
+def run_multicam(name: str, folder: Path, py: str | None, target=None, solved: dict | None = None) -> list:
     """One record per camera of a multi-camera set: calibgraph solves all cameras jointly on each
     split's train captures (every camera's views of them) and is scored on that camera's test
     views; the OpenCV methods calibrate that camera alone from its own train views."""
-    ds = load_dataset(folder)
+    ds = load_dataset(folder, target=target)
     problem, _ = build_problem(ds, "joint", SolverOptions(), progress=False)
-    fits = calibgraph_fits(problem)
+    return evaluate_multicam(name, problem, py, ds, solved)
+
+
+def evaluate_multicam(name: str, problem, py: str | None, ds, solved: dict | None = None) -> list:
+    """:func:`run_multicam`'s records of a multi-camera ``problem`` (``solved``: the fits' cache)."""
+    fits = calibgraph_fits(problem, solved)
     out = []
     for cam in problem.cameras:
         own = problem.with_(cameras={cam: problem.cameras[cam]},
@@ -536,9 +585,14 @@ def evaluate(name: str, problem, py: str | None, fits: dict, detection: str, ds)
     n = len(detected)
     if n < MIN_CAPTURES:
         return {"set": name, "skipped": f"{n} of {len(ds.captures)} images with the board found by {detection}: too few"}
-    splits = make_splits(detected) if n >= SMALL_SET else loo_splits(detected)
+    # the split units are the configurations: a revisit of a joint target goes with it (identical splits without)
+    config = problem.configurations
+    n_units = len(units(detected, config))
+    splits = make_splits(detected, config) if n_units >= SMALL_SET else loo_splits(detected, config)
     m = len(splits[0][0])
+    m_units = len(units(splits[0][0], config))
     out = {"set": name, "mode": problem.mode, "captures": len(ds.captures), "detected": n, "train": m, "detection": detection,
+           "configurations": n_units, "train_configurations": m_units,
            "intrinsics_given": next(iter(problem.cameras.values())).known,
            "joint_angles": any(c.q_rad is not None for c in ds.captures), "splits": []}
     if is_loo(splits):
@@ -595,8 +649,8 @@ def evaluate(name: str, problem, py: str | None, fits: dict, detection: str, ds)
         if all(Xs[i] is not None for i in rand):
             out["spread"][meth] = spread([Xs[i] for i in rand])
     if all("error" not in cg[i] for i in rand + halves):
-        out["calibgraph_sigma"] = split_sigma(cg, rand, halves, n, m, "cov")
-        out["calibgraph_sigma_redrawn"] = split_sigma(cg, rand, halves, n, m, "cov_redrawn")
+        out["calibgraph_sigma"] = split_sigma(cg, rand, halves, n_units, m_units, "cov")
+        out["calibgraph_sigma_redrawn"] = split_sigma(cg, rand, halves, n_units, m_units, "cov_redrawn")
     out["seconds"] = time.time() - t0
     return out
 

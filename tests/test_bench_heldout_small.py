@@ -31,3 +31,33 @@ def test_jackknife_of_leave_one_out_means_is_the_variance_of_the_mean():
     var = bh.jackknife_var(loo)
     assert np.allclose(var[3:], t.var(0, ddof=1) / n, rtol=1e-9)
     assert np.allclose(var[:3], w.var(0, ddof=1) / n, rtol=1e-3)
+
+
+def _old_make_splits(indices):
+    """make_splits as it was before splits dealt configurations (capture by capture), for the identity below."""
+    n, m = len(indices), int(round(2 * len(indices) / 3))
+    out = [({indices[i] for i in p[:m]}, {indices[i] for i in p[m:]}, f"random seed {s}")
+           for s in bh.SEEDS for p in [np.random.default_rng(s).permutation(n)]]
+    return out + [(set(indices[1::2]), set(indices[0::2]), "train odd"), (set(indices[0::2]), set(indices[1::2]), "train even")]
+
+
+def test_splits_without_revisits_are_the_capture_by_capture_splits():
+    for caps in (list(range(15)), [0, 2, 3, 7, 8, 9, 11, 12, 20, 21, 22, 30, 31, 40]):
+        identity = {k: k for k in caps}
+        assert bh.make_splits(caps) == bh.make_splits(caps, identity) == _old_make_splits(caps)
+        assert bh.loo_splits(caps[:8], identity) == [(set(caps[:8]) - {k}, {k}, f"leave out {k}") for k in caps[:8]]
+
+
+def test_splits_keep_every_visit_of_a_configuration_on_one_side():
+    # three sessions of the same 12 joint targets (captures 0-11, 12-23, 24-35), as the merged Franka set
+    caps = list(range(36))
+    config = {k: k % 12 for k in caps}
+    splits = bh.make_splits(caps, config)
+    assert len(splits) == len(bh.SEEDS) + 2
+    for train, test, _ in splits:
+        assert train | test == set(caps) and not train & test
+        assert not {k % 12 for k in train} & {k % 12 for k in test}
+    assert all(len(train) == 3 * 8 for train, _, lab in splits if lab.startswith("random"))  # 8 of 12 targets
+    loo = bh.loo_splits(caps, config)
+    assert bh.is_loo(loo) and len(loo) == 12
+    assert [sorted(test) for _, test, _ in loo] == [[g, g + 12, g + 24] for g in range(12)]
