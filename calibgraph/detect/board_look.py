@@ -299,11 +299,14 @@ def dataset_board_notes(dataset, results: dict, where: str = "the target spec") 
 
 
 def frames_dictionary_note(dataset, where: str = "the target spec", frames: int = 2) -> str | None:
-    """:func:`charuco_dictionary_note` on the first ``frames`` readable images of ``dataset``."""
+    """:func:`charuco_dictionary_note` on the first ``frames`` readable images of ``dataset``, each as
+    printed and inverted (a board printed white on black: its markers decode only there)."""
     for grey in _first_frames(dataset, frames):
-        note = charuco_dictionary_note(grey, dataset.target, where)
-        if note:
-            return note
+        for img, inverted in ((grey, False), (255 - grey, True)):
+            note = charuco_dictionary_note(img, dataset.target, where)
+            if note:
+                return note + (" (the board is printed white on black: they decode in the inverted image)"
+                               if inverted else "")
     return None
 
 
@@ -325,7 +328,7 @@ def plain_chessboard_note(grey: np.ndarray, target: Target) -> str | None:
     """For a ChArUco spec: "the images show a plain chessboard of 6x9 inner corners and no ArUco
     markers ..." when ``grey`` shows a chessboard (OpenCV's SB detector, any size) and no marker of
     any dictionary family decodes; else None."""
-    if target.kind != "charuco" or markers_seen(grey):
+    if target.kind != "charuco" or markers_seen(grey) or markers_seen(255 - grey):  # none either way round
         return None
     seen = chessboard_seen(grey)
     if seen is None or seen.size[0] < 3:
@@ -340,10 +343,13 @@ def charuco_spec_note(grey: np.ndarray, target: Target) -> str | None:
     spec to declare instead, its marker side measured from the markers (their side against the
     distance between diagonal neighbours, a square's diagonal) and OpenCV's board layout (from 4.6 on,
     or the older ``legacy_charuco``) the one whose detector finds more corners in ``grey``; None when no
-    markers decode."""
+    markers decode (as printed, or in the inverted image: a board printed white on black, then said)."""
     if target.kind != "checkerboard":
         return None
-    seen = markers_seen(grey)
+    seen, wob = markers_seen(grey), ""
+    if not seen or seen[0][1] < 4:
+        grey = 255 - grey
+        seen, wob = markers_seen(grey), " (printed white on black: its markers decode in the inverted image)"
     if not seen or seen[0][1] < 4:
         return None
     name, n, corners = seen[0]
@@ -365,7 +371,7 @@ def charuco_spec_note(grey: np.ndarray, target: Target) -> str | None:
     legacy = found[True] > found[False]
     return (f"declare it as the ChArUco board it is: kind: charuco, rows: {target.rows}, cols: {target.cols}, "
             f"pitch_m: {target.pitch_m:g}, marker_m: {marker_m:g} (about {frac:.2f} of a square: measure it), "
-            f"dictionary: {name}{', legacy_charuco: true' if legacy else ''} ({n} of its markers decode in one image)")
+            f"dictionary: {name}{', legacy_charuco: true' if legacy else ''} ({n} of its markers decode in one image){wob}")
 
 
 def explain_wrong_spec(error, dataset, where: str = "the target spec"):

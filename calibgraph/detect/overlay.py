@@ -4,17 +4,17 @@ ViSP's ``vpDisplay::displayFrame`` and OpenCV's ``drawFrameAxes`` draw the board
 green and blue lines from its origin, along its first row and column, often with a text of the pose
 beside it; an image saved with them holds lines that are neither ink nor paper. The detectors still
 find the grid (the lines are thin beside a square), but a corner or a dot under a line is moved: the
-board fit's model has no line (a corner fitted through one moves 1-3 px, with a residual ten times
+board fit's model has no line (a corner fitted through one moves 1-7 px, with a residual ten times
 its neighbours'), a dot a line crosses is joined to it (its blob's centre moves by a third of the
 line's width, or the blob is no longer round and is lost). Such a point should cost its own view of
 the point, never the view, and never a point put in the wrong place:
 
-* :func:`outlying_points`: a point (a corner the fit could not model) that its neighbours place elsewhere, by a local homography from the board to the image fitted to
-  the grid points within 2.5 pitches of it, robustly (the worst neighbour dropped while it misses,
-  so that neighbours under the same line do not carry it), is dropped: by more than ``OUTLIER_PX`` or ``OUTLIER_PITCH``
-  of the local pitch, whichever is larger (a good point sits within a few hundredths of a pixel of
-  that prediction; lens distortion bends a grid by far less over 5 pitches). The neighbours are those
-  not in doubt themselves (within 3 pitches), when there are 6 of them;
+* :func:`outlying_points`: a point (a corner the fit could not model) that its neighbours place
+  elsewhere, by a local homography from the board to the image fitted to the grid points near it,
+  robustly (the worst neighbour dropped while it misses, so that neighbours under the same line do not
+  carry it), is dropped: by more than ``OUTLIER_PX`` or ``OUTLIER_PITCH`` of the local pitch, whichever
+  is larger (a good corner sits within a few hundredths of a pixel of that prediction). The neighbours
+  are those not in doubt themselves within 3 pitches, when there are 6 of them, else all within 2.5;
 * :func:`disturbed_corners`: the corners worth that test, those whose board-fit residual stands out
   (``SUSPECT_RATIO`` times the median corner's and ``SUSPECT_EXCESS_GREY`` above it): real images
   (ViSP's, industrial_calibration's ChArUco set, MC-HEC's rendered cell) reach 2-8 times the median,
@@ -51,11 +51,10 @@ def disturbed_corners(rms_grey: np.ndarray) -> np.ndarray:
 
 
 def outlying_points(uv_px: np.ndarray, board_xy: np.ndarray, pitch_m: float, candidates=None) -> np.ndarray:
-    """(N,) True for each point (of ``candidates``, a mask; default all) that the grid points within
-    ``NEIGHBOUR_PITCHES`` of it on the board (``board_xy`` (N, 2), metres) place elsewhere (module
-    docstring). A point with fewer than 6 such neighbours is not judged."""
-    import cv2
-
+    """(N,) True for each point (of ``candidates``, a mask; default all) that its neighbours on the
+    board (``board_xy`` (N, 2), metres) place elsewhere (module docstring): the points not among the
+    candidates within ``CLEAN_NEIGHBOUR_PITCHES`` when there are 6, else all within
+    ``NEIGHBOUR_PITCHES``. A point with fewer than 6 neighbours is not judged."""
     uv = np.asarray(uv_px, float).reshape(-1, 2)
     xy = np.asarray(board_xy, float).reshape(-1, 2)
     n = len(uv)

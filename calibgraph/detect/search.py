@@ -110,16 +110,27 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
         checkerboard_polarity(look, target) == "inverted") else "normal"
     s = _Search(grey=grey if first == "normal" else inverted(grey), inverted=first == "inverted", **opts)
     best = _ladder(s, region)
-    if best.ok or polarity != "auto" or first == "inverted" or target.kind == "checkerboard" or \
-            not look.size or not worth_inverting(look, target):
+    if first == "inverted" and polarity == "auto" and not best.ok:
+        best = _told_inverted(best)
+    # found, or refused on the spec (the board seen as printed), or nothing to look for inverted
+    if best.ok or best.spec_note or polarity != "auto" or first == "inverted" or \
+            target.kind == "checkerboard" or not look.size or not worth_inverting(look, target):
         return best
     progress.stage(f"{target.kind} {target.rows}x{target.cols}, the inverted image (white on black?)")
     cv2.setRNGSeed(OPENCV_RNG_SEED)
     inv = _ladder(_Search(grey=inverted(grey), inverted=True, **opts), region)
-    if inv.ok or inv.spec_note:
+    if inv.ok:
         return inv
+    if inv.spec_note:
+        return _told_inverted(inv)
     return replace(best, reason=f"{best.reason}; inverted (a board printed white on black?), {inv.reason}",
                    time_s=time.perf_counter() - t0)
+
+
+def _told_inverted(det: ImageDetection) -> ImageDetection:
+    """A refusal of the search in the inverted image, saying so (a board printed white on black)."""
+    said = " (searched in the inverted image: the board looks printed white on black)"
+    return replace(det, reason=det.reason + said, spec_note=det.spec_note and det.spec_note + said)
 
 
 def _ladder(s: _Search, region) -> ImageDetection:
@@ -148,7 +159,9 @@ def _ladder(s: _Search, region) -> ImageDetection:
     if s.stop is not None:
         return s.stop
     if best is None or not best.ok:
-        progress.stage(_stage(s, "last resorts (SB detector, the board fit's refusals)"))
+        if target.kind == "checkerboard" or s.refit_refused:
+            progress.stage(_stage(s, "last resorts (SB detector, the board fit's refusals)" if target.kind == "checkerboard"
+                                  else "last resorts (the board fit's refusals)"))
         best = _last_resorts(s, best)
     return best if best is not None else _not_found(s)
 
@@ -320,8 +333,8 @@ def _finish(s: _Search, result, k: int, keep_detector: bool = False) -> ImageDet
             keep = ~bad
             ids, uv, raw = ids[keep], uv[keep], raw[keep]
             n_refined = int(fit.refined[keep].sum())
-            note = "; ".join(x for x in (note, f"{int(bad.sum())} corners left out: something not of the board over them "
-                                              "(a drawing, a glare) moved them") if x)
+            out = f"{int(bad.sum())} corners left out: something not of the board over them (a drawing, a glare) moved them"
+            note = "; ".join(x for x in (note, out) if x)
     ok, reason = True, note
     if ids.size < s.min_points:
         ok, reason = False, f"only {ids.size} points found (minimum {s.min_points})"
