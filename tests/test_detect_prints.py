@@ -19,6 +19,7 @@ from calibgraph.core.targets import Target
 from calibgraph.detect import progress
 from calibgraph.detect.dataset import dataset_detector
 from calibgraph.detect.search import detect_image
+from calibgraph.detect.stream import OrderedPool
 from calibgraph.io.layouts import load_dataset
 from calibgraph.sim.board_image import board_texture, look_at_board, render_view
 from calibgraph.sim.board_views import ViewPlace, draw_pose_axes, write_board_views
@@ -160,28 +161,42 @@ def test_pose_axes_drawn_over_the_board_cost_only_the_corners_under_them(kind):
 def test_a_pass_says_what_it_searches(tmp_path, monkeypatch, capsys):
     """No detection pass runs long without saying what it is searching: with the interval made short
     here, the lines name the images done, the frame being searched and its stage (the board size and
-    kind, the image as printed or inverted, the part of the frame)."""
+    kind, the image as printed or inverted, the part of the frame). Each stage is held until a line
+    has been printed after it (so the test does not depend on the machine's speed)."""
     monkeypatch.setattr(progress, "PROGRESS_EVERY_S", 0.0)
+    real_next = OrderedPool.next
+    monkeypatch.setattr(OrderedPool, "next", lambda self, waiting=None, poll_s=1.0: real_next(self, waiting, 0.02))
+    said = []
+    real_writer = progress.bar_writer
+
+    def bar_writer(bar):
+        say = real_writer(bar)
+
+        def both(line):
+            said.append(line)
+            say(line)
+        return both
+    monkeypatch.setattr(progress, "bar_writer", bar_writer)
     t = BOARDS["acircles"]
     rng = np.random.default_rng(2)
     places = [ViewPlace(rng.uniform(0.6, 0.8), 10, -10, 5, (0, 0)) for _ in range(2)]
     write_board_views(tmp_path / "ds", t, t, INTR, places, white_on_black=True, background=0.85)
-    slow = threading.Event()
     real_stage = progress.stage
 
-    def stage(text):  # each stage lasts long enough for the reporter to see it
+    def stage(text):  # held until two more lines are out (at most 2 s: the pass may be done waiting)
         real_stage(text)
-        if not slow.is_set():
-            time.sleep(0.3)
+        n, t_end = len(said), time.monotonic() + 2.0
+        while len(said) < n + 2 and time.monotonic() < t_end:
+            time.sleep(0.01)
     monkeypatch.setattr(progress, "stage", stage)
     results = dataset_detector(load_dataset(tmp_path / "ds"), cache=False, progress=True).run()
-    slow.set()
-    assert all(d.ok for d in results.values())
+    assert all(d.ok and d.inverted for d in results.values())
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if "images done; searching" in ln]
     assert lines, err
-    assert any("acircles 7x11" in ln and "000000.png" in ln or "000001.png" in ln for ln in lines), lines
-    assert any("inverted image" in ln for ln in lines), lines
+    assert all(ln.startswith("detect: ") for ln in lines), lines
+    assert any("acircles 7x11: the whole frame" in ln and "000000.png" in ln for ln in lines), lines
+    assert any("acircles 7x11, inverted image: the whole frame" in ln for ln in lines), lines
 
 
 def test_the_reporter_names_the_longest_search():
@@ -267,3 +282,42 @@ def test_the_real_charuco_set_declared_a_checkerboard_is_named_charuco_at_once(r
     assert time.perf_counter() - t0 < 20.0
     assert "ArUco markers of DICT_6X6" in err and "a ChArUco board" in err, err
     assert "kind: charuco, rows: 6, cols: 4, pitch_m: 0.036195" in err, err
+
+
+def test_a_white_on_black_charuco_board_under_another_dictionary_is_named(tmp_path):
+    """A ChArUco board printed white on black, declared with a dictionary its markers are not of: the
+    refusal names the markers' dictionary, found in the inverted image (it said the images showed "a
+    plain chessboard of 3x3 inner corners and no ArUco markers", its markers decoding only inverted)."""
+    intr = Intrinsics.from_hfov(1280, 720, 60.0)
+    wrong = Target(kind="charuco", rows=6, cols=9, pitch_m=0.025, marker_m=0.018, dictionary="DICT_4X4_50")
+    write_board_views(tmp_path / "ds", BOARDS["charuco"], wrong, intr, _places(3), white_on_black=True, background=0.85)
+    with pytest.raises(InputError) as e:
+        dataset_detector(load_dataset(tmp_path / "ds"), cache=False, progress=False, fail_fast=True).run()
+    msg = str(e.value)
+    assert "ArUco markers of DICT_5X5" in msg and "white on black" in msg, msg
+    assert "plain chessboard" not in msg, msg
+
+
+def test_a_white_on_black_board_refused_on_its_spec_says_it_was_inverted():
+    """A white-on-black board found only in the inverted image and refused there (a symmetric 6x8
+    checkerboard, a 5x7 circle grid) names the inversion with the cause; the same board as printed is
+    refused without it."""
+    for t in (Target(kind="checkerboard", rows=6, cols=8, pitch_m=0.025), BOARDS["circles"]):
+        for wob in (False, True):
+            img, _, _ = _view(t, 5, "white_on_black" if wob else "normal")
+            det = detect_image(img, t)
+            assert not det.ok and "looks the same turned by 180 degrees" in det.reason, det.reason
+            assert ("printed white on black" in det.reason) == wob, det.reason
+
+
+def test_a_white_on_black_charuco_board_declared_a_checkerboard_gets_the_charuco_spec():
+    """The ChArUco spec to declare is given for a ChArUco board declared a checkerboard printed white
+    on black too (its markers decode only in the inverted image), saying so; as printed, without it."""
+    from calibgraph.detect.board_look import charuco_spec_note
+
+    cb = Target(kind="checkerboard", rows=6, cols=9, pitch_m=0.025)
+    for print_ in ("normal", "white_on_black"):
+        img, _, _ = _view(BOARDS["charuco"], 11, print_)
+        note = charuco_spec_note(img, cb)
+        assert note and "kind: charuco, rows: 6, cols: 9" in note and "dictionary: DICT_5X5" in note, (print_, note)
+        assert ("printed white on black" in note) == (print_ != "normal"), note
