@@ -293,3 +293,28 @@ def test_next_pose_hint_says_where_how_far_and_which_edge_is_nearer():
     assert describe_pose(T, intr, BOARD) == ("the board at the bottom-left corner of the image, about 0.6 m away, "
                                              "tilted about 35 deg about its horizontal axis (bottom edge nearer)")
     assert "facing the camera" in describe_pose(pose([0.0, 0.0, 0.3], [0.0, 0.0, 0.4]), intr, BOARD)
+
+
+def test_each_camera_of_a_simulated_cell_has_its_own_hand_held_board():
+    """Issue 46: every simulated camera of a cell got the cell's seed, so cameras of one preset saw identical
+    frames (the same walk, the same noise) and comparing them was no check of the 1-sigma. Each camera now
+    draws its own, and the same from run to run."""
+    import types
+
+    import calibgraph.cli.intrinsics_live as live
+    from calibgraph.acquire.workcell import read_workcell
+
+    spec = read_workcell(ROOT / "datasets" / "workcells" / "default.yaml")
+    names = sorted(spec.cameras)[:2] if spec.cameras else ["cam0", "cam1"]
+
+    def first_frames(name, n=3):
+        cam = live._device(types.SimpleNamespace(camera=name), spec, spec.target)
+        try:
+            return [cam.grab().image for _ in range(n)]
+        finally:
+            cam.close()
+
+    a, b = first_frames(names[0]), first_frames(names[1])
+    assert a[0].shape == b[0].shape  # one preset: without their own draws these frames were equal
+    assert all(not np.array_equal(x, y) for x, y in zip(a, b))
+    assert all(np.array_equal(x, y) for x, y in zip(a, first_frames(names[0])))

@@ -35,6 +35,15 @@ TREMOR_M = 3e-5  # 1-sigma of a steady hand's tremor while holding (30 um)
 GOALS_PER_DRAW = 16
 
 
+def camera_seed(seed: int, name: str) -> int:
+    """The seed of camera ``name``'s hand-held board in a cell seeded ``seed``: each camera its own
+    walk and noise draw (a cell's seed given to every camera made their frames identical, and
+    comparing cameras no check of the 1-sigma), the same for a camera from run to run."""
+    import zlib
+
+    return int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, zlib.crc32(name.encode("utf-8"))]).generate_state(1)[0])
+
+
 def _min_jerk(s: float) -> float:
     """Minimum-jerk profile 0 -> 1 over s in [0, 1] (a reaching hand's speed profile)."""
     s = min(max(s, 0.0), 1.0)
