@@ -1208,6 +1208,42 @@ def test_i34_intrinsics_of_a_board_never_tilted_warns_and_keeps_its_views(tmp_pa
     assert max(float(v) for v in re.findall(r'"max_tilt_deg": ([0-9.]+)', found)) < 4.0
 
 
+def test_i46_a_board_of_another_kind_or_covered_in_every_frame_is_named(tmp_path):
+    """Issue 46 case 4: ChArUco images (5x7 squares) given to ``intrinsics`` as the checkerboard of their
+    6x4 inner corners: the ChArUco board is named, with the spec to declare (it said "no checkerboard of
+    6x4 ... check the target spec" after 37-90 s). Case 5: the right 6x9 spec, the board's right third
+    covered in every frame: the board is said to be covered or cut off (it said "the images show a 5x6
+    grid: check rows/cols"). And a plain checkerboard declared ChArUco: the images' 6x9 chessboard is
+    named. Rendered images (calibgraph.sim.board_views)."""
+    from calibgraph.core.camera import Intrinsics
+    from calibgraph.core.targets import Target
+    from calibgraph.sim.board_views import ViewPlace, write_board_views
+
+    intr = Intrinsics.from_hfov(1280, 720, 60.0)
+    rng = np.random.default_rng(3)
+
+    def places(visible=None):
+        return [ViewPlace(rng.uniform(0.5, 0.8), rng.uniform(-25, 25), rng.uniform(-25, 25), rng.uniform(-15, 15),
+                          (rng.uniform(-150, 150), rng.uniform(-80, 80)), visible=visible) for _ in range(8)]
+    ch = Target(kind="charuco", rows=6, cols=4, pitch_m=0.036, marker_m=0.018, dictionary="DICT_6X6_250")
+    write_board_views(tmp_path / "charuco", ch, ch, intr, places())
+    spec = tmp_path / "checkerboard_6x4.yaml"
+    spec.write_text("target: {kind: checkerboard, rows: 6, cols: 4, pitch_m: 0.036}\n")
+    check("i46 ChArUco images declared the checkerboard of their 6x4 grid (intrinsics)",
+          ["intrinsics", tmp_path / "charuco" / "images" / "cam0", "--target", spec, "--out", tmp_path / "cam.yaml"], 2,
+          ["ArUco markers of DICT_6X6", "a ChArUco board", "kind: charuco, rows: 6, cols: 4"],
+          watch=[tmp_path / "charuco", spec])
+    cb = Target(kind="checkerboard", rows=6, cols=9, pitch_m=0.025)
+    write_board_views(tmp_path / "covered", cb, cb, intr, places(visible=(6, 6)))
+    text = check("i46 the right 6x9 spec, the board's right third covered in every frame", ["detect", tmp_path / "covered"],
+                 2, ["partly covered or cut off in every frame"], watch=[tmp_path / "covered"])
+    assert "check rows/cols" not in text
+    charuco = Target(kind="charuco", rows=6, cols=9, pitch_m=0.025, marker_m=0.018, dictionary="DICT_4X4_50")
+    write_board_views(tmp_path / "plain", cb, charuco, intr, places())
+    check("i46 a plain 6x9 checkerboard declared a ChArUco board", ["detect", tmp_path / "plain"], 2,
+          ["plain chessboard of 6x9 inner corners", "kind: checkerboard, rows: 6, cols: 9"], watch=[tmp_path / "plain"])
+
+
 # == issue 46: forced options checked as the default checks them; older formats; output paths the file
 # system cannot hold; a hand-edited report. Each case: exit code, the cause named, every user file
 # unchanged (SHA-256).

@@ -37,7 +37,8 @@ import numpy as np
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import DetectionError
 from calibgraph.core.targets import Target
-from calibgraph.detect.board_size import chessboard_seen, grid_continues
+from calibgraph.detect import progress
+from calibgraph.detect.board_size import board_whole, chessboard_seen, grid_continues
 from calibgraph.detect.detection import ImageDetection, failed_detection
 from calibgraph.detect.image import Frame
 from calibgraph.detect.regions import roi_from_points
@@ -131,6 +132,7 @@ def _look(frame, grey, target, intrinsics, check_spec, gate, options, key=None) 
     declared = tuple(sorted((target.rows, target.cols)))
     known, seen = _recall(key) if key is not None else (False, None)
     if not known:
+        progress.stage("a quick look for a chessboard of any size (the board spec is not yet settled)")
         k = PROBE_REDUCTION if min(grey.shape) >= PROBE_REDUCE_FROM_PX else 1  # small squares vanish in small frames
         seen = chessboard_seen(frame.reduced(k), k) if k > 1 else None
         if seen is None:
@@ -147,7 +149,7 @@ def _look(frame, grey, target, intrinsics, check_spec, gate, options, key=None) 
         return failed_detection(f"the image shows a chessboard of {seen.rows}x{seen.cols} inner corners, {bigger} "
                                 f"than the target's {target.rows}x{target.cols}; searched once the board spec is "
                                 "settled", target, frame.name, other_grid=(seen.rows, seen.cols), deferred=True,
-                                pattern=_pattern(seen))
+                                pattern=_pattern(seen), other_whole=board_whole(grey, seen))
     det = detect_image(grey, target, intrinsics, source=frame.name, **options)
     return _part_of_larger(grey, target, det)
 

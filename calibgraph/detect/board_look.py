@@ -23,6 +23,8 @@ import numpy as np
 
 from calibgraph.core.errors import DetectionError, InputError
 from calibgraph.core.targets import Target
+from calibgraph.detect.board_size import chessboard_seen
+from calibgraph.detect.charuco import find_charuco
 from calibgraph.detect.image import read_grey, sample_bilinear
 from calibgraph.detect.regions import roi_from_points
 
@@ -91,6 +93,48 @@ def markers_in_white_squares(grey: np.ndarray, target: Target, ids: np.ndarray, 
     black = float(np.median(np.concatenate(black_mid)))
     marked = [np.mean(m < 0.5 * (black + float(np.median(b)))) > MARKED_DARK for m, b in zip(white_mid, white_band)]
     return float(np.mean(marked))
+
+
+def marked_light_squares(grey: np.ndarray, grid_uv: np.ndarray) -> float:
+    """:func:`markers_in_white_squares` for a grid whose ids are not known (a symmetric spec that
+    cannot be oriented): ``grid_uv`` (r, c, 2) inner corners in any of its orderings. Which squares
+    are white is read from the image (their edge bands), not from the ids; NaN when there are no
+    squares of both colours."""
+    s = np.linspace(0.2, 0.8, 7)
+    mid = np.array([(x, y) for y in s for x in s])
+    band = np.array([(x, y) for x in np.linspace(0.08, 0.92, 8) for y in (0.08, 0.92)] +
+                    [(x, y) for y in np.linspace(0.2, 0.8, 5) for x in (0.08, 0.92)])
+    G = np.asarray(grid_uv, float)
+    mids, bands = [], []
+    for i in range(G.shape[0] - 1):
+        for j in range(G.shape[1] - 1):
+            corners = np.array([G[i, j], G[i, j + 1], G[i + 1, j], G[i + 1, j + 1]])
+            H = _cell_homography(np.array([[0, 0], [0, 1], [1, 0], [1, 1]]), corners)
+            if H is not None:
+                mids.append(sample_bilinear(grey, _map(H, mid)))
+                bands.append(float(np.median(sample_bilinear(grey, _map(H, band)))))
+    if len(bands) < 2:
+        return float("nan")
+    bands = np.asarray(bands)
+    split = 0.5 * (bands.min() + bands.max())
+    light = bands > split
+    if light.all() or not light.any():
+        return float("nan")
+    black = float(np.median(np.concatenate([m for m, lit in zip(mids, light) if not lit])))
+    marked = [np.mean(m < 0.5 * (black + b)) > MARKED_DARK for m, b, lit in zip(mids, bands, light) if lit]
+    return float(np.mean(marked))
+
+
+def grid_marker_note(grey: np.ndarray, grid_uv: np.ndarray) -> str | None:
+    """For a checkerboard grid found but not numbered (``grid_uv`` (r, c, 2), a symmetric spec):
+    "the board has ArUco markers of DICT_6X6_250 in its white squares: a ChArUco board" when most
+    of its white squares are marked (:func:`marked_light_squares`), else None."""
+    if not marked_light_squares(grey, grid_uv) >= MARKED_SQUARES:
+        return None
+    uv = np.asarray(grid_uv, float).reshape(-1, 2)
+    seen = markers_seen(grey, roi_from_points(uv, grey.shape, pad_frac=0.3))
+    which = f" of {seen[0][0]}" if seen else ""
+    return f"the board has ArUco markers{which} in its white squares: a ChArUco board, not a plain checkerboard"
 
 
 def marker_side(grey: np.ndarray, target: Target, ids: np.ndarray, uv_px: np.ndarray) -> float | None:
@@ -228,26 +272,46 @@ def _same_family(a: str, b: str) -> bool:
 
 
 def dataset_board_notes(dataset, results: dict, where: str = "the target spec") -> list:
-    """Notes on a detected dataset's board (``results``: (camera, capture) -> ImageDetection):
-    markers in a checkerboard's white squares, seen on its largest accepted view; for a ChArUco
-    spec found in no image, markers of another dictionary in its first frames."""
+    """Notes on a detected dataset's board (``results``: (camera, capture) -> ImageDetection): a
+    board found printed white on black (in the inverted image, :mod:`calibgraph.detect.polarity`);
+    markers in a checkerboard's white squares, seen on its largest accepted view; for a ChArUco spec
+    found in no image, markers of another dictionary (or none: a plain chessboard) in its first frames."""
     t = dataset.target
+    notes = []
+    ok = [d for d in results.values() if d.ok]
+    inverted = [d for d in ok if d.inverted]
+    if inverted:
+        notes.append(f"board: printed white on black: found in the inverted image in {len(inverted)} of {len(ok)} "
+                     "views (its point ids are those of the board as printed)")
     note = None
     if t.kind == "checkerboard":
-        ok = [d for d in results.values() if d.ok and d.image]
+        ok = [d for d in ok if d.image]
         if ok:
             best = max(ok, key=lambda d: d.size_px)
             try:
-                note = checkerboard_marker_note(read_grey(best.image), t, best, where)
+                grey = read_grey(best.image)
+                note = checkerboard_marker_note(255 - grey if best.inverted else grey, t, best, where)
             except DetectionError:
                 note = None
-    elif t.kind == "charuco" and results and not any(d.ok for d in results.values()):
+    elif t.kind == "charuco" and results and not ok:
         note = frames_dictionary_note(dataset, where)
-    return [f"board: {note}"] if note else []
+    return notes + ([f"board: {note}"] if note else [])
 
 
 def frames_dictionary_note(dataset, where: str = "the target spec", frames: int = 2) -> str | None:
-    """:func:`charuco_dictionary_note` on the first ``frames`` readable images of ``dataset``."""
+    """:func:`charuco_dictionary_note` on the first ``frames`` readable images of ``dataset``, each as
+    printed and inverted (a board printed white on black: its markers decode only there)."""
+    for grey in _first_frames(dataset, frames):
+        for img, inverted in ((grey, False), (255 - grey, True)):
+            note = charuco_dictionary_note(img, dataset.target, where)
+            if note:
+                return note + (" (the board is printed white on black: they decode in the inverted image)"
+                               if inverted else "")
+    return None
+
+
+def _first_frames(dataset, frames: int):
+    """The first ``frames`` readable images of ``dataset``, grey."""
     looked = 0
     for v in dataset.views:
         if not v.image or looked >= frames:
@@ -257,14 +321,72 @@ def frames_dictionary_note(dataset, where: str = "the target spec", frames: int 
         except DetectionError:
             continue
         looked += 1
-        note = charuco_dictionary_note(grey, dataset.target, where)
-        if note:
-            return note
-    return None
+        yield grey
+
+
+def plain_chessboard_note(grey: np.ndarray, target: Target) -> str | None:
+    """For a ChArUco spec: "the images show a plain chessboard of 6x9 inner corners and no ArUco
+    markers ..." when ``grey`` shows a chessboard (OpenCV's SB detector, any size) and no marker of
+    any dictionary family decodes; else None."""
+    if target.kind != "charuco" or markers_seen(grey) or markers_seen(255 - grey):  # none either way round
+        return None
+    seen = chessboard_seen(grey)
+    if seen is None or seen.size[0] < 3:
+        return None
+    a, b = seen.size if target.rows <= target.cols else seen.size[::-1]
+    return (f"the images show a plain chessboard of {a}x{b} inner corners and no ArUco markers: a checkerboard, not a "
+            f"ChArUco board; declare it as one (kind: checkerboard, rows: {a}, cols: {b}, pitch_m: {target.pitch_m:g})")
+
+
+def charuco_spec_note(grey: np.ndarray, target: Target) -> str | None:
+    """For a checkerboard spec whose frames decode ArUco markers (4 or more of one family): the ChArUco
+    spec to declare instead, its marker side measured from the markers (their side against the
+    distance between diagonal neighbours, a square's diagonal) and OpenCV's board layout (from 4.6 on,
+    or the older ``legacy_charuco``) the one whose detector finds more corners in ``grey``; None when no
+    markers decode (as printed, or in the inverted image: a board printed white on black, then said)."""
+    if target.kind != "checkerboard":
+        return None
+    seen, wob = markers_seen(grey), ""
+    if not seen or seen[0][1] < 4:
+        grey = 255 - grey
+        seen, wob = markers_seen(grey), " (printed white on black: its markers decode in the inverted image)"
+    if not seen or seen[0][1] < 4:
+        return None
+    name, n, corners = seen[0]
+    sides = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=-1).mean(axis=1)
+    centres = corners.mean(axis=1)
+    d = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    frac = float(np.median(sides) / (np.median(d.min(axis=1)) / np.sqrt(2.0)))
+    marker_m = round(float(np.clip(frac, 0.3, 0.95)) * target.pitch_m, 4)
+    found = {}
+    for legacy in (False, True):
+        try:
+            t = Target(kind="charuco", rows=target.rows, cols=target.cols, pitch_m=target.pitch_m, marker_m=marker_m,
+                        dictionary=name, legacy_charuco=legacy)
+            r, _ = find_charuco(grey, t, None)
+        except Exception:  # noqa: BLE001 (an odd layout OpenCV refuses says nothing)
+            r = None
+        found[legacy] = 0 if r is None else len(r[0])
+    legacy = found[True] > found[False]
+    return (f"declare it as the ChArUco board it is: kind: charuco, rows: {target.rows}, cols: {target.cols}, "
+            f"pitch_m: {target.pitch_m:g}, marker_m: {marker_m:g} (about {frac:.2f} of a square: measure it), "
+            f"dictionary: {name}{', legacy_charuco: true' if legacy else ''} ({n} of its markers decode in one image){wob}")
 
 
 def explain_wrong_spec(error, dataset, where: str = "the target spec"):
-    """The wrong-spec :class:`InputError` ``error`` of a ChArUco dataset, with the markers' own
-    dictionary named when the images show another one; ``error`` itself otherwise."""
-    note = frames_dictionary_note(dataset, where) if dataset.target.kind == "charuco" else None
+    """The wrong-spec :class:`InputError` ``error``, with what the first frames show of the board's
+    kind: for a ChArUco spec, the markers' own dictionary when the images show another one, or a plain
+    chessboard when they show no markers; for a checkerboard spec whose frames show ArUco markers, the
+    ChArUco spec to declare. ``error`` itself otherwise."""
+    t = dataset.target
+    note = None
+    if t.kind == "charuco":
+        note = frames_dictionary_note(dataset, where)
+        if note is None:
+            note = next((n for n in map(lambda g: plain_chessboard_note(g, t), _first_frames(dataset, 2)) if n), None)
+    elif t.kind == "checkerboard":
+        note = next((n for n in map(lambda g: charuco_spec_note(g, t), _first_frames(dataset, 2)) if n), None)
+        if note is not None and "ArUco" not in str(error):
+            note = "the images show ArUco markers: a ChArUco board, not a plain checkerboard; " + note
     return InputError(f"{str(error).rstrip('.')}; {note}") if note else error

@@ -115,3 +115,53 @@ def grid_continues(grey: np.ndarray, target: Target, ids: np.ndarray, uv_px: np.
         if abs(a_ring) > 10 and a_next * a_ring < 0 and abs(a_next) > 0.5 * abs(a_ring):
             return True
     return False
+
+
+def board_whole(grey: np.ndarray, seen: ChessboardSeen) -> bool:
+    """Whether the chessboard ``seen`` (in ``grey``'s pixels) is a whole board: on each of its four
+    sides, a quarter of a square past its outer ring of squares, the image is uniform and the board's
+    paper (as light as its white squares, or, printed white on black, as dark as its black ones), as a
+    printed margin is. A board partly covered (by a hand, a sheet, an arm) or cut by the image
+    border fails on the side where it ends: the cover is neither, or the side is outside the image.
+    Inner corners only (``seen.uv_px``, ``seen.rows`` x ``seen.cols``, OpenCV's order)."""
+    import cv2
+
+    rows, cols = seen.rows, seen.cols
+    if rows < 2 or cols < 2:
+        return False
+    page = np.array([(j, i) for i in range(rows) for j in range(cols)], float)
+    H, _ = cv2.findHomography(page, np.asarray(seen.uv_px, float), 0)
+    if H is None:
+        return False
+    h, w = grey.shape[:2]
+    pitch_px = float(np.median(np.linalg.norm(np.diff(seen.uv_px.reshape(rows, cols, 2), axis=1), axis=-1)))
+    smooth = cv2.blur(grey, (max(1, int(pitch_px / 6)),) * 2)
+
+    def at(xy):
+        uv = cv2.perspectiveTransform(np.asarray(xy, float).reshape(-1, 1, 2), H).reshape(-1, 2)
+        if np.any(uv < 1) or np.any(uv > [w - 2, h - 2]):
+            return None
+        return sample_bilinear(smooth, uv)
+
+    # the outer ring of squares (centres half a square past the last corners) gives the two colours
+    ring = np.array([(x, -0.5) for x in np.arange(-0.5, cols)] + [(x, rows - 0.5) for x in np.arange(-0.5, cols)])
+    v_ring = at(ring)
+    if v_ring is None:
+        return False
+    dark, light = float(np.percentile(v_ring, 10)), float(np.percentile(v_ring, 90))
+    contrast = light - dark
+    if contrast < 20:
+        return False
+    out = 1.25  # past the last inner corner: the outer squares end at 1, the margin begins
+    t_x, t_y = np.linspace(-0.5, cols - 0.5, 2 * cols), np.linspace(-0.5, rows - 0.5, 2 * rows)
+    sides = ([(x, -out) for x in t_x], [(x, rows - 1 + out) for x in t_x],
+             [(-out, y) for y in t_y], [(cols - 1 + out, y) for y in t_y])
+    levels = []
+    for side in sides:
+        v = at(side)
+        if v is None or float(np.std(v)) > 0.15 * contrast:
+            return False
+        levels.append(float(np.median(v)))
+    near_light = all(abs(lv - light) < 0.25 * contrast for lv in levels)
+    near_dark = all(abs(lv - dark) < 0.25 * contrast for lv in levels)
+    return near_light or near_dark

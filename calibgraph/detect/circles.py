@@ -19,7 +19,8 @@ from calibgraph.core.targets import Target
 from calibgraph.detect.orient import orient_grid, page_xy
 
 
-def _blob_detector(max_area: float):
+def blob_detector(max_area: float):
+    """The permissive blob detector (small, tilted, blurred dots) with an area ceiling."""
     import cv2
 
     p = cv2.SimpleBlobDetector_Params()
@@ -152,10 +153,102 @@ def _default_blob_detector(max_area: float):
     return cv2.SimpleBlobDetector_create(p)
 
 
+# Image noise (grey levels, one sigma) above which the blob detectors look at the image smoothed by
+# SMOOTH_SIGMA_PX: on a noisy frame the permissive detector's 4-pixel blobs are mostly noise (2195 of
+# them on a rendered 1920x1200 frame at noise 6, where the grid has 77 dots), each costs its contour
+# at every threshold, and OpenCV's grid search on thousands of points runs for minutes. A Gaussian
+# blur of a pixel keeps a dot's centre (it is symmetric) and removes the noise blobs.
+NOISY_SIGMA = 3.0
+SMOOTH_SIGMA_PX = 1.0
+# At most this many blobs per grid point go to the grid searches (the largest): more are flecks and
+# texture, and OpenCV's grid search slows with their number (the assembled grid refuses more anyway).
+MAX_BLOBS_PER_POINT = 4
+
+
+def noise_sigma(grey: np.ndarray) -> float:
+    """Robust estimate of the image noise, grey levels: the median absolute response of the
+    Laplacian-of-differences mask [[1, -2, 1], [-2, 4, -2], [1, -2, 1]] (which cancels planar shading)
+    over every other row, scaled to a Gaussian's sigma; edges are too few to move the median."""
+    import cv2
+
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = cv2.filter2D(grey[::2].astype(np.float32), -1, k, borderType=cv2.BORDER_REPLICATE)[1:-1, 1:-1]
+    return float(np.median(np.abs(r))) / (0.6745 * 6.0) if r.size else 0.0
+
+
+def blob_image(grey: np.ndarray) -> np.ndarray:
+    """The image the blob detectors look at: ``grey``, smoothed when it is noisy (``NOISY_SIGMA``)."""
+    import cv2
+
+    return cv2.GaussianBlur(grey, (0, 0), SMOOTH_SIGMA_PX) if noise_sigma(grey) > NOISY_SIGMA else grey
+
+
+def _blobs(img: np.ndarray, det, n_points: int) -> tuple:
+    """(centres (N, 2) of the blobs ``det`` finds in ``img`` in the detector's order, whether they
+    were capped): only the ``MAX_BLOBS_PER_POINT * n_points`` largest when there are more (in the
+    same order)."""
+    kp = det.detect(img)
+    pts = np.array([k.pt for k in kp], float).reshape(-1, 2)
+    cap = MAX_BLOBS_PER_POINT * n_points
+    if len(pts) <= cap:
+        return pts, False
+    size = np.array([k.size for k in kp], float)
+    return pts[np.sort(np.argsort(-size, kind="stable")[:cap])], True
+
+
+def _point_detector():
+    """The blob detector of :func:`_grid_of_points`'s drawn discs: one threshold, no filters."""
+    import cv2
+
+    p = cv2.SimpleBlobDetector_Params()
+    p.minThreshold, p.maxThreshold, p.thresholdStep = 127.0, 128.0, 10.0
+    p.minRepeatability = 1
+    p.minDistBetweenBlobs = 0.5
+    p.filterByColor, p.blobColor = True, 0
+    p.filterByArea, p.minArea, p.maxArea = True, 1.0, 1e9
+    p.filterByCircularity = p.filterByConvexity = p.filterByInertia = False
+    return cv2.SimpleBlobDetector_create(p)
+
+
+def _grid_of_points(pts: np.ndarray, pattern: tuple, flags: int):
+    """OpenCV's grid search (``findCirclesGrid``) on a set of points instead of an image: it reads
+    only the blob centres of the image it is given, so the points are drawn as small discs on a
+    blank canvas (each narrower than its distance to the nearest other point), found again by a
+    one-threshold detector, and the grid found is snapped back to the exact points. The blobs of the
+    image are then detected once, not at every call (each turn of the image, each pattern, with and
+    without clustering: up to 16 detections). (rows, cols, 2) in OpenCV's order, or None."""
+    import cv2
+
+    if len(pts) < pattern[0] * pattern[1]:
+        return None
+    lo = np.floor(pts.min(axis=0)) - 8
+    q = pts - lo
+    d = np.linalg.norm(q[:, None] - q[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    rad = np.clip(0.3 * d.min(axis=1), 0.8, 6.0)
+    w, h = (np.ceil(q.max(axis=0)) + 9).astype(int)
+    canvas = np.full((h, w), 255, np.uint8)
+    shift = 4
+    for (x, y), r in zip(q, rad):
+        cv2.circle(canvas, (int(round(x * 2**shift)), int(round(y * 2**shift))), int(round(r * 2**shift)), 0, -1,
+                   cv2.LINE_AA, shift)
+    ok, c = cv2.findCirclesGrid(canvas, pattern, flags=flags, blobDetector=_point_detector())
+    if not ok or c is None:
+        return None
+    c = np.asarray(c, float).reshape(-1, 2)
+    dist = np.linalg.norm(c[:, None] - q[None], axis=-1)
+    near = dist.argmin(axis=1)
+    if np.any(dist[np.arange(len(c)), near] > 0.5) or len(set(near.tolist())) != len(c):
+        return None
+    return pts[near].reshape(pattern[1], pattern[0], 2)
+
+
 def _grids(grey, target, det):
     """Candidate grids (rows*cols, 2), OpenCV's order, from one blob detector: OpenCV's grid
     search on the image turned by 0, 90, 180 and 270 degrees, then the grid assembled from the
-    blob centres."""
+    blob centres. The blobs are detected once first: fewer than the grid's dots end the search. On a
+    noisy or cluttered image (smoothed by :func:`blob_image`, or more than ``MAX_BLOBS_PER_POINT``
+    blobs a dot) OpenCV's search runs on the blobs kept (:func:`_grid_of_points`), not on the image."""
     import cv2
 
     if target.kind == "acircles":
@@ -164,26 +257,48 @@ def _grids(grey, target, det):
     else:
         flags = cv2.CALIB_CB_SYMMETRIC_GRID
         patterns = [(target.cols, target.rows)] + ([(target.rows, target.cols)] if target.rows != target.cols else [])
+    img = blob_image(grey)
+    pts, capped = _blobs(img, det, target.n_points)
+    if len(pts) < target.n_points:
+        return
+    on_points = capped or img is not grey
     # OpenCV's grid search depends on the grid's direction in the image: a close, tilted (and
     # distorted) board it misses is often found in the image turned by 90 or 180 degrees (exact
-    # turns, no resampling), so those are tried before giving up.
+    # turns, no resampling; the points turned alike), so those are tried before giving up.
     H, W = grey.shape[:2]
-    turns = ((None, lambda c: c),
-             (cv2.ROTATE_90_CLOCKWISE, lambda c: np.column_stack([c[:, 1], H - 1 - c[:, 0]])),
-             (cv2.ROTATE_180, lambda c: np.column_stack([W - 1 - c[:, 0], H - 1 - c[:, 1]])),
-             (cv2.ROTATE_90_COUNTERCLOCKWISE, lambda c: np.column_stack([W - 1 - c[:, 1], c[:, 0]])))
-    for turn, back in turns:
-        img = grey if turn is None else cv2.rotate(grey, turn)
+    turns = ((None, lambda c: c, lambda c: c),
+             (cv2.ROTATE_90_CLOCKWISE, lambda c: np.column_stack([H - 1 - c[:, 1], c[:, 0]]),
+              lambda c: np.column_stack([c[:, 1], H - 1 - c[:, 0]])),
+             (cv2.ROTATE_180, lambda c: np.column_stack([W - 1 - c[:, 0], H - 1 - c[:, 1]]),
+              lambda c: np.column_stack([W - 1 - c[:, 0], H - 1 - c[:, 1]])),
+             (cv2.ROTATE_90_COUNTERCLOCKWISE, lambda c: np.column_stack([c[:, 1], W - 1 - c[:, 0]]),
+              lambda c: np.column_stack([W - 1 - c[:, 1], c[:, 0]])))
+    for turn, there, back in turns:
+        if on_points:
+            turned = there(pts)
+            search = lambda pat, fl: _grid_of_points(turned, pat, fl)  # noqa: E731
+        else:
+            image = grey if turn is None else cv2.rotate(grey, turn)
+            search = lambda pat, fl: _grid_of_image(image, pat, fl, det)  # noqa: E731
         for pat in patterns:
-            ok, c = cv2.findCirclesGrid(img, pat, flags=flags, blobDetector=det)
-            if not ok or c is None:
-                ok, c = cv2.findCirclesGrid(img, pat, flags=flags | cv2.CALIB_CB_CLUSTERING, blobDetector=det)
-            if ok and c is not None:
-                yield back(np.asarray(c, float).reshape(-1, 2)).reshape(pat[1], pat[0], 2)
-    pts = np.array([k.pt for k in det.detect(grey)], float).reshape(-1, 2)
+            G = search(pat, flags)
+            if G is None:
+                G = search(pat, flags | cv2.CALIB_CB_CLUSTERING)
+            if G is not None:
+                yield back(G.reshape(-1, 2)).reshape(pat[1], pat[0], 2)
     uv = _grid_from_blobs(pts, target)
     if uv is not None:
         yield uv.reshape(target.rows, target.cols, 2)
+
+
+def _grid_of_image(img, pattern, flags, det):
+    """OpenCV's grid search on an image with blob detector ``det``: (rows, cols, 2) or None."""
+    import cv2
+
+    ok, c = cv2.findCirclesGrid(img, pattern, flags=flags, blobDetector=det)
+    if not ok or c is None:
+        return None
+    return np.asarray(c, float).reshape(pattern[1], pattern[0], 2)
 
 
 def find_circles(grey, target, method, allow_symmetric, accept=None):
@@ -199,7 +314,7 @@ def find_circles(grey, target, method, allow_symmetric, accept=None):
     orientation error is raised."""
     max_area = 0.25 * grey.size / max(1, target.n_points) + 1e4
     refused, error = None, None
-    for det in (_blob_detector(max_area), _default_blob_detector(max_area)):
+    for det in (blob_detector(max_area), _default_blob_detector(max_area)):
         for G in _grids(grey, target, det):
             try:
                 uv, note = orient_grid(G, target, grey, allow_symmetric)
@@ -207,7 +322,7 @@ def find_circles(grey, target, method, allow_symmetric, accept=None):
                 error = error or e
                 continue
             found = (np.arange(target.n_points), uv, "circles", note)
-            if accept is None or accept(found[0], uv):
+            if accept is None or accept(found[0], found[1]):
                 return found
             refused = refused or found
     if refused is not None:

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.errors import DetectionError, InputError
+from calibgraph.detect import progress as search_progress
 from calibgraph.detect.blind import look_blind, search_in_full
 from calibgraph.detect.board_look import dataset_board_notes, explain_wrong_spec
 from calibgraph.detect.detection import ImageDetection, failed_detection
@@ -29,7 +30,7 @@ from calibgraph.detect.stream import OrderedPool
 from calibgraph.io.files import atomic_write_text, read_input_bytes
 
 # Part of the cache key: bump when a change can move detected points.
-DETECTOR_VERSION = "5"
+DETECTOR_VERSION = "6"
 
 
 def cache_path(dataset, cache_dir=None, **options) -> Path:
@@ -130,6 +131,16 @@ def progress_bar(total: int, show: bool):
     from tqdm import tqdm
 
     return tqdm(total=total, desc="detect", unit="img", leave=False)
+
+
+def pass_reporter(bar):
+    """The ``waiting`` callback of a pass with progress ``bar`` (None: no bar, no lines): a line on
+    what the pass searches at least every ``PROGRESS_EVERY_S`` seconds
+    (:mod:`calibgraph.detect.progress`)."""
+    if bar is None:
+        return None
+    rep = search_progress.Reporter(search_progress.bar_writer(bar), what=bar.desc or "detect")
+    return lambda: rep.tick(int(bar.n), int(bar.total))
 
 
 def unusable(target, path, error: Exception) -> ImageDetection:
@@ -241,6 +252,7 @@ class DatasetDetector:
             check = BoardSpecCheck(ds.target, {c: sum(v.camera == c for v in todo) for c in ds.cameras}, self.where)
         hits = {(v.camera, v.capture): cache.lookup(v) for v in todo}
         bar = progress_bar(sum(h is None for h in hits.values()), self.progress)
+        waiting = pass_reporter(bar)
         items = iter(todo)
         # frames the spec check put off (key -> (view, deferred detection)); those now due for a search,
         # as (view, deferred detection) for a sampled frame's full search (spec_check.py), or (view,
@@ -263,7 +275,7 @@ class DatasetDetector:
                         else:
                             pool.submit(v, self._work, v, check is not None and check.searching)
                     if len(pool):
-                        v, det = pool.next()
+                        v, det = pool.next(waiting)
                         self._take(v, det, hits, cache, bar, deferred, sampled, check)
                         sample = check.judge() if check is not None else []
                     elif check is None or not deferred:
@@ -313,12 +325,17 @@ class DatasetDetector:
 
     def _work(self, v, check_spec: bool, full=None) -> ImageDetection:
         """The blind look at ``v``'s frame, or with ``full`` (its deferred detection) the spec
-        check's full search of it."""
-        import cv2
-
+        check's full search of it (what it does is said by :mod:`calibgraph.detect.progress`)."""
         ds = self.dataset
         path = Path(ds.root) / v.image
         intr = ds.cameras.get(v.camera)
+        with search_progress.searching(path):
+            return self._search(v, path, intr, check_spec, full)
+
+    def _search(self, v, path, intr, check_spec: bool, full=None) -> ImageDetection:
+        import cv2
+
+        ds = self.dataset
         try:
             if self.detect_view is not None:
                 return self.detect_view(v, path, intr)
@@ -327,6 +344,7 @@ class DatasetDetector:
                 self._unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
                 return unreadable
             if full is not None:
+                search_progress.stage("a full search before the board spec is judged (up-scaled, SB detector)")
                 return search_in_full(frame, ds.target, intr, full.pattern, full.other_grid)
             return look_blind(frame, ds.target, intr, check_spec=check_spec, **self.options)
         except (cv2.error, ValueError, MemoryError) as e:

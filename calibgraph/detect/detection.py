@@ -46,6 +46,14 @@ class ImageDetection:
             frame looks for the declared board (:func:`calibgraph.detect.blind.search_in_full`), else None.
         unreadable: the image file could not be read (missing, empty, truncated, not an image): the
             frame says nothing about the board, and costs its view only.
+        other_whole: with ``other_grid``, whether that chessboard is a whole board (a margin all round
+            it, :func:`calibgraph.detect.board_size.board_whole`) rather than a part of one (covered,
+            cut off), else None.
+        inverted: the board was found in the inverted image: printed white on black
+            (:mod:`calibgraph.detect.polarity`).
+        spec_note: what the image says about the target spec, in words, when the board was found but
+            the spec cannot number it (a symmetric board; a ChArUco board declared a checkerboard of
+            such a grid), else empty: the dataset's wrong-spec line repeats it.
     """
 
     ids: np.ndarray
@@ -67,6 +75,9 @@ class ImageDetection:
     deferred: bool = False
     pattern: tuple | None = None
     unreadable: bool = False
+    inverted: bool = False
+    spec_note: str = ""
+    other_whole: bool | None = None
 
     def __post_init__(self):
         ids = np.asarray(self.ids, int).reshape(-1)

@@ -18,6 +18,17 @@ from calibgraph.core.targets import Target
 from calibgraph.detect.image import sample_bilinear
 
 
+class BoardSpecError(DetectionError):
+    """The grid was found, but the target spec cannot number its points (a symmetric board): no
+    other search of the image can change that, so the search ends (``grid``: the (rows, cols, 2)
+    grid found, in the image's pixels; ``note``: the evidence about the spec, in words)."""
+
+    def __init__(self, message: str, grid: np.ndarray | None = None, note: str = ""):
+        super().__init__(message)
+        self.grid = grid
+        self.note = note
+
+
 def page_xy(target: Target) -> np.ndarray:
     """(N, 2) point positions in page coordinates (x right, y down the printed page)."""
     P = target.points_board_m[:, :2].copy()
@@ -140,9 +151,9 @@ def orient_grid(G: np.ndarray, target: Target, grey: np.ndarray, allow_symmetric
         return cands[k].reshape(-1, 2), ""
     # Symmetric pattern: no cue in the image.
     if not allow_symmetric:
-        raise DetectionError(
+        raise BoardSpecError(
             f"the {target.kind} target {target.rows}x{target.cols} looks the same turned by 180 degrees, so its "
             "point ids would flip between views; use a board with rows + cols odd (checkerboard), a ChArUco or a "
-            "modified circle grid, or pass allow_symmetric=True to accept an image-orientation guess")
+            "modified circle grid, or pass allow_symmetric=True to accept an image-orientation guess", grid=cands[0])
     k = int(np.argmin([C[0, 0].sum() for C in cands]))
     return cands[k].reshape(-1, 2), "symmetric target: orientation guessed from the image (point 0 nearest top-left)"

@@ -21,7 +21,7 @@ homography); a rejection says why.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,13 +30,17 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import DetectionError, InputError
 from calibgraph.core.targets import Target
 from calibgraph.detect.board_fit import refine_charuco, refine_checkerboard, refine_marker_checkerboard
-from calibgraph.detect.board_look import marker_side
+from calibgraph.detect.board_look import grid_marker_note, marker_side
 from calibgraph.detect.charuco import find_charuco
 from calibgraph.detect.chessboard import find_checkerboard
 from calibgraph.detect.circles import find_circles
 from calibgraph.detect.detection import ImageDetection, failed_detection
 from calibgraph.detect.grid_filter import check_grid, grid_pitch_px
+from calibgraph.detect import progress
 from calibgraph.detect.image import read_grey, to_grey8
+from calibgraph.detect.orient import BoardSpecError
+from calibgraph.detect.overlay import disturbed_corners, outlying_points
+from calibgraph.detect.polarity import check_polarity, checkerboard_polarity, inverted, worth_inverting
 from calibgraph.detect.quality import edge_sigma_px, hull_area
 from calibgraph.detect.regions import roi_candidates, roi_from_points
 
@@ -46,7 +50,7 @@ OPENCV_RNG_SEED = 0  # seeded at each search: detection may not depend on the th
 def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, upscale="auto", method: str = "auto",
                  allow_symmetric: bool = False, filter: bool = True, min_pitch_px: float = 12.0,
                  min_points: int = 4, source: str | None = None, refine: bool = True,
-                 region_px: tuple | None = None, bounded: bool = False) -> ImageDetection:
+                 region_px: tuple | None = None, bounded: bool = False, polarity: str = "auto") -> ImageDetection:
     """Detect ``target`` in one image.
 
     Args:
@@ -77,6 +81,9 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
             resolution) is searched up-scaled, a quick probe (OpenCV's fast check at x2 and x3)
             must see a board there: a frame without the board then costs a fraction of a second,
             not seconds (dataset passes and guided detection use it).
+        polarity: ``"auto"`` (the board as printed, black on white, then, where that finds nothing, a
+            white-on-black print: :mod:`calibgraph.detect.polarity`), ``"normal"`` or ``"inverted"``
+            (only that one).
     Returns:
         :class:`ImageDetection`; never raises for a bad image: ``ok=False`` and ``reason`` say why.
     """
@@ -85,17 +92,61 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
     t0 = time.perf_counter()
     cv2.setRNGSeed(OPENCV_RNG_SEED)  # the SB detector draws from the thread's RNG: one image, one result
     src = str(image) if isinstance(image, (str, Path)) else source
+    polarity = check_polarity(polarity)
     try:
         grey = read_grey(image) if isinstance(image, (str, Path)) else to_grey8(image, src or "image")
     except DetectionError as e:
         return failed_detection(str(e), target, src, t0, unreadable=True)
-    s = _Search(grey=grey, target=target, intrinsics=intrinsics, method=method, upscale=_check_options(method, upscale),
+    opts = dict(target=target, intrinsics=intrinsics, method=method, upscale=_check_options(method, upscale),
                 allow_symmetric=allow_symmetric, filter=filter, min_pitch_px=min_pitch_px, min_points=min_points,
                 refine=refine, src=src, t0=t0, bounded=bounded)
-    if region_px is not None:
-        best = _search_region(s, tuple(int(v) for v in region_px))
+    region = None if region_px is None else tuple(int(v) for v in region_px)
+    look = grey if region is None else grey[region[1]:region[3], region[0]:region[2]]
+    # A white-on-black print (calibgraph.detect.polarity): as printed first, inverted where that
+    # finds nothing; a checkerboard's polarity is told first, its classic detector being slow on the
+    # wrong one.
+    first = "inverted" if polarity == "inverted" or (
+        polarity == "auto" and target.kind == "checkerboard" and look.size and
+        checkerboard_polarity(look, target) == "inverted") else "normal"
+    s = _Search(grey=grey if first == "normal" else inverted(grey), inverted=first == "inverted", **opts)
+    best = _ladder(s, region)
+    if first == "inverted" and polarity == "auto" and not best.ok:
+        best = _told_inverted(best)
+    # found, or refused on the spec (the board seen as printed), or nothing to look for inverted
+    if best.ok or best.spec_note or polarity != "auto" or first == "inverted" or \
+            target.kind == "checkerboard" or not look.size or not worth_inverting(look, target):
+        return best
+    progress.stage(f"{target.kind} {target.rows}x{target.cols}, the inverted image (white on black?)")
+    cv2.setRNGSeed(OPENCV_RNG_SEED)
+    inv = _ladder(_Search(grey=inverted(grey), inverted=True, **opts), region)
+    if inv.ok:
+        return inv
+    if inv.spec_note:
+        return _told_inverted(inv)
+    return replace(best, reason=f"{best.reason}; inverted (a board printed white on black?), {inv.reason}",
+                   time_s=time.perf_counter() - t0)
+
+
+def _told_inverted(det: ImageDetection) -> ImageDetection:
+    """A refusal of the search in the inverted image, saying so (a board printed white on black)."""
+    said = " (searched in the inverted image: the board looks printed white on black)"
+    return replace(det, reason=det.reason + said, spec_note=det.spec_note and det.spec_note + said)
+
+
+def _ladder(s: _Search, region) -> ImageDetection:
+    """The search ladder on ``s.grey`` (the image, or its inverted image): the region ``region``
+    (x0, y0, x1, y1) when given, else the whole frame, up-scaled where needed, then the last resorts."""
+    target, grey, min_pitch_px = s.target, s.grey, s.min_pitch_px
+    if region is not None:
+        progress.stage(_stage(s, "the given region"))
+        best = _search_region(s, region)
+        if s.stop is not None:
+            return s.stop
         return best if best is not None else _not_found(s)
+    progress.stage(_stage(s, "the whole frame"))
     native = _attempt(s, _raw_detect, s, grey, 1.0) if s.upscale in ("auto", 1) else None
+    if s.stop is not None:
+        return s.stop
     deferred = native if s.upscale == "auto" and _plainly_small(s, native) else None
     first = _finish(s, native, 1) if native is not None and deferred is None else None
     if s.upscale == 1 or (first is not None and first.ok and first.pitch_px >= min_pitch_px):
@@ -104,10 +155,20 @@ def detect_image(image, target: Target, intrinsics: Intrinsics | None = None, up
         if native is None and s.upscale != "auto":
             native = _attempt(s, _raw_detect, s, grey, 1.0)  # its points give the region to up-scale
         rois, first = _upscale_regions(s, native, first)
-        best = _search_upscaled(s, rois, first, deferred)
+        best = _search_upscaled(s, rois, first, deferred) if s.stop is None else None
+    if s.stop is not None:
+        return s.stop
     if best is None or not best.ok:
+        if target.kind == "checkerboard" or s.refit_refused:
+            progress.stage(_stage(s, "last resorts (SB detector, the board fit's refusals)" if target.kind == "checkerboard"
+                                  else "last resorts (the board fit's refusals)"))
         best = _last_resorts(s, best)
     return best if best is not None else _not_found(s)
+
+
+def _stage(s: _Search, what: str) -> str:
+    """What a search is doing, for the progress lines (:mod:`calibgraph.detect.progress`)."""
+    return f"{s.target.kind} {s.target.rows}x{s.target.cols}{', inverted image' if s.inverted else ''}: {what}"
 
 
 def _last_resorts(s: _Search, best):
@@ -154,7 +215,9 @@ class _Search:
     src: str | None
     t0: float
     bounded: bool = False
+    inverted: bool = False  # ``grey`` is the inverted image (a white-on-black print)
     attempts: list = field(default_factory=list)
+    stop: ImageDetection | None = None  # a refusal no other attempt can change (BoardSpecError)
     _regions: list | None = None
     refit_refused: list = field(default_factory=list)  # (raw result, k) refused after the board fit
 
@@ -225,9 +288,20 @@ def _detect_in_roi(s: _Search, roi, k: int, fast=None):
 
 
 def _attempt(s: _Search, fn, *a):
-    """``fn(*a)``, or None with the reason kept for the final message when it raises."""
+    """``fn(*a)``, or None with the reason kept for the final message when it raises. A
+    :class:`~calibgraph.detect.orient.BoardSpecError` (the board found, its spec unusable as declared)
+    ends the search: ``s.stop`` is the refusal, and later attempts return None at once."""
+    if s.stop is not None:
+        return None
     try:
         return fn(*a)
+    except BoardSpecError as e:
+        note = e.note
+        if s.target.kind == "checkerboard" and e.grid is not None:
+            note = grid_marker_note(s.grey, e.grid) or note
+        s.stop = failed_detection(f"{note}; {e}" if note else str(e), s.target, s.src, s.t0, spec_note=note or str(e),
+                                  inverted=s.inverted)
+        return None
     except DetectionError as e:
         s.attempts.append(str(e))
         return None
@@ -251,6 +325,16 @@ def _finish(s: _Search, result, k: int, keep_detector: bool = False) -> ImageDet
         blur_px = edge_sigma_px(grey, uv, max(_pitch(ids, uv, target), 4.0))
         fit = refine_charuco(grey, target, ids, uv, blur_px=blur_px)
         uv, n_refined = fit.uv_px, int(fit.refined.sum())
+    if n_refined:
+        # corners the fit could not model (a line drawn over them, calibgraph.detect.overlay) that their
+        # neighbours place elsewhere are left out
+        bad = outlying_points(uv, target.points_board_m[ids, :2], target.pitch_m, disturbed_corners(fit.rms_grey))
+        if bad.any():
+            keep = ~bad
+            ids, uv, raw = ids[keep], uv[keep], raw[keep]
+            n_refined = int(fit.refined[keep].sum())
+            out = f"{int(bad.sum())} corners left out: something not of the board over them (a drawing, a glare) moved them"
+            note = "; ".join(x for x in (note, out) if x)
     ok, reason = True, note
     if ids.size < s.min_points:
         ok, reason = False, f"only {ids.size} points found (minimum {s.min_points})"
@@ -270,7 +354,7 @@ def _finish(s: _Search, result, k: int, keep_detector: bool = False) -> ImageDet
         ids=ids, uv_px=uv, ok=ok, reason=reason, n_expected=target.n_points, size_px=float(np.sqrt(area)),
         spread=area / float(grey.size), pitch_px=pitch, sharpness_px=edge_sigma_px(grey, uv, max(pitch, 4.0)),
         upscale=k, method=m, homography_rms_px=h_rms, n_refined=n_refined, time_s=time.perf_counter() - s.t0,
-        image=s.src)
+        image=s.src, inverted=s.inverted)
 
 
 def _keep_detector_corners(s: _Search, ids, raw, uv, fr, n_refined):
@@ -313,6 +397,7 @@ def _upscale_regions(s: _Search, native, first):
         # region. x3 finds the boards of 4.5-6 px squares that x2's fast check rejects (a far
         # camera's views: on the rendered 5 m D455 cell they were half of those lost).
         for roi in (r for r in cands if r not in rois):
+            progress.stage(_stage(s, "a large region's quick look up-scaled x2, x3"))
             for k in (2, 3):
                 got = _attempt(s, _detect_in_roi, s, roi, k, True)
                 if got is not None:
@@ -336,7 +421,8 @@ def _search_upscaled(s: _Search, rois, first, deferred=None):
         rois = [roi for roi in rois if _probe_sees_board(s, roi)]
     best = first
     for k in factors:
-        for roi in rois:
+        for i, roi in enumerate(rois):
+            progress.stage(_stage(s, f"region {i + 1} of {len(rois)} up-scaled x{k}"))
             got = _attempt(s, _detect_in_roi, s, roi, k)
             if got is None:
                 continue
@@ -392,6 +478,7 @@ def _search_region(s: _Search, roi) -> ImageDetection | None:
     if got is None and s.bounded and not _probe_sees_board(s, roi):
         return None
     for k in (2, 3):
+        progress.stage(_stage(s, f"the given region up-scaled x{k}"))
         got = _attempt(s, _detect_in_roi, s, roi, k, False)
         if got is None:
             continue
@@ -412,9 +499,12 @@ def _probe_sees_board(s: _Search, roi) -> bool:
 def _not_found(s: _Search) -> ImageDetection:
     """The failed detection, with the reasons met on the way (or advice when there were none)."""
     t = s.target
+    unit = "inner corners" if t.kind in ("checkerboard", "charuco") else "points"
+    # Nothing was found: nothing points at the spec (a board seen from behind, out of view or blurred
+    # looks the same), so the spec comes last (issue 47).
     why = "; ".join(dict.fromkeys(s.attempts)) if s.attempts else (
-        f"no {t.kind} with {t.rows}x{t.cols} points found; check the target spec matches the board "
-        "and that the whole board is in view and in focus")
+        f"no board found in the image; if the board is in view (printed side towards the camera), check that it "
+        f"is whole and in focus, and that it is the {t.kind} of {t.rows}x{t.cols} {unit} the target spec declares")
     return failed_detection(why, t, s.src, s.t0)
 
 

@@ -62,6 +62,8 @@ class BoardSpecCheck:
         self.total = {c: int(n) for c, n in frames_per_camera.items() if n > 0}
         self.done = Counter()
         self.sightings = Counter()
+        self.parts = Counter()  # of the sightings, those of a part of a board (no margin on some side)
+        self.spec_notes = Counter()  # what frames that found the board but could not number it said of the spec
         self.found = 0
         self._cleared = False
         self._unseen = {}       # camera -> keys of frames deferred because the probe saw no chessboard
@@ -85,9 +87,12 @@ class BoardSpecCheck:
         if det.ok:
             self.found += 1
             return
+        if getattr(det, "spec_note", ""):
+            self.spec_notes[det.spec_note] += 1
         size = None if det.other_grid is None else tuple(sorted(det.other_grid))
         if size is not None and size[0] >= MIN_GRID:
             self.sightings[size] += 1
+            self.parts[size] += getattr(det, "other_whole", None) is False
         if det.deferred and size is not None:
             self._patterns[key] = (camera, size)
         elif det.deferred:
@@ -173,10 +178,20 @@ class BoardSpecCheck:
         which = "any camera" if len(self.total) > 1 else "the camera"
         unit = "inner corners" if t.kind in ("checkerboard", "charuco") else "points"
         head = f"no {t.kind} of {t.rows}x{t.cols} {unit} (as {self.where} declares) in {frames} of {which}"
+        if self.spec_notes and size is None:
+            # the board was found in the frames, and the spec could not number it: say why
+            return f"{head}: {self.spec_notes.most_common(1)[0][0]}"
         if size is None:
             return (f"{head}: check the target spec (kind, rows, cols) in {self.where} against the printed board, "
-                    "and that the board is in view")
+                    "and that the board is in view (the images were searched as printed and inverted, white on black)")
         a, b = size if t.rows <= t.cols else size[::-1]  # in the declared orientation
+        declared = tuple(sorted((t.rows, t.cols)))
+        part = size[0] <= declared[0] and size[1] <= declared[1] and size != declared
+        if t.kind in ("checkerboard", "charuco") and part and 2 * self.parts[size] > self.sightings[size]:
+            # a part of the declared board, ending without a margin on some side: covered or cut off
+            return (f"{head}; the images show only a {a}x{b} part of it, the board partly covered or cut off in every "
+                    f"frame (the grid found fits inside the declared {t.rows}x{t.cols} and ends short of a margin): show "
+                    "the whole board in some of the views")
         if t.kind in ("checkerboard", "charuco"):
             return f"{head}; the images show a {a}x{b} grid: check rows/cols of the target in {self.where}"
         return (f"{head}; the images show a chessboard of {a}x{b} inner corners: check the target's kind, rows and "

@@ -57,7 +57,19 @@ class OrderedPool:
         f.set_result(value)
         self._queue.append((key, f))
 
-    def next(self):
-        """(key, result) of the oldest job, waiting for it if needed; raises what the job raised."""
-        key, f = self._queue.popleft()
+    def next(self, waiting=None, poll_s: float = 1.0):
+        """(key, result) of the oldest job, waiting for it if needed; raises what the job raised.
+        ``waiting``: called every ``poll_s`` seconds while it waits (a pass's progress lines)."""
+        from concurrent.futures import TimeoutError as Pending
+
+        key, f = self._queue[0]
+        while waiting is not None:
+            try:
+                f.result(timeout=poll_s)
+                break
+            except Pending:
+                waiting()
+            except BaseException:
+                break  # raised again below
+        self._queue.popleft()
         return key, f.result()

@@ -52,9 +52,10 @@ class Texture:
     ppm: float
 
 
-def board_texture(target: Target, ppm: float, margin_m: float | None = None) -> Texture:
+def board_texture(target: Target, ppm: float, margin_m: float | None = None, white_on_black: bool = False) -> Texture:
     """Paint ``target`` at ``ppm`` texels per metre with a white paper margin around the pattern
-    (default: one pitch, the quiet zone detectors need)."""
+    (default: one pitch, the quiet zone detectors need). ``white_on_black``: the sheet printed with
+    ink and paper swapped (white squares, markers or dots on a black sheet, its margin black too)."""
     import cv2
 
     ppm = float(ppm)
@@ -115,6 +116,8 @@ def board_texture(target: Target, ppm: float, margin_m: float | None = None) -> 
             cv2.circle(canvas, (int(round(c * 2**shift)), int(round(r * 2**shift))), int(round(rad * 2**shift)), 0,
                        thickness=-1, lineType=cv2.LINE_AA, shift=shift)
         img = canvas.astype(np.float32) / 255.0
+    if white_on_black:
+        img = 1.0 - img
     return Texture(image=img, A_tex_board=A, ppm=ppm)
 
 

@@ -58,10 +58,14 @@ def charuco_as_checkerboard_offset(charuco: Target) -> np.ndarray:
 
 def write_board_views(root, printed: Target, declared: Target, intr: Intrinsics, places: list,
                       T_printed_declared: np.ndarray | None = None, blur_sigma_px: float = 0.7,
-                      noise_sigma: float = 2.0, seed: int = 0) -> BoardViewsTruth:
+                      noise_sigma: float = 2.0, seed: int = 0, white_on_black: bool = False,
+                      background: float = 0.45, overlay=None) -> BoardViewsTruth:
     """Render ``printed`` at every :class:`ViewPlace` of ``places`` (one capture each, camera
     ``cam0`` with intrinsics ``intr``, told exactly) and write a calibgraph dataset declaring
-    ``declared`` in ``root`` (module docstring). Returns the truth."""
+    ``declared`` in ``root`` (module docstring). ``white_on_black``: the board printed with ink and
+    paper swapped, on a scene of reflectance ``background``; ``overlay``: ``(image, intr,
+    T_cam_declared) -> image`` drawn on every frame (a capture app's drawing, :func:`draw_pose_axes`).
+    Returns the truth."""
     import cv2
 
     root = Path(root)
@@ -71,16 +75,19 @@ def write_board_views(root, printed: Target, declared: Target, intr: Intrinsics,
     T_base_cam = make_T(_rot([0.3, -0.2, 0.1]), [1.2, 0.3, 0.9])
     T_flange_board = make_T(_rot([0.1, 0.2, -0.3]), [0.02, -0.03, 0.08])
     write_header(root, declared, {"cam0": intr})
-    tex = board_texture(printed, 3000.0)
+    tex = board_texture(printed, 3000.0, white_on_black=white_on_black)
     poses = []
     for k, pl in enumerate(places):
         T_cam_declared = look_at_board(declared, pl.distance_m, pl.tilt_x_deg, pl.tilt_y_deg, pl.roll_deg,
                                        tuple(pl.offset_px), intr)
         poses.append(T_cam_declared)
         img = render_view(printed, intr, T_cam_declared @ inv(T_pd), blur_sigma_px=blur_sigma_px,
-                          noise_sigma=noise_sigma, seed=int(rng.integers(1 << 30)), texture=tex).image
+                          noise_sigma=noise_sigma, seed=int(rng.integers(1 << 30)), texture=tex,
+                          background=background).image
         if pl.visible is not None:
             _occlude(img, declared, intr, T_cam_declared, pl.visible, rng)
+        if overlay is not None:
+            img = overlay(img, intr, T_cam_declared)
         rel = image_relpath("cam0", k)
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(root / rel), img)
@@ -128,6 +135,29 @@ def whole_boards(root, intr: Intrinsics, board: Target, declared: Target, n: int
     places = [ViewPlace(rng.uniform(*distance_m), _u(rng, 30), _u(rng, 30), _u(rng, 20), (_u(rng, 400), _u(rng, 200)))
               for _ in range(n)]
     return write_board_views(root, board, declared, intr, places, seed=seed)
+
+
+def draw_pose_axes(img: np.ndarray, intr: Intrinsics, T_cam_board: np.ndarray, length_m: float,
+                   thickness_px: int = 4, text: str | None = None, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """``img`` (grey) with the board's pose axes drawn across it as a capture app draws them (ViSP's
+    ``vpDisplay::displayFrame``, OpenCV's ``drawFrameAxes``): x red, y green, z blue, ``length_m``
+    long and ``thickness_px`` thick from ``origin_m`` (board frame), and ``text`` in the image's top-left
+    corner; the colours come back grey as a colour capture saved grey (or read grey) shows them.
+    Returns the colour image drawn on, as BGR."""
+    import cv2
+
+    bgr = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
+    o = np.asarray(origin_m, float)
+    ends = np.array([o, o + [length_m, 0, 0], o + [0, length_m, 0], o + [0, 0, -length_m]])
+    cam = ends @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    uv = intr.project(cam)
+    shift = 4
+    pt = [tuple(int(round(c * 2**shift)) for c in p) for p in uv]
+    for end, colour in ((1, (0, 0, 255)), (2, (0, 255, 0)), (3, (255, 0, 0))):
+        cv2.line(bgr, pt[0], pt[end], colour, int(thickness_px), cv2.LINE_AA, shift)
+    if text:
+        cv2.putText(bgr, text, (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (0, 255, 255), 2, cv2.LINE_AA)
+    return bgr
 
 
 def _u(rng, a: float) -> float:

@@ -42,8 +42,9 @@ from calibgraph.core.problem import Problem, SolverOptions, mode_frames
 from calibgraph.core.transforms import inv
 from calibgraph.detect.blind import look_blind, search_in_full
 from calibgraph.detect.board_look import dataset_board_notes, explain_wrong_spec
-from calibgraph.detect.dataset import (DetectionCache, dataset_detector, open_frame, progress_bar, spread, unusable,
-                                       view_points, view_problems, wrong_spec_everywhere)
+from calibgraph.detect import progress as search_progress
+from calibgraph.detect.dataset import (DetectionCache, dataset_detector, open_frame, pass_reporter, progress_bar, spread,
+                                       unusable, view_points, view_problems, wrong_spec_everywhere)
 from calibgraph.detect.guided import GUIDED_MIN_PITCH_PX, ViewHint, detect_with_hint, predict_view
 from calibgraph.detect.image import Frame
 from calibgraph.detect.spec_check import BoardSpecCheck
@@ -162,13 +163,14 @@ class _GuidedRun:
     # -- the loop -------------------------------------------------------------------------------
     def execute(self) -> None:
         self.bar = progress_bar(self.n_total, self.o.progress)
+        waiting = pass_reporter(self.bar)
         try:
             with OrderedPool(self.o.workers) as pool:
                 while True:
                     self._top_up(pool)
                     if not len(pool):
                         break
-                    job, det = pool.next()
+                    job, det = pool.next(waiting)
                     self._take(job, det)
         finally:
             if self.bar is not None:
@@ -196,11 +198,16 @@ class _GuidedRun:
 
     def _work(self, kind, v, hint, check_spec, full=None):
         """One frame's search; ``full``: the deferred detection of a frame the spec check sampled,
-        searched in full (:func:`~calibgraph.detect.blind.search_in_full`)."""
+        searched in full (:func:`~calibgraph.detect.blind.search_in_full`). What it does is said by
+        :mod:`calibgraph.detect.progress`."""
+        path = Path(self.ds.root) / v.image
+        with search_progress.searching(path):
+            return self._search(kind, v, hint, path, check_spec, full)
+
+    def _search(self, kind, v, hint, path, check_spec, full=None):
         import cv2
 
         ds = self.ds
-        path = Path(ds.root) / v.image
         intr = ds.cameras.get(v.camera)
         try:
             if kind in ("guided", "spot"):
@@ -210,6 +217,7 @@ class _GuidedRun:
                 self.unreadable.add((v.camera, v.capture))  # set.add: safe from worker threads
                 return unreadable
             if full is not None:
+                search_progress.stage("a full search before the board spec is judged (up-scaled, SB detector)")
                 return search_in_full(frame, ds.target, intr, full.pattern, full.other_grid)
             return look_blind(frame, ds.target, intr, check_spec=check_spec,
                               **({"upscale": 1, "gate": True} if kind == "survey" else {"bounded": True}))
