@@ -28,11 +28,12 @@ its noise moves the goal by more than ``GOAL_CHANGE``, again with one note. A go
 
 **The hint** is always a pose: the session plans ``PLAN_POSES`` poses
 (:func:`~calibgraph.solver.session_plan.session_poses`, whose first ``ADVICE_SESSION_VIEWS`` are the
-advice's session): the four image corners first, then, of the planned poses no taken view has
+advice's session): the four image corners first, then, of the planned poses no hold has
 matched yet (board centre within ``MATCH_IMAGE_FRACTION`` of the image, distance within
 ``MATCH_DISTANCE``, normal within ``MATCH_TILT_DEG``), the one that would lower the predicted fx
 1-sigma most. It says in words where, how far and how tilted, and what no taken view has yet (that
-place, that distance there, that tilt there); it changes once a taken view matches it. A device
+place, that distance there, that tilt there); it changes once a still hold matches it (its view taken
+or not: the user did what it said). A device
 that can act on it (the simulated hand-held board's guided user) is told the pose
 (``camera.guide(T_cam_board, taken)``).
 
@@ -227,8 +228,8 @@ class _Session:
         self.result_views = 0  # views of the last calibration that succeeded
         self.error = ""
         self._plan = None  # planned poses the hint chooses from
-        self.done = set()  # indices of planned poses a taken view has matched
-        self._next = (-1, None, "")
+        self.done = set()  # indices of planned poses a judged hold (taken or not) has matched
+        self._next = ((-1, -1), None, "")
 
     def note(self, line: str) -> None:
         self.notes.append(line)
@@ -281,13 +282,14 @@ class _Session:
         typical = 1.0 - np.sqrt(n / (n + 1.0))  # an average view's share of the fall
         adds = (not np.isfinite(before) or (1.0 - after / before) >= MIN_FALL * typical or new_cell
                 or tilt not in self.tilt_bins)
+        # a planned pose held is done whether or not its view is taken: the hint moves on either way
+        self.done.update(i for i, P in enumerate(self.plan) if all(_matches(T, P, self.intr, self.target)))
         if not adds:
             return False
         self.views.append(view)
         self.poses.append(T)
         self.info, self.cov = info, new_cov
         self.tilt_bins.add(tilt)
-        self.done.update(i for i, P in enumerate(self.plan) if all(_matches(T, P, self.intr, self.target)))
         return True
 
     def refit(self) -> None:
@@ -342,8 +344,8 @@ class _Session:
     def next_pose(self) -> tuple:
         """(T_cam_board, words) of the hint: of the planned poses no taken view has matched, the four image
         corners first (in order), then the one that would lower the predicted fx 1-sigma most; with what
-        no taken view has yet. Computed once per taken view."""
-        n = len(self.views)
+        no taken view has yet. Computed again only when a view is taken or a planned pose is done."""
+        n = (len(self.views), len(self.done))
         if self._next[0] == n:
             return self._next[1:]
         plan = self.plan
