@@ -28,6 +28,12 @@ eye-in-hand and its inverse eye-to-hand) and scored against the detected corners
 miss times its depth over the focal length: the miss at the board's distance, across the line of
 sight, as calibgraph's expected figure is stated).
 
+Configurations: where captures revisit a joint target (``Problem.configurations``: the same joint
+angles, or where none are recorded the same flange pose, within the arm's repeatability), the splits
+deal configurations, not captures: every visit of a target goes to the same side, so that no held-out
+capture is predicted from a revisit of its own pose (a real arm's error repeats with its configuration).
+N and m below then count configurations; a set without revisits is split exactly as capture by capture.
+
 Methods: ``calibgraph`` (the solver with its defaults; unknown intrinsics estimated in the joint
 graph where the set gives none), OpenCV 4.x ``calibrateHandEye`` TSAI, PARK, HORAUD, ANDREFF,
 DANIILIDIS and ``calibrateRobotWorldHandEye`` SHAH, LI, each with intrinsics from ``calibrateCamera``
@@ -47,6 +53,24 @@ with their degrees of freedom (4 and 1); the ratio stated / observed per axis is
 5 degrees of freedom a ratio's own scatter is about 30 %: one set's ratio says little, the pattern over
 sets and axes says more.
 
+Small sets (fewer than ``SMALL_SET`` = 12 configurations with the board, at least 5 captures; ViSP's samples have 8):
+2/3-1/3 splits would train on 5 captures, so they are held out one at a time instead (leave-one-out,
+n splits, train n - 1, test the one left out). The held-out RMS per method is then the mean over the
+n splits, and calibgraph minus the best peer is paired over them with the SE sd / sqrt(n) (the test
+captures are disjoint, so the n differences are nearly independent). The split scatter is the
+jackknife's: with theta_i the hand-eye pose solved without capture i and theta_bar their mean
+(``mean_pose``), per axis
+
+    var_jack = (n - 1) / n * sum_i (theta_i - theta_bar)^2
+
+(the deviations as :func:`deviation`, rotation vector and translation), which estimates the variance
+of the estimate from all n captures; the all-capture solve's stated 1-sigma (and its redrawn part) is
+set beside sqrt(var_jack) as stated / observed, per axis and pooled over the six (1 / sqrt(mean(
+var_jack / stated^2))), with about n - 1 dof per axis (the jackknife of a smooth estimator behaves
+like a sample variance of n - 1 dof; it tends to overstate the variance a little, never to hide it).
+The spread column is the same jackknife standard error (its translation and rotation norms). The
+protocol for sets of 12 captures or more is the one above, unchanged.
+
 Also per set: the fit RMS (calibgraph solved on all captures, its predictions from the reported
 poses scored on the same captures: the floor the robot's own error sets), calibgraph's expected
 held-out error (result.json ``prediction`` from the all-capture solve: what the held-out test would
@@ -56,7 +80,10 @@ say without test data), and each OpenCV method's all-capture hand-eye pose again
                                     [--rwhe GITDIR] [--ic GITDIR] [--work DIR] [--tag NAME]
                                     [--dataset NAME=PATH ...] [--sim-seeds 1,2,...]
 
-Any dataset folder calibgraph reads can be added with ``--dataset NAME=PATH`` (``--sets ''`` for it
+ViSP's two eye-in-hand samples in ``../shared/datasets`` are the sets ``visp_2022`` and ``visp_2025``, read
+by calibgraph's ViSP layout reader from a copy (its ``camera.xml`` device intrinsics; the 2022 folder names
+no board, so the copy gets a ``target.yaml`` with ViSP's tutorial board, 9 x 6 inner corners of 26.2 mm;
+the 2025 one has ViSP's ``chessboard-data.txt``). Any dataset folder calibgraph reads can be added with ``--dataset NAME=PATH`` (``--sets ''`` for it
 alone). Where every capture records joint angles (eye-to-hand), calibgraph also runs with
 ``--estimate-kinematics joint-offsets`` (row "calibgraph joint-offsets"), its test corners predicted
 from the reported joint angles through the arm with the estimated offsets.
@@ -67,6 +94,7 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import replace
+import shlex
 import shutil
 import subprocess
 import sys
@@ -107,6 +135,11 @@ RWHE = {  # name -> (folder, rows, cols, pitch_m)
 }
 IC = {"ic_10x10": "test_set_10x10", "ic_charuco": "test_set_charuco"}
 SHARED = {"mchec": "mchec_medium_workcell"}  # multi-camera sets in ../shared/datasets: one record per camera
+# ViSP's hand-eye folders in ../shared/datasets, read as they are (a copy); the board for a folder that names none
+VISP = {"visp_2022": ("visp_eye_in_hand_2022", {"kind": "checkerboard", "rows": 6, "cols": 9, "pitch_m": 0.0262}),
+        "visp_2025": ("visp_eye_in_hand_2025", None)}
+SMALL_SET = 12  # fewer configurations with the board: leave-one-out (module docstring)
+MIN_CAPTURES = 5
 SEEDS = (0, 1, 2, 3, 4)
 # calibgraph with its defaults; where every capture records joint angles (eye-to-hand) also with
 # --estimate-kinematics joint-offsets, applied as a user then applies it (the corrected arm, the reported angles)
@@ -176,6 +209,16 @@ def prepare(name: str, args, work: Path):
         why = extract(args.rwhe, f"Datasets/{folder}", raw)
         return (None, why) if why else (rwhe_dataset(raw, work / "sets" / name, rows, cols, pitch), "")
     dest = work / "sets" / name
+    if name in VISP:
+        folder, board = VISP[name]
+        src = REPO.parent / "shared" / "datasets" / folder
+        if not src.exists():
+            return None, f"{src} is not here"
+        if not dest.exists():  # a copy: the solve writes its detection cache into the dataset's top folder
+            shutil.copytree(src, dest)
+            if board is not None and not (dest / "target.yaml").exists():  # the side file the layout reads
+                (dest / "target.yaml").write_text(yaml.safe_dump({"target": board}, sort_keys=False))
+        return dest, ""
     if name in SHARED:
         src = REPO.parent / "shared" / "datasets" / SHARED[name]
         if not src.exists():
@@ -232,15 +275,16 @@ def subset(problem, keep: set):
                          detections=tuple(d for d in problem.detections if d.capture in keep))
 
 
-def calibgraph_fits(problem) -> dict:
+def calibgraph_fits(problem, solved: dict | None = None) -> dict:
     """method -> fit(camera, train) -> that camera's model (:func:`camera_model`), raising
     CalibgraphError: "calibgraph" with its defaults and, where every capture records joint angles
     (eye-to-hand), "calibgraph joint-offsets" (``--estimate-kinematics joint-offsets``). One solve per
-    method and train set, shared by the cameras."""
+    method and train set, shared by the cameras. ``solved``: the (method, frozenset(train)) -> Result
+    (or CalibgraphError) cache to fill and reuse (a caller's own solve of a train set, or one to read)."""
     variants = {"calibgraph": problem}
     if problem.mode == "eye_to_hand" and problem.records_joint_angles:
         variants["calibgraph joint-offsets"] = problem.with_(options=replace(problem.options, kinematics="joint-offsets"))
-    solved = {}
+    solved = {} if solved is None else solved
 
     def fit_of(meth, p):
         def fit(cam, train):
@@ -324,17 +368,71 @@ def opencv_models(py: str, problem, splits: list) -> tuple[list, str]:
 # ---------------------------------------------------------------------------------------------
 # the bench
 # ---------------------------------------------------------------------------------------------
-def make_splits(indices: list) -> list:
-    """[(train, test, label)]: 5 random 2/3-1/3 splits and the odd/even halves both ways."""
-    n = len(indices)
+def units(indices: list, config: dict | None = None) -> list:
+    """The split units of the captures ``indices``: [(first capture, its captures)] in index order, one per
+    configuration (``config``: capture -> the first capture at its joint target, ``Problem.configurations``),
+    so that every visit of a joint target goes to the same side of a split and no held-out capture is
+    predicted from a revisit of its own pose. Without ``config`` (or without revisits) each capture alone."""
+    groups = {}
+    for k in sorted(indices):
+        groups.setdefault((config or {}).get(k, k), []).append(k)
+    return sorted(groups.items())
+
+
+def make_splits(indices: list, config: dict | None = None) -> list:
+    """[(train, test, label)]: 5 random 2/3-1/3 splits and the odd/even halves both ways, of the
+    configurations (:func:`units`; the captures themselves where none is revisited)."""
+    u = units(indices, config)
+    n = len(u)
     m = int(round(2 * n / 3))
+
+    def caps(idx):
+        return {k for i in idx for k in u[i][1]}
+
     out = []
     for s in SEEDS:
         perm = np.random.default_rng(s).permutation(n)
-        out.append(({indices[i] for i in perm[:m]}, {indices[i] for i in perm[m:]}, f"random seed {s}"))
-    odd, even = set(indices[1::2]), set(indices[0::2])
+        out.append((caps(perm[:m]), caps(perm[m:]), f"random seed {s}"))
+    odd, even = caps(range(1, n, 2)), caps(range(0, n, 2))
     out += [(odd, even, "train odd"), (even, odd, "train even")]
     return out
+
+
+def loo_splits(indices: list, config: dict | None = None) -> list:
+    """[(train, test, label)]: each configuration (:func:`units`; each capture where none is revisited)
+    held out once (leave-one-out), for sets of fewer than SMALL_SET configurations."""
+    return [(set(indices) - set(g), set(g), f"leave out {k}" if len(g) == 1 else
+             f"leave out {k} (configuration of captures {', '.join(map(str, g))})") for k, g in units(indices, config)]
+
+
+def is_loo(splits: list) -> bool:
+    return bool(splits) and all(lab.startswith("leave out ") for _, _, lab in splits)
+
+
+def jackknife_var(Xs: list) -> np.ndarray:
+    """(6,) the jackknife variance (n - 1) / n * sum (theta_i - theta_bar)^2 of the leave-one-out
+    estimates ``Xs`` (rad^2, m^2): the variance of the estimate from all n captures."""
+    n = len(Xs)
+    ref = mean_pose(Xs)
+    dev = np.array([deviation(X, ref) for X in Xs])
+    return (n - 1) / n * np.sum(dev ** 2, axis=0)
+
+
+def jackknife_sigma(models: list, full: dict, cov: str) -> dict:
+    """:func:`sigma_ratio`'s record for leave-one-out: the all-capture solve's stated 1-sigma (``cov``:
+    ``"cov"`` or ``"cov_redrawn"``) against the jackknife's sqrt(var_jack) of the n leave-one-out solves."""
+    var = jackknife_var([mod["X"] for mod in models])
+    stated = np.sqrt(np.diag(full[cov]))
+    return {"observed_sigma_m": np.sqrt(var).tolist(), "stated_sigma_m": stated.tolist(),
+            "ratio": (stated / np.sqrt(var)).tolist(), "ratio_pooled": float(1.0 / np.sqrt(np.mean(var / stated ** 2))),
+            "dof": len(models) - 1, "protocol": "jackknife"}
+
+
+def jackknife_spread(Xs: list) -> dict:
+    """:func:`spread`'s keys for leave-one-out: the jackknife standard error of the all-capture estimate."""
+    var = jackknife_var(Xs)
+    return {"sd_per_axis": np.sqrt(var).tolist(), "rms_translation_mm": 1e3 * float(np.sqrt(var[3:].sum())),
+            "rms_rotation_deg": float(np.degrees(np.sqrt(var[:3].sum()))), "protocol": "jackknife"}
 
 
 def sigma_ratio(X_random: list, X_halves: list, sig_random: np.ndarray, sig_halves: np.ndarray, n: int, m: int) -> dict:
@@ -412,12 +510,32 @@ def opencv_sb(ds):
     return ds.to_problem(method="joint", options=SolverOptions(), detector=detect)
 
 
-def run_set(name: str, folder: Path, py: str | None) -> dict:
-    ds = load_dataset(folder)
-    detection = "calibgraph's dataset detection (as `calibgraph solve` runs it)"
+DEFAULT_DETECTION = "calibgraph's dataset detection (as `calibgraph solve` runs it)"
+
+
+def run_set(name: str, folder: Path, py: str | None, target=None, solved: dict | None = None) -> dict:
+    """The bench on a one-camera set (``target``: the board of a layout that names none, as --target)."""
+    ds = load_dataset(folder, target=target)
+    problem, detection, _ = detect_set(name, ds)
+    return evaluate_set(name, problem, py, detection, ds, solved)
+
+
+def evaluate_set(name: str, problem, py: str | None, detection: str, ds, solved: dict | None = None) -> dict:
+    """:func:`evaluate` of a one-camera ``problem`` with calibgraph's fits (``solved``: their cache)."""
+    cam = next(iter(problem.cameras))
+    return evaluate(name, problem, py, {m: (lambda train, f=f: f(cam, train))
+                                        for m, f in calibgraph_fits(problem, solved).items()}, detection, ds)
+
+
+def detect_set(name: str, ds) -> tuple:
+    """(problem, how its corners were found, '' or the line `calibgraph solve` refuses the set with): the
+    dataset detection as `calibgraph solve` runs it; where it refuses, calibgraph's image detector on each
+    image alone, and OpenCV's SB chessboard detector where that finds too few."""
+    detection, refused = DEFAULT_DETECTION, ""
     try:
         problem, _ = build_problem(ds, "joint", SolverOptions(), progress=False)
     except CalibgraphError as e:
+        refused = str(e).splitlines()[0]
         print(f"[{name}] dataset detection refused ({str(e).splitlines()[0]}); each image on its own", flush=True)
         problem = each_image(ds)
         detection = (f"calibgraph's image detector on each image alone (`calibgraph solve` refuses the set: "
@@ -430,18 +548,21 @@ def run_set(name: str, folder: Path, py: str | None) -> dict:
             detection = (f"OpenCV's findChessboardCornersSB (calibgraph refuses the set: {str(e).splitlines()[0]}; its "
                          f"image detector alone finds {found} of {len(ds.captures)} boards), the same corners for "
                          f"every method")
-    cam = next(iter(problem.cameras))
-    return evaluate(name, problem, py, {m: (lambda train, f=f: f(cam, train)) for m, f in calibgraph_fits(problem).items()},
-                    detection, ds)
+    return problem, detection, refused
 
 
-def run_multicam(name: str, folder: Path, py: str | None) -> list:
+def run_multicam(name: str, folder: Path, py: str | None, target=None, solved: dict | None = None) -> list:
     """One record per camera of a multi-camera set: calibgraph solves all cameras jointly on each
     split's train captures (every camera's views of them) and is scored on that camera's test
     views; the OpenCV methods calibrate that camera alone from its own train views."""
-    ds = load_dataset(folder)
+    ds = load_dataset(folder, target=target)
     problem, _ = build_problem(ds, "joint", SolverOptions(), progress=False)
-    fits = calibgraph_fits(problem)
+    return evaluate_multicam(name, problem, py, ds, solved)
+
+
+def evaluate_multicam(name: str, problem, py: str | None, ds, solved: dict | None = None) -> list:
+    """:func:`run_multicam`'s records of a multi-camera ``problem`` (``solved``: the fits' cache)."""
+    fits = calibgraph_fits(problem, solved)
     out = []
     for cam in problem.cameras:
         own = problem.with_(cameras={cam: problem.cameras[cam]},
@@ -462,13 +583,20 @@ def evaluate(name: str, problem, py: str | None, fits: dict, detection: str, ds)
     detected = sorted({d.capture for d in problem.detections})
     problem = subset(problem, set(detected))
     n = len(detected)
-    splits = make_splits(detected)
-    m = len(splits[0][0])
-    if n < 9:
+    if n < MIN_CAPTURES:
         return {"set": name, "skipped": f"{n} of {len(ds.captures)} images with the board found by {detection}: too few"}
+    # the split units are the configurations: a revisit of a joint target goes with it (identical splits without)
+    config = problem.configurations
+    n_units = len(units(detected, config))
+    splits = make_splits(detected, config) if n_units >= SMALL_SET else loo_splits(detected, config)
+    m = len(splits[0][0])
+    m_units = len(units(splits[0][0], config))
     out = {"set": name, "mode": problem.mode, "captures": len(ds.captures), "detected": n, "train": m, "detection": detection,
+           "configurations": n_units, "train_configurations": m_units,
            "intrinsics_given": next(iter(problem.cameras.values())).known,
            "joint_angles": any(c.q_rad is not None for c in ds.captures), "splits": []}
+    if is_loo(splits):
+        out["protocol"] = "leave-one-out"
     print(f"[{name}] {n} captures detected of {len(ds.captures)}, mode {problem.mode}", flush=True)
     cgs = {meth: [] for meth in fits}
     for train, test, label in splits:
@@ -504,6 +632,10 @@ def evaluate(name: str, problem, py: str | None, fits: dict, detection: str, ds)
         out["cross_method"] = {meth: {"deviation": deviation(mod["X"], full["X"]).tolist(),
                                       "z": (deviation(mod["X"], full["X"]) / np.sqrt(np.diag(full["cov"]))).tolist()}
                                for meth, mod in cv_full[0].items()}
+    if is_loo(splits):
+        out.update(loo_sigma(cgs, cv_models, full))
+        out["seconds"] = time.time() - t0
+        return out
     # spread and sigma
     rand = [i for i, (_, _, lab) in enumerate(splits) if lab.startswith("random")]
     halves = [i for i, (_, _, lab) in enumerate(splits) if lab.startswith("train ")]
@@ -517,9 +649,24 @@ def evaluate(name: str, problem, py: str | None, fits: dict, detection: str, ds)
         if all(Xs[i] is not None for i in rand):
             out["spread"][meth] = spread([Xs[i] for i in rand])
     if all("error" not in cg[i] for i in rand + halves):
-        out["calibgraph_sigma"] = split_sigma(cg, rand, halves, n, m, "cov")
-        out["calibgraph_sigma_redrawn"] = split_sigma(cg, rand, halves, n, m, "cov_redrawn")
+        out["calibgraph_sigma"] = split_sigma(cg, rand, halves, n_units, m_units, "cov")
+        out["calibgraph_sigma_redrawn"] = split_sigma(cg, rand, halves, n_units, m_units, "cov_redrawn")
     out["seconds"] = time.time() - t0
+    return out
+
+
+def loo_sigma(cgs: dict, cv_models: list, full: dict) -> dict:
+    """Leave-one-out's spread (per method, :func:`jackknife_spread`) and calibgraph's stated / observed
+    (:func:`jackknife_sigma`), over every split (a failed split leaves the method out)."""
+    out = {"spread": {}}
+    for meth in METHODS:
+        Xs = [(cgs[meth][i] if meth in cgs else cv.get(meth)) for i, cv in enumerate(cv_models)]
+        if all(x is not None and "error" not in x for x in Xs):
+            out["spread"][meth] = jackknife_spread([x["X"] for x in Xs])
+    cg = cgs["calibgraph"]
+    if all("error" not in c for c in cg):
+        out["calibgraph_sigma"] = jackknife_sigma(cg, full, "cov")
+        out["calibgraph_sigma_redrawn"] = jackknife_sigma(cg, full, "cov_redrawn")
     return out
 
 
@@ -621,17 +768,30 @@ def sim_markdown(recs: list) -> list:
 # report
 # ---------------------------------------------------------------------------------------------
 AXES = ("rx", "ry", "rz", "x", "y", "z")
+
+
 # with an honest 1-sigma, stated / observed is 1 / sqrt(chi2_dof / dof): its 95 % range over the six axes pooled
-# (6 x 5 dof) and how often one axis (5 dof) falls outside [0.6, 1.6]
-HONEST_POOLED = (1.0 / np.sqrt(chi2.ppf(0.975, 30) / 30), 1.0 / np.sqrt(chi2.ppf(0.025, 30) / 30))
-HONEST_AXIS_OUTSIDE = float(chi2.sf(5 / 0.6 ** 2, 5) + chi2.cdf(5 / 1.6 ** 2, 5))
+# (6 x dof) and how often one axis falls outside [0.6, 1.6] (dof 5 for the split protocol, n - 1 for leave-one-out)
+def honest_pooled(dof: int) -> tuple:
+    """The 95 % range of an honest 1-sigma's pooled stated / observed over six axes of ``dof`` each."""
+    k = 6 * dof
+    return 1.0 / np.sqrt(chi2.ppf(0.975, k) / k), 1.0 / np.sqrt(chi2.ppf(0.025, k) / k)
+
+
+def honest_axis_outside(dof: int) -> float:
+    """How often one axis's stated / observed (``dof``) of an honest 1-sigma falls outside [0.6, 1.6]."""
+    return float(chi2.sf(dof / 0.6 ** 2, dof) + chi2.cdf(dof / 1.6 ** 2, dof))
+
 
 
 def table(rec: dict) -> list:
     meths = [m for m in METHODS if all(m in s["scores"] for s in rec["splits"])]
     cg = [s["scores"].get("calibgraph", {}).get("rms_px") for s in rec["splits"]]
-    L = ["| method | held-out RMS, px (mean of 7 splits) | per split, px | mm at the board | calibgraph better on | "
-         "hand-eye spread (5 random), mm / deg |",
+    loo = rec.get("protocol") == "leave-one-out"
+    spread_head = (f"hand-eye jackknife SE ({len(rec['splits'])} leave-one-out), mm / deg" if loo else
+                   "hand-eye spread (5 random), mm / deg")
+    L = [f"| method | held-out RMS, px (mean of {len(rec['splits'])} splits) | per split, px | mm at the board | "
+         f"calibgraph better on | {spread_head} |",
          "|---|---|---|---|---|---|"]
     best_peer = None
     for meth in meths:
@@ -654,9 +814,15 @@ SCALE = np.array([np.degrees(1)] * 3 + [1e3] * 3)  # rad, m -> deg, mm
 def sigma_table(s: dict, r: dict | None) -> list:
     """The stated 1-sigma (``s``) and its redrawn part (``r``, may be None) against the split scatter."""
     stated, obs = np.array(s["stated_sigma_m"]), np.array(s["observed_sigma_m"])
-    L = ["calibgraph's stated 1-sigma of a train-set solve against the split-to-split scatter (overlap "
-         f"corrected, pooled over the random splits and the halves, {s['dof']} dof), per axis (rot deg, trans mm). "
-         "*Redrawn* is the part of the 1-sigma a new set of captures redraws (the corners' and the robot's noise, "
+    if s.get("protocol") == "jackknife":
+        first = ("calibgraph's stated 1-sigma of the all-capture solve against the jackknife's estimate of its scatter "
+                 f"from the {s['dof'] + 1} leave-one-out solves ((n - 1) / n * sum (theta_i - theta_bar)^2, about "
+                 f"{s['dof']} dof), per axis (rot deg, trans mm). ")
+    else:
+        first = ("calibgraph's stated 1-sigma of a train-set solve against the split-to-split scatter (overlap "
+                 f"corrected, pooled over the random splits and the halves, {s['dof']} dof), per axis (rot deg, trans mm). ")
+    lo, hi = honest_pooled(s["dof"])
+    L = [first + "*Redrawn* is the part of the 1-sigma a new set of captures redraws (the corners' and the robot's noise, "
          "`error_budget.covariance_by_noise_source`): the intrinsics' and the board scale's priors are the same in "
          "every split and cannot show in their scatter.", "",
          "| | " + " | ".join(AXES) + " | pooled |", "|---" * 8 + "|",
@@ -668,8 +834,8 @@ def sigma_table(s: dict, r: dict | None) -> list:
     if r:
         L.append("| redrawn / observed | " + " | ".join(f"{x:.2f}" for x in r["ratio"]) + f" | **{r['ratio_pooled']:.2f}** |")
     L += ["", f"Pooled: the observed scatter's RMS in stated 1-sigma over the six axes (about {6 * s['dof']} dof); an "
-          f"honest 1-sigma lands in {HONEST_POOLED[0]:.2f}-{HONEST_POOLED[1]:.2f} 95 % of the time, one axis alone "
-          f"(5 dof) outside [0.6, 1.6] {100 * HONEST_AXIS_OUTSIDE:.0f} % of the time. Whether the split scatter is "
+          f"honest 1-sigma lands in {lo:.2f}-{hi:.2f} 95 % of the time, one axis alone "
+          f"({s['dof']} dof) outside [0.6, 1.6] {100 * honest_axis_outside(s['dof']):.0f} % of the time. Whether the split scatter is "
           "the measure to meet where the arm's error repeats from pose to pose: the simulated control below."]
     return L
 
@@ -690,8 +856,9 @@ def markdown(results: list, meta: dict) -> str:
         if "skipped" in rec:
             L += [f"## {rec['set']}: skipped", "", rec["skipped"], ""]
             continue
+        loo = ", leave-one-out" if rec.get("protocol") == "leave-one-out" else ""
         L += [f"## {rec['set']} ({rec['mode']}, {rec['detected']} captures with the board of {rec['captures']}, "
-              f"train {rec['train']}; intrinsics {'given' if rec['intrinsics_given'] else 'unknown'})", ""]
+              f"train {rec['train']}{loo}; intrinsics {'given' if rec['intrinsics_given'] else 'unknown'})", ""]
         L += [f"Corners: {rec['detection']}.", ""] + table(rec)
         fa = rec["fit_all"]
         L += ["", f"- Fit on all captures, its predictions from the reported poses scored on the same captures: "
@@ -702,7 +869,7 @@ def markdown(results: list, meta: dict) -> str:
         if p and exp:
             got_px = [s["scores"]["calibgraph"]["rms_px"] for s in rec["splits"]]
             got_mm = [s["scores"]["calibgraph"]["rms_mm"] for s in rec["splits"]]
-            L.append(f"- calibgraph's expected held-out error (`prediction`, no test data), RMS over the 7 train solves: "
+            L.append(f"- calibgraph's expected held-out error (`prediction`, no test data), RMS over the {len(exp)} train solves: "
                      f"{np.sqrt(np.mean([e['expected_rms_px'] ** 2 for e in exp])):.3f} px, "
                      f"{np.sqrt(np.mean([e['expected_rms_mm'] ** 2 for e in exp])):.3f} mm at the board; measured "
                      f"{np.sqrt(np.mean(np.square(got_px))):.3f} px / {np.sqrt(np.mean(np.square(got_mm))):.3f} mm "
@@ -754,7 +921,7 @@ def markdown(results: list, meta: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--sets", default="kuka_1,kuka_2,kuka_3,ic_10x10,ic_charuco,mchec")
+    ap.add_argument("--sets", default="kuka_1,kuka_2,kuka_3,ic_10x10,ic_charuco,mchec,visp_2022,visp_2025")
     ap.add_argument("--out", type=Path, default=REPO / "scripts" / "results")
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_heldout"), help="extracted sets and the OpenCV venv")
     ap.add_argument("--rwhe", type=Path, default=MIRROR / "ihtishamaliktk+RWHE-Calib" / "repo")
@@ -808,7 +975,7 @@ def main(argv=None) -> int:
     if subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no", "--", ".",
                        ":!scripts/results"], capture_output=True, text=True).stdout.strip():  # code, not earlier figures
         commit += " (with uncommitted changes)"
-    meta = {"argv": " ".join(sys.argv[1:]), "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+    meta = {"argv": shlex.join(sys.argv[1:]), "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
             "cv2_version": next((r.get("cv2_version") for r in results if r.get("cv2_version")), ""), "sim_control": sim}
     md = markdown(results, meta)
     stem = "bench_heldout" + (f"_{args.tag}" if args.tag else "")

@@ -12,7 +12,8 @@ first calibration). Two users hold the board:
 - ``random``: ignores the hints (a random walk over planned poses at 0.3-1 m).
 
 Cameras: ``cell`` is the default workcell's cam0 exactly as the command opens it (an L515 1920x1080,
-factory-class intrinsics reported, the workcell's sensor model, 10 frames a second); ``small`` (a D455 at
+factory-class intrinsics reported, the workcell's sensor model, 10 frames a second; seed 1 is the
+command's own draw); ``small`` (a D455 at
 half resolution, 640x400, with distortion) and ``l515`` (1920x1080 with distortion) report factory-class
 intrinsics (focal length 0.6 % off, no distortion), at 5 frames a second. Printed and saved per seed: frames
 read, views taken and used, the goal and the notes that set it, fx 1-sigma reached, the true fx / fy / cx /
@@ -57,8 +58,9 @@ def device(kind: str, seed: int, guided: bool):
         spec = read_workcell(REPO / "datasets" / "workcells" / "default.yaml")
         cell = workcell_from_dict(spec.sim_world(), spec.where)
         true = cell.camera("cam0").intrinsics
+        # seed 1 is the command's own session (the cell's seed and the camera's name), seed k the cell's seed + k - 1
         cam = HandheldBoardCamera("cam0", true, cell.target, reported=cell.reported_intrinsics("cam0"),
-                                  realism=cell.realism, seed=cell.seed + seed - 1, **_user(guided))
+                                  realism=cell.realism, seed=_cell_seed(cell.seed + seed - 1), **_user(guided))
         return cam, true, cell.target, 10.0
     p = preset("d455" if kind == "small" else "l515")
     K = p.K.copy()
@@ -70,6 +72,16 @@ def device(kind: str, seed: int, guided: bool):
     board = board_by_name("a4_54")
     return HandheldBoardCamera("cam", true, board, reported=reported, fps=5.0, seed=seed, **_user(guided)), \
         true, board, 5.0
+
+
+def _cell_seed(seed: int) -> int:
+    """cam0's hand-held board seed in a cell seeded ``seed``, as ``intrinsics --live`` draws it (issue 46: each
+    camera its own); a calibgraph from before that gave every camera the cell's seed."""
+    try:
+        from calibgraph.sim.handheld import camera_seed
+    except ImportError:
+        return seed
+    return camera_seed(seed, "cam0")
 
 
 def _user(guided: bool) -> dict:

@@ -4,20 +4,24 @@ In a scratch folder (``MUJOCO_GL=egl``), exactly as the README writes them:
 
     calibgraph sim --workcell datasets/workcells/default.yaml --poses 30 --out tour_ds
     calibgraph solve tour_ds
+    calibgraph check tour_ds
     calibgraph demo --out demo_out
     calibgraph demo --auto --out demo_auto
 
 then, per camera, against each run's ``ground_truth.json``: the true error (mm), the 1σ norm (mm),
-error / 1σ and the focal length as reported and as estimated against the truth (%, ± 1σ).
+error / 1σ, the Mahalanobis² of the 6-dof error and its chi-square p (as ``calibgraph check`` prints
+them) and the focal length as reported and as estimated against the truth (%, ± 1σ).
 Intrinsics: **factory-class**, as the simulated cameras report them (the default; no oracle figure
 here: the oracle's are in docs/accuracy.md's benchmark tables).
 
 Writes scripts/results/tour_figures.json (every figure, each command's console output, wall times)
 and scripts/results/tour_figures.md (the tables as README.md and docs/accuracy.md print them);
-tests/test_docs_recipes.py checks the numbers in the docs against the saved file. One seeded run on a
-shared machine: the errors are one draw, the wall times the machine's load.
+tests/test_docs_recipes.py checks the numbers in the docs against the saved file, and
+tests/test_tour_figures.py that a fresh install's tour still gives them. One seeded run on a shared
+machine: the errors are one draw, the wall times the machine's load. Run it with the pinned versions
+(``pip install -e ".[all]" -c constraints.txt``); it warns when they are not installed.
 
-    python scripts/tour_figures.py [--out scripts/results] [--work DIR]
+    python scripts/tour_figures.py [--out scripts/results] [--work DIR] [--freeze-constraints]
 """
 
 from __future__ import annotations
@@ -37,15 +41,20 @@ REPO = Path(__file__).resolve().parents[1]
 COMMANDS = {
     "sim": "calibgraph sim --workcell datasets/workcells/default.yaml --poses 30 --out tour_ds",
     "solve": "calibgraph solve tour_ds",
+    "check": "calibgraph check tour_ds",
     "demo": "calibgraph demo --out demo_out",
     "demo_auto": "calibgraph demo --auto --out demo_auto",
 }
 
 
-def run(cmd: str, cwd: Path) -> dict:
+# the tour on a machine without system GL: the same commands, rendered by calibgraph's own rasteriser
+RASTER = {"sim": COMMANDS["sim"].replace("tour_ds", "tour_raster"), "solve": "calibgraph solve tour_raster"}
+
+
+def run(cmd: str, cwd: Path, **env_extra) -> dict:
     """Run ``cmd`` (the calibgraph of this checkout) in ``cwd``: exit code, output, wall time."""
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"),
-               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]), **env_extra)
     argv = [sys.executable, "-m", "calibgraph", *cmd.split()[1:]]
     t0 = time.monotonic()
     p = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True)
@@ -57,43 +66,134 @@ def run(cmd: str, cwd: Path) -> dict:
 
 
 def camera_figures(result_path: Path, dataset: Path) -> dict:
-    """camera -> figures of one solved run against its ground truth."""
-    from calibgraph.core.transforms import pose_error
+    """camera -> figures of one solved run against its ground truth: what ``calibgraph check`` prints."""
     from calibgraph.io.ground_truth import load_ground_truth
+    from calibgraph.report.truth import check_against_truth
     from calibgraph.solver.result import load_result
 
-    r, gt = load_result(result_path), load_ground_truth(dataset)
+    r = load_result(result_path)
     out = {}
-    for n, c in r.calibrated.items():
-        e_m, e_deg = pose_error(c.T_ref_cam, gt["T_base_cam"][n])
-        s = float(np.linalg.norm(c.sigma_translation_mm))
-        fx_true = float(gt["intrinsics_true"][n].K[0, 0])
-        rec = c.intrinsics or {}
-        fx_est = float(np.asarray(rec["K"])[0][0]) if "K" in rec else None
-        fx_given = (rec.get("given") or {}).get("fx", fx_est)
-        fx_sigma = (rec.get("sigma") or {}).get("fx")
-        out[n] = {
-            "error_mm": round(e_m * 1e3, 3), "error_deg": round(e_deg, 4), "sigma_norm_mm": round(s, 3),
-            "error_over_sigma": round(e_m * 1e3 / s, 2), "views": c.views_used,
-            "fx_reported_pct": None if fx_given is None else round(100 * (fx_given / fx_true - 1), 2),
-            "fx_estimated_pct": None if fx_est is None else round(100 * (fx_est / fx_true - 1), 3),
-            "fx_sigma_pct": None if fx_sigma is None else round(100 * fx_sigma / fx_true, 3),
+    for row in check_against_truth(r, load_ground_truth(dataset)):
+        if row.status not in ("inside", "outside"):
+            continue
+        c = r.cameras[row.name]
+        out[row.name] = {
+            "error_mm": round(row.error_mm, 3), "error_deg": round(row.error_deg, 4),
+            "sigma_norm_mm": round(row.sigma_norm_mm, 3), "error_over_sigma": round(row.error_over_sigma, 2),
+            "mahalanobis2": round(row.mahalanobis2, 2), "p_value": round(row.p_value, 3), "views": c.views_used,
+            "fx_reported_pct": None if row.fx_given_pct is None else round(row.fx_given_pct, 2),
+            "fx_estimated_pct": None if row.fx_solved_pct is None else round(row.fx_solved_pct, 3),
+            "fx_sigma_pct": None if row.fx_sigma_pct is None else round(row.fx_sigma_pct, 3),
             "advice": (c.error_budget or {}).get("advice", ""),
         }
     return out
+
+
+def run_figures(result_path: Path) -> dict:
+    """The run-level figures the README prints beside the table: rejected corners, the pixel sigma."""
+    from calibgraph.solver.result import load_result
+
+    r = load_result(result_path)
+    return {"rejected_corners": len(r.rejected_corners), "pixel_sigma_px": round(float(r.pixel_sigma_px), 4)}
+
+
+CONSTRAINTS = REPO / "constraints.txt"
+# the packages whose versions move the figures (rendering, detection, linear algebra, the solver)
+KEY_PACKAGES = ("gtsam", "numpy", "opencv-python-headless", "mujoco", "scipy", "PyYAML")
+
+
+def installed_versions(names=KEY_PACKAGES) -> dict:
+    import importlib.metadata as md
+
+    out = {}
+    for n in names:
+        try:
+            out[n] = md.version(n)
+        except md.PackageNotFoundError:
+            out[n] = None
+    return out
+
+
+def pinned_versions(path: Path = CONSTRAINTS) -> dict:
+    """name -> version of the pins of ``constraints.txt`` that apply to this Python."""
+    import re
+
+    from packaging.markers import Marker
+
+    out = {}
+    for line in path.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        spec, _, marker = line.partition(";")
+        if marker.strip() and not Marker(marker.strip()).evaluate():
+            continue
+        name, _, ver = spec.partition("==")
+        out[re.sub(r"[-_.]+", "-", name.strip()).lower()] = ver.strip()
+    return out
+
+
+def version_drift() -> list:
+    """'numpy 2.3.0 (constraints.txt: 2.4.6)' for each key package installed at another version than pinned."""
+    import re
+
+    pins = pinned_versions()
+    out = []
+    for n, v in installed_versions().items():
+        want = pins.get(re.sub(r"[-_.]+", "-", n).lower())
+        if want is not None and v != want:
+            out.append(f"{n} {v} (constraints.txt: {want})")
+    return out
+
+
+def freeze_constraints(path: Path = CONSTRAINTS) -> int:
+    """Write ``constraints.txt``: the installed version of every package of calibgraph[all]'s dependency closure."""
+    import importlib.metadata as md
+    import re
+
+    from packaging.markers import default_environment
+    from packaging.requirements import Requirement
+
+    env, seen = default_environment(), {}
+
+    def visit(name, extras=()):
+        key = re.sub(r"[-_.]+", "-", name).lower()
+        if key in seen:
+            return
+        try:
+            dist = md.distribution(name)
+        except md.PackageNotFoundError:
+            return
+        seen[key] = (dist.metadata["Name"], dist.version, (dist.metadata.get("Requires-Python") or "").replace(" ", ""))
+        for r in dist.requires or []:
+            req = Requirement(r)
+            if req.marker is None or any(req.marker.evaluate(dict(env, extra=e)) for e in (*extras, "")):
+                visit(req.name, tuple(req.extras))
+
+    visit("calibgraph", ("all", "sim", "realsense", "franka", "viz", "ros2", "rosbag", "test"))
+    head = [line for line in path.read_text().splitlines() if line.startswith("#")] if path.exists() else []
+    pins = [f"{n}=={v}" + ('; python_version >= "3.11"' if rp.startswith(">=3.11") else "")
+            for k, (n, v, rp) in sorted(seen.items()) if k not in ("calibgraph", "setuptools", "pip")]
+    path.write_text("\n".join(head + pins) + "\n")
+    return len(pins)
 
 
 def _pct(x, digits) -> str:
     return f"{x:+.{digits}f} %".replace("-", "−")
 
 
+TOUR_HEADER = ("| camera | true error mm | 1σ norm mm | error / 1σ | Mahalanobis² (p) | "
+               "fx as reported → as estimated, against the truth |")
+
+
 def tour_rows(figs: dict) -> list:
-    """The README's tour table rows."""
+    """The README's tour table rows (what ``calibgraph check tour_ds`` prints, as a table)."""
     rows = []
     for n, f in figs.items():
         fx = (f"{_pct(f['fx_reported_pct'], 2)} → {_pct(f['fx_estimated_pct'], 3)} ± {f['fx_sigma_pct']:.3f} %"
               if f["fx_sigma_pct"] is not None else "held")
-        rows.append(f"| {n} | {f['error_mm']:.3f} | {f['sigma_norm_mm']:.3f} | {f['error_over_sigma']:.2f} | {fx} |")
+        rows.append(f"| {n} | {f['error_mm']:.3f} | {f['sigma_norm_mm']:.3f} | {f['error_over_sigma']:.2f} | "
+                    f"{f['mahalanobis2']:.2f} ({f['p_value']:.2f}) | {fx} |")
     return rows
 
 
@@ -114,11 +214,20 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, default=REPO / "scripts" / "results")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a new temporary one)")
+    ap.add_argument("--freeze-constraints", action="store_true",
+                    help="rewrite constraints.txt from the installed versions first (after a deliberate upgrade)")
     a = ap.parse_args()
+    if a.freeze_constraints:
+        print(f"wrote {CONSTRAINTS}: {freeze_constraints()} pins")
+    drift = version_drift()
+    if drift:
+        print("warning: installed versions differ from constraints.txt (the figures will not be the pinned ones): "
+              + ", ".join(drift), file=sys.stderr)
     work = a.work or Path(tempfile.mkdtemp(prefix="tour_figures_"))
     work.mkdir(parents=True, exist_ok=True)
     (work / "datasets").is_symlink() or (work / "datasets").symlink_to(REPO / "datasets")
-    runs = {k: run(cmd, work) for k, cmd in COMMANDS.items()}
+    runs = {k: run(cmd, work, CALIBGRAPH_RENDERER="mujoco") for k, cmd in COMMANDS.items()}  # the figures: GL-rendered
+    runs.update({f"raster_{k}": run(cmd, work, CALIBGRAPH_RENDERER="raster") for k, cmd in RASTER.items()})
     data = {
         "what": "the README's tour and the demo, run as written; factory-class intrinsics (as the simulated cameras "
                 "report them); one seeded run each",
@@ -126,12 +235,18 @@ def main() -> None:
                                  text=True).stdout.strip(),
         "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
         "load_average": os.getloadavg()[0],
+        "python": sys.version.split()[0],
+        "versions": installed_versions(),
+        "versions_match_constraints": not drift,
         "runs": runs,
         "tour": camera_figures(work / "tour_ds" / "result.json", work / "tour_ds"),
         "demo": camera_figures(work / "demo_out" / "result.json", work / "demo_out" / "dataset"),
         "demo_auto": camera_figures(work / "demo_auto" / "result.json", work / "demo_auto" / "dataset"),
     }
     data["demo_auto_captures"] = _captures(runs["demo_auto"]["stdout"])
+    data["tour_run"] = run_figures(work / "tour_ds" / "result.json")
+    data["tour_raster"] = camera_figures(work / "tour_raster" / "result.json", work / "tour_raster")
+    data["tour_raster_run"] = run_figures(work / "tour_raster" / "result.json")
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "tour_figures.json").write_text(json.dumps(data, indent=1, ensure_ascii=False) + "\n")
     md = [
@@ -140,17 +255,38 @@ def main() -> None:
         f"{data['date_utc']} UTC, calibgraph {data['commit']}, load average {data['load_average']:.1f} on 2 cores. "
         "Intrinsics: **factory-class**, as the simulated cameras report them. One seeded run each.",
         "",
+        f"Made with Python {data['python']}, " + ", ".join(f"{k} {v}" for k, v in data["versions"].items())
+        + (" (the pins of constraints.txt)" if not drift else " (NOT the pins of constraints.txt: " + ", ".join(drift) + ")")
+        + ", MUJOCO_GL=" + os.environ.get("MUJOCO_GL", "egl") + ".",
+        "",
         "## README tour: `" + COMMANDS["sim"] + "`, then `" + COMMANDS["solve"] + "`",
         "",
-        "| camera | true error mm | 1σ norm mm | error / 1σ | fx as reported → as estimated, against the truth |",
-        "|---|---|---|---|---|",
+        TOUR_HEADER,
+        "|---|---|---|---|---|---|",
         *tour_rows(data["tour"]),
+        "",
+        f"rejected corners {data['tour_run']['rejected_corners']}, pixel sigma {data['tour_run']['pixel_sigma_px']} px",
         "",
         "`calibgraph solve tour_ds` printed:",
         "",
         "```",
         *runs["solve"]["stdout"].rstrip().splitlines(),
         "```",
+        "",
+        f"`{COMMANDS['check']}` printed (exit {runs['check']['exit']}):",
+        "",
+        "```",
+        *runs["check"]["stdout"].rstrip().splitlines(),
+        "```",
+        "",
+        "## The same tour without system GL (`CALIBGRAPH_RENDERER=raster`: calibgraph's built-in rasteriser)",
+        "",
+        TOUR_HEADER,
+        "|---|---|---|---|---|---|",
+        *tour_rows(data["tour_raster"]),
+        "",
+        f"rejected corners {data['tour_raster_run']['rejected_corners']}, pixel sigma "
+        f"{data['tour_raster_run']['pixel_sigma_px']} px",
         "",
         f"## `{COMMANDS['demo']}` ({runs['demo']['wall_s']:.0f} s wall)",
         "",

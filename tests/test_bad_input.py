@@ -77,9 +77,14 @@ def _run(argv) -> tuple:
     return rc, out.getvalue(), err.getvalue()
 
 
-def _said(err: str, out: str) -> str:
-    lines = ([ln for ln in (err + "\n" + out).splitlines() if "error:" in ln]
-             or [ln for ln in (err + "\n" + out).splitlines() if "warning" in ln])
+def _said(err: str, out: str, cause=()) -> str:
+    """The line of calibgraph's output the table shows: the error, else the line naming the case's first
+    cause (a note, say), else a warning, else the last line."""
+    first = ([cause] if isinstance(cause, str) else list(cause))[:1]
+    every = (err + "\n" + out).splitlines()
+    lines = ([ln for ln in every if "error:" in ln]
+             or [ln for ln in every if first and first[0].lower() in ln.lower()]
+             or [ln for ln in every if "warning" in ln])
     return (lines[0] if lines else (err or out).strip().splitlines()[-1] if (err or out).strip() else "").strip()
 
 
@@ -89,7 +94,7 @@ def check(case, argv, rc, cause, watch=(), tmp=None, new_ok=()):
     before = _hashes(*watch)
     got, out, err = _run(argv)
     text = out + err
-    ROWS.append((case, got, _said(err, out)))
+    ROWS.append((case, got, _said(err, out, cause)))
     assert got == rc, f"{case}: exit {got}, wanted {rc}\n{text}"
     assert "Traceback" not in text, text
     for c in ([cause] if isinstance(cause, str) else cause):
@@ -185,7 +190,7 @@ def _arg_cases(base):
         ("verify: result does not exist", ["verify", "--result", base / "nope.json", ds], 2, "nope.json"),
         ("verify: result is not a result", ["verify", "--result", spec, ds], 2, "not a calibgraph result"),
         ("verify: dataset does not exist", ["verify", "--result", res, base / "nope"], 2, "nope"),
-        ("import: no format", ["import"], 2, "required: format, bag, --out"),
+        ("import: no format", ["import"], 2, "required: FORMAT"),
         ("import: --format bogus", ["import", "rosbag1", base / "bag", "--out", base / "x"], 2, "invalid choice"),
         ("import rosbag2: bag does not exist", ["import", "rosbag2", base / "nobag", "--out", base / "x"], 2,
          "no such bag"),
@@ -1201,3 +1206,206 @@ def test_i34_intrinsics_of_a_board_never_tilted_warns_and_keeps_its_views(tmp_pa
     assert '"rejected": {}' in found and '"max_tilt_deg": ' in found
     # the true tilts are under 2 deg; the fitted poses carry their own noise (about a degree at 0.8 m)
     assert max(float(v) for v in re.findall(r'"max_tilt_deg": ([0-9.]+)', found)) < 4.0
+
+
+# == issue 46: forced options checked as the default checks them; older formats; output paths the file
+# system cannot hold; a hand-edited report. Each case: exit code, the cause named, every user file
+# unchanged (SHA-256).
+# ======================================================================================================
+def _kinematic_dataset(root: Path, angles: str, n_poses: int = 20) -> Path:
+    """An FR3 cell whose joint 4 is 5 mrad off (issue 46's), its captures' joint angles as recorded
+    (``angles='rad'``), in degrees (``'deg'``) or with 0.02 rad of noise per joint (``'noisy'``)."""
+    from dataclasses import replace
+
+    from calibgraph.sim.kinematic_scene import make_kinematic_scene
+
+    o = np.zeros(7)
+    o[3] = 5e-3
+    p = make_kinematic_scene(o, n_poses=n_poses, seed=1, pixel_sigma_px=0.1)[0].problem
+    rng = np.random.default_rng(5)
+    q = {"rad": lambda c: c.q_rad, "deg": lambda c: np.degrees(c.q_rad),
+         "noisy": lambda c: c.q_rad + rng.normal(scale=0.02, size=c.q_rad.size)}[angles]
+    return write_sim_dataset(root, p.with_(captures=tuple(replace(c, q_rad=q(c)) for c in p.captures)))
+
+
+def test_i46_forced_joint_offsets_check_the_angles_as_auto_does(tmp_path):
+    """Cases 1-3: forced offsets on angles in degrees (was exit 0, every offset 0, cameras 6 sigma off) or on
+    noisy angles (was exit 0, offsets of tens of mrad) are refused before detection, naming the mismatch;
+    the default names the degrees too (was silent at 20 poses), and keeps the per-pose model."""
+    deg, noisy = _kinematic_dataset(tmp_path / "deg", "deg"), _kinematic_dataset(tmp_path / "noisy", "noisy")
+    watch = [deg, noisy]
+    out = tmp_path / "r.json"
+    check("solve --estimate-kinematics joint-offsets: joint angles recorded in degrees",
+          ["solve", deg, "--estimate-kinematics", "joint-offsets", "--out", out], 2,
+          ["--estimate-kinematics joint-offsets:", "mm /", "deg from the recorded ones", "degrees?",
+           "record q_rad in radians", "--estimate-kinematics none", "nothing was written"], watch=watch, tmp=tmp_path)
+    text = check("solve --estimate-kinematics joint-offsets: joint angles that do not give the poses (0.02 rad noise)",
+                 ["solve", noisy, "--estimate-kinematics", "joint-offsets", "--out", out], 2,
+                 ["deg from the recorded ones", "--kinematic-model", "--estimate-kinematics none"], watch=watch,
+                 tmp=tmp_path)
+    assert "degrees?" not in text and not out.exists()
+    check("solve (default): joint angles recorded in degrees, 20 poses",
+          ["solve", deg, "--out", out], 0,
+          ["deg from the recorded ones", "degrees?", "record q_rad in radians", "per-pose FK model is kept"],
+          watch=watch, tmp=tmp_path,
+          new_ok=[out])
+    r = json.loads(out.read_text())
+    assert r["solver"]["settings"]["kinematics_used"] == "none" and not r.get("robot")
+    assert r["solver"]["settings"]["kinematics_selection"]["tried"] is False
+    assert "degrees?" in r["solver"]["settings"]["kinematics_selection"]["why_not"]
+
+
+def test_i46_the_arm_as_stated_is_recorded_in_kinematics_selection(base, tmp_path):
+    """Smaller 2: auto keeping the per-pose model said nothing where the selection did not run."""
+    from calibgraph.sim.kinematic_scene import make_kinematic_scene
+    from calibgraph.solver.kinematics_select import AS_STATED, NO_ANGLES
+
+    ds = write_sim_dataset(tmp_path / "ds", make_kinematic_scene(None, n_poses=20, seed=1, pixel_sigma_px=0.1)[0].problem)
+    out = tmp_path / "r.json"
+    check("solve (default): an arm as stated, joint angles recorded", ["solve", ds, "--out", out, "--quiet"], 0, [],
+          watch=[ds], tmp=tmp_path, new_ok=[out])
+    assert json.loads(out.read_text())["solver"]["settings"]["kinematics_selection"] == {"tried": False, "why_not": AS_STATED}
+    sel = json.loads((base / "ds" / "result.json").read_text())["solver"]["settings"]["kinematics_selection"]
+    assert sel == {"tried": False, "why_not": NO_ANGLES}  # base's captures record no joint angles
+
+
+def _intrinsics_dataset(root: Path, pitch_factor: float = 1.0) -> Path:
+    """Two L515 at 1.5 m, 20 poses, factory-class reported intrinsics labelled as a calibration file's
+    (the default finds cam0's fx +0.36 %, cx +5.8 px from them); the pitch declared ``pitch_factor`` x."""
+    from dataclasses import replace
+
+    from calibgraph.sim.synthetic_corners import ring_cameras
+
+    sc = make_scene(cameras=ring_cameras([1.5] * 2, presets=("l515",)), n_poses=20, pixel_sigma_px=0.1,
+                    fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01), seed=1,
+                    workspace_half_extent_m=(0.4, 0.4, 0.4))
+    p = sc.problem.with_(cameras={n: replace(c, source="calibration") for n, c in sc.problem.cameras.items()})
+    ds = write_sim_dataset(root, p)
+    if pitch_factor != 1.0:
+        _edit_yaml(ds, lambda y: y["target"].update(pitch_m=y["target"]["pitch_m"] * pitch_factor))
+    return ds
+
+
+def test_i46_forced_intrinsics_and_board_scale_still_say_what_the_data_reject(tmp_path):
+    """--fixed-intrinsics, --fixed-board-scale, --method single and --intrinsics keep the user's choice, but
+    what the default says of the data is said too (was: silence, or the misfit put on the robot)."""
+    ds = _intrinsics_dataset(tmp_path / "ds")
+    pitch = _intrinsics_dataset(tmp_path / "pitch", 1.01)
+    import yaml as _y
+
+    c = dict(_y.safe_load((ds / "dataset.yaml").read_text())["cameras"]["cam0"], source="calibration",
+             covariance=np.diag([0.25, 0.25, 0.25, 0.25, 1e-4, 1e-4]).tolist(),
+             covariance_order=["fx", "fy", "cx", "cy", "k1", "k2"])
+    from calibgraph.io.camera_file import write_camera_file
+
+    cam = write_camera_file(tmp_path / "cam0.yaml", c)  # the dataset's cam0, claimed to 0.5 px
+    watch = [ds, pitch, cam]
+    out = tmp_path / "r.json"
+    for case, argv, said in (
+            ("solve --fixed-intrinsics: intrinsics the data reject",
+             ["solve", ds, "--fixed-intrinsics"], ["camera cam0: --fixed-intrinsics holds its given intrinsics, but its "
+                                                   "views reject them", "fx +0.", "cx +6"]),
+            ("solve (default): the same intrinsics", ["solve", ds], ["camera cam0: focal length estimated +0.3",
+                                                                     "principal point cx estimated +5"]),
+            ("solve --fixed-board-scale: a board 1 % off its declared pitch",
+             ["solve", pitch, "--fixed-board-scale"], ["--fixed-board-scale holds the declared size", "-0.9"]),
+            ("solve (default): the same board", ["solve", pitch], ["the board is -0.9", "the size the target spec declares"]),
+            ("solve --method single: a board 1 % off its declared pitch",
+             ["solve", pitch, "--method", "single"], ["camera cam0 (its own graph, --method single): the board is -0.9"]),
+            ("solve --intrinsics: a camera file the data reject",
+             ["solve", ds, "--intrinsics", f"cam0={cam}"], ["camera cam0: its given (calibration) intrinsics do not fit its images",
+                                                            "the data disagree with its given (calibration) intrinsics",
+                                                            "estimated with a wide prior"]),
+            ("solve --method single --intrinsics: a camera file the data reject",
+             ["solve", ds, "--method", "single", "--intrinsics", f"cam0={cam}"],
+             ["camera cam0", "the data disagree with its given (calibration) intrinsics"])):
+        check(case, [*argv, "--out", out], 0, said, watch=watch, tmp=tmp_path, new_ok=[out])
+    held = json.loads(out.read_text())
+    assert held["cameras"]["cam0"]["intrinsics"]["source_used"] == "wide"
+
+
+def test_i46_results_and_datasets_of_an_older_format_say_so(base, tmp_path):
+    """Case 6: a calibgraph-result/0 file was called newer than this calibgraph, with 'upgrade'."""
+    res = json.loads((base / "ds" / "result.json").read_text())
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({**res, "format": "calibgraph-result/0"}))
+    watch = [old, base / "ds"]
+    for cmd in (["report", old, "--out", tmp_path / "r.html"], ["export", old, "--format", "json", "--out", tmp_path / "e"],
+                ["view", old, "--rrd", tmp_path / "v.rrd"], ["verify", "--result", old, base / "ds", "--verdict",
+                                                             tmp_path / "v.json"]):
+        text = check(f"{cmd[0]}: result of an older format (calibgraph-result/0)", cmd, 2,
+                     ["'calibgraph-result/0' is older than the one this calibgraph reads", "solve its dataset again",
+                      f"calibgraph solve {res['dataset']}"], watch=watch, tmp=tmp_path)
+        assert "newer" not in text and "upgrade" not in text
+    ds = tmp_path / "ds"
+    shutil.copytree(base / "ds", ds)
+    _edit_yaml(ds, lambda y: y.update(format="calibgraph-dataset/0"))
+    check("solve: dataset of an older format (calibgraph-dataset/0)", ["solve", ds, "--out", tmp_path / "r.json"], 2,
+          ["'calibgraph-dataset/0' is older than the one this calibgraph reads", "docs/formats.md"], watch=[ds])
+    assert not any((tmp_path / n).exists() for n in ("r.html", "e", "v.rrd", "v.json", "r.json"))
+
+
+def test_i46_output_paths_the_file_system_cannot_hold_are_refused_before_any_work(ds, tmp_path):
+    """Cases 7-9: a valid 250-byte --out name failed after the solve (its temporary's name passed 255 bytes)
+    with an OSError traceback, so did a 5,000-character path; a symlink loop gave a RuntimeError traceback;
+    --out /proc/self/fd/1 on a pipe was refused only after the solve. One camera of the dataset never
+    sees the board here, which only the solve finds (exit 3): a refusal naming the path comes before it."""
+    out = tmp_path / ("r" * 245 + ".json")  # 250 bytes: the file system's limit is 255
+    check("solve --out a 250-byte file name", ["solve", ds, "--out", out, "--quiet"], 0, [], watch=[ds], tmp=tmp_path,
+          new_ok=[out])
+    first = out.read_bytes()
+    assert json.loads(first)["format"] == "calibgraph-result/1" and not list(tmp_path.glob(".*"))
+    check("solve --out the same 250-byte name again (the earlier result kept)", ["solve", ds, "--out", out, "--quiet"],
+          0, ["kept the previous result as", "r.1.json"], watch=[ds], tmp=tmp_path, new_ok=[out])
+    assert (tmp_path / ("r" * 245 + ".1.json")).read_bytes() == first
+    full = tmp_path / ("f" * 250 + ".json")  # 255 bytes: valid, but its kept copy's name would not be
+    check("solve --out a 255-byte file name", ["solve", ds, "--out", full, "--quiet"], 0, [], watch=[ds], tmp=tmp_path,
+          new_ok=[full])
+    check("solve --out the same 255-byte name again (its kept copy's name would pass the limit)",
+          ["solve", ds, "--out", full, "--quiet"], 2, ["would be kept as", "257 bytes", "choose a shorter name"],
+          watch=[ds, full], tmp=tmp_path)
+    mm = tmp_path / "unseen"
+    shutil.copytree(ds, mm)
+    _edit_captures(mm, lambda c: c.get("views", {}).pop("cam2", None))
+    loop = tmp_path / "loop.json"
+    loop.symlink_to(tmp_path / "loop2.json")
+    (tmp_path / "loop2.json").symlink_to(loop)
+    watch = [mm, out]
+    for case, where, said in (
+            ("solve --out a 260-byte file name", tmp_path / ("r" * 255 + ".json"),
+             ["is 260 bytes long", "allows 255 per name"]),
+            ("solve --out a 5,000-character path", Path(str(tmp_path) + "/a" * 2500 + "/r.json"),
+             ["the path is", "bytes long and the file system allows"]),
+            ("solve --out a symlink loop", loop, ["loop.json: is a symlink loop"]),
+            ("solve --out a file under a symlink loop", loop / "r.json", ["lies under a symlink loop"])):
+        text = check(case, ["solve", mm, "--out", where, "--quiet"], 2, said + ["nothing was changed"], watch=watch,
+                     tmp=tmp_path)
+        assert "NOT calibrated" not in text and len(text.strip().splitlines()) == 1 and len(text) < 400
+    if not Path("/proc/self/fd/1").exists():
+        pytest.skip("no /proc/self/fd on this system")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    before = _hashes(mm)
+    p = subprocess.run([sys.executable, "-m", "calibgraph", "solve", str(mm), "--out", "/proc/self/fd/1"],
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, timeout=300)
+    ROWS.append(("solve --out /proc/self/fd/1 with stdout a pipe", p.returncode, _said(p.stderr, p.stdout)))
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    assert "/proc/self/fd/1: is not a regular file" in p.stderr and "NOT calibrated" not in p.stderr, p.stderr
+    assert p.stdout == "" and _hashes(mm) == before
+
+
+def test_i46_a_report_edited_by_hand_is_kept_when_replaced(ds, tmp_path):
+    """Smaller 3: a report edited since calibgraph wrote it was replaced without a copy; it is kept as
+    report.1.html (as a replaced result is kept); an unedited one is replaced as before."""
+    res = ds / "result.json"
+    page = tmp_path / "report.html"
+    check("report into a new file", ["report", res, "--out", page], 0, "wrote", watch=[ds])
+    check("report over its own unedited report (replaced, nothing kept)", ["report", res, "--out", page], 0, "wrote",
+          watch=[ds], new_ok=[page])
+    assert not (tmp_path / "report.1.html").exists()
+    edited = page.read_text(encoding="utf-8").replace("<h2>Cameras</h2>", "<h2>Cameras</h2><p>checked by A.B.</p>")
+    page.write_text(edited, encoding="utf-8")
+    check("report over a report edited by hand (kept as report.1.html)", ["report", res, "--out", page], 0,
+          ["kept the previous report as", "report.1.html", "edited since calibgraph wrote it"], watch=[ds],
+          new_ok=[page])
+    assert (tmp_path / "report.1.html").read_text(encoding="utf-8") == edited
+    assert "checked by A.B." not in page.read_text(encoding="utf-8")

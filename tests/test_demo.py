@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from helpers import require_sim
 
-from calibgraph.core.transforms import pose_error
+from calibgraph.core.transforms import log_so3, pose_error
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
@@ -23,7 +23,31 @@ def _demo(out, capsys, flags: list, made: str):
     assert "err mm" in text and "T_flange_board error vs ground truth" in text
     for f in ("result.json", "report.html", "calibration.rrd", "dataset/dataset.yaml", "dataset/ground_truth.json", made):
         assert (out / f).is_file(), f
+    assert "err/1σ: the norm of the translation error over the norm of its per-axis 1σ" in text
+    _ends_with_its_verdict(out, text)
     return rc, text
+
+
+def _ends_with_its_verdict(out, text):
+    """The demo's last line is its verdict: PASS exactly when the solve converged and every camera
+    passes the report's tolerances and has its true error within its covariance (p >= 0.001), with
+    the worst error / 1σ, recomputed here from the files."""
+    from calibgraph.io.ground_truth import load_ground_truth
+    from calibgraph.report.html import report_verdicts
+    from calibgraph.solver.result import load_result
+
+    last = text.rstrip().splitlines()[-1]
+    R, gt = load_result(out / "result.json"), load_ground_truth(out / "dataset")
+    worst, inside = 0.0, True
+    for n, c in R.calibrated.items():
+        T = gt["T_base_cam"][n]
+        d = np.concatenate([log_so3(c.T_base_cam[:3, :3] @ T[:3, :3].T), c.T_base_cam[:3, 3] - T[:3, 3]])
+        inside &= float(d @ np.linalg.solve(c.covariance, d)) < 22.458  # chi2_6 at p = 0.001
+        worst = max(worst, np.linalg.norm(d[3:]) * 1e3 / np.linalg.norm(c.sigma_translation_mm))
+    ok = R.converged and inside and len(R.calibrated) == len(R.cameras) and all(
+        v["pass"] for v in report_verdicts(R, dataset=out / "dataset").values())
+    assert last.startswith("verdict: PASS" if ok else "verdict: FAIL"), last
+    assert f"worst error/1σ {worst:.2f}" in last, last
 
 
 def test_demo_recovers_ground_truth(tmp_path, capsys):

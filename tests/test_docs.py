@@ -13,7 +13,7 @@ from calibgraph.cli.main import COMMANDS, build_parser
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 README = ROOT / "README.md"
-INSTALL_AND_DEMO = 'pip install -e ".[all]" && MUJOCO_GL=egl calibgraph demo --out demo_out'
+INSTALL_AND_DEMO = 'pip install -e ".[all]" -c constraints.txt && MUJOCO_GL=egl calibgraph demo --out demo_out'
 TEST_COMMAND = "python -m pytest -q tests"  # .ci/run runs the README's test command
 
 
@@ -50,6 +50,9 @@ def test_readme_keeps_the_two_commands_and_stays_a_guide():
     assert INSTALL_AND_DEMO in lines, "README.md lost the install + demo command"
     assert TEST_COMMAND in lines, "README.md lost the test command that .ci/run runs"
     assert TEST_COMMAND in (ROOT / ".ci" / "run").read_text()
+    # the install the README's figures were made with is the one CI runs
+    assert 'pip install -q -e ".[all]" -c constraints.txt' in (ROOT / ".ci" / "run").read_text()
+    assert (ROOT / "constraints.txt").is_file()
 
 
 def _slug(heading: str) -> str:

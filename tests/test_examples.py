@@ -44,8 +44,10 @@ def test_01_solves_a_dataset_folder_and_saves_the_result(tmp_path):
 
 def test_02_reports_errors_consistent_with_the_stated_sigma():
     out = _run("02_simulate_and_solve.py", "--seed", "3")
-    rows = re.findall(r"^(cam\d)\s+\S+\s+\S+\s+\S+\s+\S+\s+(\S+)$", out, re.M)
+    rows = re.findall(r"^(cam\d)\s+\S+\s+\S+\s+\S+\s+\S+\s+\S+\s+\S+\s+(\S+)$", out, re.M)
     assert len(rows) == 3, out
+    # it says what the numbers come from: the corner noise and the camera distances behind them
+    assert "0.3 px" in out and "m from where the board is shown" in out and "chi-square with 6 dof" in out, out
     # squared Mahalanobis distance on 6 dof: chi2(6) exceeds 22.5 with probability 1e-3
     assert all(float(m2) < 22.5 for _, m2 in rows), out
 

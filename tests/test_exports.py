@@ -49,6 +49,19 @@ def test_urdf_round_trips(tmp_path, mode):
     assert {p for p, _ in plain.values()} == {"world"}
     paths = export(d, "urdf", tmp_path)
     assert paths[0].name == "calibgraph_cameras.urdf.xacro" and paths[0].read_text() == text
+    # and a plain URDF beside it: a whole tree (the parent link declared), no xacro in it
+    import xml.etree.ElementTree as ET
+
+    assert paths[1].name == "calibgraph_cameras.urdf"
+    urdf = paths[1].read_text()
+    assert "xmlns:xacro" not in urdf and "$(arg" not in urdf
+    root = ET.fromstring(urdf.split("?>", 1)[1])
+    links = {ln.get("name") for ln in root.iter("link")}
+    default = "base_link" if mode == "eye_to_hand" else "flange"
+    assert links == {default} | {f"{n}_optical_frame" for n in d.cameras}
+    for n, c in d.cameras.items():
+        p, T = parse_urdf_joints(urdf)[f"{n}_optical_frame"]
+        assert p == default and np.abs(T - getattr(c, f"T_{ref}_cam")).max() < 1e-9
 
 
 def test_ros2_launch_file(tmp_path):
@@ -84,7 +97,8 @@ def test_opencv_filestorage_round_trip(tmp_path):
         assert np.array_equal(back["sigma_translation_mm"].ravel(), c.sigma_translation_mm)
         assert np.array_equal(back["sigma_rotation_deg"].ravel(), c.sigma_rotation_deg)
         assert np.array_equal(back["covariance"], c.covariance)
-        assert back["frame_parent"] == "base" and back["frame_child"] == f"{n}_optical_frame"
+        # the parent frame every export names by default (was 'base' here, 'base_link' in the URDF)
+        assert back["frame_parent"] == "base_link" and back["frame_child"] == f"{n}_optical_frame"
         text = p.read_text()
         assert text.startswith("%YAML") and "metres" in text and "optical" in text
         # and it is a camera file for --intrinsics: the intrinsics the calibration used, the pose's
@@ -161,5 +175,6 @@ def test_yaml_and_json_outputs_and_cli(tmp_path):
     assert y.startswith("# calibgraph result. T_a_b maps points")
     assert yaml.safe_load(y) == d
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(
-        ["result.yaml", "calibgraph_cameras.urdf.xacro", "calibgraph_cameras.launch.py"] + [f"{n}.yaml" for n in d["cameras"]])
+        ["result.yaml", "calibgraph_cameras.urdf", "calibgraph_cameras.urdf.xacro", "calibgraph_cameras.launch.py"]
+        + [f"{n}.yaml" for n in d["cameras"]])
     assert main(["export", str(tmp_path / "nope.json"), "--format", "urdf", "--out", str(tmp_path)]) == 2

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 import calibgraph.solver.fk_select as fk_select
-from calibgraph.core.problem import SolverOptions
+from calibgraph.core.camera import preset
+from calibgraph.core.problem import Capture, Problem, SolverOptions
+from calibgraph.core.transforms import make_T
 from calibgraph.sim.kinematic_scene import make_kinematic_scene
 from calibgraph.sim.synthetic_corners import make_scene
 from calibgraph.solver.batch import solve
@@ -22,14 +24,36 @@ def _view(cam, k):
                 T_ref_mount=np.eye(4))
 
 
+def _problem(n, revisit_every=None):
+    """A problem of ``n`` captures at distinct flange poses 10 cm apart (capture k revisits capture
+    k - ``revisit_every``'s pose when that is given)."""
+    caps = [Capture(index=k, T_base_flange=make_T(np.eye(3), [0.4 + 0.1 * (k % revisit_every if revisit_every else k),
+                                                              0.0, 0.5])) for k in range(n)]
+    return Problem(points_board_m=np.c_[np.random.default_rng(0).normal(size=(4, 2)), np.zeros(4)],
+                   cameras={"a": preset("l515"), "b": preset("l515")}, captures=tuple(caps), detections=())
+
+
 def test_folds_need_enough_captures_and_views_per_camera():
     views = [_view("a", k) for k in range(12)]
-    folds = fk_select._folds(views, 3)
+    problem = _problem(12)
+    folds = fk_select._folds(problem, views, 3)
     assert len(folds) == fk_select.FOLDS
     assert set().union(*folds) == set(range(12)) and sum(len(f) for f in folds) == 12  # disjoint, all captures
-    assert fk_select._folds(views[:9], 3) is None  # fewer than two captures per fold
+    assert fk_select._folds(problem, views[:9], 3) is None  # fewer than two captures per fold
     # camera b seen in 3 captures only: any fold holding one of them out leaves it 2 views
-    assert fk_select._folds(views + [_view("b", k) for k in (0, 1, 2)], 3) is None
+    assert fk_select._folds(problem, views + [_view("b", k) for k in (0, 1, 2)], 3) is None
+
+
+def test_a_revisit_is_held_out_with_its_configuration():
+    """36 captures of 12 configurations (three sessions of the same targets): each fold holds whole
+    configurations, so no held-out capture is predicted from a visit of its own pose."""
+    problem = _problem(36, revisit_every=12)
+    views = [_view("a", k) for k in range(36)]
+    folds = fk_select._folds(problem, views, 3)
+    assert len(folds) == fk_select.FOLDS and set().union(*folds) == set(range(36))
+    for fold in folds:
+        assert {k % 12 for k in fold}.isdisjoint({k % 12 for k in set(range(36)) - fold})
+    assert fk_select._folds(_problem(18, revisit_every=9), views[:18], 3) is None  # 9 configurations: too few
 
 
 def test_one_widened_component_is_not_cross_validated():
@@ -91,7 +115,7 @@ def test_unmodelled_joint_offsets_the_folds_make_the_sigma_more_honest(seed, mon
     assert cv["chosen"] == (best if rms[best] < (1 - fk_select.TIE) * rms["both"] else "both")
     assert cv["jackknife_variance_factor"] > 1.0
     assert any("folds' camera poses scatter" in n for n in r_cv.notes)
-    monkeypatch.setattr(fk_select, "_folds", lambda *a: None)  # the path before: Helmert's split, no folds
+    monkeypatch.setattr(fk_select, "_folds", lambda *a, **k: None)  # the path before: Helmert's split, no folds
     r_old = solve(sc.problem)
     assert "cross_validation" not in r_old.fk_noise
     (e_cv, z_cv), (e_old, z_old) = errors(r_cv), errors(r_old)
@@ -135,7 +159,7 @@ def test_jackknife_alone_when_the_split_is_not_cross_validated(monkeypatch):
     assert cv["jackknife_applied"] == cv["jackknife_variance_factor"] > 1.0  # the robot widened: the factor stands
     assert any("folds' camera poses scatter" in n for n in r.notes)
     assert not any("held-out RMS" in n for n in r.notes)
-    monkeypatch.setattr(fk_select, "_folds", lambda *a: None)
+    monkeypatch.setattr(fk_select, "_folds", lambda *a, **k: None)
     r_old = solve(sc.problem)
     assert "cross_validation" not in r_old.fk_noise
     for n, c in r.cameras.items():
@@ -187,7 +211,16 @@ def test_jackknife_folds_not_made_with_too_few_captures():
         raise AssertionError("no fold may be solved")
 
     p = make_scene(n_poses=6, pixel_sigma_px=0.1, seed=0, reported_intrinsics="exact").problem
-    assert fk_select.jackknife_folds(p, [_view("a", k) for k in range(6)], None, never) is None
+    assert fk_select.jackknife_folds(p, [_view("a", k) for k in range(5)], None, never) is None
+
+
+def test_jackknife_of_a_small_set_holds_out_one_configuration_at_a_time():
+    """6-9 configurations (ViSP's 8 poses): one fold each; fewer than 6: none."""
+    p = _problem(8)
+    folds = fk_select._folds(p, [_view("a", k) for k in range(8)], 3, small=True)
+    assert sorted(len(f) for f in folds) == [1] * 8 and set().union(*folds) == set(range(8))
+    assert fk_select._folds(p, [_view("a", k) for k in range(8)], 3) is None  # not for the FK split's cross-validation
+    assert fk_select._folds(_problem(5), [_view("a", k) for k in range(5)], 3, small=True) is None
 
 
 def test_jackknife_applied_only_beyond_chance_with_the_robot_as_stated():

@@ -374,3 +374,28 @@ def test_the_live_command_states_the_goal_once_and_says_when_it_is_set(tmp_path,
     assert after and all(f"/ goal {goal} px;" in line and " calibrated " in line for line in after)
     assert all("(set by the first calibration)" in line and " predicted " in line
                for line in err[1:set_lines[0]] if line.startswith("frame "))
+
+
+def test_each_camera_of_a_simulated_cell_has_its_own_hand_held_board():
+    """Issue 46: every simulated camera of a cell got the cell's seed, so cameras of one preset saw identical
+    frames (the same walk, the same noise) and comparing them was no check of the 1-sigma. Each camera now
+    draws its own, and the same from run to run."""
+    import types
+
+    import calibgraph.cli.intrinsics_live as live
+    from calibgraph.acquire.workcell import read_workcell
+
+    spec = read_workcell(ROOT / "datasets" / "workcells" / "default.yaml")
+    names = sorted(spec.cameras)[:2] if spec.cameras else ["cam0", "cam1"]
+
+    def first_frames(name, n=3):
+        cam = live._device(types.SimpleNamespace(camera=name), spec, spec.target)
+        try:
+            return [cam.grab().image for _ in range(n)]
+        finally:
+            cam.close()
+
+    a, b = first_frames(names[0]), first_frames(names[1])
+    assert a[0].shape == b[0].shape  # one preset: without their own draws these frames were equal
+    assert all(not np.array_equal(x, y) for x, y in zip(a, b))
+    assert all(np.array_equal(x, y) for x, y in zip(a, first_frames(names[0])))

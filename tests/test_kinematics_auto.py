@@ -88,11 +88,52 @@ def test_an_arm_with_independent_errors_keeps_the_per_pose_model():
 
 
 def test_nothing_is_tried_where_the_arm_is_as_stated():
+    """Nothing tried, and the record says so (issue 46: it said nothing where the selection did not run)."""
     sc = make_kinematic_scene(None, n_poses=30, seed=1, pixel_sigma_px=0.1)[0]
     r = solve(sc.problem)
-    assert r.settings["kinematics_used"] == "none" and "kinematics_selection" not in r.settings
+    assert r.settings["kinematics_used"] == "none"
+    assert r.settings["kinematics_selection"] == {"tried": False, "why_not": kinematics_select.AS_STATED}
     assert not any("joint zero offsets" in n for n in r.notes)
     _same(r, solve(_with(sc.problem, kinematics="none")))
+    r_none = solve(_with(sc.problem.with_(captures=tuple(replace(c, q_rad=None) for c in sc.problem.captures))))
+    assert r_none.settings["kinematics_selection"] == {"tried": False, "why_not": kinematics_select.NO_ANGLES}
+
+
+def _in_degrees(problem):
+    return problem.with_(captures=tuple(replace(c, q_rad=np.degrees(c.q_rad)) for c in problem.captures))
+
+
+def test_angles_in_degrees_are_named_where_the_arm_is_as_stated():
+    """Issue 46 case 3: angles recorded in degrees on an arm as stated said nothing (the selection did not
+    run); the per-pose result stands, to the digit, and a note names the mismatch with the degrees hint."""
+    sc = make_kinematic_scene(None, n_poses=20, seed=1, pixel_sigma_px=0.1)[0]
+    deg = _in_degrees(sc.problem)
+    r = solve(deg)
+    (note,) = [n for n in r.notes if n.startswith("robot:")]
+    assert "do not give the recorded flange poses" in note and "degrees?" in note and "radians" in note
+    assert "deg from the recorded ones" in note and r.settings["kinematics_selection"]["tried"] is False
+    _same(r, solve(_with(deg, kinematics="none")))
+    m = kinematics_select.kin.angles_mismatch(deg)
+    assert m.degrees_fit and m.translation_m > 0.1 and m.as_degrees[0] < 1e-9
+
+
+def test_forced_joint_offsets_check_the_angles_as_auto_does():
+    """Issue 46 cases 1 and 2: --estimate-kinematics joint-offsets on angles in degrees gave every offset 0
+    and cameras 6 sigma off; on angles with 0.02 rad of noise, offsets of tens of mrad. Both are refused
+    as auto declines them, naming the mismatch; the degrees hint only where the numbers fit degrees."""
+    sc = _offset_scene(1)
+    with pytest.raises(InputError, match=r"mm / .* deg from the recorded ones.*degrees\? read as degrees"):
+        solve(_with(_in_degrees(sc.problem), kinematics="joint-offsets"))
+    rng = np.random.default_rng(5)
+    noisy = sc.problem.with_(captures=tuple(replace(c, q_rad=c.q_rad + rng.normal(scale=0.02, size=7))
+                                            for c in sc.problem.captures))
+    with pytest.raises(InputError, match="mm / .* deg from the recorded ones") as e:
+        solve(_with(noisy, kinematics="joint-offsets"))
+    assert "degrees?" not in str(e.value) and "--estimate-kinematics none" in str(e.value)
+    # angles past a turn, which radians of a revolute joint never are, read as degrees even where they do not map
+    big = sc.problem.with_(captures=tuple(replace(c, q_rad=np.degrees(c.q_rad) + 0.5) for c in sc.problem.captures))
+    with pytest.raises(InputError, match=r"degrees\? angles up to"):
+        solve(_with(big, kinematics="joint-offsets"))
 
 
 def test_not_tried_when_the_model_does_not_map_the_angles_to_the_recorded_poses():

@@ -112,8 +112,12 @@ def test_refuses_offsets_the_captures_cannot_observe():
         kin.check_motion(replace(ks, q_rad=frozen), caps)
     with pytest.raises(ObservabilityError, match="not determined"):
         kin.check_after_solve(ks, np.array([1e-4, 1e-4, 5e-3, 1e-4, 1e-4]), 1e-2, caps)
-    # the solver itself refuses, with advice, when the recorded angles leave a joint unobservable
-    bad = sc.problem.with_(captures=tuple(replace(c, q_rad=np.r_[0.3, c.q_rad[1:]]) for c in sc.problem.captures))
+    # the solver itself refuses, with advice, when the recorded angles leave a joint unobservable (the
+    # recorded poses follow the angles: else the angles would be refused first, as not giving the poses)
+    chain = ks.chain
+    bad = sc.problem.with_(captures=tuple(replace(c, q_rad=np.r_[0.3, c.q_rad[1:]],
+                                                  T_base_flange=chain.fk(np.r_[0.3, c.q_rad[1:]]))
+                                          for c in sc.problem.captures))
     with pytest.raises(ObservabilityError, match="Add captures"):
         solve(_with(bad, kinematics="joint-offsets"))
 

@@ -63,6 +63,10 @@ def test_independent_corners_find_nothing_to_say():
 
 @pytest.mark.parametrize("seed", [2, 3])
 def test_correlated_corners_are_estimated_said_and_covered(seed):
+    """Two cameras 180 deg apart never see one capture together: every capture is seen once, by one
+    camera, and a robot pose off moves its board's image just as the corners' correlated noise does. The
+    excess is estimated and said, but not claimed as corner noise (the data cannot tell it from the robot's
+    error), and the 1-sigma still covers it (it takes the larger of the two explanations)."""
     factor = 5.0
     # the oracle's scene (true intrinsics, held): the widening asserted below is that of the pose
     # 1-sigma by the corner modes alone, which factory intrinsics' own share of the 1-sigma dilutes
@@ -73,13 +77,34 @@ def test_correlated_corners_are_estimated_said_and_covered(seed):
         m = c.corner_noise
         # ~100 mode residuals: the estimate's relative standard error is ~15-20 %
         assert factor * 0.55 < m["low_order_variance_ratio"] < factor * 1.6, (name, m)
-        assert m["significant"], (name, m)
+        assert m["separable_from_robot"] is False and not m["significant"], (name, m)
+        assert m["taken_as"] in ("robot", "corner noise"), (name, m)
         # the 1-sigma widens (independent-corner sigma is too small by ~sqrt(factor) in the modes)
         assert np.trace(c.covariance) > 2.5 * np.trace(iid.cameras[name].covariance), name
         assert c.corner_noise is not None and iid.cameras[name].corner_noise is None
-    assert sum("move whole boards" in n for n in r.notes) == len(r.cameras), r.notes
-    d = r.to_dict()
-    assert d["cameras"][next(iter(r.cameras))]["corner_noise"]["significant"] is True
+    said = [n for n in r.notes if "move as whole boards" in n and "cannot tell" in n]
+    assert len(said) == len(r.cameras), r.notes
+    assert not any("residuals move whole boards" in n for n in r.notes), r.notes
+
+
+def test_correlated_corners_seen_by_two_cameras_at_once_are_claimed():
+    """The same noise where both cameras see every capture: the robot pose is common to the two views, the
+    corners' noise is not, so the data tell them apart and the corner noise is named (p < 0.001)."""
+    factor = 5.0
+    cams = ring_cameras([2.0, 2.5], presets=("d455",), spread_deg=60.0)
+    sc = make_scene(cameras=cams, n_poses=30, pixel_sigma_px=SIGMA_PX, seed=4, reported_intrinsics="exact",
+                    shared_fraction=1.0)
+    rng = np.random.default_rng(104)
+    dets = []
+    for d in sc.problem.detections:
+        Q = view_mode_basis(d.uv_px)
+        dets.append(dataclasses.replace(d, uv_px=d.uv_px + (Q @ rng.normal(0.0, SIGMA_PX * 2.0, 6)).reshape(d.uv_px.shape)))
+    r = solver.solve(dataclasses.replace(sc.problem, detections=dets))
+    for name, c in r.cameras.items():
+        m = c.corner_noise
+        assert m["separable_from_robot"] is True and m["significant"], (name, m)
+        assert factor * 0.4 < m["low_order_variance_ratio"] < factor * 1.6, (name, m)
+    assert sum("residuals move whole boards" in n for n in r.notes) == len(r.cameras), r.notes
 
 
 def test_normalised_errors_are_honest_over_draws():
@@ -91,8 +116,9 @@ def test_normalised_errors_are_honest_over_draws():
         z_on.append(_z(solver.solve(prob), sc.truth))
         z_off.append(_z(solver.solve(dataclasses.replace(prob, options=dataclasses.replace(prob.options, view_noise_modes=False))), sc.truth))
     rms_on, rms_off = (float(np.sqrt(np.mean(np.concatenate(z) ** 2))) for z in (z_on, z_off))
-    # 144 axes (correlated within a camera): the RMS's spread is ~+-0.15
-    assert 0.7 < rms_on < 1.35, rms_on
+    # 144 axes (correlated within a camera): the RMS's spread is ~+-0.15. Each capture is seen by one camera, so
+    # the 1-sigma is the larger of the robot's and the corners' explanation (which fit alike): 0.69 measured
+    assert 0.55 < rms_on < 1.35, rms_on
     assert rms_off > 1.5, rms_off
 
 
@@ -116,7 +142,8 @@ def test_robot_less_accurate_than_stated_is_found_said_and_covered():
         # the variance ratio is ~25 in translation and rotation alike; the fit absorbs some of it
         assert fk["significant"] and 5 < fk["variance_ratio"] < 40, fk
         assert fk["used_sigma_translation_m"] > 2 * fk["stated_sigma_translation_m"]
-        assert any(n.startswith("robot: the fitted flange poses depart from forward kinematics") for n in r.notes)
+        assert any(n.startswith("robot: the arm is less accurate than stated, so every camera's 1-sigma is widened")
+                   and "Detail: the fitted flange poses depart from forward kinematics" in n for n in r.notes)
         z_on.append(_z(r, sc.truth))
         z_off.append(_z(off, sc.truth))
     rms_on, rms_off = (float(np.sqrt(np.mean(np.concatenate(z) ** 2))) for z in (z_on, z_off))

@@ -147,3 +147,38 @@ def test_the_test_run_refuses_writes_into_shared(shared_dir, tmp_path):
     with pytest.raises(AssertionError, match="writes into ../shared"):  # the dataset lock comes first
         main(["solve", str(shared_dir / "datasets" / "rct_static_camera_charuco"), "--out", str(tmp_path / "r.json")])
     assert not (shared_dir / "datasets" / "x.txt").exists() and not (tmp_path / "r.json").exists()
+
+
+def test_a_report_knows_whether_it_was_edited_since_it_was_written(written, tmp_path):
+    """Issue 46: a report edited by hand was replaced without a copy. Its fingerprint (the SHA-256 of
+    its own text) tells it from one calibgraph wrote: only the edited one is kept when replaced."""
+    import shutil
+
+    from calibgraph.io.output_guard import edited_since_written
+
+    out, _ = written
+    page = tmp_path / "report.html"
+    shutil.copy(out["report"][0], page)
+    assert not edited_since_written(page) and keep_previous(page) is None
+    page.write_text(page.read_text(encoding="utf-8").replace("<h2>", "<h2>(checked) ", 1), encoding="utf-8")
+    assert edited_since_written(page) and output_kind(page) == "report"
+    kept = keep_previous(page)
+    assert kept == tmp_path / "report.1.html" and kept.read_bytes() == page.read_bytes()
+
+
+def test_temporary_names_fit_the_file_system_and_stale_ones_are_removed(tmp_path):
+    """Issue 46 case 7: a 250-byte name's temporary ('.NAME.tmpPID') passed the 255-byte limit, after the
+    solve. A name that does not fit gets a short hashed temporary; one left by a killed writer is removed."""
+    import subprocess
+    import sys
+
+    from calibgraph.io.files import atomic_write_text, temporary_name
+
+    long = tmp_path / ("r" * 250 + ".json")  # 255 bytes
+    name = temporary_name(long)
+    assert name.startswith(".cg") and len(name.encode()) < 40 and temporary_name(tmp_path / "a.json").startswith(".a.json.tmp")
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    stale = tmp_path / temporary_name(long, pid=int(dead.stdout))
+    stale.write_text("half a result")
+    atomic_write_text(long, "{}")
+    assert long.read_text() == "{}" and not stale.exists() and sorted(p.name for p in tmp_path.iterdir()) == [long.name]

@@ -91,8 +91,9 @@ def test_with_joint_offsets_estimated_the_prediction_is_from_joint_angles():
         for name, cam in r.calibrated.items():
             p = cam.prediction
             assert p is not None and p["predicted_from"] == "joint angles", name
-            assert any(n.startswith(f"camera {name}: a new robot pose's corners, predicted from its reported joint "
-                                    "angles") for n in r.notes)
+            # the plain sentence first, the detail after it
+            assert any(n.startswith(f"camera {name}: at a new robot pose, this calibration should place") and
+                       "Detail: a new robot pose's corners, predicted from its reported joint angles" in n for n in r.notes)
             px = []
             for d in prob.detections:
                 if d.capture in train or d.camera != name:
@@ -119,7 +120,8 @@ def test_prediction_is_in_the_result_file_and_a_note(tmp_path):
         p = back.cameras[name].prediction
         assert p == c.prediction and p["expected_rms_px"] > 0 and p["expected_rms_mm"] > 0
         assert sorted(p["parts_px"]) == ["calibration", "corners", "robot"]
-        assert any(n.startswith(f"camera {name}: a new robot pose's corners, predicted from its reported FK") for n in r.notes)
+        assert any(n.startswith(f"camera {name}: at a new robot pose, this calibration should place") and
+                   "Detail: a new robot pose's corners, predicted from its reported FK" in n for n in r.notes)
 
 
 def test_rotation_and_translation_accuracy_are_judged_apart():

@@ -15,6 +15,7 @@ from calibgraph.report.findings import advice_for
 from calibgraph.report.html import (
     compute_residuals,
     load_tolerances,
+    report_verdicts,
     write_report,
 )
 from calibgraph.solver.result import load_result
@@ -72,7 +73,9 @@ def test_report_numbers_equal_result_json(tmp_path):
     for n, c in d["cameras"].items():
         vals = p.rows[(n, "summary")]
         T = np.asarray(c["T_base_cam"])
-        expect = [*T[:3, 3], None, None, None, *c["sigma_translation_mm"], *c["sigma_rotation_deg"],
+        # each 1σ as one figure, the norm, with its axes beside it
+        expect = [*T[:3, 3], None, None, None, np.linalg.norm(c["sigma_translation_mm"]), *c["sigma_translation_mm"],
+                  np.linalg.norm(c["sigma_rotation_deg"]), *c["sigma_rotation_deg"],
                   c["reprojection_rms_px"], c["reprojection_max_px"], c["views_used"], len(c["views_rejected"])]
         assert len(vals) == len(expect)
         for got, want in zip(vals, expect):
@@ -96,7 +99,7 @@ def test_report_numbers_equal_result_json(tmp_path):
 def test_pass_fail_follows_tolerances(tmp_path):
     d, *_ = make_sim_result()
     names = list(d.cameras)
-    worst_t = {n: max(c.sigma_translation_mm) for n, c in d.cameras.items()}
+    worst_t = {n: float(np.linalg.norm(c.sigma_translation_mm)) for n, c in d.cameras.items()}  # the 1σ norm
     # cam limits straddle the values: the first camera passes the translation check, the last fails it
     lo, hi = min(worst_t.values()), max(worst_t.values())
     cfg = {"defaults": {"max_sigma_translation_mm": (lo + hi) / 2, "max_sigma_rotation_deg": None,
@@ -108,6 +111,12 @@ def test_pass_fail_follows_tolerances(tmp_path):
     assert "Overall: FAIL" in text and f"failing: {', '.join(failing)}" in text
     cfg["defaults"]["max_sigma_translation_mm"] = hi * 1.01
     assert "Overall: PASS" in write_report(d, tmp_path / "r2.html", config=cfg).read_text()
+    # an old tolerance file's key limits the norm now, not the largest axis: a limit between the two fails
+    n0 = names[0]
+    between = (max(d.cameras[n0].sigma_translation_mm) + worst_t[n0]) / 2
+    cfg["cameras"] = {n0: {"max_sigma_translation_mm": between}}
+    reasons = report_verdicts(d, config=cfg)[n0]["reasons"]
+    assert reasons == [f"1σ translation (mm) {worst_t[n0]:.4g} not <= {between:g}"], reasons
 
 
 def test_tolerance_file_errors_are_clear(tmp_path):
@@ -282,7 +291,9 @@ def test_report_says_budget_advice_notes_intrinsics_and_a_move(tmp_path):
     for n, c in res.cameras.items():
         sec = page.split(f'id="cam-{n}"')[1].split('<div class="cam"')[0]
         sec_text = _report_text_of(sec)
-        assert c.error_budget["advice"] in sec_text and advice_for(n, c) in text.split("Summary")[0]
+        # the advice is said once, in the box at the top; the camera's section points to it
+        assert advice_for(n, c) in text.split("Summary")[0] and text.count(advice_for(n, c)) == 1
+        assert "What would shrink it most: its advice in What would improve this calibration" in sec_text
         for src, share in c.error_budget["shares"].items():
             assert f'data-source="{src}"' in sec and f'data-value="{share!r}"' in sec
         assert "by noise source" in sec_text
@@ -329,3 +340,88 @@ def test_a_camera_not_calibrated_says_why_and_has_its_notes(tmp_path):
     assert "Not calibrated" in sec and res.cameras["cam0"].why in sec and "Moved during capture" in sec
     assert sec.split("after the move (the pose reported)")[1].lstrip().startswith("not calibrated")
     assert res.camera_notes("cam0") and all(t in sec for t in res.camera_notes("cam0"))
+
+
+# -- a report that speaks plainly (issue 47): a FAIL says what fixes it, --strict exits non-zero --------------
+def test_a_failing_views_check_says_how_many_more_poses_where_and_with_which_command(tmp_path):
+    """Too few views: how many more (the tolerance's count less the views used), how many poses that is at
+    the rate the camera saw the board, the parts of its image its corners never reached, and the command
+    of the run that made the dataset, naming the workcell it recorded."""
+    from types import SimpleNamespace
+
+    from calibgraph.report.remedies import fixes, unseen_regions
+    from calibgraph.report.tolerances import camera_verdict
+
+    d, *_ = make_sim_result()
+    n, c = next(iter(d.cameras.items()))
+    tol = load_tolerances({"defaults": {"min_views_used": c.views_used + 3}})
+    v = camera_verdict(n, c, tol, None)
+    assert not v["pass"] and ("min_views_used", c.views_used, c.views_used + 3) in v["failed"]
+    # corners only in the image's top-left ninth: every other part is named
+    res = {0: {"uv_detected_px": [[10.0, 10.0], [50.0, 40.0]]}}
+    assert unseen_regions(res, 900, 600) == ["top", "top-right", "left", "centre", "right", "bottom-left", "bottom",
+                                             "bottom-right"]
+    cell = tmp_path / "cell.yaml"
+    cell.write_text("{}\n")
+    run = {"mode": "sim", "workcell_file": str(cell)}
+    seen = c.views_used + len(c.views_rejected)
+    (line,) = fixes(n, c, v, res, SimpleNamespace(width_px=900, height_px=600), run, n_captures=2 * seen)
+    assert line.startswith(f"{n}: 3 more views needed (it has {c.views_used}; the tolerance asks for {c.views_used + 3})")
+    assert f"{seen} of {2 * seen} poses: about 6 more poses" in line
+    assert f"--workcell {cell}" in line and f"--poses {2 * seen + 6}" in line, line
+
+
+def test_report_strict_exits_3_on_fail_and_0_on_pass(tmp_path, capsys):
+    """`report --strict`: exit 3 when the verdict is FAIL (the report written, each failing check with
+    its fix on the console); 0 on PASS; without --strict 0 either way (the documented default)."""
+    from calibgraph.cli.main import main
+
+    d, *_ = make_sim_result()
+    res = d.save(tmp_path / "result.json")
+    fail = tmp_path / "fail.yaml"
+    fail.write_text(f"defaults: {{min_views_used: {max(c.views_used for c in d.cameras.values()) + 1}}}\n")
+    assert main(["report", str(res), "--out", str(tmp_path / "a.html"), "--config", str(fail), "--strict"]) == 3
+    out = capsys.readouterr().out
+    assert "verdict: FAIL" in out and "to fix: " in out and "more view" in out and (tmp_path / "a.html").is_file()
+    assert main(["report", str(res), "--out", str(tmp_path / "b.html"), "--config", str(fail)]) == 0
+    ok = tmp_path / "ok.yaml"
+    ok.write_text("defaults: {min_views_used: 1, max_sigma_translation_mm: 1000, max_sigma_rotation_deg: 1000, "
+                  "max_reprojection_rms_px: 100, max_reprojection_max_px: 1000, max_workspace_sigma_mm: null}\n")
+    assert main(["report", str(res), "--out", str(tmp_path / "c.html"), "--config", str(ok), "--strict"]) == 0
+    assert "verdict: PASS" in capsys.readouterr().out
+
+
+def test_plots_keep_legends_off_the_data_and_draw_the_camera_on_the_workspace_map():
+    """The residual scatter's legend stands right of its frame, each key drawn as its series is (a
+    cross for the rejected corners); a heat map's label is dark text on a white halo; a camera beyond
+    the workspace map is drawn on its edge (a diamond) with an arrow the way it looks."""
+    import re
+
+    import numpy as np
+
+    from calibgraph.report import svgplot
+    from calibgraph.report.workspace import camera_marker
+
+    svg = svgplot.scatter([{"x": [0, 1], "y": [0, 1], "label": "corner (used)"},
+                           {"x": [1], "y": [1], "label": "rejected corner", "marker": "x", "color": svgplot.RED}],
+                          width=640)
+    frame = re.search(r'<rect x="([\d.]+)" y="[\d.]+" width="([\d.]+)"[^>]*fill="none" stroke="#333"', svg)
+    right_edge = float(frame.group(1)) + float(frame.group(2))
+    keys = [float(x) for x in re.findall(r'<text x="([\d.]+)" y="[\d.]+">(?:corner|rejected)', svg)]
+    assert len(keys) == 2 and min(keys) > right_edge, (keys, right_edge)
+    cross = re.findall(rf'<path d="M([\d.]+),[^"]*" stroke="{svgplot.RED}"', svg)
+    assert len(cross) == 2 and float(cross[1]) > right_edge  # the data's cross and the legend's
+    # a camera 3 m beyond a 1.2 m map, looking back at the robot along +y
+    T = np.eye(4)
+    T[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # optical z along base +y
+    T[:3, 3] = [0.0, -3.0, 0.8]
+    xe, ye = np.linspace(-0.6, 0.6, 5), np.linspace(-0.6, 0.6, 5)
+    m = camera_marker("cam0", T, xe, ye)
+    assert m["dir"] == (0.0, 1.0) and "3.0 m off the map" in m["label"]
+    svg = svgplot.heatmap(np.ones((4, 4)), xe, ye, markers=[m, {"x": 0, "y": 0, "label": "robot base"}])
+    assert 'stroke="#fff" stroke-width="3" paint-order="stroke">robot base</text>' in svg
+    frame = re.search(r'<rect x="[\d.]+" y="([\d.]+)" width="[\d.]+" height="([\d.]+)" fill="none" stroke="#333"', svg)
+    bottom = float(frame.group(1)) + float(frame.group(2))
+    diamond = re.search(r'<path d="M([\d.]+),([\d.]+)L[^"]*Z" fill="#ff7f0e"', svg)
+    assert diamond and abs(float(diamond.group(2)) + 7 - bottom) < 0.2, (diamond, bottom)  # on the map's lower edge
+    assert re.search(r'<line [^>]*stroke="#111" stroke-width="2"/>', svg)  # the arrow the way it looks

@@ -233,10 +233,11 @@ def test_a_camera_that_was_not_calibrated_round_trips_and_is_reported(tmp_path):
         assert_same(cg.load_result(r.save(tmp_path / f"r.{ext}")), r)
     text = write_report(r, tmp_path / "r.html").read_text()
     assert "Overall: FAIL" in text and "failing: cam1" in text and "Not calibrated" in text
-    paths = export(r, "urdf", tmp_path / "e") + export(r, "opencv-yaml", tmp_path / "e")
-    urdf = paths[0].read_text()
-    assert "cam1_optical_frame" not in urdf and "'cam1' is not in this file" in urdf
-    assert sorted(q.name for q in paths[1:]) == ["cam0.yaml", "cam2.yaml"]
+    urdfs = export(r, "urdf", tmp_path / "e")  # the xacro and the plain URDF beside it
+    for p in urdfs:
+        text = p.read_text()
+        assert "cam1_optical_frame" not in text and "'cam1' is not in this file" in text, p
+    assert sorted(q.name for q in export(r, "opencv-yaml", tmp_path / "e")) == ["cam0.yaml", "cam2.yaml"]
     from calibgraph.solver.verify import verify
 
     vr = verify(make_scene(n_poses=6, pixel_sigma_px=0.3, seed=14, shared_fraction=0.6, reported_intrinsics="exact").problem, r)

@@ -184,3 +184,19 @@ def test_dry_run_refuses_the_pose_inside_the_pedestal(tmp_path, capsys):
     assert "19/20 poses pass" in cap.err
     assert "pose 7: would be skipped" in cap.err and "stated T_base_flange" in cap.err
     assert not (tmp_path / "ds").exists()  # a dry run writes nothing
+
+
+def test_auto_dry_run_warns_of_a_missing_safety_section_as_a_trajectory_run_does(tmp_path, capsys):
+    """`capture --auto --dry-run` on the same cell said nothing of the default cell model that
+    `capture --trajectory --dry-run` warns about."""
+    import yaml
+
+    from calibgraph.cli.main import main
+
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump({"board": "a4_54", "robot": {"driver": "franka", "ip": "127.0.0.1"},
+                                                        "cameras": {"cam0": {"driver": "realsense", "serial": "1"}}}))
+    assert main(["capture", "--auto", "--workcell", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "ds"),
+                 "--dry-run"]) == 0
+    err = capsys.readouterr().err
+    assert "declares no safety: section" in err and "pedestal" in err
+    assert not (tmp_path / "ds").exists()

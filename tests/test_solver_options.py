@@ -43,7 +43,8 @@ SOLVER_SECTION = {
     "intrinsics_source": "exact", "refine_intrinsics": True, "intrinsics_sigma_px": 7.0, "distortion_sigma": 0.2,
     "board_scale": False, "board_scale_sigma": 0.01, "formulation": "view", "kinematics": "joint-offsets",
     "kinematics_model": "franka_custom.urdf", "joint_offset_prior_rad": 0.02, "kinematics_staging": "staged",
-    "view_noise_modes": False, "fk_variance": False, "corner_noise": "per-camera",
+    "view_noise_modes": False, "fk_variance": False, "corner_noise": "per-camera", "fk_repeat_translation_m": 5e-5,
+    "fk_repeat_rotation_rad": 1e-4,
 }
 
 

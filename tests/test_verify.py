@@ -93,6 +93,10 @@ def test_cli_exit_codes_and_verdict(tmp_path, capsys):
     assert "verdict: moved: cam0" in out and "cam1" in out
     v = json.loads((bumped / "verify.json").read_text())
     assert v["moved"] == ["cam0"] and v["cameras"]["cam0"]["p_value"] < 1e-3
+    # a re-run keeps the verdict it replaces, as a result is kept (it was replaced silently)
+    first = (still / "verify.json").read_bytes()
+    assert main(["verify", "--result", str(tmp_path / "result.json"), str(still)]) == 0
+    assert (still / "verify.1.json").read_bytes() == first and "kept the previous verdict as" in capsys.readouterr().out
 
 
 def test_cli_bad_input_is_one_line(tmp_path, capsys):

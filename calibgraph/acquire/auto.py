@@ -221,7 +221,7 @@ def run_auto(robot, cameras, cell, world, out_dir, detector=None, safety: Safety
         station.open_cameras("auto")
         missing = [c for c in cell.camera_names if c not in station.cams]
         if missing:
-            log(f"cell cameras without a device: {missing}; calibrating the others")
+            log(f"cell cameras without a device: {', '.join(missing)}; calibrating the others")
         write_or_check_header(station.out, cell.target, station.intr, "eye_to_hand", claim)
         L = AutoState(station, cell, world, opts, log, accept=accept)
         station.watch, station.estimate = watch, L.estimates

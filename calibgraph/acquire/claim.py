@@ -8,6 +8,8 @@
       world_sha256: 9f2c...           # content hashes of the inputs the run used (those it had):
       workcell_sha256: 41ab...        #   workcell_sha256, world_sha256 (the simulated world),
       trajectory_sha256: 77e0...      #   trajectory_sha256 (Trajectory.sha256), result_sha256 (verify)
+      workcell_file: /cell/cell.yaml  # where the workcell (or simulated world) was read from: the file
+                                      #   the advice names (never checked: a resume may read a copy)
 
 A YAML input is hashed by its content (the parsed mapping as canonical JSON: comments and layout
 do not count), a result file by its bytes, a trajectory by :meth:`Trajectory.sha256`.
@@ -111,6 +113,13 @@ class Claim:
             self.made_by.setdefault(k, v)
 
 
+    def record(self, files: dict | None) -> None:
+        """Record where inputs were read from (name -> path; resolved), where the record has none."""
+        for k, v in (files or {}).items():
+            if v is not None:
+                self.made_by.setdefault(k, str(Path(v).resolve()))
+
+
 def _camera_files_change(recorded, given) -> str:
     if recorded is None:
         return "this dataset was captured without --intrinsics camera files, and this run gives some"
@@ -153,7 +162,7 @@ def _recorded(out: Path, mode: str, accept: tuple, resume: bool) -> dict | None:
 
 @contextmanager
 def claim_dataset(out_dir, mode: str, inputs: dict | None = None, resume: bool = False, log=None,
-                  accept: tuple | None = None):
+                  accept: tuple | None = None, files: dict | None = None):
     """Hold the dataset folder ``out_dir`` for a run of ``mode`` (see the module docstring).
 
     Args:
@@ -162,6 +171,8 @@ def claim_dataset(out_dir, mode: str, inputs: dict | None = None, resume: bool =
         resume: continue the dataset there (refused unless made by an accepted run with these inputs).
         log: receives the line saying that a stale lock was taken over.
         accept: the recorded modes this run may continue (default: ``mode`` only).
+        files: record name (``workcell_file``) -> the input file's path, recorded (resolved) where the
+            record has none and never checked.
     Yields:
         the :class:`Claim` (its ``made_by`` goes into ``dataset.yaml``).
     """
@@ -171,6 +182,7 @@ def claim_dataset(out_dir, mode: str, inputs: dict | None = None, resume: bool =
     held = _HELD.get(key)
     if held is not None:  # claimed further out in this process: check and add what this level knows
         held.require(inputs or {})
+        held.record(files)
         yield held
         return
     _recorded(out, mode, accept, resume)  # refuse before touching anything
@@ -179,6 +191,7 @@ def claim_dataset(out_dir, mode: str, inputs: dict | None = None, resume: bool =
     fd = lock_folder(out, mode, log or (lambda s: None))
     try:
         claim = Claim(out, mode, inputs or {}, _recorded(out, mode, accept, resume))  # again, under the lock
+        claim.record(files)
         _HELD[key] = claim
         try:
             yield claim

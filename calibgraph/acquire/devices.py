@@ -124,8 +124,8 @@ def open_camera(name: str, spec: dict, where: str):
     allowed = set(inspect.signature(cls).parameters) - {"name"}
     unknown = set(spec) - allowed - PLANNING_KEYS
     if unknown:
-        raise InputError(f"{where}: camera {name!r} ({drv}): unknown keys {sorted(unknown)}; allowed: "
-                         f"{sorted(allowed | {'driver'})}.")
+        raise InputError(f"{where}: camera {name!r} ({drv}): unknown keys {', '.join(sorted(unknown))}; allowed: "
+                         f"{', '.join(sorted(allowed | {'driver'}))}.")
     try:
         return cls(name, **{k: v for k, v in spec.items() if k in allowed})
     except TypeError as e:
@@ -203,8 +203,8 @@ def open_devices(driver: str, workcell=None, *, world=None, names=None, simulate
             else:
                 missing = [c for c in names if c not in sim.camera_names]
                 if missing:
-                    raise InputError(f"{where}: cameras {missing} are not in the simulated world {world[1]} (it has "
-                                     f"{sim.camera_names}).")
+                    raise InputError(f"{where}: cameras {', '.join(missing)} are not in the simulated world {world[1]} "
+                                     f"(it has {', '.join(sim.camera_names)}).")
                 if check_target and workcell is not None and sim.target != workcell.target:
                     raise InputError(f"{where}: board {workcell.target.to_dict()} differs from the simulated world's "
                                      f"{sim.target.to_dict()}.")

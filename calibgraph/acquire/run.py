@@ -180,8 +180,10 @@ class AcquisitionReport:
                  f"{self.count('done_before')} done before, {self.count('planned')} planned{passed}; "
                  f"{self.elapsed_s:.1f} s"]
         for cam in sorted(set(self.accepted_per_camera) | set(self.rejected_per_camera)):
-            lines.append(f"  {cam}: {self.accepted_per_camera.get(cam, 0)} views accepted, "
-                         f"{self.rejected_per_camera.get(cam, 0)} rejected"
+            # "rejected" is the solver's word (a view it saw and discarded); a capture's frame without
+            # the board is no view at all
+            lines.append(f"  {cam}: board seen in {self.accepted_per_camera.get(cam, 0)} frames (views kept), "
+                         f"not in {self.rejected_per_camera.get(cam, 0)} (out of view, facing away or not found)"
                          f"{', LOST' if cam in self.lost_cameras else ''}"
                          f"{f', {len(self.camera_errors[cam])} grab errors' if self.camera_errors.get(cam) else ''}")
         for i, status, msg in self.skipped:

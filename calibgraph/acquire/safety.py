@@ -147,7 +147,7 @@ class SafetyLimits:
         if self.joint_margin_rad < 0 or self.tool_radius_m < 0:
             raise InputError("safety: joint_margin_rad and tool_radius_m must be >= 0.")
         if self.kinematics is not None and self.kinematics not in KINEMATICS:
-            raise InputError(f"safety: unknown kinematics {self.kinematics!r}; known: {sorted(KINEMATICS)}.")
+            raise InputError(f"safety: unknown kinematics {self.kinematics!r}; known: {', '.join(sorted(KINEMATICS))}.")
         if int(self.path_samples) < 2:
             raise InputError("safety: path_samples must be >= 2.")
 
@@ -163,11 +163,11 @@ class SafetyLimits:
         allowed = (set(cls.__dataclass_fields__) | {"robot_model"}) - {"default_model"}
         unknown = set(d) - allowed
         if unknown:
-            raise InputError(f"safety: unknown keys {sorted(unknown)}; allowed: {sorted(allowed)}.")
+            raise InputError(f"safety: unknown keys {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(allowed))}.")
         model = d.pop("robot_model", None)
         if model is not None:
             if model not in FRANKA_LIMITS:
-                raise InputError(f"safety: unknown robot_model {model!r}; known: {sorted(FRANKA_LIMITS)}.")
+                raise InputError(f"safety: unknown robot_model {model!r}; known: {', '.join(sorted(FRANKA_LIMITS))}.")
             d.setdefault("q_min_rad", FRANKA_LIMITS[model]["q_min_rad"])
             d.setdefault("q_max_rad", FRANKA_LIMITS[model]["q_max_rad"])
             d.setdefault("kinematics", "franka")

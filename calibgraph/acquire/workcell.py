@@ -6,7 +6,7 @@ Workcell YAML: the simulator's schema (:mod:`calibgraph.sim.workcell`: ``board``
 (:mod:`calibgraph.plan.cell`: cameras without placements, ``hint``, ``obstacles``, ``keep_out``),
 plus the hardware fields read here::
 
-    board: a4_54                      # or {kind: checkerboard, rows: 6, cols: 9, pitch_m: 0.025}
+    board: a4_7x10_25mm               # a shipped board (alias a4_54), a spec file, or {kind: checkerboard, rows: 6, cols: 9, pitch_m: 0.025}
     mode: eye_to_hand                 # or eye_in_hand
     robot:
       driver: franka                  # franka | sim (default sim)
@@ -44,6 +44,7 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.targets import Target
 from calibgraph.core.transforms import check_pose
 from calibgraph.io.files import read_yaml
+from calibgraph.io.shipped import resolve_shipped
 from calibgraph.plan.cell import (
     CellDescription,
     board_by_name,
@@ -194,15 +195,15 @@ def workcell_spec(d, where: str, hardware: bool = True) -> WorkcellSpec:
     if hardware:
         unknown = set(robot) - ROBOT_KEYS - SIM_ROBOT_KEYS
         if unknown:
-            raise InputError(f"{where}: robot: unknown keys {sorted(unknown)}; allowed: "
-                             f"{sorted(ROBOT_KEYS | SIM_ROBOT_KEYS)}.")
+            raise InputError(f"{where}: robot: unknown keys {', '.join(sorted(unknown))}; allowed: "
+                             f"{', '.join(sorted(ROBOT_KEYS | SIM_ROBOT_KEYS))}.")
         for name, c in cams.items():
             drv = (c or {}).get("driver", "sim") if isinstance(c, dict) or c is None else None
             if drv not in CAMERA_DRIVERS:
                 raise InputError(f"{where}: camera {name!r}: unknown driver {drv!r}; choose one of {CAMERA_DRIVERS}.")
         safety = _safety(d, robot, where)
     mode = d.get("mode", "eye_to_hand")
-    target = board_by_name(d.get("board", "a4_54"))
+    target = board_by_name(d.get("board", "a4_7x10_25mm"))
     return WorkcellSpec(where, d, robot, cams, safety, target, mode, content_sha256(d))
 
 
@@ -223,4 +224,5 @@ def _safety(d: dict, robot: dict, where: str) -> SafetyLimits:
 
 def read_workcell(path, what: str = "workcell", hardware: bool = True) -> WorkcellSpec:
     """Read a workcell file (a regular file: a pipe or a device is refused, never waited on)."""
-    return workcell_spec(read_yaml(Path(path), what), str(path), hardware)
+    p = resolve_shipped(path, "workcell")  # a shipped name or datasets/workcells/... from any folder
+    return workcell_spec(read_yaml(p, what), str(p), hardware)

@@ -50,8 +50,17 @@ from calibgraph.acquire.devices import ROBOT_DRIVERS  # the registry's robot dri
 
 
 def add_parser(sub):
+    import argparse
+
+    # the help in plain text: the module's examples without its reStructuredText markup
+    examples = "\n".join(ln for ln in __doc__.splitlines() if ln.startswith("    calibgraph "))
     p = sub.add_parser("capture", help="drive the robot and record a dataset (real or simulated cell)",
-                       description=__doc__.split("\n\n")[0])
+                       description="Drive the robot through the acquisition loop (move, settle, grab, check, write) "
+                                   "and record a dataset: a fixed trajectory (default), --auto (discover the cameras, "
+                                   "choose each pose by information gain, stop at the tolerance) or --verify (has a "
+                                   "camera moved since a stored calibration?). A real robot never moves without "
+                                   "--i-have-cleared-the-cell; --dry-run plans and checks every pose, moves nothing.",
+                       epilog="examples:\n" + examples, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--workcell", type=Path, default=None,
                    help="workcell YAML (robot, cameras, safety); with --auto the cell without placements")
     p.add_argument("--trajectory", type=Path, default=None,
@@ -76,7 +85,7 @@ def add_parser(sub):
                         "tolerance): a viewer where there is a display, else a .rrd beside --out (or --rrd)")
     p.add_argument("--rrd", type=Path, default=None, metavar="FILE",
                    help="write the live view into this rerun recording instead of opening a viewer")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (the summary, warnings and errors still print)")
     a = p.add_argument_group("autonomous calibration (--auto)")
     a.add_argument("--auto", action="store_true",
                    help="discover the cameras, choose each pose by expected information gain, stop at the tolerance")
@@ -127,10 +136,7 @@ def _trajectory(args, log) -> int:
     from calibgraph.plan.trajectory import Trajectory, load_trajectory
 
     wc = read_workcell(args.workcell)
-    if wc.safety.default_model:
-        print(f"warning: {args.workcell} declares no safety: section; every pose is checked against a default cell "
-              f"model: Franka {wc.robot.get('model', 'fr3')} joint limits and kinematics, {wc.safety.describe()}. "
-              "Declare the cell's safety: section (workspace box, boxes) for a real cell.", file=sys.stderr)
+    _warn_default_safety(args.workcell, wc)
     driver = wc.robot_driver(args.robot)
     traj_path = args.trajectory
     if traj_path is None:
@@ -142,7 +148,7 @@ def _trajectory(args, log) -> int:
     if args.speed_scale is not None:
         traj = Trajectory(poses=traj.poses, speed_scale=args.speed_scale)
     inputs = {"workcell_sha256": wc.sha256, "trajectory_sha256": traj.sha256()}
-    with _claim(args, "trajectory", inputs, log, claim_dataset):
+    with _claim(args, "trajectory", inputs, log, claim_dataset, workcell=args.workcell):
         dev = _devices(args, driver, wc, wc, log, dry_run_shows="check every pose against the safety limits",
                        plans_without_robot="planning from the first pose instead of the robot's joints")
         with _run_on(dev, args):
@@ -200,6 +206,7 @@ def _auto(args, log) -> int:
         raise InputError("capture --auto on a real robot needs --workcell CELL.yaml (cameras, obstacles, safety).")
     cell = (wc.planning_cell(strip_placements=driver == "sim") if wc is not None else world.planning_cell())
     safety = _safety(wc)
+    _warn_default_safety(args.workcell, wc)  # as a trajectory run says it, dry run or not
 
     def devices(**kw):
         return _devices(args, driver, wc, world, log, names=cell.camera_names, dry_run_shows="see the survey",
@@ -215,7 +222,7 @@ def _auto(args, log) -> int:
             dev.close()
         print(rep.summary())
         return 0
-    with _claim(args, "auto", _input_hashes(wc, world), log, claim_dataset):
+    with _claim(args, "auto", _input_hashes(wc, world), log, claim_dataset, workcell=args.workcell or args.sim_world):
         pworld = planning_world(cell)
         dev = devices(skip_hidden=True)
         with _run_on(dev, args), _live_view(args, T_flange_board=cell.T_flange_board) as watch:
@@ -351,6 +358,15 @@ def _cell_and_world(args, what: str):
     return wc, world, driver
 
 
+def _warn_default_safety(path, wc) -> None:
+    """The warning of a workcell that declares no safety: section (every run that checks poses
+    against it: a trajectory, --auto, a dry run of either)."""
+    if wc is not None and wc.safety.default_model:
+        print(f"warning: {path} declares no safety: section; every pose is checked against a default cell "
+              f"model: Franka {wc.robot.get('model', 'fr3')} joint limits and kinematics, {wc.safety.describe()}. "
+              "Declare the cell's safety: section (workspace box, boxes) for a real cell.", file=sys.stderr)
+
+
 def _safety(wc):
     """The safety limits of the capture cell (--workcell); none beyond the robot's own without one."""
     from calibgraph.acquire.safety import SafetyLimits
@@ -388,8 +404,9 @@ def _run_on(dev, args):
             dev.close()
 
 
-def _claim(args, mode: str, inputs: dict, log, claim_dataset):
-    """The dataset claim of a run (nothing to claim in a dry run, which writes nothing)."""
+def _claim(args, mode: str, inputs: dict, log, claim_dataset, workcell=None):
+    """The dataset claim of a run (nothing to claim in a dry run, which writes nothing); ``workcell``:
+    the file the cameras were read from, recorded for the advice to name."""
     if args.dry_run:
         return contextlib.nullcontext()
     from calibgraph.io.output_guard import check_output_folder
@@ -400,7 +417,7 @@ def _claim(args, mode: str, inputs: dict, log, claim_dataset):
     files = getattr(args, "camera_files", None)  # a resume must use the same camera files (or none, as its run)
     inputs = {**inputs, "camera_files_sha256": content_sha256(
         {n: i.to_dict() for n, i in sorted(files.items())}) if files else None}
-    return claim_dataset(args.out, mode, inputs, args.resume, log)
+    return claim_dataset(args.out, mode, inputs, args.resume, log, files={"workcell_file": workcell})
 
 
 def _devices(args, driver, wc, world, log, **kw):

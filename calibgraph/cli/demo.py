@@ -22,10 +22,15 @@ def add_parser(sub):
     p.add_argument("--cameras", type=int, default=3, help="number of cameras (default 3)")
     p.add_argument("--distance-m", type=float, default=3.0, help="camera distance from the robot base axis (default 3 m)")
     p.add_argument("--preset", default="l515", help="camera preset: l515, d455, kinect_v2 (default l515)")
-    p.add_argument("--board", default="a4_54", help="a4_54 (7x10 squares of 25 mm) or thesis (5x4 of 46 mm)")
+    p.add_argument("--board", default="a4_7x10_25mm",
+                   help="the board on the flange: a shipped board's name (calibgraph target list; default a4_7x10_25mm, "
+                        "7 x 10 squares of 25 mm, alias a4_54; thesis_5x4_46mm, alias thesis) or a target spec file")
     p.add_argument("--poses", type=int, default=30, help="robot poses (default 30)")
     p.add_argument("--workcell", type=Path, default=None, help="workcell YAML instead of the options above")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the simulation (image noise, the robot's kinematic error) and of the planner's pose "
+                        "sampling (default 0); another seed is another draw of the same cell: its true errors change by "
+                        "about their 1-sigma")
     p.add_argument("--plan", choices=("information", "random"), default="information",
                    help="how the planner picks the poses: 'information' (default) chooses them from a sampled pool by "
                         "what they pin (far cameras' focal length against depth, the mount, the board scale); 'random' "
@@ -132,17 +137,45 @@ def run(args) -> int:
     problem, _ = build_problem(ds, "joint", None, progress=True)
     t0 = time.monotonic()
     result = replace(solve(problem), dataset=str(ds_dir), target=ds.target.to_dict())
-    _write_and_print(args, result, out, ds_dir, problem, f"solve: {time.monotonic() - t0:.1f} s; ")
+    _, verdict = _write_and_print(args, result, out, ds_dir, problem, f"solve: {time.monotonic() - t0:.1f} s; ")
     print(f"demo finished in {time.monotonic() - t_start:.0f} s; dataset with ground truth in {ds_dir}")
     if not result.converged:
         print("demo: the solver did NOT converge (see above); exit 3", file=sys.stderr)
+    print(verdict)
     return 0 if result.converged else 3
 
 
-def _write_and_print(args, result, out: Path, ds_dir: Path, source, solve_line: str = "") -> Path:
+def demo_verdict(result, truth: dict, dataset=None) -> str:
+    """The demo's last line: PASS when the solve converged and every camera is calibrated, passes the
+    report's tolerances (``datasets/tolerances/default.yaml``) and has its true error within its
+    covariance (``calibgraph check``'s chi-square test); FAIL naming what failed; with the worst
+    error / 1σ either way."""
+    from calibgraph.report.html import report_verdicts
+    from calibgraph.report.truth import ALPHA, check_against_truth
+
+    rows = check_against_truth(result, truth)
+    verdicts = report_verdicts(result, dataset=dataset)
+    bad = [] if result.converged else ["the solver did not converge"]
+    bad += [f"{r.name} not calibrated" for r in rows if r.status == "not calibrated"]
+    bad += [f"{n} fails the report's tolerances ({', '.join(v['reasons'])})" for n, v in verdicts.items()
+            if not v["pass"] and result.cameras[n].calibrated]
+    bad += [f"{r.name}'s true error is outside its covariance (Mahalanobis² {r.mahalanobis2:.1f}, p {r.p_value:.2g})"
+            for r in rows if r.status == "outside"]
+    solved = [r for r in rows if r.status in ("inside", "outside")]
+    worst = max(solved, key=lambda r: r.error_over_sigma, default=None)
+    w = "" if worst is None else (f"worst error/1σ {worst.error_over_sigma:.2f} ({worst.name}: {worst.error_mm:.3f} mm "
+                                  f"against a 1σ norm of {worst.sigma_norm_mm:.3f} mm)")
+    if not bad:
+        return (f"verdict: PASS: {len(solved)} of {len(rows)} cameras calibrated, within the report's tolerances, "
+                f"each true error within its covariance (chi-square p >= {ALPHA:g}); {w}")
+    return "verdict: FAIL: " + "; ".join(bad) + (f"; {w}" if w else "")
+
+
+def _write_and_print(args, result, out: Path, ds_dir: Path, source, solve_line: str = "") -> tuple:
     """What both demos end with: ``result.json`` in ``out``, every camera's pose, 1σ and true error
     against the simulator's ground truth, then ``report.html`` and ``calibration.rrd`` in ``out``
-    (``source``: the problem or dataset folder the recording draws the views from)."""
+    (``source``: the problem or dataset folder the recording draws the views from). Returns the
+    result's path and the verdict line (:func:`demo_verdict`) the demo ends with."""
     import numpy as np
 
     from calibgraph.cli.solve import format_summary
@@ -158,6 +191,9 @@ def _write_and_print(args, result, out: Path, ds_dir: Path, source, solve_line: 
         print(f"kept the previous result as {kept}")
     gt = load_ground_truth(ds_dir)
     print(format_summary(result, truth=gt["T_base_cam"]))
+    print("(err mm, err deg: the true error against the simulator's ground truth; err/1σ: the norm of the translation "
+          "error over the norm of its per-axis 1σ, around 1 when the 1σ is honest; calibgraph check gives the chi-square "
+          "test)")
     print("camera orientations (T_base_cam rotation vector, deg):")
     for n, c in result.calibrated.items():
         print(f"  {n:10s} {np.round(np.degrees(log_so3(c.T_ref_cam[:3, :3])), 3).tolist()}")
@@ -171,7 +207,11 @@ def _write_and_print(args, result, out: Path, ds_dir: Path, source, solve_line: 
         except ImportError as e:
             print(f"report skipped: {e}", file=sys.stderr)
         else:
-            p = write_report(result, out / "report.html", dataset=load_dataset(ds_dir), result_path=result_path)
+            p = out / "report.html"
+            kept = write_keeping_previous(p, lambda: write_report(result, p, dataset=load_dataset(ds_dir),
+                                                                  result_path=result_path))
+            if kept is not None:
+                print(f"kept the previous report as {kept} (edited since calibgraph wrote it, or too old to tell)")
             print(f"wrote {p}")
     if args.rrd:
         try:
@@ -184,7 +224,7 @@ def _write_and_print(args, result, out: Path, ds_dir: Path, source, solve_line: 
                 print(f"wrote {p} (open with: rerun {p})")
             except Exception as e:  # the recording is a convenience; the calibration is already saved
                 print(f"rerun recording skipped: {type(e).__name__}: {e}", file=sys.stderr)
-    return result_path
+    return result_path, demo_verdict(result, gt, load_dataset(ds_dir))
 
 
 def _run_auto(args, cell, out, ds_dir, t_start) -> int:
@@ -208,12 +248,14 @@ def _run_auto(args, cell, out, ds_dir, t_start) -> int:
                    options=AutoOptions(max_poses=args.max_poses, seed=args.seed),
                    progress=lambda line: print(line, file=sys.stderr, flush=True), accept=commissioning_check())
     write_ground_truth(ds_dir, cell, world)
+    verdict = "verdict: FAIL: no result (see above)"
     if rep.result is not None:
-        _write_and_print(args, rep.result, out, ds_dir, ds_dir)
+        _, verdict = _write_and_print(args, rep.result, out, ds_dir, ds_dir)
         print(f"captures {rep.captures} (survey included), robot motion {rep.robot_time_s:.0f} s; "
               f"plan log in {ds_dir / 'plan_log.json'}")
     print(rep.summary())
     print(f"demo finished in {time.monotonic() - t_start:.0f} s; dataset with ground truth in {ds_dir}")
     if not rep.converged:
         print("demo --auto did NOT finish within tolerance (see above); exit 3", file=sys.stderr)
+    print(verdict)
     return 0 if rep.converged else 3

@@ -6,11 +6,14 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from calibgraph.cli.solve import add_target_flag
+
 
 def add_parser(sub):
     p = sub.add_parser("detect", help="detect the target in a dataset's images and report per camera",
                        description="Detect the target in all images of a dataset (results are cached next to the data).")
     p.add_argument("dataset", type=Path, help="dataset folder (calibgraph or a peer layout)")
+    add_target_flag(p)
     p.add_argument("--workers", type=int, default=2, help="parallel detection threads (default 2)")
     p.add_argument("--upscale", default="auto", help="'auto' (default), 1 (off), 2 or 3")
     p.add_argument("--method", choices=("classic", "sb", "auto"), default="auto",
@@ -46,6 +49,7 @@ def summarise(dataset, results) -> str:
 def run(args) -> int:
     from calibgraph.detect.corners import dataset_detector
     from calibgraph.io.layouts import load_dataset
+    from calibgraph.io.specs import target_option
 
     from calibgraph.core.errors import InputError
 
@@ -53,7 +57,7 @@ def run(args) -> int:
         raise InputError(f"--upscale {args.upscale}: give auto, 1 (off), 2 or 3.")
     if args.workers < 1:
         raise InputError(f"--workers {args.workers}: give 1 or more threads.")
-    ds = load_dataset(args.dataset)
+    ds = load_dataset(args.dataset, target=target_option(args.target))
     up = args.upscale if args.upscale == "auto" else int(args.upscale)
     det = dataset_detector(ds, workers=args.workers, progress=not args.quiet, cache=not args.no_cache, upscale=up,
                            method=args.method, fail_fast=True)

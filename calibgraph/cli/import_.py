@@ -14,15 +14,21 @@ from pathlib import Path
 
 
 def add_parser(sub):
-    p = sub.add_parser("import", help="import a recording (rosbag2: sqlite3 or MCAP) as a dataset",
-                       description="Write a calibgraph dataset from a rosbag2 recording (sqlite3 or MCAP): camera "
-                                   "images + CameraInfo, the robot pose from /tf + /tf_static (base -> flange) or "
-                                   "/joint_states (Franka model): a capture at each moment the robot is still, with "
-                                   "the cameras that have a frame in it.")
-    p.add_argument("format", choices=("rosbag2",), help="recording format")
+    top = sub.add_parser("import", help="import a recording (rosbag2: sqlite3 or MCAP) as a dataset",
+                         description="Write a calibgraph dataset from a recording; `calibgraph import FORMAT --help` "
+                                     "gives the flags of each format.")
+    formats = top.add_subparsers(dest="format", metavar="FORMAT", required=True)
+    # each format its own usage and flags, so that `import rosbag2 --help` says rosbag2's
+    p = formats.add_parser("rosbag2", help="a ROS 2 bag (sqlite3 or MCAP)",
+                           description="Write a calibgraph dataset from a rosbag2 recording (sqlite3 or MCAP): camera "
+                                       "images + CameraInfo, the robot pose from /tf + /tf_static (base -> flange) or "
+                                       "/joint_states (Franka model): a capture at each moment the robot is still, "
+                                       "with the cameras that have a frame in it.")
     p.add_argument("bag", type=Path, help="the bag folder (with metadata.yaml) or its .db3 / .mcap file")
     p.add_argument("--out", type=Path, required=True, help="new dataset folder (created; not one holding a dataset)")
-    p.add_argument("--base-frame", default=None, help="TF base frame (default fr3_link0 / panda_link0)")
+    p.add_argument("--base-frame", default=None,
+                   help="the bag's TF frame of the robot base, to read the robot pose from (default fr3_link0 / "
+                        "panda_link0); not an output frame: the dataset's poses are in the base frame")
     p.add_argument("--flange-frame", default=None, help="TF flange frame (default fr3_link8 / panda_link8)")
     p.add_argument("--camera", action="append", default=[], metavar="NAME=IMAGE_TOPIC",
                    help="a camera and its image topic (repeat; default: every image topic, named by namespace)")
@@ -32,8 +38,8 @@ def add_parser(sub):
     p.add_argument("--still-mm", type=float, default=0.2, help="the robot is still while it moves less (default 0.2)")
     p.add_argument("--still-deg", type=float, default=0.02, help="... and turns less (default 0.02)")
     p.add_argument("--min-still-s", type=float, default=0.3, help="for at least this long (default 0.3 s)")
-    p.add_argument("--quiet", action="store_true")
-    return p
+    p.add_argument("--quiet", action="store_true", help="no summary (warnings and errors still print)")
+    return top
 
 
 def run(args) -> int:

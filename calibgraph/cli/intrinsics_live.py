@@ -30,16 +30,16 @@ def _device(args, spec, board):
 
         return open_camera(name, entry, spec.where)
     if not spec.has_placements:
-        raise InputError(f"{spec.where}: camera {name!r} is not in this workcell (cameras: {sorted(spec.cameras)}); "
+        raise InputError(f"{spec.where}: camera {name!r} is not in this workcell (cameras: {', '.join(sorted(spec.cameras)) or 'none'}); "
                          "a camera needs its driver (realsense, kinect, ros2) or a simulated placement.")
-    from calibgraph.sim.handheld import HandheldBoardCamera
+    from calibgraph.sim.handheld import HandheldBoardCamera, camera_seed
     from calibgraph.sim.workcell import workcell_from_dict
 
     cell = workcell_from_dict(spec.sim_world(), spec.where)
     if name not in cell.camera_names:
-        raise InputError(f"{spec.where}: no camera {name!r}; its cameras are {cell.camera_names}.")
+        raise InputError(f"{spec.where}: no camera {name!r}; its cameras are {', '.join(cell.camera_names)}.")
     return HandheldBoardCamera(name, cell.camera(name).intrinsics, cell.target, reported=cell.reported_intrinsics(name),
-                               realism=cell.realism, seed=cell.seed, follows_hints=True)
+                               realism=cell.realism, seed=camera_seed(cell.seed, name), follows_hints=True)
 
 
 class _Console:

@@ -15,7 +15,8 @@ import sys
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.version import __version__
 
-COMMANDS = ("demo", "sim", "capture", "detect", "intrinsics", "solve", "target", "report", "view", "export", "verify", "import")
+COMMANDS = ("demo", "sim", "capture", "detect", "intrinsics", "solve", "check", "target", "report", "view", "export", "verify",
+            "import")
 # a command whose name is a Python keyword lives in <name>_.py
 MODULES = {"import": "import_"}
 
@@ -31,6 +32,13 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def error_text(command: str, e: Exception) -> str:
+    """The message of a known error without a leading '<command>: ' (the engine names its stage; the
+    line already starts 'calibgraph <command>: error: ')."""
+    msg = str(e)
+    return msg[len(command) + 2:] if msg.startswith(f"{command}: ") else msg
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -40,7 +48,7 @@ def main(argv=None) -> int:
     try:
         return int(args._run(args) or 0)
     except CalibgraphError as e:
-        print(f"calibgraph {args.command}: error: {e}", file=sys.stderr)
+        print(f"calibgraph {args.command}: error: {error_text(args.command, e)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"calibgraph {args.command}: interrupted", file=sys.stderr)

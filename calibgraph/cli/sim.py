@@ -39,7 +39,7 @@ def add_parser(sub):
                    help="instead of a dataset, write a close-range intrinsics session to --out: N hand-held images "
                         "per camera of the board at 0.3-0.8 m (OUT/<camera>/*.png, OUT/target.yaml, "
                         "OUT/ground_truth.json) for calibgraph intrinsics; no robot, no OpenGL")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (warnings and errors still print)")
     return p
 
 
@@ -88,7 +88,7 @@ def run(args) -> int:
     say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     # the dataset is claimed before anything is built: a dataset of another run is refused untouched,
     # a file or a read-only folder is said now, not after simulating
-    with claim_dataset(args.out, "sim", inputs, args.resume, say) as claim:
+    with claim_dataset(args.out, "sim", inputs, args.resume, say, files={"workcell_file": args.workcell}) as claim:
         output_folder(args.out, "dataset folder")
         say(f"building the simulated workcell {cell.name!r}: {len(cell.cameras)} cameras, board "
             f"{cell.target.rows}x{cell.target.cols} points of {cell.target.pitch_m * 1e3:g} mm, "

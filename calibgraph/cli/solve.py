@@ -19,8 +19,9 @@ EXIT_NOT_CALIBRATED = 3  # the result is written, but a camera could not be cali
 
 def add_parser(sub):
     p = sub.add_parser("solve", help="calibrate all cameras of a dataset folder",
-                       description="Solve a dataset (calibgraph, industrial_calibration or MC-HEC layout).")
+                       description="Solve a dataset (calibgraph, industrial_calibration, MC-HEC or ViSP layout).")
     p.add_argument("dataset", type=Path, help="dataset folder")
+    add_target_flag(p)
     p.add_argument("--out", type=Path, default=None, help="result file (.json or .yaml); default DATASET/result.json")
     p.add_argument("--method", choices=("joint", "single"), default="joint",
                    help="joint: one shared board mount (default); single: each camera alone")
@@ -29,8 +30,22 @@ def add_parser(sub):
                    help="camera NAME's intrinsics from a camera file (calibgraph intrinsics): its values and "
                         "covariance become the camera's prior (repeatable)")
     p.add_argument("--rrd", type=Path, default=None, help="also write a rerun recording")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--strict", action="store_true",
+                   help=f"also judge the result against the report's tolerances, print the verdict and exit "
+                        f"{EXIT_NOT_CALIBRATED} on FAIL (the result is still written); default: exit 0 when every camera "
+                        "is calibrated, whatever the tolerances")
+    p.add_argument("--config", type=Path, default=None,
+                   help="with --strict: the tolerances YAML (as report --config; default datasets/tolerances/default.yaml)")
+    p.add_argument("--quiet", action="store_true", help="no progress, no table (warnings and errors still go to stderr)")
     return p
+
+
+def add_target_flag(parser) -> None:
+    """``--target SPEC.yaml``: the board of a dataset layout that names none (ViSP's)."""
+    parser.add_argument("--target", type=Path, default=None, metavar="SPEC.yaml",
+                        help="the board of a ViSP hand-eye folder (target: {kind, rows, cols, pitch_m}, rows/cols "
+                             "counting inner corners); wins over its target.yaml and chessboard-data.txt; refused "
+                             "for layouts that name their own board")
 
 
 def add_solver_flags(parser) -> None:
@@ -108,18 +123,19 @@ def format_summary(result, truth=None) -> str:
     ref = frames.camera_key
     lines = [f"mode {result.mode}, method {result.method}, pixel sigma {result.pixel_sigma_px:.3f} px, "
              f"solved in {result.solve_time_s:.2f} s{oracle_label(result)}"]
-    hdr = f"{'camera':10s} {'x [m]':>8s} {'y [m]':>8s} {'z [m]':>8s} {'1σ t [mm]':>16s} {'1σ r [deg]':>20s} {'rms px':>7s} {'views':>9s}"
+    w = max([10, *(len(n) for n in result.cameras)])  # a long camera name widens the column, not the row
+    hdr = f"{'camera':{w}s} {'x [m]':>8s} {'y [m]':>8s} {'z [m]':>8s} {'1σ t [mm]':>16s} {'1σ r [deg]':>20s} {'rms px':>7s} {'views':>9s}"
     if truth is not None:
         hdr += f" {'err mm':>7s} {'err deg':>8s} {'err/1σ':>7s}"
     lines += [f"{ref} per camera:", hdr]
     for n, c in result.cameras.items():
         if not c.calibrated:
-            lines.append(f"{n:10s} NOT CALIBRATED: {c.why}")
+            lines.append(f"{n:{w}s} NOT CALIBRATED: {c.why}")
             continue
         t = c.T_ref_cam[:3, 3]
         st = "/".join(f"{v:.2f}" for v in c.sigma_translation_mm)
         sr = "/".join(f"{v:.3f}" for v in c.sigma_rotation_deg)
-        row = (f"{n:10s} {t[0]:8.4f} {t[1]:8.4f} {t[2]:8.4f} {st:>16s} {sr:>20s} {c.reprojection_rms_px:7.3f} "
+        row = (f"{n:{w}s} {t[0]:8.4f} {t[1]:8.4f} {t[2]:8.4f} {st:>16s} {sr:>20s} {c.reprojection_rms_px:7.3f} "
                f"{c.views_used:4d}/{c.views_used + len(c.views_rejected):<4d}")
         if truth is not None and n in truth:
             e_m, e_deg = pose_error(c.T_ref_cam, truth[n])
@@ -163,11 +179,12 @@ def robot_lines(robot: dict | None) -> list:
     o, s = robot["joint_offsets_rad"], robot["joint_offsets_sigma_rad"]
     names = robot.get("joint_names") or [f"joint{i + 1}" for i in range(len(o))]
     lines = [f"robot joint zero offsets ({robot.get('model', '?')}; physical angle = reported + offset), mrad:"]
+    w = max([10, *(len(str(n)) for n in names)])
     for i, (n, v, sg) in enumerate(zip(names, o, s)):
         if sg is None:
-            lines.append(f"  {n:10s} held at 0")
+            lines.append(f"  {n:{w}s} held at 0")
         else:
-            lines.append(f"  {n:10s} {1e3 * v:+8.3f} ± {1e3 * sg:.3f}  ({v / sg:+.1f} σ from zero)")
+            lines.append(f"  {n:{w}s} {1e3 * v:+8.3f} ± {1e3 * sg:.3f}  ({v / sg:+.1f} σ from zero)")
     for f in robot.get("fixed", []):
         lines.append(f"  joint {f['joint']} fixed: {f['reason']}")
     strong = [c for c in robot.get("strongest_correlations", []) if abs(c["correlation"]) >= 0.5]
@@ -193,6 +210,24 @@ def print_problems(problems, per_kind: int = 3) -> None:
             print(f"warning: ... and {len(items) - per_kind} more images like these", file=sys.stderr)
 
 
+def name_inputs(result, workcell=None, camera_files: dict | None = None):
+    """``result`` naming the user's own files: each advice's ``--workcell CELL.yaml`` the workcell the
+    dataset was captured with (when it records one), and each camera's intrinsics the camera file it
+    was given with ``--intrinsics NAME=FILE`` (``intrinsics.file``)."""
+    from calibgraph.solver.session_plan import name_workcell
+
+    camera_files = camera_files or {}
+    cams = {}
+    for n, c in result.cameras.items():
+        b, intr = c.error_budget, c.intrinsics
+        if b and b.get("advice") and workcell is not None:
+            b = {**b, "advice": name_workcell(b["advice"], workcell)}
+        if intr is not None and n in camera_files:
+            intr = {**intr, "file": str(camera_files[n])}
+        cams[n] = replace(c, error_budget=b, intrinsics=intr)
+    return replace(result, cameras=cams)
+
+
 def camera_file_paths(items) -> list:
     """The files of ``--intrinsics NAME=CAM.yaml`` arguments (inputs no output may replace)."""
     return [Path(s.partition("=")[2]) for s in items if "=" in s]
@@ -212,32 +247,39 @@ def run(args) -> int:
 
 def _run(args) -> int:
     from calibgraph.io.camera_file import apply_camera_files, read_camera_file_args
+    from calibgraph.io.dataset import recorded_workcell
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file, write_keeping_previous
+    from calibgraph.io.specs import target_option
     from calibgraph.solver.batch import solve
 
     out = args.out or (args.dataset / "result.json")
     files = read_camera_file_args(args.intrinsics)
-    ds = load_dataset(args.dataset)
+    ds = load_dataset(args.dataset, target=target_option(args.target))
     if files:
         ds = replace(ds, cameras=apply_camera_files(ds.cameras, files, f"dataset {args.dataset}"))
     # said now, not after solving; the previous result stays until the new one is whole, and is kept then
-    inputs = camera_file_paths(args.intrinsics)
+    inputs = camera_file_paths(args.intrinsics) + ([args.target] if args.target is not None else []) \
+        + ([args.config] if args.config is not None else [])
     check_output_file(out, "result", "result file", "result.json", inputs=inputs, datasets=[args.dataset])
+    if args.config is not None:
+        if not args.strict:
+            from calibgraph.core.errors import InputError
+
+            raise InputError("--config (tolerances) is read only with --strict; add --strict or drop --config.")
+        from calibgraph.report.tolerances import load_tolerances
+
+        load_tolerances(args.config)  # a bad tolerance file is said now, not after solving
     if args.rrd:
         check_output_file(args.rrd, "recording", "rerun recording", "calibgraph.rrd", inputs=inputs + [out],
                           datasets=[args.dataset])
     for f, msg in ds.problems:
         print(f"warning: {f}: {msg}", file=sys.stderr)
     opts = solver_options(args, ds)
-    if opts.kinematics == "joint-offsets":
-        missing = [c.index for c in ds.captures if c.q_rad is None]
-        if missing:
-            from calibgraph.core.errors import InputError
+    if opts.kinematics == "joint-offsets":  # said now, before detection: the angles must give the recorded poses
+        from calibgraph.solver.kinematics import check_recorded_angles
 
-            raise InputError(f"--estimate-kinematics {opts.kinematics} needs the joint angles (q_rad) of every capture; "
-                             f"{len(missing)} of {len(ds.captures)} captures in {args.dataset} have none (first: capture "
-                             f"{missing[0]}). Record them (calibgraph capture does) or solve without the option.")
+        check_recorded_angles(opts.kinematics_model, ds.captures, f"--estimate-kinematics {opts.kinematics}")
     problem, detector = build_problem(ds, args.method, opts, progress=not args.quiet)
     print_problems(getattr(detector, "problems", []) or [])
     if not args.quiet:
@@ -245,6 +287,7 @@ def _run(args) -> int:
             print(note)
     result = solve(problem)
     result = replace(result, dataset=str(args.dataset), target=ds.target.to_dict())
+    result = name_inputs(result, recorded_workcell(args.dataset), dict(zip(files, camera_file_paths(args.intrinsics))))
     kept = write_keeping_previous(out, lambda: result.save(out))
     if kept is not None:
         print(f"kept the previous result as {kept}")
@@ -266,4 +309,10 @@ def _run(args) -> int:
                 print(f"wrote {args.rrd}")
     for name, why in result.not_calibrated.items():
         print(f"calibgraph solve: camera {name} is NOT calibrated: {why}", file=sys.stderr)
+    if args.strict:
+        from calibgraph.cli.report import print_verdict
+        from calibgraph.report.html import report_verdicts
+
+        if not print_verdict(result, report_verdicts(result, config=args.config, dataset=ds)):
+            return EXIT_NOT_CALIBRATED
     return EXIT_NOT_CALIBRATED if result.not_calibrated else 0

@@ -24,7 +24,7 @@ def add_parser(sub):
     p.add_argument("--alpha", type=float, default=None,
                    help="false-alarm probability per camera of the test (default 0.001)")
     p.add_argument("--verdict", type=Path, default=None, help="verdict JSON (default DATASET/verify.json)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no table: only the verdict line (and warnings, errors)")
     return p
 
 
@@ -59,14 +59,15 @@ def run(args) -> int:
     from calibgraph.core.errors import InputError
     from calibgraph.io.files import atomic_write_text
     from calibgraph.io.layouts import load_dataset
-    from calibgraph.io.output_guard import check_output_file
+    from calibgraph.io.output_guard import check_output_file, write_keeping_previous
     from calibgraph.solver.build import build_problem
-    from calibgraph.solver.result import load_result, result_path
+    from calibgraph.solver.result import load_result, result_path, solved_target
     from calibgraph.solver.verify import DEFAULT_ALPHA, check_fresh_data, verify
 
     args.result = result_path(args.result)  # the stored calibration's dataset folder: its result.json
     stored = load_result(args.result)
-    dataset = load_dataset(args.dataset)
+    # a fresh ViSP folder that names no board is checked with the stored calibration's
+    dataset = load_dataset(args.dataset, fallback_target=solved_target(stored))
     if not dataset.captures:
         raise InputError(f"{args.dataset}: no captures to verify with.")
     check_fresh_data(stored, dataset.cameras, dataset.target, str(args.result))  # before detecting anything
@@ -77,7 +78,9 @@ def run(args) -> int:
                 target=dataset.target)
     d = vr.to_dict()
     d.update({"result": str(args.result), "dataset": str(args.dataset)})
-    atomic_write_text(out, json.dumps(d, indent=2))
+    kept = write_keeping_previous(out, lambda: atomic_write_text(out, json.dumps(d, indent=2)))
+    if kept is not None:
+        print(f"kept the previous verdict as {kept}")
     if not args.quiet:
         print(format_verdict(vr))
         print(f"wrote {out}")

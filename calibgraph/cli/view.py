@@ -34,7 +34,16 @@ def run(args) -> int:
     path = check_output_file(args.rrd or args.result.with_suffix(".rrd"), "recording", "recording file",
                              "calibgraph.rrd", inputs=[args.result],
                              datasets=[result.dataset, args.dataset, args.result.parent])
-    write_rrd(result, dataset, path)
+    if dataset is not None:  # a layout that names no board (ViSP's) is read with the board it was solved with
+        from calibgraph.io.layouts import load_dataset
+        from calibgraph.report.rerun_view import plan_log_path
+        from calibgraph.solver.result import solved_target
+
+        plan_log = plan_log_path(dataset)
+        dataset = load_dataset(dataset, fallback_target=solved_target(result))
+        write_rrd(result, dataset, path, plan_log=plan_log)
+    else:
+        write_rrd(result, dataset, path)
     print(f"wrote {path}")
     if args.rrd is None:
         if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):

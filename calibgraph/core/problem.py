@@ -340,6 +340,10 @@ class SolverOptions:
     view_noise_modes: bool = _flag(True)
     corner_noise: str = _flag("per-view")
     fk_variance: bool = _flag(True)
+    # the arm's repeatability: how far apart two visits of one configuration (the same joint target reached
+    # again) put the flange; None: the stated FK sigmas (the solve pins them there before any is widened)
+    fk_repeat_translation_m: float | None = _flag(None)
+    fk_repeat_rotation_rad: float | None = _flag(None)
 
     def __post_init__(self):
         if self.corner_noise not in CORNER_NOISE:
@@ -369,6 +373,73 @@ class SolverOptions:
             raise InputError(f"solver: joint_offset_prior_rad must be positive, got {self.joint_offset_prior_rad}.")
         if self.pixel_sigma_px is not None and not (self.pixel_sigma_px > 0):
             raise InputError("solver: pixel_sigma_px must be positive or None.")
+
+
+# A capture revisits an earlier capture's configuration (the same joint target, reached again) when its
+# reported joint angles are this close to that one's, every joint (or, where a capture records none,
+# its reported flange pose this close). A real arm's absolute error repeats with its configuration, so
+# the two share it: a revisit is not a second draw of the robot's error. Calibration poses differ by
+# centimetres and degrees; a revisit repeats its target to the arm's repeatability (0.1 mm for a Panda), or
+# nearly (a Franka's three sessions of 12 joint targets: 0.05-0.12 deg apart, 0.5-1.4 mm at the flange).
+REVISIT_Q_RAD = 3e-3
+REVISIT_POSITION_M = 2e-3
+REVISIT_ROTATION_RAD = float(np.radians(0.2))
+
+
+_CONFIGURATIONS: dict = {}  # id(captures tuple) -> (the tuple, its configuration_of): Problem.with_ keeps the tuple
+
+
+def configuration_of(captures) -> dict:
+    """capture index -> the index of the first capture (in index order) at its configuration: itself,
+    unless it revisits an earlier capture's joint target (:data:`REVISIT_Q_RAD`, every joint, where every
+    capture records the same number of joint angles; else the flange pose, :data:`REVISIT_POSITION_M` and
+    :data:`REVISIT_ROTATION_RAD`)."""
+    caps = sorted(captures, key=lambda c: c.index)
+    if not caps:
+        return {}
+    sizes = {None if c.q_rad is None else np.asarray(c.q_rad).size for c in caps}
+    by_q = None not in sizes and len(sizes) == 1
+    X = (np.array([np.asarray(c.q_rad, float).reshape(-1) for c in caps]) if by_q
+         else np.array([np.asarray(c.T_base_flange, float)[:3, 3] for c in caps]))
+    R = None if by_q else np.array([np.asarray(c.T_base_flange, float)[:3, :3] for c in caps])
+    out, leaders = {}, np.empty(len(caps), int)
+    n_lead = 0
+    for i, c in enumerate(caps):
+        g = c.index
+        if n_lead:
+            L = leaders[:n_lead]
+            if by_q:
+                near = L[np.max(np.abs(X[L] - X[i]), axis=1) <= REVISIT_Q_RAD]
+            else:
+                near = L[np.linalg.norm(X[L] - X[i], axis=1) <= REVISIT_POSITION_M]
+                cos = (np.einsum("nji,ji->n", R[near], R[i]) - 1.0) / 2.0  # trace(R_j^T R_i): the angle between
+                near = near[np.arccos(np.clip(cos, -1.0, 1.0)) <= REVISIT_ROTATION_RAD]
+            if near.size:
+                g = caps[int(near[0])].index
+        out[c.index] = g
+        if g == c.index:
+            leaders[n_lead] = i
+            n_lead += 1
+    return out
+
+
+def with_repeatability(options: "SolverOptions") -> "SolverOptions":
+    """``options`` with the arm's repeatability pinned (the stated FK sigmas where not given), so that a
+    later widening of the FK prior (the arm's absolute accuracy) leaves it as stated."""
+    from dataclasses import replace
+    return replace(options,
+                   fk_repeat_translation_m=options.fk_repeat_translation_m or options.fk_sigma_translation_m,
+                   fk_repeat_rotation_rad=options.fk_repeat_rotation_rad or options.fk_sigma_rotation_rad)
+
+
+def configuration_folds(captures, folds: int) -> list:
+    """``folds`` sets of capture indices for cross-validation: the configurations (not the captures) dealt
+    in order, each fold holding every capture of its configurations, so that no fold is predicted from a
+    visit of its own joint targets. Fewer folds (down to none) when there are fewer configurations."""
+    config = configuration_of(captures)
+    leaders = sorted(set(config.values()))
+    sets = [set(leaders[i::folds]) for i in range(min(folds, len(leaders)))]
+    return [{k for k, g in config.items() if g in s} for s in sets]
 
 
 @dataclass(frozen=True)
@@ -425,7 +496,7 @@ class Problem:
             if d.camera not in self.cameras:
                 raise InputError(
                     f"detection for unknown camera {d.camera!r} (capture {d.capture}); "
-                    f"known cameras: {sorted(self.cameras)}."
+                    f"known cameras: {', '.join(sorted(self.cameras))}."
                 )
             if d.capture not in known:
                 raise InputError(f"camera {d.camera!r}: detection refers to capture {d.capture}, which has no robot pose.")
@@ -447,6 +518,22 @@ class Problem:
     def records_joint_angles(self) -> bool:
         """Every capture records its joint angles (what joint zero offsets need)."""
         return bool(self.captures) and all(c.q_rad is not None for c in self.captures)
+
+    @property
+    def configurations(self) -> dict:
+        """capture index -> the first capture at its configuration (:func:`configuration_of`; computed
+        once for the captures, which :meth:`with_` passes on)."""
+        hit = _CONFIGURATIONS.get(id(self.captures))
+        if hit is None or hit[0] is not self.captures:
+            if len(_CONFIGURATIONS) > 16:
+                _CONFIGURATIONS.clear()
+            hit = _CONFIGURATIONS[id(self.captures)] = (self.captures, configuration_of(self.captures))
+        return hit[1]
+
+    @property
+    def revisits(self) -> bool:
+        """Some capture revisits an earlier one's configuration."""
+        return any(k != g for k, g in self.configurations.items())
 
     def detections_of(self, camera: str) -> list:
         return [d for d in self.detections if d.camera == camera]

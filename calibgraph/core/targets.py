@@ -107,6 +107,18 @@ class Target:
         """Squares along a column (boards of squares)."""
         return self.rows + 1
 
+    def describe(self) -> str:
+        """The board in words, rows first as in the spec: 'checkerboard, 7 x 10 squares of 25 mm,
+        6 x 9 inner corners' (the one description every command and the printout use)."""
+        mm = f"{self.pitch_m * 1e3:.6g} mm"
+        if self.kind == "checkerboard":
+            return f"checkerboard, {self.squares_y} x {self.squares_x} squares of {mm}, {self.rows} x {self.cols} inner corners"
+        if self.kind == "charuco":
+            return (f"ChArUco, {self.squares_y} x {self.squares_x} squares of {mm}, {self.rows} x {self.cols} inner corners, "
+                    f"{self.marker_m * 1e3:.6g} mm {self.dictionary} markers{' (legacy layout)' if self.legacy_charuco else ''}")
+        name = {"circles": "circle grid", "acircles": "asymmetric circle grid", "modified_circles": "modified circle grid"}[self.kind]
+        return f"{name}, {self.rows} x {self.cols} dots of {self.circle_d_m * 1e3:.6g} mm, pitch {mm}"
+
     @property
     def circle_d_m(self) -> float:
         """Circle diameter used for printing/rendering (``circle_diameter_m`` or half the pitch,
@@ -247,7 +259,7 @@ def dictionary_name(d) -> str:
 
 
 def thesis_board() -> Target:
-    """The thesis's A4 board: 5 x 4 squares of 46 mm -> 4 x 3 inner corners.
+    """``thesis_5x4_46mm``, the thesis's A4 board: 4 x 5 squares of 46 mm -> 3 x 4 inner corners.
 
     3 + 4 is odd, so the board has no 180-degree symmetry and its corner ids are unambiguous.
     """
@@ -255,7 +267,7 @@ def thesis_board() -> Target:
 
 
 def a4_board_54() -> Target:
-    """7 x 10 squares of 25 mm (6 x 9 = 54 inner corners), fits A4."""
+    """``a4_7x10_25mm`` (alias ``a4_54``): 7 x 10 squares of 25 mm (6 x 9 = 54 inner corners), fits A4."""
     return Target(kind="checkerboard", rows=6, cols=9, pitch_m=0.025)
 
 

@@ -72,6 +72,7 @@ def read_camera_file(path) -> Intrinsics:
     else:
         d = parse_yaml(raw, p, "camera file")
         d = _from_ros(p, d) if _is_ros(d) else _from_kalibr(p, d) if _kalibr_camera(d) is not None else d
+    _refuse_other_files(p, d)
     try:
         return Intrinsics.from_dict(d)
     except CalibgraphError as e:
@@ -79,6 +80,23 @@ def read_camera_file(path) -> Intrinsics:
     except (TypeError, ValueError) as e:
         raise InputError(f"{p}: not a camera file ({e}); it needs K (3x3) or fx, fy, cx, cy, and width_px, "
                          "height_px.") from None
+
+
+def _refuse_other_files(p: Path, d) -> None:
+    """A workcell or a dataset header given where a camera file belongs is said as such, with where
+    it goes (not as a camera file missing 'fx')."""
+    if not isinstance(d, dict) or any(k in d for k in ("K", "fx", "camera_matrix")):
+        return
+    if str(d.get("format", "")).startswith("calibgraph-dataset"):
+        raise InputError(f"{p}: this is a dataset's header (dataset.yaml), not a camera file: give the dataset folder "
+                         "to solve; --intrinsics NAME=FILE takes one camera's file (calibgraph intrinsics --out writes "
+                         "one).")
+    keys = [k for k in ("cameras", "robot", "board", "safety", "mount") if k in d]
+    if keys:
+        raise InputError(f"{p}: this is a workcell file (it has {', '.join(k + ':' for k in keys)}), not a camera file: "
+                         "a workcell goes to --workcell (capture, sim, intrinsics --live); --intrinsics NAME=FILE takes "
+                         "one camera's file (calibgraph intrinsics --out writes one, e.g. intrinsics --live --camera "
+                         f"NAME --workcell {p} --out NAME.yaml).")
 
 
 # distortion models other tools name -> True when calibgraph's OpenCV model carries them

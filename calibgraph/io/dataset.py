@@ -41,6 +41,7 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
 from calibgraph.core.targets import Target
+from calibgraph.core.version import format_age
 from calibgraph.io.files import atomic_write_text, read_input_bytes, read_yaml
 
 FORMAT = "calibgraph-dataset/1"
@@ -161,6 +162,24 @@ def write_problem(root, problem, target: Target | None = None) -> Path:
     return Path(root)
 
 
+def recorded_run(root) -> dict:
+    """What made a calibgraph dataset (``made_by`` of its ``dataset.yaml``: mode, input hashes,
+    ``workcell_file``); {} when it does not say (not recorded, another layout, an unreadable header)."""
+    try:
+        d = read_yaml(Path(root) / "dataset.yaml", "dataset header")
+    except (InputError, OSError):
+        return {}
+    rec = d.get("made_by") if isinstance(d, dict) else None
+    return dict(rec) if isinstance(rec, dict) else {}
+
+
+def recorded_workcell(root) -> Path | None:
+    """The workcell file a calibgraph dataset records it was captured with (``made_by.workcell_file``)
+    when that file is still there; None otherwise."""
+    f = recorded_run(root).get("workcell_file")
+    return Path(f) if isinstance(f, str) and Path(f).is_file() else None
+
+
 def is_calibgraph_dataset(root) -> bool:
     return (Path(root) / "dataset.yaml").is_file()
 
@@ -205,9 +224,11 @@ def read_calibgraph_dataset(root) -> Dataset:
     head = read_yaml(root / "dataset.yaml", "dataset header")
     fmt = str(head.get("format", FORMAT))
     if fmt != FORMAT:
-        newer = fmt.startswith("calibgraph-dataset/")
+        age = format_age(fmt, FORMAT)
         raise InputError(f"{root / 'dataset.yaml'}: format {fmt!r} " + (
-            f"is newer than this calibgraph reads ({FORMAT}); upgrade calibgraph." if newer else
+            f"is newer than this calibgraph reads ({FORMAT}); upgrade calibgraph." if age == "newer" else
+            f"is older than the one this calibgraph reads ({FORMAT}): write the dataset's header as docs/formats.md "
+            "describes, or capture (import) it again with this calibgraph." if age == "older" else
             f"is not a calibgraph dataset ({FORMAT})."))
     if "target" not in head or "cameras" not in head:
         raise InputError(f"{root / 'dataset.yaml'}: needs 'target' and 'cameras' sections (see README, Dataset format).")

@@ -3,6 +3,9 @@ calibgraph writes a file: atomically, and only onto a regular file or a new path
 
 from __future__ import annotations
 
+import errno
+import glob
+import hashlib
 import os
 import stat
 from pathlib import Path
@@ -114,28 +117,92 @@ def yaml_error_line(e) -> str:
     return f"not valid YAML{where}: {what}" + (f" ({ctx})" if ctx else "")
 
 
+def _pathconf(path: Path, name: str, default: int) -> int:
+    """``os.pathconf`` of the nearest existing folder at or above ``path`` (``default`` when unknown)."""
+    p = Path(os.path.abspath(path))
+    for a in (p, *p.parents):
+        try:
+            if a.is_dir():
+                v = os.pathconf(a, name)
+                return int(v) if v and v > 0 else default
+        except (OSError, ValueError):
+            continue
+    return default
+
+
+def name_max(path) -> int:
+    """The longest file name (bytes) the file system at ``path`` allows (255 on Linux file systems)."""
+    return _pathconf(Path(path), "PC_NAME_MAX", 255)
+
+
+def shown_path(path, n: int = 60) -> str:
+    """A path short enough for a one-line message: its start and its end."""
+    s = str(path)
+    return s if len(s) <= 2 * n else f"{s[:n]}…{s[-n:]}"
+
+
+def check_path_limits(path, what: str = "output path") -> None:
+    """Refuse, before any work, a path the file system cannot hold: longer than its path limit
+    (PATH_MAX, 4096 bytes on Linux) or with a name longer than its name limit (NAME_MAX, 255 bytes);
+    one :class:`InputError` naming the limit (the write would otherwise fail after the work, or every
+    look at the path raise)."""
+    a = os.fsencode(os.path.abspath(path))
+    # asked of a folder the path starts in (a 5,000-byte path has no folder the system can look at)
+    limit = _pathconf(Path(os.path.dirname(os.fsdecode(a[:1024])) or "/"), "PC_PATH_MAX", 4096)
+    if len(a) >= limit:
+        raise InputError(f"{shown_path(path)}: the path is {len(a)} bytes long and the file system allows {limit - 1}; "
+                         f"choose a shorter {what} (nothing was changed).")
+    most = name_max(path)
+    for part in Path(os.fsdecode(a)).parts:
+        n = len(os.fsencode(part))
+        if n > most:
+            raise InputError(f"{shown_path(path)}: the name {shown_path(part, 20)} is {n} bytes long and the file system "
+                             f"allows {most} per name; choose a shorter {what} (nothing was changed).")
+
+
+def symlink_loop(path, what: str = "output path") -> InputError:
+    """The refusal of a path that is, or lies under, a symlink loop."""
+    try:
+        own = Path(path).is_symlink()
+    except OSError:
+        own = False
+    where = "is a symlink loop" if own else "lies under a symlink loop"
+    return InputError(f"{shown_path(path)}: {where} (following its links comes back to them); remove the link or "
+                      f"choose another {what} (nothing was changed).")
+
+
 def writable_target(path, example: str = "result.json") -> Path:
     """The file that writing ``path`` should replace: ``path`` itself, or the file a symlink points
-    to (the link is kept). Refuses, with the fix, a directory, a device or any other non-regular
-    file, and a parent that is not a directory."""
+    to (the link is kept). Refuses, with the fix, a path the file system cannot hold
+    (:func:`check_path_limits`), a directory, a device or any other non-regular file (judged by what
+    ``path`` opens, so ``/proc/self/fd/1`` on a pipe is a pipe), a symlink loop, and a parent that is
+    not a directory."""
     if str(path) == "":
         raise InputError("an empty output path was given; name a file.")
+    check_path_limits(path)
     p = Path(path)
-    if p.is_symlink():
-        p = p.resolve()
     try:
-        st = p.stat()
+        st = os.stat(p)  # what the path opens: a symlink's target, a /proc link's pipe
     except FileNotFoundError:
         st = None
     except NotADirectoryError:
         raise InputError(f"{path}: a parent of this path is a file, not a folder; choose another output path.") from None
     except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise symlink_loop(path) from None
         raise InputError(f"{path}: cannot write here ({e.strerror}); choose another output path.") from None
     if st is not None and stat.S_ISDIR(st.st_mode):
         raise InputError(f"{path}: is a folder; name a file inside it (e.g. {Path(path) / example}).")
     if st is not None and not stat.S_ISREG(st.st_mode):
         raise InputError(f"{path}: is not a regular file (device, pipe or socket); "
                          "calibgraph writes only regular files, choose another output path.")
+    if p.is_symlink():
+        try:
+            p = p.resolve()
+        except (RuntimeError, OSError):  # a loop (RuntimeError before Python 3.13)
+            raise symlink_loop(path) from None
+        if st is None:  # a dangling link is written through: its target must fit the file system too
+            check_path_limits(p)
     return p
 
 
@@ -183,16 +250,35 @@ def output_folder(path, what: str = "output folder", empty: bool = False) -> Pat
     return p
 
 
+def _short_stem(name: str) -> str:
+    """A short stand-in for a file name in its temporary's name (a hash of it)."""
+    return "cg" + hashlib.sha256(os.fsencode(name)).hexdigest()[:16]
+
+
+def temporary_name(target: Path, pid: int | None = None, suffix: str = "") -> str:
+    """The hidden name of ``target``'s temporary file while it is written: ``.NAME.tmpPID`` (+
+    ``suffix``), or, where that would pass the file system's name limit (a valid 250-byte NAME),
+    ``.cgHASH.tmpPID`` with a hash of NAME, in the same folder."""
+    pid = os.getpid() if pid is None else pid
+    name = f".{target.name}.tmp{pid}{suffix}"
+    if len(os.fsencode(name)) <= name_max(target.parent):
+        return name
+    return f".{_short_stem(target.name)}.tmp{pid}{suffix}"
+
+
 def _remove_stale_temporaries(target: Path) -> None:
     """Temporary files of ``target`` left by a writer that was killed (its process is gone) are removed."""
     import re
 
-    try:
-        leftovers = list(target.parent.glob(f".{target.name}.tmp*"))
-    except OSError:
-        return
+    stems = [target.name, _short_stem(target.name)]
+    leftovers = []
+    for stem in stems:
+        try:
+            leftovers += list(target.parent.glob(f".{glob.escape(stem)}.tmp*"))
+        except (OSError, ValueError):
+            continue
     for p in leftovers:
-        m = re.match(rf"\.{re.escape(target.name)}\.tmp(\d+)", p.name)
+        m = next((m for m in (re.match(rf"\.{re.escape(stem)}\.tmp(\d+)", p.name) for stem in stems) if m), None)
         if not m or int(m.group(1)) == os.getpid():
             continue
         try:
@@ -212,8 +298,9 @@ def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") 
     """Write ``path`` so that a crash or a failed write leaves either the old or the new content.
 
     ``write(tmp)`` writes the new content to a temporary file beside the target, which is then
-    fsynced and renamed over it. The temporary name is hidden and does not end like the target
-    (a reader globbing ``captures/*.json`` never sees one left by a kill), unless a writer needs
+    fsynced and renamed over it. The temporary name (:func:`temporary_name`) is hidden, fits the
+    file system's name limit and does not end like the target (a reader globbing
+    ``captures/*.json`` never sees one left by a kill), unless a writer needs
     an extension to pick its format (``tmp_suffix``, e.g. ``.yaml`` for OpenCV's FileStorage). Errors of the file system become one ``InputError`` naming the
     path; the temporary file never stays behind. Returns the path written.
     """
@@ -225,17 +312,19 @@ def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") 
     except OSError as e:
         raise InputError(f"{path}: cannot create its folder ({e.strerror}); choose another output path.") from None
     _remove_stale_temporaries(target)
-    tmp = target.with_name(f".{target.name}.tmp{os.getpid()}{tmp_suffix}")
+    tmp = target.with_name(temporary_name(target, suffix=tmp_suffix))
     try:
         write(tmp)
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
         os.replace(tmp, target)
     except OSError as e:
-        raise InputError(f"{path}: cannot write ({e.strerror or e}); nothing was changed there.") from None
+        raise InputError(f"{shown_path(path)}: cannot write ({e.strerror or e}); nothing was changed there.") from None
     finally:
-        if tmp.exists():
+        try:
             tmp.unlink()
+        except OSError:  # replaced already (or never made)
+            pass
     return Path(path)
 
 

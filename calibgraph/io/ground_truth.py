@@ -23,16 +23,25 @@ _CONVENTION = ("T_a_b maps points from frame b to frame a: p_a = T_a_b @ p_b (4x
 
 
 def load_ground_truth(dataset_dir) -> dict:
-    """Read ``ground_truth.json`` with poses as numpy arrays:
+    """Read ``ground_truth.json`` (in the folder ``dataset_dir``, or that file itself) with poses as numpy arrays:
     ``{"T_flange_board", "T_base_cam": {cam: 4x4}, "T_base_flange_true": {capture: 4x4},
     "joint_offsets_rad": (7,) (zeros when the file has none), "intrinsics_true": {cam: Intrinsics}
     (the ones the images were rendered with; from ``intrinsics`` in files that predate
     ``intrinsics_true``), "raw": dict}``."""
-    p = Path(dataset_dir) / GT_NAME
+    p = Path(dataset_dir)
+    p = p if p.is_file() or p.suffix == ".json" else p / GT_NAME
     try:
         d = json.loads(read_input_bytes(p, "ground truth"))
     except (OSError, ValueError, InputError) as e:
         raise InputError(f"{p}: no readable ground truth ({e}); only simulated datasets have one.") from None
+    try:
+        return _parse(d)
+    except (KeyError, TypeError, ValueError, AttributeError) as e:
+        raise InputError(f"{p}: not a calibgraph ground truth ({GT_FORMAT}: {type(e).__name__} {e}); only simulated "
+                         "datasets (calibgraph sim, demo) have one.") from None
+
+
+def _parse(d: dict) -> dict:
     return {
         "T_flange_board": np.asarray(d["T_flange_board"], float),
         "T_base_cam": {c: np.asarray(v["T_base_cam"], float) for c, v in d["cameras"].items()},

@@ -11,19 +11,26 @@ The rule (docs/cli.md, "What a command may write"):
   a report. A dataset header, an image, a capture, a camera file of another tool or anything
   a user wrote is never replaced, and neither is an input of the same command.
 - A result (or a camera file) that is replaced is kept beside it as ``NAME.<n>.EXT``
-  (:func:`keep_previous`), and the command says so in one line.
+  (:func:`keep_previous`), and the command says so in one line; so is a report edited since
+  calibgraph wrote it (a report carries the SHA-256 of its own text: :func:`with_fingerprint`).
+- A path the file system cannot hold (a name over its 255-byte limit, a path over 4096 bytes, a
+  kept copy's name that would pass the limit), a symlink loop, or a path that opens something other
+  than a regular file (``/proc/self/fd/1`` on a pipe) is refused too.
 
 Every refusal is one :class:`InputError` (exit 2) raised before anything is written.
 """
 
 from __future__ import annotations
 
+import errno
+import hashlib
 import os
 import re
 from pathlib import Path
 
 from calibgraph.core.errors import InputError
-from calibgraph.io.files import output_file, read_input_bytes, writable_target
+from calibgraph.io.files import (check_path_limits, name_max, output_file, read_input_bytes, shown_path, symlink_loop,
+                                 writable_target)
 from calibgraph.io.dataset import is_calibgraph_dataset
 from calibgraph.io.layouts import is_dataset_root
 
@@ -48,7 +55,36 @@ _OTHERS = {
     "a ground truth file": lambda h: b"calibgraph-ground-truth/" in h[:4096],
     "an image": lambda h: h.startswith((b"\x89PNG", b"\xff\xd8\xff", b"BM", b"II*\x00", b"MM\x00*", b"P5", b"P6")),
 }
-KEPT = ("result", "camera file")  # kinds whose replaced file is kept as NAME.<n>.EXT
+KEPT = ("result", "camera file", "verdict")  # kinds whose replaced file is kept as NAME.<n>.EXT
+# a report's own SHA-256 (of its text without this tag), so that one edited by hand is kept when replaced
+_FINGERPRINT = re.compile(rb'<meta name="calibgraph-sha256" content="([0-9a-f]{64})">')
+
+
+def with_fingerprint(doc: str) -> str:
+    """``doc`` (an HTML page) with the SHA-256 of its UTF-8 text in a meta tag after its charset's
+    (or ``<head>``) (:func:`edited_since_written` tells a page changed since)."""
+    h = hashlib.sha256(doc.encode("utf-8")).hexdigest()
+    mark = '<meta charset="utf-8">' if '<meta charset="utf-8">' in doc else "<head>"
+    at = doc.index(mark) + len(mark)
+    return f'{doc[:at]}<meta name="calibgraph-sha256" content="{h}">{doc[at:]}'
+
+
+def edited_since_written(path) -> bool:
+    """True when the page at ``path`` no longer has the text its fingerprint records (edited by
+    hand, or written before reports carried one); False when it is as calibgraph wrote it."""
+    try:
+        raw = read_input_bytes(path, "file")
+    except InputError:
+        return True
+    m = _FINGERPRINT.search(raw)
+    if m is None:
+        return True
+    return hashlib.sha256(raw[:m.start()] + raw[m.end():]).hexdigest() != m.group(1).decode()
+
+
+def _kept_kind(target: Path, kind: str | None) -> bool:
+    """Whether the existing calibgraph output ``target`` of ``kind`` is kept when replaced."""
+    return kind in KEPT or (kind == "report" and edited_since_written(target))
 
 
 def _head(path) -> bytes | None:
@@ -106,6 +142,9 @@ def check_output_file(path, kind: str, what: str, example: str, inputs=(), datas
     folder, a device, a read-only folder). Returns ``path``."""
     if kind not in KINDS:
         raise ValueError(f"unknown output kind {kind!r}")
+    check_path_limits(path, what)  # before any look at the path, which a name past NAME_MAX makes raise
+    if Path(path).is_dir():  # the fix names a file this check accepts
+        raise InputError(f"{path}: is a folder; name a file (e.g. {_file_for_folder(path, example, datasets)}).")
     target = writable_target(path, example)  # a symlink is judged by the file it points to
     where = _resolved(target)
     if target.exists():
@@ -117,6 +156,12 @@ def check_output_file(path, kind: str, what: str, example: str, inputs=(), datas
             raise InputError(f"{path}: exists and is {_what_it_is(target)}, not a calibgraph {kind}; calibgraph never "
                              f"writes over a file it did not make as a {kind}: choose another path for the {what} "
                              "(nothing was changed).")
+        if _kept_kind(target, kind):
+            keep = kept_name(target)
+            if len(os.fsencode(keep.name)) > name_max(keep.parent):
+                raise InputError(f"{shown_path(path)}: the previous {what} there would be kept as {keep.name[:40]}…, a name of "
+                                 f"{len(os.fsencode(keep.name))} bytes, past the file system's {name_max(keep.parent)}; "
+                                 f"choose a shorter name for the {what} (nothing was changed).")
     inside = dataset_above(where)
     own = {_resolved(d) for d in datasets if d is not None}
     if inside is not None and not (where.parent == inside and inside in own):
@@ -128,6 +173,23 @@ def check_output_file(path, kind: str, what: str, example: str, inputs=(), datas
     return output_file(path, what, example)
 
 
+def _file_for_folder(folder, example: str, datasets=()) -> Path:
+    """A file named ``example`` that :func:`check_output_file` would accept for a command given the
+    folder ``folder``: inside it, unless that is inside a dataset: then the top folder of that dataset
+    when it is one of the command's own, else beside the dataset."""
+    f = Path(folder) / example
+    inside = dataset_above(_resolved(f))
+    own = {_resolved(d) for d in datasets if d is not None}
+    if inside is None or (_resolved(f).parent == inside and inside in own):
+        return f
+    # climb the path as given (to keep it relative) to the dataset's folder
+    p = Path(folder)
+    while _resolved(p) != inside and p != p.parent:
+        p = p.parent
+    p = p if _resolved(p) == inside else inside
+    return p / example if inside in own else p.parent / example
+
+
 def check_output_folder(path, what: str, claimed: bool = False, empty: bool = False) -> Path:
     """Check, before any work, that the command may write into the folder ``path`` (created by the
     command when missing; nothing is created here): never inside a dataset, never a peer layout's
@@ -137,6 +199,12 @@ def check_output_folder(path, what: str, claimed: bool = False, empty: bool = Fa
     p = Path(path)
     if str(path) == "":
         raise InputError(f"an empty {what} was given; name a folder.")
+    check_path_limits(p, what)
+    try:
+        os.stat(p)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise symlink_loop(path, what) from None
     where = _resolved(p)
     inside = dataset_above(where)
     if inside is not None:
@@ -182,9 +250,10 @@ def kept_name(path) -> Path:
 def keep_previous(path) -> Path | None:
     """Before ``path`` is replaced: keep the file there (the file a symlink points to) as
     :func:`kept_name`; returns where, or None when there was nothing to keep. Only a calibgraph
-    output of a kind in :data:`KEPT` is kept (the guard refused anything else before)."""
+    output of a kind in :data:`KEPT`, or a report edited since it was written, is kept (the guard
+    refused anything else before)."""
     target = writable_target(path)
-    if not target.is_file() or output_kind(target) not in KEPT:
+    if not target.is_file() or not _kept_kind(target, output_kind(target)):
         return None
     dest = kept_name(target)
     try:

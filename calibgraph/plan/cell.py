@@ -6,7 +6,7 @@ nothing requires one, and a wrong hint only costs a few survey stops
 (:mod:`calibgraph.plan.survey` always falls back on its sweep)::
 
     name: my_cell
-    board: a4_54                            # a4_54 | thesis | {kind: checkerboard, rows, cols, pitch_m}
+    board: a4_7x10_25mm                     # a shipped board (calibgraph target list), a spec file or {kind, rows, cols, pitch_m}
     mount: {translation_m: [0.01, -0.015, 0.06], rotvec_rad: [0, 3.14159, 0]}   # nominal T_flange_board
     floor_z_m: -0.8                         # floor below the base frame; the pedestal fills the gap
     obstacles:                              # static geometry the robot must avoid (boxes, base frame)
@@ -33,9 +33,11 @@ import numpy as np
 
 from calibgraph.core.camera import Intrinsics, preset
 from calibgraph.core.errors import InputError
-from calibgraph.core.targets import Target, a4_board_54, thesis_board
+from calibgraph.core.targets import Target
 from calibgraph.core.transforms import check_pose, exp_so3, make_T
 from calibgraph.io.files import read_yaml
+from calibgraph.io.shipped import canonical_name, resolve_shipped, shipped_names
+from calibgraph.io.specs import load_target
 
 __all__ = ["Box", "CameraHint", "CellCamera", "CellDescription", "board_by_name", "default_T_flange_board",
            "pose_from_spec", "boxes_from_list", "cell_from_dict", "cell_from_world_dict", "load_cell",
@@ -43,17 +45,18 @@ __all__ = ["Box", "CameraHint", "CellCamera", "CellDescription", "board_by_name"
 
 
 def board_by_name(spec) -> Target:
-    """'a4_54' (7x10 squares of 25 mm), 'thesis' (5x4 squares of 46 mm) or a Target dict."""
+    """A shipped board by name (``a4_7x10_25mm``: 7 x 10 squares of 25 mm; ``thesis_5x4_46mm``: 5 x 4
+    squares of 46 mm; any of ``calibgraph target list``, an alias such as ``a4_54`` or ``thesis``,
+    or a documented path ``datasets/targets/NAME.yaml``), a target spec file, or a Target dict."""
     if isinstance(spec, Target):
         return spec
     if isinstance(spec, dict):
         return Target.from_dict(spec)
-    key = str(spec).lower()
-    if key in ("a4_54", "a4", "54"):
-        return a4_board_54()
-    if key in ("thesis", "thesis_46", "5x4"):
-        return thesis_board()
-    raise InputError(f"unknown board {spec!r}; use 'a4_54', 'thesis' or a target mapping (kind, rows, cols, pitch_m).")
+    key = str(spec)
+    if canonical_name("target", key) is not None or key.lower().endswith((".yaml", ".yml")):
+        return load_target(key)
+    raise InputError(f"unknown board {spec!r}; use a shipped board ({', '.join(shipped_names('target'))}; aliases "
+                     "a4_54, thesis), a target spec file or a target mapping (kind, rows, cols, pitch_m).")
 
 
 def default_T_flange_board(target: Target) -> np.ndarray:
@@ -151,7 +154,7 @@ class CameraHint:
             raise InputError(f"{where}: hint must be a mapping (position_m + sigma_m, direction or azimuth_deg).")
         unknown = set(d) - {"position_m", "sigma_m", "direction", "azimuth_deg", "elevation_deg"}
         if unknown:
-            raise InputError(f"{where}: hint: unknown keys {sorted(unknown)}; allowed: position_m, sigma_m, direction, "
+            raise InputError(f"{where}: hint: unknown keys {', '.join(sorted(unknown))}; allowed: position_m, sigma_m, direction, "
                              "azimuth_deg, elevation_deg.")
         direction = d.get("direction")
         if direction is None and "azimuth_deg" in d:
@@ -201,7 +204,7 @@ class CellDescription:
         if not names:
             raise InputError(f"cell {self.name!r}: no cameras listed; add a 'cameras' section.")
         if len(set(names)) != len(names):
-            raise InputError(f"cell {self.name!r}: duplicate camera names {names}.")
+            raise InputError(f"cell {self.name!r}: duplicate camera names {', '.join(map(str, names))}.")
         object.__setattr__(self, "cameras", tuple(self.cameras))
         object.__setattr__(self, "obstacles", tuple(self.obstacles))
         check_pose(np.asarray(self.T_flange_board, float), f"cell {self.name!r}: mount")
@@ -248,7 +251,7 @@ def cell_from_dict(d: dict, where: str = "cell") -> CellDescription:
     camera entry that carries a placement is refused: use :func:`cell_from_world_dict` to strip it."""
     if not isinstance(d, dict):
         raise InputError(f"{where}: must be a mapping.")
-    target = board_by_name(d.get("board", "a4_54"))
+    target = board_by_name(d.get("board", "a4_7x10_25mm"))
     mount = d.get("mount")
     T_fb = pose_from_spec(mount, f"{where}: mount") if mount else default_T_flange_board(target)
     cams = []
@@ -259,7 +262,7 @@ def cell_from_dict(d: dict, where: str = "cell") -> CellDescription:
         c = dict(c or {})
         placed = PLACEMENT_KEYS & set(c)
         if placed:
-            raise InputError(f"{where}: camera {name!r} gives its placement ({sorted(placed)}); the autonomous loop "
+            raise InputError(f"{where}: camera {name!r} gives its placement ({', '.join(sorted(placed))}); the autonomous loop "
                              "finds placements itself: remove them or give a rough hint instead.")
         intr = None
         if "intrinsics" in c:
@@ -299,4 +302,5 @@ def cell_from_world_dict(d: dict, where: str = "world") -> CellDescription:
 
 def load_cell(path) -> CellDescription:
     """Read a cell YAML file (placements, if any, are refused; see :func:`cell_from_world_dict`)."""
-    return cell_from_dict(read_yaml(path, "cell file"), str(path))
+    p = resolve_shipped(path, "workcell")  # a shipped name or datasets/workcells/... from any folder
+    return cell_from_dict(read_yaml(p, "cell file"), str(p))

@@ -327,7 +327,7 @@ class InformativeSelection:
                  fk_sigma_translation_m: float = 1e-4,
                  fk_sigma_rotation_rad: float = float(np.radians(0.01))):
         names = list(cell.camera_names)
-        self.names, self.pool = names, pool
+        self.names, self.pool, self.pixel_sigma_px = names, pool, pixel_sigma_px
         K = len(names)
         cams = [(c.intrinsics, c.T_base_cam) for c in cell.cameras]
         priors = [planning_prior(c.intrinsics) for c in cell.cameras]
@@ -394,8 +394,10 @@ class InformativeSelection:
         chosen, J = self.last
         s = block_sigmas(inv_scaled(J), self.K)
         per = ", ".join(f"{n} {s[k, 0]:.2g} mm / {s[k, 1]:.2g} deg" for k, n in enumerate(self.names))
-        return (f"{len(chosen)} poses chosen from {len(self.pool)} candidates by the information model "
-                f"(camera models estimated under a factory-class prior); its 1-sigma: {per}")
+        return (f"{len(chosen)} poses chosen from {len(self.pool)} candidates by the information model; the planner's "
+                f"predicted 1-sigma (its linear model before any image: corners at an assumed {self.pixel_sigma_px:g} px, "
+                f"camera models under a factory-class prior; the solve's 1-sigma uses the corner noise it measures in the "
+                f"images, smaller on sharp ones, so it differs): {per}")
 
 
 def detection_probability(square_px, min_square_px: float) -> np.ndarray:

@@ -181,7 +181,7 @@ class Trajectory:
                 if isinstance(p, dict):
                     unknown = set(p) - {"q_rad", "T_base_flange", "cameras", "capture"}
                     if unknown:
-                        raise InputError(f"unknown keys {sorted(unknown)} (allowed: q_rad, T_base_flange, cameras, capture)")
+                        raise InputError(f"unknown keys {', '.join(sorted(unknown))} (allowed: q_rad, T_base_flange, cameras, capture)")
                     poses.append(TrajectoryPose(q_rad=p["q_rad"], T_base_flange=p.get("T_base_flange"),
                                                 cameras=p.get("cameras") or (), capture=p.get("capture", True)))
                 else:

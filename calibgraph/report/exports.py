@@ -4,7 +4,8 @@ Every exporter takes a :class:`~calibgraph.solver.result.Result` (``calibgraph.l
 one from result.json; a result dict is converted), so they work from the file alone:
 
 - :func:`write_result` -- result.json / result.yaml (same content; ``--format yaml``);
-- :func:`write_urdf` -- a URDF/xacro snippet, one fixed joint per camera
+- :func:`write_urdf` -- a plain URDF (``calibgraph_cameras.urdf``) and a xacro to include into the
+  robot's (``calibgraph_cameras.urdf.xacro``, parent link ``$(arg parent)``), one fixed joint per camera
   ``<parent> -> <camera>_optical_frame`` (``xyz`` in m, ``rpy`` in rad, URDF fixed-axis
   roll-pitch-yaw: ``R = Rz(yaw) Ry(pitch) Rx(roll)``);
 - :func:`write_ros2_launch` -- a ROS 2 Python launch file with one ``tf2_ros``
@@ -52,7 +53,9 @@ from calibgraph.solver.result import as_result
 
 FORMATS = ("urdf", "ros2-launch", "opencv-yaml", "camera-info", "yaml", "json", "robot")
 
+# the parent frame every export names (URDF, xacro, ROS 2 launch, OpenCV YAML) unless --parent says another
 DEFAULT_PARENT = {"base": "base_link", "flange": "flange"}
+URDF_NAMES = ("calibgraph_cameras.urdf", "calibgraph_cameras.urdf.xacro")  # --format urdf: plain URDF, xacro
 RESERVED_FILE_STEMS = ("result", "joint_offsets")  # file names other exports write into the same folder
 
 
@@ -155,7 +158,10 @@ def write_result(result, out_path) -> Path:
 
 
 def urdf_snippet(result, parent: str | None = None, xacro: bool = True) -> str:
-    """URDF (xacro-includable) text with one fixed joint and one link per camera."""
+    """URDF text with one fixed joint and one link per camera: with ``xacro`` a xacro to include into
+    the robot's own (the parent link is its ``parent`` argument, default ``parent``); without it a
+    plain, complete URDF (the parent link declared, the cameras fixed to it: ``check_urdf``, RViz and
+    any URDF reader take it as it is)."""
     result = as_result(result, "export")
     ref = result.ref_frame
     parent = parent or DEFAULT_PARENT[ref]
@@ -171,6 +177,9 @@ def urdf_snippet(result, parent: str | None = None, xacro: bool = True) -> str:
         lines.append(f'  <xacro:arg name="parent" default="{parent}"/>')
     else:
         lines.append('<robot name="calibgraph_cameras">')
+        lines.append(f"  <!-- the parent link, declared so that this file is a whole URDF; merging into the robot's URDF, "
+                     f"drop it (or include {URDF_NAMES[1]}) -->")
+        lines.append(f'  <link name="{parent}"/>')
     for name, cam in result.calibrated.items():
         T = cam.T_ref_cam
         xyz = T[:3, 3]
@@ -269,13 +278,14 @@ def write_ros2_launch(result, out_path, parent: str | None = None) -> Path:
     return p
 
 
-def write_opencv_yaml(result, out_dir, dataset=None) -> list:
+def write_opencv_yaml(result, out_dir, dataset=None, parent: str | None = None) -> list:
     """One OpenCV FileStorage YAML per camera (``<out_dir>/<camera>.yaml``); returns the paths.
 
     Fields: ``camera_name``, ``image_width``, ``image_height``, ``camera_matrix`` (3x3, px),
     ``distortion_coefficients`` (1xN, OpenCV order k1 k2 p1 p2 [k3 [k4 k5 k6]]),
     ``T_<ref>_cam`` (4x4, m), ``sigma_translation_mm`` (1x3), ``sigma_rotation_deg`` (1x3),
-    ``covariance`` (6x6, rotation first, rad and m, in the ref frame's axes), ``reprojection_rms_px``.
+    ``covariance`` (6x6, rotation first, rad and m, in the ref frame's axes), ``reprojection_rms_px``;
+    ``frame_parent``: ``parent`` (default :data:`DEFAULT_PARENT`, as the URDF and launch exports name it).
     A camera without known intrinsics gets the pose fields only and a comment saying so. The file
     is named by the camera's :func:`export_names` identifier (``camera_<id>.yaml`` when that would
     be the name of another export: result, joint_offsets).
@@ -285,7 +295,7 @@ def write_opencv_yaml(result, out_dir, dataset=None) -> list:
     for out, name, ident, intr, given in _calibrated_cameras(result, out_dir, dataset):
         stem = ident if ident not in RESERVED_FILE_STEMS else f"camera_{ident}"
         p = out / f"{stem}.yaml"
-        atomic_write_via(p, lambda tmp: _write_opencv_camera(tmp, result, name, ident, intr, given),
+        atomic_write_via(p, lambda tmp: _write_opencv_camera(tmp, result, name, ident, intr, given, parent),
                          tmp_suffix=".yaml")
         paths.append(p)
     return paths
@@ -302,7 +312,7 @@ def _calibrated_cameras(result, out_dir, dataset=None):
         yield out, name, ids[name], intr, given_intrinsics_note(result, name, dataset) if intr is not None else ""
 
 
-def _write_opencv_camera(tmp: Path, result, name: str, ident: str, intr, given: str = "") -> None:
+def _write_opencv_camera(tmp: Path, result, name: str, ident: str, intr, given: str = "", parent=None) -> None:
     """One camera's OpenCV FileStorage YAML (pose, 1-sigma, covariance, intrinsics) written to ``tmp``."""
     import cv2
 
@@ -314,7 +324,7 @@ def _write_opencv_camera(tmp: Path, result, name: str, ident: str, intr, given: 
     for line in _header_lines(result):
         fs.writeComment(line)
     fs.write("camera_name", str(name))
-    fs.write("frame_parent", ref)
+    fs.write("frame_parent", parent or DEFAULT_PARENT[ref])  # the frame T_<ref>_cam is in, as the URDF names it
     fs.write("frame_child", f"{ident}_optical_frame")
     if intr is not None:
         if given:
@@ -386,7 +396,8 @@ def export(result, fmt: str, out_dir, dataset=None, parent: str | None = None) -
     result = as_result(result, "export")
     out = output_folder(out_dir, "export folder")
     if fmt == "urdf":
-        paths = [write_urdf(result, out / "calibgraph_cameras.urdf.xacro", parent=parent)]
+        paths = [write_urdf(result, out / URDF_NAMES[1], parent=parent),
+                 write_urdf(result, out / URDF_NAMES[0], parent=parent, xacro=False)]
         return paths + (write_robot_exports(result, out) if result.robot else [])
     if fmt == "robot":
         if not result.robot:
@@ -396,7 +407,7 @@ def export(result, fmt: str, out_dir, dataset=None, parent: str | None = None) -
     if fmt == "ros2-launch":
         return [write_ros2_launch(result, out / "calibgraph_cameras.launch.py", parent=parent)]
     if fmt == "opencv-yaml":
-        return write_opencv_yaml(result, out, dataset=dataset)
+        return write_opencv_yaml(result, out, dataset=dataset, parent=parent)
     if fmt == "camera-info":
         return write_camera_info(result, out, dataset=dataset)
     if fmt == "yaml":

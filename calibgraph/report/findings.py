@@ -30,6 +30,10 @@ SET_LABELS = {"shares": "by noise source"}
 SOURCE_GIVEN = {"factory": "factory values (device or datasheet)", "calibration": "a calibration file",
                 "exact": "values declared exact", "unknown": "none (only the image size)"}
 
+# what a camera file named in the result holds, by its source
+FILE_KINDS = {"factory": "factory values", "calibration": "calibrated values",
+              "exact": "values declared exact"}
+
 
 def _is_shares(v) -> bool:
     return isinstance(v, dict) and bool(v) and all(isinstance(x, Real) and not isinstance(x, bool) for x in v.values())
@@ -50,8 +54,9 @@ def share_sets(budget: dict | None) -> list:
         if key == "share_labels":
             continue
         if _is_shares(v):
-            out.append((str(given.get(key) or SET_LABELS.get(key) or humanise(key).replace("shares ", ""))
-                        .strip(), {str(k): float(x) for k, x in v.items()}))
+            label = str(given.get(key) or SET_LABELS.get(key) or humanise(key).replace("shares ", "")).strip()
+            # one wording for shares that add up: the console's (results before it said "sums to 1")
+            out.append((label.replace("(sums to 1)", "(sums to 100 %)"), {str(k): float(x) for k, x in v.items()}))
         elif isinstance(v, dict) and v and all(_is_shares(x) for x in v.values()):
             out += [(str(lab), {str(k): float(x) for k, x in x_.items()}) for lab, x_ in v.items()]
     return out
@@ -101,8 +106,13 @@ def provenance_text(c, settings: dict | None) -> str:
     p = intrinsics_provenance(c, settings)
     if not p["given"] and not p["used"]:
         return "source not recorded in this result"
-    given = "source: " + SOURCE_GIVEN.get(p["given"], p["given"] or "not recorded")
-    if p["given"] and p["given"] != "unknown":
+    f = (c.intrinsics or {}).get("file")
+    given = ("source: " + (f"the camera file {f} (given with --intrinsics)" if f else
+                           SOURCE_GIVEN.get(p["given"], p["given"] or "not recorded")))
+    if f:
+        kind = FILE_KINDS.get(p["given"], "")
+        given += f": {kind}" if kind else ""
+    elif p["given"] and p["given"] != "unknown":
         given += (", as stated with the camera" if p["stated"] else
                   ", the solver's default (--intrinsics-source): the camera's intrinsics did not say")
     if p["used"] == "own-views":

@@ -27,10 +27,13 @@ import json
 from pathlib import Path
 
 from calibgraph.core.errors import InputError
+from calibgraph.io.dataset import recorded_run, recorded_workcell
 from calibgraph.io.files import atomic_write_text
+from calibgraph.io.output_guard import with_fingerprint
 from calibgraph.io.layouts import as_dataset
 from calibgraph.report.convergence import convergence_section
 from calibgraph.report.markup import CSS, esc
+from calibgraph.report.remedies import fixes
 from calibgraph.report.residual_plots import residuals_html
 from calibgraph.report.residuals import compute_residuals, dataset_mismatch, observations, report_residuals
 from calibgraph.report.sections import (
@@ -83,7 +86,7 @@ def write_report(result, out_html, config=None, dataset=None, result_path=None) 
     title = f"calibgraph commissioning report — {len(names)} camera{'s' if len(names) != 1 else ''}, {result.mode}"
     parts = [
         banner_html(result, title, c["verdicts"]),
-        improve_html(result),
+        improve_html(result, c["workcell"]),
         summary_html(result, c["verdicts"]),
         cell_notes_html(result),
         "<h2>Cameras</h2>",
@@ -100,7 +103,7 @@ def write_report(result, out_html, config=None, dataset=None, result_path=None) 
     ]
     doc = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
            f"<title>{esc(title)}</title><style>{CSS}</style></head><body>\n" + "\n".join(parts) + "\n</body></html>\n")
-    atomic_write_text(out_html, doc)
+    atomic_write_text(out_html, with_fingerprint(doc))  # a page edited by hand is then kept when replaced
     return Path(out_html)
 
 
@@ -111,12 +114,20 @@ def residuals_section(result) -> dict:
 
 
 def _content(result, tol: dict, ds) -> dict:
-    """What the page shows besides the result itself: intrinsics, residuals, workspace maps, verdicts."""
+    """What the page shows besides the result itself: intrinsics, residuals, workspace maps, verdicts
+    (each with the step that fixes a failing check), and what made the dataset (``made_by``)."""
     intr = {n: c.solved_intrinsics or (ds.cameras.get(n) if ds is not None else None) for n, c in result.cameras.items()}
     residuals, source = report_residuals(result, ds)
     ws = workspace_maps(result, tol, intr)
-    verdicts = {n: camera_verdict(n, c, tol, ws["worst"].get(n)) for n, c in result.cameras.items()}
-    return {"intr": intr, "residuals": residuals, "residual_source": source, "ws": ws, "verdicts": verdicts}
+    run = recorded_run(ds.root) if ds is not None else {}
+    n_captures = len(ds.captures) if ds is not None else (len(result.T_base_flange_est) or None)
+    verdicts = {}
+    for n, c in result.cameras.items():
+        v = camera_verdict(n, c, tol, ws["worst"].get(n))
+        v["fixes"] = fixes(n, c, v, residuals.get(n), intr[n], run, n_captures)
+        verdicts[n] = v
+    return {"intr": intr, "residuals": residuals, "residual_source": source, "ws": ws, "verdicts": verdicts,
+            "workcell": recorded_workcell(ds.root) if ds is not None else None}
 
 
 def _json_for_html(d: dict) -> str:

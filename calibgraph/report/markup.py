@@ -68,5 +68,6 @@ code{background:#f4f4f4;padding:0 3px}
 .notes ul{margin:4px 0;padding-left:20px} .notes li{font-size:13px;margin:3px 0}
 .notes.cell{border-left:4px solid #c62828;padding-left:8px}
 .moved{border-left:4px solid #c62828;padding-left:8px} .why{color:#c62828}
-.provenance{font-size:14px}
+.provenance{font-size:14px} .fix{color:#333;font-size:14px}
+.notes .detail{display:block;color:#666;font-size:12px}
 """

@@ -4,9 +4,12 @@
 user units are points, 1 pt = 25.4 / 72 mm, so a 46 mm square is exactly 130.394 pt; print with
 "actual size" / no scaling), centred, with:
 
-* a 100 mm ruler with millimetre ticks and a 50 mm square to check the printed scale with a
-  calliper (both axes: printers can scale them differently);
-* a caption with the spec (kind, points, pitch, markers) and the board frame's origin and axes.
+* a 100 mm ruler with millimetre ticks, a 10 mm square and the pattern's own printed size, to check
+  the printed scale with a calliper or a steel rule (both axes: printers can scale them differently);
+* a caption with the board's name and spec (kind, squares, corners, pitch, markers) and the board
+  frame's origin and axes;
+
+everything at least 10 mm (``MARGIN_MM``) from the sheet's edges.
 
 Shapes are filled paths (squares as ``re``, circles as four cubic Béziers, ArUco cells merged into
 horizontal runs), so the output is resolution-independent.
@@ -89,19 +92,32 @@ def _pdf_bytes(page: _Page, title: str) -> bytes:
     return bytes(out)
 
 
+# Helvetica's advance widths (1/1000 em, from its AFM) for estimating where text ends.
+_HELV = {**{c: 556 for c in "abdeghnopqu0123456789L"}, **{c: 500 for c in "cksvxyzJ"}, **{c: 278 for c in " ftI.,:;/![]"},
+         **{c: 222 for c in "ijl"}, "m": 833, "r": 333, "w": 722, **{c: 667 for c in "ABEKPSVXY&"},
+         **{c: 722 for c in "CDHNRUw"}, **{c: 611 for c in "FTZ"}, **{c: 778 for c in "GOQ"}, "M": 833, "W": 944,
+         **{c: 333 for c in "()-`"}, "*": 389, "=": 584, "+": 584, "%": 889, "'": 191, '"': 355, "_": 556, "#": 556}
+
+MARGIN_MM = 10.0  # nothing is drawn nearer the sheet's edge (most printers' unprintable border is 3-6 mm)
+RULER_MM = 100.0  # the scale checks the page carries: a ruler ...
+CHECK_SQUARE_MM = 10.0  # ... and a square (docs/guide.md names both sizes)
+STRIP_MM, GAP_MM = 13.0, 2.0  # the strip of the ruler, square and caption, and its gap to the pattern
+
+
+def text_width_mm(s: str, size_pt: float) -> float:
+    """Width of ``s`` set in Helvetica at ``size_pt`` (mm)."""
+    return sum(_HELV.get(c, 667) for c in s) / 1000 * size_pt * 25.4 / 72
+
+
 def _describe(t: Target) -> str:
-    mm = t.pitch_m * 1e3
-    if t.kind == "checkerboard":
-        return f"checkerboard {t.squares_x}x{t.squares_y} squares of {mm:.2f} mm ({t.cols}x{t.rows} inner corners)"
-    if t.kind == "charuco":
-        return (f"ChArUco {t.squares_x}x{t.squares_y} squares of {mm:.3f} mm, markers {t.marker_m * 1e3:.3f} mm, "
-                f"{t.dictionary}{' (legacy layout)' if t.legacy_charuco else ''}")
-    name = {"circles": "circle grid", "acircles": "asymmetric circle grid", "modified_circles": "modified circle grid"}[t.kind]
-    return f"{name} {t.cols}x{t.rows}, pitch {mm:.2f} mm, dots {t.circle_d_m * 1e3:.2f} mm"
+    return t.describe()
 
 
-def target_pdf(target: Target, paper: str = "A4") -> bytes:
-    """The PDF (bytes) of ``target`` at exact scale on ``paper`` ('A4' or 'A3'), with a ruler."""
+def target_layout(target: Target, paper: str = "A4", name: str | None = None) -> dict:
+    """The printed page of ``target`` as drawn: ``paper_mm`` (W, H of the sheet as printed, landscape
+    for a wide pattern), ``pattern_mm`` (x0, y0, x1, y1 of the pattern from the sheet's top-left,
+    y down), ``boxes`` (what, x0, y0, x1, y1: every mark of the ruler strip on the sheet, text by
+    its Helvetica advance width, ascent 0.72 em and descent 0.21 em), and the content stream ``ops``."""
     paper = paper.upper()
     if paper not in PAPERS_MM:
         raise InputError(f"target print: paper must be A4 or A3, got {paper!r}.")
@@ -112,21 +128,22 @@ def target_pdf(target: Target, paper: str = "A4") -> bytes:
     W, H = PAPERS_MM[paper]
     if pw_mm > ph_mm:
         W, H = H, W  # landscape for wide patterns
-    margin, strip = 5.0, 24.0  # printer margin; the ruler/caption strip needs ~24 mm
+    margin, strip = MARGIN_MM, STRIP_MM + GAP_MM
     room_below = H - 2 * margin - ph_mm
     room_side = W - 2 * margin - pw_mm
-    if pw_mm > W - 2 * margin or ph_mm > H - 2 * margin or max(room_below, room_side) < strip:
+    if pw_mm > W - 2 * margin or ph_mm > H - 2 * margin or max(room_below, room_side) < strip - 1e-6:
         raise InputError(
             f"target print: the pattern is {pw_mm:.0f} x {ph_mm:.0f} mm and does not fit on {paper} "
             f"({W:.0f} x {H:.0f} mm) with {margin:.0f} mm margins and a {strip:.0f} mm strip for the ruler; "
             "use --paper A3 or a smaller pitch.")
     page = _Page(W, H)
-    below = room_below >= strip
+    below = room_below >= strip - 1e-6
     # Centre the pattern in the page minus the strip (below it, or to its right).
     area_w = W - 2 * margin - (0 if below else strip)
     area_h = H - 2 * margin - (strip if below else 0)
     ox = margin + (area_w - pw_mm) / 2 - x0 * 1e3
     oy = margin + (area_h - ph_mm) / 2 - y0 * 1e3
+    pattern = (ox + x0 * 1e3, oy + y0 * 1e3, ox + x1 * 1e3, oy + y1 * 1e3)
 
     def P(x_m, y_m):
         return ox + x_m * 1e3, oy + y_m * 1e3
@@ -180,42 +197,69 @@ def target_pdf(target: Target, paper: str = "A4") -> bytes:
         origin = (target.rows - 1) * target.cols if target.kind == "modified_circles" else -1
         for k, (x, y) in enumerate(pts):
             page.circle(*P(x, y), (2 * r if k == origin else r) * 1e3)
-    # Ruler, 10 mm check square and caption, drawn in a strip of their own (local millimetres,
-    # y down) and placed below the pattern, or along its right side turned by 90 degrees.
+    # The ruler, the check square and the caption, in a strip of their own (local millimetres, y down,
+    # 0..STRIP_MM) placed below the pattern, or along its right side turned by 90 degrees.
     L = (W if below else H) - 2 * margin
-    st = _Page(L, strip)
+    st = _Page(L, STRIP_MM)
+    boxes = []
+
+    def text(x, y, s, size):
+        st.text(x, y, s, size)
+        em = size * 25.4 / 72
+        boxes.append((f"text {s!r}", x, y - 0.72 * em, x + text_width_mm(s, size), y + 0.21 * em))
+
     st.grey(0.0)
-    rx, fy = 16.0, 5.0
-    st.line(rx, fy, rx + 100.0, fy, 0.2)
-    for mm in range(0, 101):
+    sq = CHECK_SQUARE_MM
+    st.rect(0.0, 0.0, sq, sq)
+    boxes.append(("check square", 0.0, 0.0, sq, sq))
+    text(0.0, STRIP_MM - 0.6, f"{sq:g} mm", 6)
+    rx, fy = sq + 4.0, 0.3
+    st.line(rx, fy, rx + RULER_MM, fy, 0.2)
+    for mm in range(0, int(RULER_MM) + 1):
         tick = 4.0 if mm % 10 == 0 else (2.5 if mm % 5 == 0 else 1.5)
         st.line(rx + mm, fy, rx + mm, fy + tick, 0.12)
         if mm % 10 == 0:
-            st.text(rx + mm - 1.2, fy + 7.0, str(mm), 6)
-    st.text(rx + 103.0, fy + 2.0, "mm: must measure 100.0 mm", 6)
-    st.rect(2.0, fy - 1.0, 10.0, 10.0)
-    st.text(2.0, fy + 12.0, "10 mm", 6)
-    st.text(2.0, fy + 15.5, f"calibgraph: {_describe(target)}. Print at 100% (no scaling).", 6.5)
+            text(rx + mm - text_width_mm(str(mm), 6) / 2, fy + 6.6, str(mm), 6)
+    boxes.append(("ruler", rx, fy - 0.1, rx + RULER_MM, fy + 4.0))
+    ex, ey = pw_mm, ph_mm
+    side = rx + RULER_MM + 4.0
+    text(side, 2.0, "Print at 100 % (actual size, no scaling), then measure:", 6)
+    text(side, 4.6, f"the ruler: {RULER_MM:.1f} mm; the square: {sq:.1f} x {sq:.1f} mm;", 6)
+    text(side, 7.2, f"the pattern: {ex:.1f} mm across, {ey:.1f} mm down.", 6)
+    text(rx, 9.6, f"calibgraph {name + ': ' if name else ''}{_describe(target)}", 6.5)
     frame = ("origin at the outer top-left board corner (OpenCV CharucoBoard)" if target.kind == "charuco" else
              "origin at the big dot (bottom-left), x right, y up" if target.kind == "modified_circles" else
              "origin at the top-left inner corner/dot, x right, y down")
-    st.text(2.0, fy + 18.5, f"Board frame: {frame}, z = x cross y; point id = cols * row + col.", 6)
+    text(rx, STRIP_MM - 0.6, f"Board frame: {frame}, z = x cross y; point id = cols * row + col.", 6)
     k = 72 / 25.4
     if below:
-        tx, ty = margin * k, margin * k  # strip's bottom-left at the page's bottom margin
+        # the strip's top at its gap below the pattern, its bottom no lower than the bottom margin
+        top = min(pattern[3] + GAP_MM, H - margin - STRIP_MM)
+        tx, ty = margin * k, (H - top - STRIP_MM) * k
         page.ops.append(f"q 1 0 0 1 {tx:.4f} {ty:.4f} cm")
+        placed = [(w, margin + a, top + b, margin + c, top + d) for w, a, b, c, d in boxes]
     else:
-        # Rotate 90 degrees counter-clockwise: strip x runs up the page along the right margin.
+        # Rotate 90 degrees counter-clockwise: strip x runs up the page from the bottom margin, its
+        # top (y = 0: the square and the ruler) towards the pattern, its bottom at the right margin.
         tx, ty = (W - margin) * k, margin * k
         page.ops.append(f"q 0 1 -1 0 {tx:.4f} {ty:.4f} cm")
+        x_top = W - margin - STRIP_MM
+        placed = [(w, x_top + b, H - margin - c, x_top + d, H - margin - a) for w, a, b, c, d in boxes]
     page.ops.extend(st.ops)
     page.ops.append("Q")
-    return _pdf_bytes(page, _describe(target))
+    return {"paper_mm": (W, H), "pattern_mm": pattern, "boxes": placed, "below": below, "page": page}
 
 
-def write_target_pdf(target: Target, path, paper: str = "A4") -> Path:
+def target_pdf(target: Target, paper: str = "A4", name: str | None = None) -> bytes:
+    """The PDF (bytes) of ``target`` at exact scale on ``paper`` ('A4' or 'A3'), with a ruler
+    (``name``: the board's name for the caption)."""
+    lay = target_layout(target, paper, name)
+    return _pdf_bytes(lay["page"], f"{name + ': ' if name else ''}{_describe(target)}")
+
+
+def write_target_pdf(target: Target, path, paper: str = "A4", name: str | None = None) -> Path:
     """Write :func:`target_pdf` to ``path``."""
     path = Path(path)
-    data = target_pdf(target, paper)
+    data = target_pdf(target, paper, name)
     atomic_write_bytes(path, data)
     return path

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
-import json
 
 import numpy as np
 
@@ -17,9 +16,10 @@ from calibgraph.io.files import read_input_bytes
 from calibgraph.report import findings
 from calibgraph.report.exports import R_to_rpy
 from calibgraph.report.markup import badge, esc, matrix, num, vec
-from calibgraph.report.tolerances import DEFAULT_TOLERANCES, covariance_problem
+from calibgraph.report.tolerances import CHECKS, DEFAULT_TOLERANCES, covariance_problem, sigma_norm
 from calibgraph.report.workspace import coverage_plot
 from calibgraph.solver.result import FRAME_CONVENTION, RESULT_FORMAT, intrinsics_provenance, sigmas_from_cov
+from calibgraph.solver.session_plan import name_workcell
 from calibgraph.solver.uncertainty import weakest_directions
 
 
@@ -37,13 +37,18 @@ def banner_html(result, title: str, verdicts: dict) -> str:
          f'{esc(why)}' + (f" — failing: {esc(', '.join(failed))}" if failed else "") + "</div>"]
     if failed:
         h.append('<ul id="failing-reasons">' + "".join(
-            f"<li>{esc(n)}: {esc('; '.join(verdicts[n]['reasons']))}{_notes_link(result, n)}</li>" for n in failed)
-                 + "</ul>")
+            f"<li>{esc(n)}: {esc('; '.join(verdicts[n]['reasons']))}{_notes_link(result, n)}"
+            + ("".join(f'<br><span class="fix">To fix: {esc(_strip_name(n, f))}</span>' for f in verdicts[n].get("fixes", [])))
+            + "</li>" for n in failed) + "</ul>")
         k = len(result.cell_notes)
         if k:
             h.append(f'<p class="note">The solver also left <a href="#cell-notes">{k} note{"s" if k != 1 else ""} on the '
                      "whole cell</a> (board, robot) that bear on every camera.</p>")
     return "\n".join(h)
+
+
+def _strip_name(n: str, text: str) -> str:
+    return text[len(n) + 2:] if text.startswith(f"{n}: ") else text
 
 
 def _notes_link(result, n: str) -> str:
@@ -57,7 +62,7 @@ def summary_html(result, verdicts: dict) -> str:
     ref = result.ref_frame
     h = ["<h2>Summary</h2>",
          f'<table id="summary"><tr><th class="l">camera</th><th>position in {ref} (m)</th><th>roll, pitch, yaw (deg)</th>'
-         "<th>1σ translation x, y, z (mm)</th><th>1σ rotation x, y, z (deg)</th><th>reproj. RMS (px)</th>"
+         "<th>1σ translation (mm): norm (x, y, z)</th><th>1σ rotation (deg): norm (x, y, z)</th><th>reproj. RMS (px)</th>"
          "<th>reproj. max (px)</th><th>views used</th><th>views rejected</th><th>verdict</th></tr>"]
     for n, c in result.cameras.items():
         if not c.calibrated:
@@ -68,14 +73,36 @@ def summary_html(result, verdicts: dict) -> str:
         T = c.T_ref_cam
         h.append(f'<tr data-camera="{esc(n)}"><td class="l"><a href="#cam-{esc(n)}">{esc(n)}</a></td>'
                  f"<td>{vec(T[:3, 3], '.4f')}</td><td>{vec(np.degrees(R_to_rpy(T[:3, :3])), '.2f')}</td>"
-                 f"<td>{vec(c.sigma_translation_mm, '.3f')}</td><td>{vec(c.sigma_rotation_deg, '.4f')}</td>"
+                 f"<td>{sigma_html(c.sigma_translation_mm, '.3f')}</td><td>{sigma_html(c.sigma_rotation_deg, '.4f')}</td>"
                  f"<td>{num(c.reprojection_rms_px, '.3f')}</td><td>{num(c.reprojection_max_px, '.3f')}</td>"
                  f"<td>{num(c.views_used, '.0f')}</td><td>{num(len(c.views_rejected), '.0f')}</td>"
                  f"<td>{badge(verdicts[n]['pass'])}</td></tr>")
     h.append("</table>")
-    h.append(f'<p class="note">1σ are along the {ref} frame axes (rotation: components of the rotation vector '
-             f"perturbation in {ref} axes). Roll, pitch, yaw: URDF fixed-axis convention R = Rz(yaw) Ry(pitch) Rx(roll).</p>")
+    h.append(f'<p class="note">A camera\'s 1σ is one figure, the norm sqrt(x² + y² + z²) of its 1σ along the {ref} '
+             f"frame axes (in brackets; rotation: components of the rotation vector perturbation in {ref} axes): the "
+             "figure the tolerances, the error budget and capture --auto --tolerance-mm use. Roll, pitch, yaw: URDF "
+             "fixed-axis convention R = Rz(yaw) Ry(pitch) Rx(roll).</p>")
     return "\n".join(h)
+
+
+# a check's value, rounded to what it means (px to 0.001, a count to 1, a workspace 1σ to 0.01 mm)
+CHECK_FORMATS = {"reprojection RMS (px)": ".3f", "reprojection max (px)": ".3f", "views used": ".0f",
+                 "worst 1σ point error in the workspace (mm)": ".2f"}
+
+
+def sigma_html(per_axis, fmt: str, unit: str = "") -> str:
+    """A camera's one 1σ figure, the norm of its per-axis 1σ, with the axes beside it:
+    '<b>0.719</b> (0.320, 0.614, 0.191)'."""
+    return f"<b>{num(sigma_norm(per_axis), fmt)}</b>{esc(' ' + unit if unit else '')} {vec(per_axis, fmt)}"
+
+
+def _weakest_html(w: dict, norm_mm: float) -> str:
+    """Where a camera's 1σ lies, in words: the direction it is least sure of (the largest eigen-
+    direction of its covariance, part of its 1σ norm), then the numbers."""
+    t, r = w["translation"], w["rotation"]
+    return (f'<p class="weakest">Of its {norm_mm:.3g} mm, most lies {esc(t["where"])}: {t["sigma"]:.3g} mm that way, '
+            f'{t["sigma_min"]:.3g} mm in its best-known direction; it turns most {esc(r["where"])} '
+            f'({r["sigma"]:.3g} deg).<br><span class="note">{esc(t["text"])}.<br>{esc(r["text"])}.</span></p>')
 
 
 def camera_html(result, n: str, intr, verdict: dict, residuals: dict, ws: dict) -> str:
@@ -92,17 +119,18 @@ def camera_html(result, n: str, intr, verdict: dict, residuals: dict, ws: dict) 
          f"<b>T_{ref}_cam</b> (maps camera optical-frame points to the {ref} frame, metres){matrix(T)}",
          f"<p>quaternion (x, y, z, w): {vec(R_to_quat_xyzw(T[:3, :3]), '.6f')}<br>roll, pitch, yaw: "
          f"{vec(np.degrees(R_to_rpy(T[:3, :3])), '.3f', 'deg')}</p>",
-         f"<p>1σ translation ({ref} x, y, z): {vec(c.sigma_translation_mm, '.3f', 'mm')}<br>"
-         f"1σ rotation ({ref} x, y, z): {vec(c.sigma_rotation_deg, '.4f', 'deg')}</p>"]
+         f"<p><b>1σ translation</b>: {sigma_html(c.sigma_translation_mm, '.3f', 'mm')} (norm; {ref} x, y, z)<br>"
+         f"<b>1σ rotation</b>: {sigma_html(c.sigma_rotation_deg, '.4f', 'deg')} (norm; {ref} x, y, z)</p>"]
     if covariance_problem(c.covariance) is None:  # a covariance to draw directions from
-        w = weakest_directions(T, c.covariance, ref)
-        h.append(f'<p class="weakest"><b>{esc(w["summary"])}</b><br><span class="note">{esc(w["translation"]["text"])}.<br>'
-                 f'{esc(w["rotation"]["text"])}.</span></p>')
+        h.append(_weakest_html(weakest_directions(T, c.covariance, ref), sigma_norm(c.sigma_translation_mm)))
     h.append("</div><div>")
     h.append('<table class="checks"><tr><th class="l">check</th><th>value</th><th>limit</th><th>result</th></tr>')
+    axes = {"1σ translation (mm)": (c.sigma_translation_mm, ".3f"), "1σ rotation (deg)": (c.sigma_rotation_deg, ".4f")}
     for label, v, op, lim, ok in verdict["rows"]:
         lim_html = esc(lim) if isinstance(lim, str) else num(lim, "g")
-        h.append(f'<tr><td class="l">{esc(label)}</td><td>{num(v, ".4g")}</td><td>{esc(op)} {lim_html}</td>'
+        per_axis, fmt = axes.get(label, (None, CHECK_FORMATS.get(label, ".4g")))
+        value = sigma_html(per_axis, fmt) if per_axis is not None else num(v, fmt)
+        h.append(f'<tr><td class="l">{esc(label)}</td><td>{value}</td><td>{esc(op)} {lim_html}</td>'
                  f"<td>{badge(ok)}</td></tr>")
     h.append("</table>")
     sigma = "" if c.pixel_sigma_px is None else f" (its corners' σ {num(c.pixel_sigma_px, '.3f', ' px')} per axis)"
@@ -193,7 +221,9 @@ def robot_html(result) -> str:
 
 
 def provenance_html(result, ds, result_path, tol: dict, config) -> str:
-    """Where the numbers come from: result file and hash, versions, dataset, solver outcome and settings, tolerances."""
+    """Where the numbers come from: result file and hash, versions, dataset, solver outcome and
+    settings, tolerances; each number rounded to what it means (the exact values are in the result
+    embedded in the page)."""
     rows = [
         ("result file", f"{result_path} (sha256 {_sha256(result_path)[:16]}…)" if result_path else "(given in memory)"),
         ("result format", RESULT_FORMAT),
@@ -201,11 +231,11 @@ def provenance_html(result, ds, result_path, tol: dict, config) -> str:
         ("calibgraph version of this report", __version__),
         ("dataset", result.dataset or (str(ds.root) if ds is not None else "n/a")),
         ("mode / method", f"{result.mode} / {result.method}"),
-        ("converged", result.converged),
+        ("converged", "yes" if result.converged else "no"),
         ("iterations", result.iterations),
-        ("final cost", result.final_cost),
-        ("pixel sigma used (px)", result.pixel_sigma_px),
-        ("solve time (s)", result.solve_time_s),
+        ("final cost (sum of squared whitened residuals)", _round(result.final_cost, ".1f")),
+        ("pixel sigma used (px)", _round(result.pixel_sigma_px, ".4f")),
+        ("solve time (s)", _round(result.solve_time_s, ".2f")),
         ("tolerances", f"{config}" if config is not None and not isinstance(config, dict) else
          ("given as a dict" if isinstance(config, dict) else f"defaults ({DEFAULT_TOLERANCES.name})")),
     ]
@@ -220,13 +250,81 @@ def provenance_html(result, ds, result_path, tol: dict, config) -> str:
         key = "T_flange_board" if result.mode == "eye_to_hand" else "T_base_board"
         st, sr = (sigmas_from_cov(result.mount_covariance) if result.mount_covariance is not None
                   else ([np.nan] * 3, [np.nan] * 3))
-        rows.append((f"{key} (m)", f"t = {np.round(result.T_mount_board[:3, 3], 5).tolist()}; 1σ "
-                     f"{np.round(st, 3).tolist()} mm, {np.round(sr, 4).tolist()} deg"))
+        t_mm = 1e3 * np.asarray(result.T_mount_board[:3, 3], float)
+        rows.append((f"{key}", f"t = ({_join(t_mm, '.2f')}) mm; 1σ ({_join(st, '.3f')}) mm, ({_join(sr, '.4f')}) deg"))
     h = ['<table id="provenance">'] + [f'<tr><th class="l">{esc(k)}</th><td class="l">{esc(v)}</td></tr>' for k, v in rows]
     h.append("</table>")
-    h.append(f"<p><b>Solver settings</b></p><pre>{esc(json.dumps(result.settings, indent=2))}</pre>")
-    h.append(f"<p><b>Tolerances applied</b></p><pre>{esc(json.dumps(tol, indent=2))}</pre>")
+    h.append(settings_html(result.settings))
+    h.append(tolerances_html(tol))
     return "\n".join(h)
+
+
+def _round(v, fmt: str) -> str:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return "n/a" if v is None else str(v)
+    return format(f, fmt) if np.isfinite(f) else "n/a"
+
+
+def _join(values, fmt: str) -> str:
+    return ", ".join(_round(v, fmt) for v in values)
+
+
+def setting_text(key: str, v) -> str:
+    """A solver setting's value as a reader wants it: units from the key's suffix, small lengths
+    and angles also in mm and deg, booleans as yes/no, unset as 'estimated'/'default'."""
+    if v is None:
+        return "estimated" if key == "pixel_sigma_px" else "not set"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        f = float(v)
+        if key.endswith("_rad"):
+            return f"{np.degrees(f):.4g} deg"
+        if key.endswith("_m"):
+            return f"{1e3 * f:.4g} mm"
+        unit = " px" if key.endswith("_px") else ""
+        return f"{f:.4g}{unit}"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(str(x) for x in v) or "none"
+    if isinstance(v, dict):
+        return "; ".join(f"{k}: {setting_text(str(k), x)}" for k, x in v.items()) or "none"
+    return str(v)
+
+
+def settings_html(settings: dict | None) -> str:
+    """The solver's settings as a table (the SolverOptions names, which dataset.yaml's solver:
+    section takes, and their values in readable units)."""
+    if not settings:
+        return '<p class="note">The result does not record the solver settings.</p>'
+    rows = "".join(f'<tr><td class="l"><code>{esc(k)}</code></td><td class="l">{esc(setting_text(k, v))}</td></tr>'
+                   for k, v in settings.items())
+    return ('<p><b>Solver settings</b> <span class="note">(names as dataset.yaml\'s <code>solver:</code> section '
+            f'takes them)</span></p><table id="settings"><tr><th class="l">setting</th><th class="l">value</th></tr>'
+            f"{rows}</table>")
+
+
+def tolerances_html(tol: dict) -> str:
+    """The tolerances applied, as a table: each check's limit, the cameras' own limits beside it,
+    and the workspace region mapped."""
+    cams = sorted(tol.get("cameras") or {})
+    head = "".join(f"<th>{esc(c)}</th>" for c in cams)
+    rows = []
+    for key, label, _get, op, *_ in CHECKS:
+        lim = (tol.get("defaults") or {}).get(key)
+        own = "".join(f"<td>{esc(_limit_text(tol['cameras'][c].get(key, lim), op))}</td>" for c in cams)
+        rows.append(f'<tr><td class="l">{esc(label)} <span class="note"><code>{esc(key)}</code></span></td>'
+                    f"<td>{esc(_limit_text(lim, op))}</td>{own}</tr>")
+    ws = tol.get("workspace") or {}
+    ws_text = "; ".join(f"{k} {setting_text(k, v) if not isinstance(v, (list, tuple)) else _join(v, '.3g')}"
+                        for k, v in ws.items()) or "from where the board was presented, padded by 15 cm"
+    return (f'<p><b>Tolerances applied</b></p><table id="tolerances"><tr><th class="l">check</th><th>limit</th>{head}'
+            f"</tr>{''.join(rows)}</table><p class=\"note\">Workspace mapped: {esc(ws_text)}.</p>")
+
+
+def _limit_text(lim, op: str) -> str:
+    return "not checked" if lim is None else f"{op} {lim:g}" if isinstance(lim, (int, float)) else f"{op} {lim}"
 
 
 def _sha256(path) -> str:
@@ -241,17 +339,19 @@ BUDGET_COLOURS = {"corners": "#1f77b4", "intrinsics": "#ff7f0e", "robot_fk": "#2
 OTHER_COLOURS = ("#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f", "#d62728")
 
 
-def improve_html(result) -> str:
+def improve_html(result, workcell=None) -> str:
     """The box at the top: what would improve this calibration, each camera's advice with its
-    numbers (its 1σ now, what the remedy would bring it to), the cameras not calibrated and why,
-    and how many notes the page carries."""
+    numbers (its 1σ now, what the remedy would bring it to; the commands naming ``workcell``, the cell
+    file the dataset was captured with, where the result's advice has the placeholder), the cameras
+    not calibrated and why, and how many notes the page carries. The page says each advice here only."""
     items = []
     for n, c in result.cameras.items():
         link = f'<a href="#cam-{esc(n)}">{esc(n)}</a>'
         if not c.calibrated:
             items.append(f'<li data-camera="{esc(n)}">{link}: <b>not calibrated</b> — {esc(c.why)}</li>')
         elif findings.advice(c):
-            items.append(f'<li data-camera="{esc(n)}">{link}: <span class="advice">{esc(findings.advice_for(n, c))}</span></li>')
+            text = name_workcell(findings.advice_for(n, c), workcell)
+            items.append(f'<li data-camera="{esc(n)}">{link}: <span class="advice">{esc(text)}</span></li>')
     n_notes = len(result.notes)
     if not items and not n_notes:
         return ""
@@ -273,8 +373,8 @@ def budget_html(c) -> str:
     if not b:
         return ""
     s = findings.sigma_norm_mm(c)
-    h = ['<div class="budget"><b>What the 1σ is made of</b>'
-         + (f" (1σ translation, norm of x, y, z: {num(s, '.3f', ' mm')})" if s is not None else "")]
+    h = ['<div class="budget"><b>What its 1σ translation' + (f" of {num(s, '.3f', ' mm')}" if s is not None else "")
+         + " is made of</b>"]
     for label, shares in findings.share_sets(b):
         h.append(f'<div class="shareset" data-set="{esc(label)}"><span class="setlabel">{esc(label)}</span>'
                  + _bar(shares) + "</div>")
@@ -284,8 +384,11 @@ def budget_html(c) -> str:
             f"{esc(lab)}: " + (esc(findings.percent(v)) if unit == "share" else num(v, ".4g", f" {unit}" if unit else ""))
             for lab, v, unit in extra) + "</p>")
     for key, text in findings.budget_texts(b):
-        cls = "advice" if key == "advice" else "note"
-        h.append(f'<p class="{cls}"><b>{"Advice" if key == "advice" else esc(findings.humanise(key))}:</b> {esc(text)}</p>')
+        if key == "advice":  # said once, in the box at the top
+            h.append('<p class="note">What would shrink it most: its advice in <a href="#improve">What would improve '
+                     "this calibration</a>.</p>")
+        else:
+            h.append(f'<p class="note"><b>{esc(findings.humanise(key))}:</b> {esc(text)}</p>')
     h.append("</div>")
     return "\n".join(h)
 
@@ -373,7 +476,13 @@ def camera_notes_html(result, n: str) -> str:
     notes = result.camera_notes(n)
     if not notes:
         return ""
-    return ('<div class="notes"><b>Notes</b><ul>' + "".join(f"<li>{esc(t)}</li>" for t in notes) + "</ul></div>")
+    return ('<div class="notes"><b>Notes</b><ul>' + "".join(f"<li>{note_html(t)}</li>" for t in notes) + "</ul></div>")
+
+
+def note_html(text: str) -> str:
+    """A solver's note: its plain sentence, then its technical detail (after 'Detail: ') set smaller."""
+    plain, sep, detail = str(text).partition(" Detail: ")
+    return esc(plain) + (f' <span class="detail">Detail: {esc(detail)}</span>' if sep else "")
 
 
 def cell_notes_html(result) -> str:
@@ -382,5 +491,5 @@ def cell_notes_html(result) -> str:
     if not notes:
         return ('<h2 id="cell-notes">Notes on the whole cell</h2>\n<p class="note">None: the solver found nothing to '
                 "say about the board or the robot.</p>")
-    body = "<ul>" + "".join(f"<li>{esc(t)}</li>" for t in notes) + "</ul>"
+    body = "<ul>" + "".join(f"<li>{note_html(t)}</li>" for t in notes) + "</ul>"
     return f'<h2 id="cell-notes">Notes on the whole cell</h2>\n<div class="notes cell">{body}</div>'

@@ -168,7 +168,10 @@ def scatter(series: list, title: str = "", xlabel: str = "", ylabel: str = "", w
         # keep data aspect ratio by shrinking the plot height
         dx, dy = xlim[1] - xlim[0], ylim[1] - ylim[0]
         height = int(30 + 44 + (width - 62 - 16) * dy / dx)
-    ax = _Axes(width, height, xlim, ylim, y_down=y_down)
+    labels = [s for s in series if s.get("label")] if legend else []
+    # the legend stands right of the frame, off the data
+    legend_w = 12 + 7 * max((len(str(s["label"])) for s in labels), default=0) + 22 if labels else 0
+    ax = _Axes(width, height, xlim, ylim, y_down=y_down, right=16 + legend_w)
     if rect is not None:
         x0, y0, x1, y1 = rect
         X0, X1 = sorted((ax.X(x0), ax.X(x1)))
@@ -199,18 +202,24 @@ def scatter(series: list, title: str = "", xlabel: str = "", ylabel: str = "", w
             ax.parts.append(f'<path d="{"".join(out)}" stroke="{col}" stroke-width="1.6" fill="none" opacity="{op}"/>')
         else:
             ax.parts.append(f'<g fill="{col}" opacity="{op}">{"".join(out)}</g>')
-    if legend:
-        y = ax.t + 12
-        for s in series:
-            if not s.get("label"):
-                continue
-            col = s.get("color", BLUE)
-            x = ax.w - ax.r - 150
-            ax.parts.append(f'<circle cx="{x}" cy="{y - 4}" r="4" fill="{col}"/>'
-                            f'<text x="{x + 8}" y="{y}">{_esc(s["label"])}</text>')
-            y += 14
+    y = ax.t + 12
+    for s in labels:  # each series' own marker, as the plot draws it
+        x = ax.w - ax.r + 16
+        ax.parts.append(marker_glyph(x, y - 4, s.get("marker", "o"), s.get("color", BLUE), 3.5)
+                        + f'<text x="{x + 9}" y="{y}">{_esc(s["label"])}</text>')
+        y += 15
     ax.frame(title, xlabel, ylabel)
     return ax.svg()
+
+
+def marker_glyph(x: float, y: float, marker: str, color: str, r: float) -> str:
+    """One marker at (x, y) px: 'x' a cross, 's' a square, else a dot (a legend's key)."""
+    if marker == "x":
+        return (f'<path d="M{x - r:.1f},{y - r:.1f}L{x + r:.1f},{y + r:.1f}M{x - r:.1f},{y + r:.1f}L{x + r:.1f},{y - r:.1f}" '
+                f'stroke="{color}" stroke-width="1.6" fill="none"/>')
+    if marker == "s":
+        return f'<rect x="{x - r:.1f}" y="{y - r:.1f}" width="{2 * r:.1f}" height="{2 * r:.1f}" fill="{color}"/>'
+    return f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{r:.1f}" fill="{color}"/>'
 
 
 def heatmap(values, x_edges, y_edges, title: str = "", xlabel: str = "", ylabel: str = "",
@@ -219,7 +228,8 @@ def heatmap(values, x_edges, y_edges, title: str = "", xlabel: str = "", ylabel:
             nan_label: str = "not visible") -> str:
     """Heat map of ``values`` (ny, nx) over cell edges; NaN cells are drawn light grey.
 
-    ``markers``: list of dicts {x, y, label, color} drawn on top (e.g. camera or robot base).
+    ``markers``: list of dicts {x, y, label, color, dir} drawn on top (e.g. camera or robot base; see
+    :func:`_marker`).
     Keeps the data aspect ratio when ``height`` is None.
     """
     V = np.asarray(values, float)
@@ -248,10 +258,7 @@ def heatmap(values, x_edges, y_edges, title: str = "", xlabel: str = "", ylabel:
                 ax.parts.append(f'<text x="{(x0 + x1) / 2:.1f}" y="{(y0 + y1) / 2 + 3:.1f}" text-anchor="middle" '
                                 f'font-size="8" fill="{tc}">{_fmt(v)}</text>')
     for m in markers or []:
-        X, Y = ax.X(m["x"]), ax.Y(m["y"])
-        col = m.get("color", RED)
-        ax.parts.append(f'<circle cx="{X:.1f}" cy="{Y:.1f}" r="5" fill="{col}" stroke="#fff"/>'
-                        f'<text x="{X + 7:.1f}" y="{Y + 4:.1f}" fill="{col}" font-weight="bold">{_esc(m.get("label", ""))}</text>')
+        ax.parts.append(_marker(ax, m, xe, ye))
     ax.frame(title, xlabel, ylabel)
     # colour bar
     bx, by, bh = plot_w + 10, ax.t, height - ax.t - ax.b
@@ -269,6 +276,45 @@ def heatmap(values, x_edges, y_edges, title: str = "", xlabel: str = "", ylabel:
         ax.parts.append(f'<rect x="{bx}" y="{by + bh + 8}" width="14" height="10" fill="#e4e4e4" stroke="#333"/>'
                         f'<text x="{bx + 18}" y="{by + bh + 17}" font-size="9">{_esc(nan_label)}</text>')
     return ax.svg(extra_width=cbw)
+
+
+def _marker(ax, m: dict, xe, ye) -> str:
+    """A heat map's marker {x, y, label, color, dir (dx, dy) optional}: a dot with its label in dark
+    text on a white halo (readable on any colour of the map); one outside the map is drawn on its
+    border, where the line from the map's centre to it leaves, as a diamond; ``dir``: an arrow that
+    way (a camera's viewing direction)."""
+    x, y = float(m["x"]), float(m["y"])
+    inside = xe[0] <= x <= xe[-1] and ye[0] <= y <= ye[-1]
+    if not inside:
+        cx, cy = (xe[0] + xe[-1]) / 2, (ye[0] + ye[-1]) / 2
+        dx, dy = x - cx, y - cy
+        f = min(((xe[-1] if dx > 0 else xe[0]) - cx) / dx if dx else np.inf,
+                ((ye[-1] if dy > 0 else ye[0]) - cy) / dy if dy else np.inf)
+        x, y = cx + f * dx, cy + f * dy
+    X, Y = ax.X(x), ax.Y(y)
+    col = m.get("color", RED)
+    out = []
+    d = m.get("dir")
+    if d is not None and np.hypot(*d) > 1e-6:
+        ux, uy = ax.X(x + d[0]) - X, ax.Y(y + d[1]) - Y
+        k = 30.0 / (np.hypot(ux, uy) or 1.0)
+        ex, ey = X + k * ux, Y + k * uy
+        hx, hy = -k * ux / 30.0, -k * uy / 30.0  # unit vector back along the arrow
+        px, py = -hy, hx
+        out.append(f'<line x1="{X:.1f}" y1="{Y:.1f}" x2="{ex:.1f}" y2="{ey:.1f}" stroke="#111" stroke-width="2"/>'
+                   f'<path d="M{ex:.1f},{ey:.1f}L{ex + 7 * hx + 4 * px:.1f},{ey + 7 * hy + 4 * py:.1f}'
+                   f'L{ex + 7 * hx - 4 * px:.1f},{ey + 7 * hy - 4 * py:.1f}Z" fill="#111"/>')
+    if inside:
+        out.append(f'<circle cx="{X:.1f}" cy="{Y:.1f}" r="5" fill="{col}" stroke="#fff" stroke-width="1.5"/>')
+    else:
+        out.append(f'<path d="M{X:.1f},{Y - 7:.1f}L{X + 7:.1f},{Y:.1f}L{X:.1f},{Y + 7:.1f}L{X - 7:.1f},{Y:.1f}Z" '
+                   f'fill="{col}" stroke="#fff" stroke-width="1.5"/>')
+    right = X > ax.l + 0.6 * (ax.w - ax.l - ax.r)
+    tx, anchor = (X - 9, "end") if right else (X + 9, "start")
+    ty = min(max(Y + 4, ax.t + 12), ax.h - ax.b - 4)
+    out.append(f'<text x="{tx:.1f}" y="{ty:.1f}" text-anchor="{anchor}" fill="#111" font-weight="bold" '
+               f'stroke="#fff" stroke-width="3" paint-order="stroke">{_esc(m.get("label", ""))}</text>')
+    return "".join(out)
 
 
 def empty_plot(title: str, message: str, width: int = 420, height: int = 120) -> str:

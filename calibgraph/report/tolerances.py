@@ -2,6 +2,13 @@
 tolerances of a YAML file (``datasets/tolerances/default.yaml`` by default), and the checks that do
 not depend on a tolerance: a camera whose covariance is not a covariance (zero, not finite, not
 positive definite) cannot pass, whatever its 1σ says.
+
+A camera's 1σ is one figure per camera, everywhere calibgraph states one: the norm of its per-axis
+1σ, ``sqrt(sx² + sy² + sz²)`` (the square root of the trace of its translation covariance; likewise
+for the rotation). ``max_sigma_translation_mm`` and ``max_sigma_rotation_deg`` limit that norm, as
+``capture --auto --tolerance-mm/--tolerance-deg`` and the error budget's 1σ do. (Files written
+before said "largest axis" in a comment: the keys are read the same way, now against the norm, which
+is at least the largest axis and at most sqrt(3) times it.)
 """
 
 from __future__ import annotations
@@ -13,10 +20,20 @@ import numpy as np
 
 from calibgraph.core.errors import InputError
 from calibgraph.io.files import read_yaml
+from calibgraph.io.shipped import resolve_shipped, shipped_root
 
-DEFAULT_TOLERANCES = Path(__file__).resolve().parents[1] / "datasets" / "tolerances" / "default.yaml"
 
-# used when the file is missing (an installed wheel has no datasets/ folder)
+def _default_tolerances() -> Path:
+    try:
+        return shipped_root() / "tolerances" / "default.yaml"
+    except InputError:
+        return Path("datasets/tolerances/default.yaml")  # an installation without its shipped files: the built-ins
+
+
+# the shipped file (the clone's datasets/tolerances/default.yaml, or the wheel's copy of it)
+DEFAULT_TOLERANCES = _default_tolerances()
+
+# used when the file is missing
 BUILTIN_TOLERANCES = {
     "defaults": {
         "max_sigma_translation_mm": 1.0,
@@ -32,13 +49,18 @@ BUILTIN_TOLERANCES = {
 
 CHECKS = (
     # key, label, value of a CameraResult (and the worst workspace 1σ), comparison
-    ("max_sigma_translation_mm", "largest 1σ translation (mm)", lambda c, w: max(c.sigma_translation_mm), "<="),
-    ("max_sigma_rotation_deg", "largest 1σ rotation (deg)", lambda c, w: max(c.sigma_rotation_deg), "<="),
+    ("max_sigma_translation_mm", "1σ translation (mm)", lambda c, w: sigma_norm(c.sigma_translation_mm), "<="),
+    ("max_sigma_rotation_deg", "1σ rotation (deg)", lambda c, w: sigma_norm(c.sigma_rotation_deg), "<="),
     ("max_reprojection_rms_px", "reprojection RMS (px)", lambda c, w: c.reprojection_rms_px, "<="),
     ("max_reprojection_max_px", "reprojection max (px)", lambda c, w: c.reprojection_max_px, "<="),
     ("min_views_used", "views used", lambda c, w: c.views_used, ">="),
     ("max_workspace_sigma_mm", "worst 1σ point error in the workspace (mm)", lambda c, w: w, "<="),
 )
+
+
+def sigma_norm(per_axis) -> float:
+    """The one 1σ figure of a camera: the norm of its per-axis 1σ (x, y, z)."""
+    return float(np.linalg.norm(np.asarray(per_axis, float)))
 
 
 def load_tolerances(config=None) -> dict:
@@ -59,19 +81,22 @@ def load_tolerances(config=None) -> dict:
         if isinstance(src, dict):
             d = src
         else:
+            src = resolve_shipped(src, "tolerances")  # a shipped name or datasets/tolerances/... from any folder
             d = read_yaml(src, "tolerance config (a mapping with 'defaults', 'cameras', 'workspace')", empty_ok=True)
         unknown = set(d) - {"format", "defaults", "cameras", "workspace", "description"}
         if unknown:
-            raise InputError(f"{src}: unknown tolerance sections {sorted(unknown)}; use defaults, cameras, workspace.")
+            raise InputError(f"{src}: unknown tolerance section(s) {', '.join(map(str, sorted(unknown)))}; use defaults, "
+                             "cameras, workspace.")
         known = {k for k, *_ in CHECKS}
         for k in (d.get("defaults") or {}):
             if k not in known:
-                raise InputError(f"{src}: unknown tolerance {k!r}; known: {sorted(known)}.")
+                raise InputError(f"{src}: unknown tolerance {k!r}; known: {', '.join(sorted(known))}.")
         tol["defaults"].update(d.get("defaults") or {})
         for cam, lim in (d.get("cameras") or {}).items():
             bad = set(lim or {}) - known
             if bad:
-                raise InputError(f"{src}: camera {cam!r}: unknown tolerance(s) {sorted(bad)}; known: {sorted(known)}.")
+                raise InputError(f"{src}: camera {cam!r}: unknown tolerance(s) {', '.join(map(str, sorted(bad)))}; known: "
+                                 f"{', '.join(sorted(known))}.")
             tol["cameras"].setdefault(str(cam), {}).update(lim or {})
         tol["workspace"].update(d.get("workspace") or {})
     return tol
@@ -96,17 +121,20 @@ def covariance_problem(cov) -> str | None:
 
 def camera_verdict(name: str, cam, tol: dict, worst_ws_mm) -> dict:
     """One :class:`~calibgraph.solver.result.CameraResult` against its tolerances:
-    ``{'pass', 'rows': [(label, value, op, limit, ok)], 'reasons': [why it fails]}``. A row with
-    ``ok`` None could not be evaluated (a value that is not a number)."""
+    ``{'pass', 'rows': [(label, value, op, limit, ok)], 'reasons': [why it fails], 'failed': [(key,
+    value, limit)] of the failing checks}`` (key: the tolerance's, 'covariance' or 'calibrated'). A
+    row with ``ok`` None could not be evaluated (a value that is not a number)."""
     if not cam.calibrated:
-        return {"pass": False, "rows": [], "reasons": [f"not calibrated: {cam.why}"]}
+        return {"pass": False, "rows": [], "reasons": [f"not calibrated: {cam.why}"],
+                "failed": [("calibrated", False, True)]}
     limits = dict(tol["defaults"])
     limits.update(tol["cameras"].get(name, {}))
-    rows, reasons = [], []
+    rows, reasons, failed = [], [], []
     bad_cov = covariance_problem(cam.covariance)
     rows.append(("covariance", bad_cov or "positive definite", "is", "positive definite", bad_cov is None))
     if bad_cov:
         reasons.append(bad_cov)
+        failed.append(("covariance", bad_cov, "positive definite"))
     for key, label, get, op in CHECKS:
         lim = limits.get(key)
         if lim is None:
@@ -118,5 +146,6 @@ def camera_verdict(name: str, cam, tol: dict, worst_ws_mm) -> dict:
         ok = float(v) <= float(lim) if op == "<=" else float(v) >= float(lim)
         if not ok:
             reasons.append(f"{label} {float(v):.4g} not {op} {lim:g}")
+            failed.append((key, float(v), lim))
         rows.append((label, v, op, lim, ok))
-    return {"pass": not reasons, "rows": rows, "reasons": reasons}
+    return {"pass": not reasons, "rows": rows, "reasons": reasons, "failed": failed}

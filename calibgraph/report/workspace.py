@@ -78,11 +78,11 @@ def workspace_maps(result, tol: dict, intr: dict) -> dict:
         for n in names:
             mk = []
             if xe[0] <= 0 <= xe[-1] and ye[0] <= 0 <= ye[-1]:
-                mk.append({"x": 0.0, "y": 0.0, "label": "robot base", "color": "#d62728"})
-            t = poses[n][:3, 3]
-            if xe[0] <= t[0] <= xe[-1] and ye[0] <= t[1] <= ye[-1]:
-                mk.append({"x": t[0], "y": t[1], "label": n, "color": "#ff7f0e"})
+                mk.append({"x": 0.0, "y": 0.0, "label": "robot base", "color": "#ffffff"})
+            mk.append(camera_marker(n, poses[n], xe, ye))
             markers[n] = mk
+        where += ("; the camera is drawn where it stands (on the map's edge, as a diamond, when it stands beyond "
+                  "it), with an arrow the way it looks")
     rows = []
     for n in names:
         m = maps[n]
@@ -109,6 +109,21 @@ def workspace_maps(result, tol: dict, intr: dict) -> dict:
         "<th>map cells visible (%)</th></tr>" + "".join(rows) + "</table>"
     )
     return out
+
+
+def camera_marker(n: str, T_base_cam, xe, ye) -> dict:
+    """The workspace map's marker of camera ``n``: where it stands (x, y in the base frame) and the
+    way it looks (its optical axis, projected on the map), labelled with its distance when it stands
+    beyond the map and drawn on its edge."""
+    T = np.asarray(T_base_cam, float)
+    t, z = T[:3, 3], T[:3, 2]
+    inside = xe[0] <= t[0] <= xe[-1] and ye[0] <= t[1] <= ye[-1]
+    centre = np.array([(xe[0] + xe[-1]) / 2, (ye[0] + ye[-1]) / 2])
+    label = n if inside else f"{n}, {np.linalg.norm(t[:2] - centre):.1f} m off the map"
+    if np.hypot(z[0], z[1]) < 0.2:
+        label += " (looking down)"
+    return {"x": float(t[0]), "y": float(t[1]), "label": label, "color": "#ff7f0e",
+            "dir": (float(z[0]), float(z[1])) if np.hypot(z[0], z[1]) >= 0.2 else None}
 
 
 def _edges(c):

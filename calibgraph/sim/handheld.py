@@ -48,6 +48,15 @@ GUIDED_HOLD_S = (1.5, 2.5)  # a guided user holds the board still until the fram
 REACTION_S = 0.3  # ... and moves on this long after it is
 
 
+def camera_seed(seed: int, name: str) -> int:
+    """The seed of camera ``name``'s hand-held board in a cell seeded ``seed``: each camera its own
+    walk and noise draw (a cell's seed given to every camera made their frames identical, and
+    comparing cameras no check of the 1-sigma), the same for a camera from run to run."""
+    import zlib
+
+    return int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, zlib.crc32(name.encode("utf-8"))]).generate_state(1)[0])
+
+
 def _min_jerk(s: float) -> float:
     """Minimum-jerk profile 0 -> 1 over s in [0, 1] (a reaching hand's speed profile)."""
     s = min(max(s, 0.0), 1.0)

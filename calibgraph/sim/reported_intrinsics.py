@@ -81,7 +81,7 @@ def parse_reported(value, where: str = "reported_intrinsics"):
             return ReportedIntrinsics(**value)
         except TypeError:
             allowed = ", ".join(ReportedIntrinsics.__dataclass_fields__)
-            raise InputError(f"{where}: unknown keys {sorted(set(value) - set(ReportedIntrinsics.__dataclass_fields__))}; "
+            raise InputError(f"{where}: unknown keys {', '.join(sorted(set(value) - set(ReportedIntrinsics.__dataclass_fields__)))}; "
                              f"allowed: {allowed}.") from None
     raise InputError(f"{where}: give 'exact' (the device reports its true intrinsics: an oracle), 'factory', or a "
                      f"mapping such as {{focal_rel_sigma: 0.006, principal_point_sigma_px: 3.0, k1_sigma: 0.01, "

@@ -9,7 +9,7 @@ on a pedestal whose top is the base frame; the floor is at ``floor_z_m`` (negati
 YAML::
 
     name: default
-    board: a4_54                  # a4_54 | thesis | {kind: checkerboard, rows: 6, cols: 9, pitch_m: 0.025}
+    board: a4_7x10_25mm           # a shipped board (calibgraph target list; alias a4_54) or {kind: checkerboard, rows: 6, cols: 9, pitch_m: 0.025}
     floor_z_m: -0.8
     robot: {fk_sigma_translation_m: 5.0e-5, fk_sigma_rotation_deg: 0.005,   # reported-pose error
             joint_offsets_rad: [0, 0.001, 0, 0, 0, 0, 0]}   # optional: the arm's joint zero offsets
@@ -50,6 +50,7 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.targets import Target
 from calibgraph.core.transforms import check_pose, look_at
 from calibgraph.io.files import read_yaml
+from calibgraph.io.shipped import resolve_shipped
 from calibgraph.plan.cell import board_by_name, boxes_from_list, default_T_flange_board
 from calibgraph.plan.cell import pose_from_spec as _pose_from_spec
 from calibgraph.sim.reported_intrinsics import FACTORY, parse_reported, reported_intrinsics, reported_to_yaml
@@ -177,7 +178,7 @@ class Workcell:
         if not names and not self.planning_only:
             raise InputError(f"workcell {self.name!r}: no cameras; add a 'ring' or 'cameras' section.")
         if len(set(names)) != len(names):
-            raise InputError(f"workcell {self.name!r}: duplicate camera names {names}.")
+            raise InputError(f"workcell {self.name!r}: duplicate camera names {', '.join(map(str, names))}.")
         object.__setattr__(self, "cameras", tuple(self.cameras))
         object.__setattr__(self, "obstacles", tuple(self.obstacles))
 
@@ -250,7 +251,7 @@ def ring_cameras(distances_m, height_above_floor_m: float = 1.6, presets=("l515"
     return tuple(specs)
 
 
-def ring_workcell(n_cameras: int = 3, distance_m: float = 3.0, preset_name: str = "l515", board="a4_54",
+def ring_workcell(n_cameras: int = 3, distance_m: float = 3.0, preset_name: str = "l515", board="a4_7x10_25mm",
                   spread_deg: float = 360.0, height_above_floor_m: float = 1.6, realism: Realism | None = None,
                   distances_m=None, name: str = "ring", seed: int = 0) -> Workcell:
     """A cell with ``n_cameras`` of one preset on a ring at ``distance_m`` (or per-camera ``distances_m``)."""
@@ -275,12 +276,12 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
              "obstacles", "keep_out"}
     unknown = set(d) - known
     if unknown:
-        raise InputError(f"{where}: unknown keys {sorted(unknown)}; allowed: {sorted(known)}.")
+        raise InputError(f"{where}: unknown keys {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(known))}.")
     try:
         realism = Realism(**(d.get("realism") or {}))
     except TypeError as e:
         raise InputError(f"{where}: realism: {e}") from None
-    target = board_by_name(d.get("board", "a4_54"))
+    target = board_by_name(d.get("board", "a4_7x10_25mm"))
     floor_z = float(d.get("floor_z_m", -0.8))
     cams = []
     ring = d.get("ring")
@@ -309,7 +310,7 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
         raise InputError(f"{where}: robot must be a mapping (fk_sigma_translation_m, fk_sigma_rotation_deg, joint_offsets_rad).")
     unknown = set(robot) - {"fk_sigma_translation_m", "fk_sigma_rotation_deg", "joint_offsets_rad"}
     if unknown:
-        raise InputError(f"{where}: robot: unknown keys {sorted(unknown)}; allowed: fk_sigma_translation_m, "
+        raise InputError(f"{where}: robot: unknown keys {', '.join(sorted(unknown))}; allowed: fk_sigma_translation_m, "
                          "fk_sigma_rotation_deg, joint_offsets_rad.")
     offsets = robot.get("joint_offsets_rad", [0.0] * 7)
     try:
@@ -326,7 +327,7 @@ def workcell_from_dict(d: dict, where: str = "workcell") -> Workcell:
 def load_workcell(path) -> Workcell:
     """Read a workcell YAML file."""
 
-    p = Path(path)
+    p = resolve_shipped(path, "workcell")  # a shipped name or datasets/workcells/... from any folder
     d = read_yaml(p, "workcell file", mapping=False)
     return workcell_from_dict(d, str(p))
 

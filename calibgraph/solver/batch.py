@@ -22,7 +22,8 @@ from dataclasses import replace
 import numpy as np
 
 from calibgraph.core.errors import ObservabilityError
-from calibgraph.core.problem import Problem
+from calibgraph.core.problem import Problem, with_repeatability
+from calibgraph.core.transforms import log_so3
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.assemble import (
     camera_result,
@@ -33,7 +34,8 @@ from calibgraph.solver.assemble import (
     robot_result,
 )
 from calibgraph.solver.reduced import linearise_graph
-from calibgraph.solver.camera_model import board_scale, intrinsics_notes, widen_inadequate_intrinsics
+from calibgraph.solver.camera_model import (board_scale, hold_unseparable_scale, intrinsics_notes,
+                                           widen_inadequate_intrinsics)
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note, fk_record
 from calibgraph.solver.keys import B, C, K, O, S
@@ -62,15 +64,63 @@ def solve(problem: Problem, initial: dict | None = None, seed: int = 0, timings:
         :class:`Result`.
     Raises:
         ObservabilityError: a camera has too few views or the motion leaves a parameter undetermined.
-        InputError: formulation 'corner' was asked for a camera with k3..k6 distortion.
+        InputError: formulation 'corner' was asked for a camera with k3..k6 distortion; joint offsets
+            were asked for and the recorded joint angles do not give the recorded flange poses.
     """
     t0 = time.perf_counter()
+    problem = problem.with_(options=with_repeatability(problem.options))
+    if problem.options.kinematics == "joint-offsets":  # asked for: checked as 'auto' checks before it tries them
+        kin.check_recorded_angles(problem.options.kinematics_model, problem.captures)
     result = solve_minding_moves(problem, lambda p: solve_once(p, initial, seed, timings))
     if problem.options.kinematics == "auto":
         with timed(timings, "kinematics_select"):
             result = choose_kinematics(problem, result,
                                        lambda p: solve_minding_moves(p, lambda q: solve_once(q, initial, seed)))
+    if not result.converged:
+        result = unsettled(problem, result, lambda p, start: solve_minding_moves(p, lambda q: solve_once(q, start, seed)))
     return replace(result, solve_time_s=time.perf_counter() - t0)
+
+
+UNSETTLED_MAHALANOBIS2 = 16.81  # a camera moved this far (6 dof, p = 0.01) between two solves is not calibrated
+
+
+def unsettled(problem: Problem, result: Result, resolve) -> Result:
+    """A solve that did not converge (an LM run stopped at its iteration limit, or the robust rounds kept
+    changing which corners and views count) never gives a confident answer. It is solved once more from
+    where it ended (``resolve(problem, start)``); if that one converges, it is the result. Otherwise each
+    camera's pose moved ``d`` between the two (reference axes, as its covariance): its covariance takes
+    ``d d^T`` more, a note says the camera's pose is unsettled by that much, and a camera whose move is
+    beyond :data:`UNSETTLED_MAHALANOBIS2` of its own covariance is reported not calibrated (exit 3)."""
+    cams = {n: c.T_ref_cam for n, c in result.cameras.items() if c.calibrated}
+    if not cams or result.T_mount_board is None:
+        return result
+    try:
+        again = resolve(problem, {"T_ref_cam": cams, "T_mount_board": result.T_mount_board})
+    except ObservabilityError:
+        again = None
+    if again is not None and again.converged:
+        return again
+    if again is None:
+        return result
+    out, notes = dict(result.cameras), list(result.notes)
+    for n, c in result.cameras.items():
+        o = again.cameras.get(n)
+        if not c.calibrated or o is None or not o.calibrated:
+            continue
+        d = np.concatenate([log_so3(c.T_ref_cam[:3, :3] @ o.T_ref_cam[:3, :3].T), c.T_ref_cam[:3, 3] - o.T_ref_cam[:3, 3]])
+        m2 = float(d @ np.linalg.solve(c.covariance, d))
+        mm, deg = 1e3 * float(np.linalg.norm(d[3:])), float(np.degrees(np.linalg.norm(d[:3])))
+        if m2 > UNSETTLED_MAHALANOBIS2:
+            why = (f"the solver did not converge, and solved again from where it stopped the camera moved {mm:.1f} mm "
+                   f"and {deg:.2f} deg (Mahalanobis^2 {m2:.0f} in its 1-sigma): its pose is not settled; add views of it "
+                   "or check them (the robust rounds kept changing which corners count)")
+            out[n] = not_calibrated(problem, n, why, list(c.views_rejected))
+            notes.append(f"camera {n} is NOT calibrated: {why}")
+        else:
+            out[n] = replace(c, covariance=c.covariance + np.outer(d, d))
+            notes.append(f"camera {n}: the solver did not converge; solved again from where it stopped the camera moved "
+                         f"{mm:.2f} mm and {deg:.3f} deg, and its 1-sigma is widened by that much")
+    return replace(result, cameras=out, notes=tuple(notes))
 
 
 def _pose_mount_covariances(problem: Problem, groups: list) -> dict:
@@ -175,7 +225,12 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
     names = list(problem.cameras)
     if problem.method == "single":
         groups = [solve_single(problem, n, views, s, timings) for n, s in zip(names, starts)]
-        return groups, [n for g in groups for n in g.notes]
+        notes = [n for g in groups for n in g.notes]
+        if problem.options.intrinsics == "auto":  # judged per camera as the joint graph judges its cameras
+            judged = [widen_inadequate_intrinsics(problem, g, timings) for g in groups]
+            groups = [g for g, _ in judged]
+            notes += [n for _, w in judged for n in w]
+        return groups, notes
     ks = kin.setup(problem)
     if ks is not None:
         kin.check_motion(ks, sorted({v.capture for v in views}))
@@ -187,6 +242,7 @@ def _optimise(problem: Problem, views: list, starts: list, timings: dict | None)
     if problem.options.intrinsics == "auto":
         group, widened = widen_inadequate_intrinsics(problem, group, timings)
         notes += widened
+    group = hold_unseparable_scale(problem, group, timings)
     return [group], notes
 
 

@@ -18,7 +18,7 @@ whose fx the views pin loosely loses most of its variance when fx is known, howe
 share of the noise. ``own_intrinsics_share``: the same for this camera's own intrinsics alone (the
 bound a close-range session of this camera could reach).
 
-``shares_by_noise_source`` (sums to 1): the estimate is linear in the graph's whitened noise near
+``shares_by_noise_source`` (sums to 1, said "sums to 100 %"): the estimate is linear in the graph's whitened noise near
 the optimum, ``dx = Sigma J^T e`` with ``Sigma = (J^T J)^-1``, so each independent noise source ``s``
 adds ``Sigma J_s^T J_s Sigma`` to the covariance, and these parts sum to ``Sigma`` exactly. This says
 where the scatter comes from, not what removing a source would save: a tight intrinsics prior carries
@@ -46,7 +46,7 @@ from calibgraph.solver.session_plan import session_command
 KNOWN_EXACTLY = 1e9  # the factor a source's information is multiplied by for "known exactly"
 SHARE_LABELS = {
     "shares": "by parameter: the fraction of the variance that would go were it known exactly (each alone; they overlap)",
-    "shares_by_noise_source": "by noise source: where the variance comes from (sums to 1)",
+    "shares_by_noise_source": "by noise source: where the variance comes from (sums to 100 %)",
 }
 SOURCE_NAMES = {"corners": "corners", "intrinsics": "intrinsics", "robot_fk": "robot FK", "board": "board"}
 

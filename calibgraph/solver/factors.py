@@ -124,13 +124,15 @@ def pad_views(views: list, scale: float = 1.0, kept_only: bool = False) -> tuple
     return P, UV, valid, W
 
 
-def padded_view_residuals(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w):
+def padded_view_residuals(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr: Intrinsics, sqrt_w,
+                          mount: bool = False):
     """:func:`view_residual` of V views of one camera at once, their corners padded to N.
 
     ``T_ref_cam`` (4, 4) or (V, 4, 4), ``T_ref_mount`` (V, 4, 4), ``p_board_m`` (V, N, 3), ``uv_px``
     (V, N, 2), ``sqrt_w`` (V, N) including 1 / sigma_px, 0 on padding (whose points must be finite
     ones of the view). Returns e (V, 2N) and the Jacobians on the camera and the robot pose
-    (V, 2N, 6), rows ordered as :func:`view_residual` orders them."""
+    (V, 2N, 6), rows ordered as :func:`view_residual` orders them; with ``mount``, the Jacobian on the
+    board mount (its right perturbation) instead of the camera's."""
     V, N = sqrt_w.shape
     T_rc = np.broadcast_to(T_ref_cam, (V, 4, 4))
     R_rc, t_rc = T_rc[:, :3, :3], T_rc[:, :3, 3]
@@ -146,6 +148,9 @@ def padded_view_residuals(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_p
     H_c = np.concatenate([_cross_last(Jp, p_c), -Jp], axis=-1)
     JF = Jp @ (R_rc.transpose(0, 2, 1) @ R_rm)[:, None]
     H_f = np.concatenate([-_cross_last(JF, p_m), JF], axis=-1)
+    if mount:  # T_mount_board Exp(x): p_m moves by R_mb (x_r cross p_b + x_t)
+        JB = JF @ T_mount_board[:3, :3]
+        H_c = np.concatenate([-_cross_last(JB, p_board_m), JB], axis=-1)
     return e, H_c.reshape(V, 2 * N, 6), H_f.reshape(V, 2 * N, 6)
 
 
@@ -274,6 +279,16 @@ class ViewTerm:
     modes: np.ndarray | None = None  # (2n, 6) orthonormal basis Q of the view's low-order modes
     mode_factor: float = 1.0  # their variance factor
     n_intr: int = 6  # the size of the camera's intrinsics vector when estimated (6, 8 or 9)
+    # a revisit's own robot error about its configuration's shared pose (the arm's repeatability), as the
+    # whitening (U (2n, k), c (k,)) of its residual: e -> e - U (c * (U^T e)) (linearise.revisit_whitening)
+    repeat: tuple | None = None
+
+
+def whitened(x: np.ndarray, c: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """``x - Q diag(c) Q^T x`` (``x`` (2n,) or (2n, m), ``Q`` (2n, k) orthonormal, ``c`` (k,)): the
+    whitening of a residual whose covariance is I + Q diag(s^2) Q^T, with c = 1 - (1 + s^2)^-1/2."""
+    y = Q.T @ x
+    return x - Q @ (c[:, None] * y if y.ndim == 2 else c * y)
 
 
 def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
@@ -286,7 +301,8 @@ def make_capture_factors(key_robot, key_mount, key_scale, terms: list) -> list:
 
 def make_view_factors(key_mount, key_scale, captures: list) -> list:
     """One CustomFactor per view of every capture in ``captures`` ((robot pose key F(k), its views'
-    :class:`ViewTerm` s) pairs), in that order: a view's factor has the keys of its capture's robot
+    :class:`ViewTerm` s[, the fixed offset D (4, 4) of the capture's robot pose from the key's: a capture
+    revisiting a configuration shares the key of its first visit, T_ref_mount = F D]) tuples), in that order: a view's factor has the keys of its capture's robot
     pose, the mount, the board scale (``key_scale`` or None), its camera pose and, when estimated,
     its intrinsics. Each view's residual has its low-order modes whitened by its variance factor
     (covariance I + (f - 1) Q Q^T, whose inverse square root is I - (1 - f^-1/2) Q Q^T), so its
@@ -299,10 +315,16 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
     graph's sparsity. The pass is redone, at the values asked for, whenever a view finds the
     values of its keys differ from those of the last pass: a graph's error or linearisation at new
     values makes one pass, whichever factor asks first."""
-    terms = [t for _, ts in captures for t in ts]
+    terms = [t for _, ts, *_ in captures for t in ts]
     n_views = len(terms)
-    robot_keys = [k for k, _ in captures]
-    cap = np.repeat(np.arange(len(captures)), [len(ts) for _, ts in captures]).astype(int)  # capture of each view
+    robot_keys = [k for k, *_ in captures]
+    # a capture that revisits a configuration shares its robot pose key: its own pose is the key's times
+    # the fixed offset between their reported poses (a third entry; identity when absent)
+    deltas = [np.asarray(c[2], float) if len(c) > 2 and c[2] is not None else None for c in captures]
+    Delta = np.array([np.eye(4) if D is None else D for D in deltas])
+    shifted = np.array([D is not None for D in deltas])
+    Ad_inv = np.array([gtsam.Pose3(np.linalg.inv(D)).AdjointMap() if D is not None else np.eye(6) for D in deltas])
+    cap = np.repeat(np.arange(len(captures)), [len(c[1]) for c in captures]).astype(int)  # capture of each view
     cam_slot = {k: i for i, k in enumerate(dict.fromkeys(t.key_cam for t in terms))}
     cam_keys = list(cam_slot)
     cam = np.array([cam_slot[t.key_cam] for t in terms], int)  # camera pose of each view
@@ -314,8 +336,11 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
     for v, t in enumerate(terms):
         n = t.p_board_m.shape[0]
         rows.append(slice(start, start + 2 * n))
+        steps = [] if t.repeat is None else [(t.repeat[1], t.repeat[0])]
         if t.modes is not None and t.mode_factor > 1.0:
-            whiten[v] = (1.0 - 1.0 / np.sqrt(t.mode_factor), t.modes)
+            steps.append((np.full(t.modes.shape[1], 1.0 - 1.0 / np.sqrt(t.mode_factor)), t.modes))
+        if steps:
+            whiten[v] = steps
         start += 2 * n
     total = start
     if not n_views:
@@ -360,6 +385,8 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
         robots = [values.atPose3(k) for k in robot_keys]
         cams = [values.atPose3(k) for k in cam_keys]
         T_rm = np.array([p.matrix() for p in robots])
+        if shifted.any():
+            T_rm = T_rm @ Delta
         T_rc = np.array([p.matrix() for p in cams])
         k6s = [np.asarray(values.atVector(k), float) for k in intr_keys]
         par = pinhole.copy()  # fx, fy, cx, cy
@@ -410,6 +437,9 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
                 J[:, 0, 0], J[:, 0, 2], J[:, 1, 1], J[:, 1, 3] = xd, 1.0, yd, 1.0
                 J[:, :, 4:] = _distortion_columns(x, y, dist_c, fx, fy, skew, m_intr)
                 J *= sw[:, None, None]
+        if shifted.any():  # on the shared key F: F Exp(xi) D = F D Exp(Ad(D^-1) xi)
+            at = shifted[cap[vi]]
+            H_f[at] = H_f[at] @ Ad_inv[cap[vi][at]]
         e = e.reshape(-1)
         blocks = [H_f.reshape(-1, 6), H_b.reshape(-1, 6)]
         if H_s is not None:
@@ -418,9 +448,11 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
         if Jk is not None:
             blocks.append(Jk.reshape(-1, m_intr))
         white = {}
-        for v, (c, Q) in whiten.items():  # a whitened view's rows, replaced
+        for v, steps in whiten.items():  # a whitened view's rows, replaced
             ev, Hv = e[rows[v]], view_blocks(blocks, v)
-            white[v] = (ev - c * (Q @ (Q.T @ ev)), [A - c * (Q @ (Q.T @ A)) for A in Hv])
+            for c, Q in steps:
+                ev, Hv = whitened(ev, c, Q), [whitened(A, c, Q) for A in Hv]
+            white[v] = (ev, Hv)
         cache.update(robot=robots, cam=cams, intr=[k.tobytes() for k in k6s], mount=mount, scale=scale_bytes(values),
                      e=e, H=blocks, white=white)
 

@@ -38,6 +38,7 @@ import gtsam
 import numpy as np
 
 from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.problem import configuration_folds
 from calibgraph.solver.fk_check import widened
 from calibgraph.solver.noise_model import APPLY_Z, log_ratio_z
 
@@ -48,15 +49,23 @@ FOLDS = 5
 TIE = 0.005
 # each fold must leave every camera at least this many views (and the solver's own minimum)
 MIN_VIEWS_LEFT = 3
+# the jackknife of a set of fewer than 2 FOLDS configurations holds out one at a time, from this many on
+MIN_LEAVE_ONE_OUT = 6
 
 
-def _folds(views: list, min_views: int) -> list | None:
-    """FOLDS sets of capture indices (dealt in capture order), or None when holding one out would
-    leave a camera below ``min_views`` active views or a fold empty."""
-    caps = sorted({v.capture for v in views if v.active})
-    if len(caps) < 2 * FOLDS:
+def _folds(problem, views: list, min_views: int, small: bool = False) -> list | None:
+    """FOLDS sets of capture indices (the configurations dealt in capture order, a revisit in its
+    configuration's fold: :func:`~calibgraph.core.problem.configuration_folds`), or None when holding
+    one out would leave a camera below ``min_views`` active views or a fold empty. With ``small``, a set of
+    fewer than 2 FOLDS configurations (but at least :data:`MIN_LEAVE_ONE_OUT`) is held out one
+    configuration at a time (the jackknife of 8 ViSP poses)."""
+    active = {v.capture for v in views if v.active}
+    config = problem.configurations
+    n_conf = len({config.get(k, k) for k in active})
+    if n_conf < 2 * FOLDS and not (small and n_conf >= MIN_LEAVE_ONE_OUT):
         return None
-    folds = [set(caps[i::FOLDS]) for i in range(FOLDS)]
+    n_folds = FOLDS if n_conf >= 2 * FOLDS else n_conf
+    folds = [f & active for f in configuration_folds([problem.capture_by_index[c] for c in active], n_folds)]
     cams = {v.camera for v in views if v.active}
     for fold in folds:
         for cam in cams:
@@ -84,7 +93,7 @@ def cross_validated_split(problem, stated_opts, ratio, views: list, est, resolve
     at ``ratio``; ``resolve(problem, views, est) -> Estimate`` solves a graph from ``est``."""
     if not (ratio.rotation.applied > 1.0 and ratio.translation.applied > 1.0):
         return ratio, None
-    folds = _folds(views, _min_views(problem))
+    folds = _folds(problem, views, _min_views(problem))
     if folds is None:
         return ratio, None
     candidates = {
@@ -131,7 +140,7 @@ def jackknife_folds(problem, views: list, est, resolve) -> list | None:
     or the robot judged as stated once the corners' correlated noise was weighted): the per-pose
     model's covariance is then as much in question as when both widen. None when the folds cannot
     be made or a fold cannot be solved."""
-    folds = _folds(views, _min_views(problem))
+    folds = _folds(problem, views, _min_views(problem), small=True)
     if folds is None:
         return None
     try:

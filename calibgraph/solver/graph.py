@@ -34,10 +34,11 @@ from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
 from calibgraph.solver.factors import ViewTerm, fk_noise, intrinsics_vector, make_view_factors, with_pinhole
 from calibgraph.solver.keys import B, C, F, K, O, S
+from calibgraph.solver.linearise import revisit_whitening
 from calibgraph.solver.noise_model import MODE_MIN_CORNERS, view_mode_basis
 from calibgraph.solver.reduced import linearise_graph
 from calibgraph.solver.timing import timed
-from calibgraph.solver.views import norms_of, reprojections
+from calibgraph.solver.views import norms_of, reprojections, robot_keys
 
 # The corner formulation pays off on large graphs only (see scripts/results/bench_solver.md); the
 # per-view graph is the reference and the fallback.
@@ -73,6 +74,9 @@ class Estimate:
     graph: object | None = field(default=None, repr=False)  # the final graph and its values (error budget)
     values: object | None = field(default=None, repr=False)
     linear: object | None = field(default=None, repr=False)  # reduced.Linear of the final graph, when formed
+    # (scale, 1-sigma) the board's scale was estimated at before it was held at its declared value
+    # (camera_model.hold_unseparable_scale), when it was
+    held_scale: tuple | None = None
 
     def camera_model(self, name: str, cameras: dict) -> Intrinsics:
         """The intrinsics camera ``name`` is projected with: estimated, else given (``cameras``)."""
@@ -153,8 +157,8 @@ def formulation(problem: Problem, names, n_views: int, est: Estimate | None = No
     if f == "corner" and not fits:
         raise InputError("solver: formulation 'corner' needs Cal3DS2 distortion (k1 k2 p1 p2 only); "
                          "use formulation 'view' for cameras with k3..k6.")
-    if f == "auto":
-        return "corner" if fits and n_views >= CORNER_FORMULATION_MIN_VIEWS else "view"
+    if f == "auto":  # (the corner graph gives every capture its own robot pose: revisits share theirs in 'view')
+        return "corner" if fits and n_views >= CORNER_FORMULATION_MIN_VIEWS and not problem.revisits else "view"
     return f
 
 
@@ -188,12 +192,13 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
     values = gtsam.Values()
     T_ref_mount_fk = {v.capture: v.T_ref_mount for v in views}
     ks = kin.setup(problem)
-    for k in sorted({v.capture for v in views if v.active}):
+    keys = robot_keys(problem, views)
+    for k in sorted({r for r, _ in keys.values()}):  # one robot pose a configuration: its FK error is shared
         if ks is None:
             graph.add(gtsam.PriorFactorPose3(F(k), gtsam.Pose3(T_ref_mount_fk[k]),
                                              fk_noise(o, problem.mode, T_ref_mount_fk[k])))
         else:
-            graph.add(kin.make_kinematic_factor(F(k), O(0), ks.q_rad[k], ks, fk_noise(o)))
+            graph.add(kin.make_kinematic_factor(F(k), O(0), ks.q_rad[k], ks, fk_noise(o), problem.mode))
         values.insert(F(k), gtsam.Pose3(est.T_ref_mount.get(k, T_ref_mount_fk[k])))
     if ks is not None:
         nf = len(ks.free)
@@ -217,6 +222,7 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
     for v in views:
         if v.active:
             by_capture.setdefault(v.capture, []).append(v)
+    repeat = revisit_whitening(problem, views, est, sigma_px)
     captures = []
     for k, vs in by_capture.items():
         terms = []
@@ -226,8 +232,10 @@ def build_graph(views, slots, problem, est: Estimate, sigma_px: float, form: str
             modes = view_mode_basis(v.uv_px[keep]) if f > 1.0 and keep.sum() >= MODE_MIN_CORNERS else None
             terms.append(ViewTerm(C(slots[v.camera]), K(slots[v.camera]) if v.camera in refine else None,
                                   problem.cameras[v.camera], v.p_board_m[keep], v.uv_px[keep],
-                                  np.sqrt(v.weight[keep]) / sigma_px, modes, f, n_intr.get(v.camera, 6)))
-        captures.append((F(k), terms))
+                                  np.sqrt(v.weight[keep]) / sigma_px, modes, f, n_intr.get(v.camera, 6),
+                                  repeat.get(id(v))))
+        r, D = keys[k]
+        captures.append((F(r), terms, D))
     for f in make_view_factors(B(0), S(0) if o.board_scale else None, captures):
         graph.add(f)
     return graph, values
@@ -381,9 +389,10 @@ def levenberg_marquardt(graph, values, max_iterations, form: str = "view") -> LM
     return LMRun(values, iterations, error, bool(np.isfinite(error) and iterations < max_iterations))
 
 
-def extract(values, slots, views, est: Estimate, cameras: dict, form: str = "view") -> Estimate:
+def extract(values, slots, views, est: Estimate, cameras: dict, form: str = "view", problem: Problem | None = None) -> Estimate:
     """The variables held by optimised ``values`` as a new Estimate (robot poses of captures not in
-    the graph kept; the solve's outcome fields are left to the caller)."""
+    the graph kept; the solve's outcome fields are left to the caller). ``problem``: the graph's problem,
+    whose revisits share a robot pose (:func:`robot_keys`); None: every capture its own."""
     if form == "corner":
         T_ref_cam, T_mount_board, T_ref_mount_new = factors_ppp.extract(values, slots, views)
         T_ref_mount = dict(est.T_ref_mount)
@@ -392,8 +401,9 @@ def extract(values, slots, views, est: Estimate, cameras: dict, form: str = "vie
                         wide_intrinsics=est.wide_intrinsics, free_intrinsics=est.free_intrinsics)
     T_ref_cam = {name: values.atPose3(C(i)).matrix() for name, i in slots.items()}
     T_ref_mount = dict(est.T_ref_mount)
-    for k in {v.capture for v in views if v.active}:
-        T_ref_mount[k] = values.atPose3(F(k)).matrix()
+    keys = robot_keys(problem, views) if problem is not None else {v.capture: (v.capture, None) for v in views if v.active}
+    for k, (r, D) in keys.items():
+        T_ref_mount[k] = values.atPose3(F(r)).matrix() if D is None else values.atPose3(F(r)).matrix() @ D
     intr = dict(est.intrinsics)
     for name, i in slots.items():
         if values.exists(K(i)):

@@ -22,7 +22,10 @@ FK noise 3x the stated, 30 captures: held-out RMS 3-16 % worse with offsets; 6 s
 
 Nothing is tried (and the result is what 'none' gives, to the digit) when the arm matches its
 stated accuracy, the captures lack joint angles, or the cell is not eye-to-hand with method
-'joint'; a note says why when the arm departs but the offsets could not be tried.
+'joint'; a note says why when the arm departs but the offsets could not be tried. The result's
+``kinematics_selection`` says which of these it was (``tried`` False, ``why_not``). Recorded joint
+angles that the kinematic model does not map to the recorded poses (in degrees, say) get a note
+whether or not the arm departs: the per-pose model does not use them, but they are wrong.
 """
 
 from __future__ import annotations
@@ -32,7 +35,8 @@ from dataclasses import replace
 import numpy as np
 
 from calibgraph.core.errors import CalibgraphError
-from calibgraph.core.transforms import inv, log_so3
+from calibgraph.core.problem import configuration_folds
+from calibgraph.core.transforms import inv
 from calibgraph.solver import kinematics as kin
 
 FOLDS = 5
@@ -43,7 +47,13 @@ MARGIN = 0.05
 # from pose to pose (no offsets) t >= -0.95 in 48 of 48 train sets; with offsets t < -1.5 in 42 of 48 (< -2: 40)
 T_MIN = 1.5
 # the kinematic model must map each capture's joint angles to its recorded flange pose this closely
-FK_MATCH_M, FK_MATCH_RAD = 1e-3, float(np.radians(0.1))
+FK_MATCH_M, FK_MATCH_RAD = kin.FK_MATCH_M, kin.FK_MATCH_RAD
+
+
+# kinematics_selection's why_not where nothing is tried
+NO_ANGLES = "the captures record no joint angles (q_rad)"
+AS_STATED = ("the arm is not found less accurate than stated: nothing for joint offsets to explain, the per-pose FK "
+             "model is kept")
 
 
 def robot_departs(result) -> bool:
@@ -55,10 +65,15 @@ def robot_departs(result) -> bool:
 
 
 def why_not_tried(problem) -> str | None:
-    """Why joint offsets cannot be tried on ``problem``, whose captures all record joint angles (None: they can)."""
+    """Why joint offsets cannot be tried on ``problem``, whose captures all record joint angles (None: they can).
+    Recorded angles that the kinematic model does not map to the recorded poses are named first,
+    whatever the cell: that is a fact about the data (degrees, say), not about the method."""
     caps = problem.captures
-    if problem.mode != "eye_to_hand" or problem.method != "joint":
-        return "joint offsets are estimated for eye-to-hand cells solved jointly only"
+    mismatch = kin.angles_mismatch(problem)
+    if mismatch is not None:
+        return mismatch.describe() + " to have them tried"
+    if problem.method != "joint":
+        return "joint offsets are estimated for cells solved jointly (one shared board mount) only"
     model = problem.options.kinematics_model
     try:
         chain = kin.load_chain(model)
@@ -68,13 +83,6 @@ def why_not_tried(problem) -> str | None:
     if sizes != {chain.n_joints}:
         return (f"the captures record {'/'.join(str(s) for s in sorted(sizes))} joint angles, the kinematic model "
                 f"{model!r} has {chain.n_joints} joints")
-    T = chain.fk(np.array([c.q_rad for c in caps]))
-    d_m = max(float(np.linalg.norm(inv(Tk)[:3, :3] @ (c.T_base_flange[:3, 3] - Tk[:3, 3]))) for Tk, c in zip(T, caps))
-    d_rad = max(float(np.linalg.norm(log_so3(Tk[:3, :3].T @ c.T_base_flange[:3, :3]))) for Tk, c in zip(T, caps))
-    if d_m > FK_MATCH_M or d_rad > FK_MATCH_RAD:
-        return (f"the kinematic model {model!r} maps the recorded joint angles to flange poses up to "
-                f"{1e3 * d_m:.1f} mm / {np.degrees(d_rad):.2f} deg from the recorded ones (another arm, or poses of a "
-                f"tool frame): give the arm's URDF with --kinematic-model to have them tried")
     try:
         kin.check_motion(kin.setup(problem.with_(options=replace(problem.options, kinematics="joint-offsets"))),
                          [c.index for c in caps])
@@ -102,7 +110,8 @@ def _misses(problem, result, test: set, flange: dict, skip_views: set, skip_corn
         keep = np.array([(d.camera, d.capture, int(i)) not in skip_corners for i in d.ids], bool)
         if not keep.any():
             continue
-        T_cam_board = inv(cam.T_ref_cam) @ flange[d.capture] @ result.T_mount_board
+        T_ref_mount = flange[d.capture] if problem.mode == "eye_to_hand" else inv(flange[d.capture])
+        T_cam_board = inv(cam.T_ref_cam) @ T_ref_mount @ result.T_mount_board
         p = problem.points_board_m[np.asarray(d.ids)[keep]] * result.board_scale
         e = cam.solved_intrinsics.project(p @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]) - np.asarray(d.uv_px)[keep]
         out[(d.camera, d.capture)] = (float(np.sum(e ** 2)), int(keep.sum()))
@@ -115,7 +124,9 @@ def cross_validate(problem, per_pose, resolve) -> dict:
     solve with the per-pose model (its rejected views and corners are left out of the scoring);
     ``resolve(problem)``: a solve. Raises CalibgraphError when a fold cannot be solved."""
     caps = sorted(c.index for c in problem.captures)
-    folds = [set(caps[i::FOLDS]) for i in range(FOLDS)]
+    folds = configuration_folds(problem.captures, FOLDS)  # a revisit of a held-out target is held out with it
+    if len(folds) < FOLDS:
+        raise CalibgraphError(f"{len(folds)} distinct arm configurations, too few for {FOLDS} folds")
     skip_views = {(v.camera, v.capture) for v in per_pose.rejected_views}
     skip_corners = {(c, k, i) for c, k, i, _ in per_pose.rejected_corners}
     reported = {c.index: c.T_base_flange for c in problem.captures}
@@ -149,11 +160,24 @@ def choose_kinematics(problem, per_pose, resolve):
     """The result to report for ``problem`` solved with ``kinematics='auto'``: ``per_pose`` (its solve
     with the per-pose FK prior) or, where the offsets predict held-out captures clearly better, the
     joint-offset solve; ``resolve(problem) -> Result`` solves a problem. The result's settings say
-    which (``kinematics_used``) and why (``kinematics_selection``); a note says it when the arm
-    departs from its FK."""
+    which (``kinematics_used``) and why (``kinematics_selection``, always: with ``tried`` False and
+    ``why_not`` where nothing was tried); a note says it when the arm departs from its FK, or when
+    the recorded joint angles do not give the recorded poses."""
     used = {**per_pose.settings, "kinematics": "auto", "kinematics_used": "none"}
-    if not problem.records_joint_angles or not robot_departs(per_pose):  # without angles the robot note names what they would open
-        return replace(per_pose, settings=used)
+    if not problem.records_joint_angles:  # the robot note, when there is one, names what the angles would open
+        return replace(per_pose, settings={**used, "kinematics_selection": {"tried": False, "why_not": NO_ANGLES}})
+    if not robot_departs(per_pose):
+        # nothing for the offsets to explain; recorded angles that do not give the recorded poses are still named
+        record = {"tried": False, "why_not": AS_STATED}
+        mismatch = kin.angles_mismatch(problem)
+        if mismatch is None:
+            return replace(per_pose, settings={**used, "kinematics_selection": record})
+        said = mismatch.describe()
+        record["why_not"] += f"; and {said}"
+        note = (f"robot: the recorded joint angles do not give the recorded flange poses: {said}; the per-pose FK "
+                "model uses the recorded poses alone and is kept, but joint zero offsets cannot be estimated from "
+                "these angles")
+        return replace(per_pose, settings={**used, "kinematics_selection": record}, notes=per_pose.notes + (note,))
     why = why_not_tried(problem)
     if why is not None:
         record = {"tried": False, "why_not": why}

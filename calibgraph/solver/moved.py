@@ -31,9 +31,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calibgraph.core.camera import Intrinsics
-from calibgraph.core.errors import ObservabilityError
+from calibgraph.core.errors import CalibgraphError, ObservabilityError
 from calibgraph.core.transforms import pose_error
-from calibgraph.solver.change_point import Split, camera_splits
+from calibgraph.solver.change_point import Split, board_split, camera_splits
+from calibgraph.solver.fk_check import fk_variance_ratio
 from calibgraph.solver.graph import Estimate
 from calibgraph.solver.noise_model import robust_pixel_sigma
 from calibgraph.solver.result import CameraResult, RejectedView
@@ -81,9 +82,19 @@ class _Watch:
 
     skip: set = field(default_factory=set)  # cameras not to test (split already)
     active: bool = True
+    board: bool = True  # a move the board explains better is the board's (off within a segment already cut)
 
 
 _WATCH: ContextVar = ContextVar("calibgraph_solver_moved_watch", default=None)
+
+
+class BoardMoved(Exception):
+    """Raised inside a watched solve when the board, not a camera, moved (``split``: the board's
+    split, its ``camera`` the camera whose views showed it); never leaves :func:`solve_minding_moves`."""
+
+    def __init__(self, split: Split):
+        super().__init__("board")
+        self.split = split
 
 
 class CameraMoved(Exception):
@@ -105,12 +116,60 @@ def check_after_rounds(problem, views: list, start, rounds) -> None:
     if watch is None or not watch.active:
         return
     names = [n for n in dict.fromkeys(v.camera for v in views) if n not in watch.skip]
+    scales = robot_scales(problem, views, rounds)
     # min_after=1: a move before a camera's last view is never answered with the pose before it
-    splits = camera_splits(problem, views, rounds.est, rounds.sigma_px, names, start.T_ref_cam, min_after=1)
+    splits = camera_splits(problem, views, rounds.est, rounds.sigma_px, names, start.T_ref_cam, min_after=1,
+                           robot_scales=scales)
     moves = sorted((s for s in splits.values() if s.is_move), key=lambda s: -s.f_stat)
     if moves:
         m = _explains_the_others(problem, views, start, rounds, moves) if len(moves) > 1 else moves[0]
+        if watch.board:
+            board = _board_explains(problem, rounds, m, scales)
+            if board is not None:
+                raise BoardMoved(board)
         raise CameraMoved(Move(m.camera, m))
+
+
+def _board_explains(problem, rounds, m: Split, scales) -> Split | None:
+    """The board's own split where it explains camera ``m.camera``'s views better than the camera's move
+    ``m`` does (a larger likelihood ratio for the same 6 parameters, and a move by the same tests): a board
+    knocked on its mount, or on the table, between two captures moves every camera's views, and one
+    camera's views then read as a move of it that changes with the robot pose. None otherwise."""
+    best, f_best = None, 1.0
+    for f in scales:
+        b = board_split(problem, rounds.views, rounds.est, rounds.sigma_px, m.camera, f)
+        if b is not None and (best is None or b.log_likelihood > best.log_likelihood):
+            best, f_best = b, f
+    if best is None or not best.is_move or best.glr <= m.glr:
+        return None
+    # a board that moved moves every camera's views at that cut: each other camera with views on both sides
+    # must show the same board move there (a knocked camera's views alone can read as a board that moved)
+    cut = best.captures_after[0]
+    for n in dict.fromkeys(v.camera for v in rounds.views if v.active and v.camera != m.camera):
+        caps = [v.capture for v in rounds.views if v.active and v.camera == n]
+        if sum(c < cut for c in caps) < 2 or sum(c >= cut for c in caps) < 2:
+            continue
+        other = board_split(problem, rounds.views, rounds.est, rounds.sigma_px, n, f_best, at_capture=cut)
+        if other is None or not other.is_move:
+            return None
+    return best
+
+
+def robot_scales(problem, views: list, rounds) -> tuple:
+    """The factors on the stated FK sigmas the move test tries (:func:`~calibgraph.solver.change_point.camera_splits`):
+    1 where the robust rounds' fit finds the arm as accurate as stated; where it departs
+    (:func:`~calibgraph.solver.fk_check.fk_variance_ratio`), a geometric ladder from 1 to the factor that
+    fit implies. A real arm's error, millimetres that repeat with its configuration where a Panda-class
+    0.1 mm is stated, moves a camera's views as a knock would: judged against the stated accuracy alone,
+    it is read as a move (a Franka's three sessions of the same 12 joint targets merged: 'moved by
+    6.4 mm', where the sessions solved alone agree to 1.3 mm)."""
+    ratio = fk_variance_ratio(problem, [v for v in rounds.views if v.camera in rounds.est.T_ref_cam], rounds.est,
+                              rounds.sigma_px)
+    if ratio is None or not ratio.widens:
+        return (1.0,)
+    top = float(np.sqrt(ratio.applied))
+    n = max(2, int(np.ceil(np.log2(top))) + 1)
+    return tuple(float(x) for x in np.geomspace(1.0, top, n))
 
 
 def _explains_the_others(problem, views: list, start, rounds, moves: list) -> Split:
@@ -126,7 +185,8 @@ def _explains_the_others(problem, views: list, start, rounds, moves: list) -> Sp
     for m in moves:
         without = [replace(v, active=False) if v.camera == m.camera else v for v in views]
         others = [o.camera for o in moves if o.camera != m.camera]
-        again = camera_splits(problem, without, rounds.est, rounds.sigma_px, others, start.T_ref_cam, min_after=1)
+        again = camera_splits(problem, without, rounds.est, rounds.sigma_px, others, start.T_ref_cam, min_after=1,
+                              robot_scales=robot_scales(problem, views, rounds))
         key = (sum(1 for n in others if not (n in again and again[n].is_move)), m.f_stat)
         if best_key is None or key > best_key:
             best, best_key = m, key
@@ -192,16 +252,21 @@ def _reference_estimate(problem, ref) -> tuple:
     return est, float(sigma or 0.0)
 
 
-def solve_minding_moves(problem, resolve) -> object:
+def solve_minding_moves(problem, resolve, board: bool = True) -> object:
     """``resolve(problem)`` with every camera tested for a move during capture after the robust
-    rounds; a camera that moved is solved as two poses (module docstring)."""
-    watch, moves, split = _Watch(), [], problem
+    rounds; a camera that moved is solved as two poses (module docstring); a board that moved, as two
+    segments of captures (:func:`_board_segments`)."""
+    watch, moves, split = _Watch(board=board), [], problem
     token = _WATCH.set(watch)
     try:
         while True:
             try:
                 result = resolve(split)
                 break
+            except BoardMoved as e:
+                _WATCH.reset(token)
+                token = None
+                return _board_segments(problem, resolve, e.split)
             except CameraMoved as e:
                 m = e.move
                 watch.skip |= {m.camera}
@@ -211,8 +276,67 @@ def solve_minding_moves(problem, resolve) -> object:
                 moves.append(m)
                 watch.active = len(moves) < MAX_MOVED
     finally:
-        _WATCH.reset(token)
+        if token is not None:
+            _WATCH.reset(token)
     return _fold(problem, result, moves) if moves else result
+
+
+def _board_segments(problem, resolve, split: Split):
+    """The result of a problem whose board moved between captures ``split.captures_before[-1]`` and
+    ``split.captures_after[0]``: the captures on each side are solved apart (each with its own board
+    pose; cameras tested for moves in each), and the side with more views is reported, the other side's
+    views set aside with the reason and its cameras compared with the reported ones in a note. No camera
+    is called moved: the cameras' views on the two sides agree once each side has its own board."""
+    cut = split.captures_after[0]
+    sides = {"before": {c.index for c in problem.captures if c.index < cut},
+             "after": {c.index for c in problem.captures if c.index >= cut}}
+    solved, why = {}, {}
+    for side, caps in sides.items():
+        sub = problem.with_(captures=tuple(c for c in problem.captures if c.index in caps),
+                            detections=tuple(d for d in problem.detections if d.capture in caps))
+        try:
+            solved[side] = solve_minding_moves(sub, resolve, board=False)
+        except CalibgraphError as e:
+            why[side] = str(e)
+    views = {side: sum(1 for d in problem.detections if d.capture in caps) for side, caps in sides.items()}
+    if not solved:
+        raise ObservabilityError(f"the board moved between captures {split.captures_before[-1]} and {cut} (by about "
+                                 f"{split.displacement_mm:.1f} mm and {split.rotation_deg:.2f} deg), and neither side "
+                                 f"can be solved on its own: {'; '.join(why.values())}")
+    keep = max(solved, key=lambda sd: views[sd])
+    other = "after" if keep == "before" else "before"
+    result = solved[keep]
+    T_k, T_o = result.T_mount_board, solved[other].T_mount_board if other in solved else None
+    if T_o is not None and T_k is not None:
+        d_m, d_deg = pose_error(T_k, T_o)
+        d_mm = 1e3 * d_m
+    else:
+        d_mm, d_deg = split.displacement_mm, split.rotation_deg
+    agree = []
+    if other in solved:
+        for n, c in result.cameras.items():
+            o = solved[other].cameras.get(n)
+            if c.calibrated and o is not None and o.calibrated:
+                e_m, e_deg = pose_error(c.T_ref_cam, o.T_ref_cam)
+                agree.append(f"{n} {1e3 * e_m:.1f} mm / {e_deg:.2f} deg")
+    aside = tuple(RejectedView(d.camera, d.capture, f"the board moved between captures {split.captures_before[-1]} "
+                               f"and {cut}: this view is from the {other} side, solved apart (its own board pose)")
+                  for d in problem.detections if d.capture in sides[other])
+    cams = {n: replace(c, views_rejected=tuple(c.views_rejected) + tuple(r for r in aside if r.camera == n))
+            for n, c in result.cameras.items()}
+    note = (f"the board moved during capture, between captures {split.captures_before[-1]} and {cut}, by {d_mm:.1f} mm "
+            f"and {d_deg:.2f} deg (F {split.f_stat:.0f}): the views before and after agree once each side has its own "
+            f"board pose, and no camera moved. Calibrated from the {views[keep]} views {keep} it; the {views[other]} "
+            f"views {other} it were solved apart"
+            + (f" and give the cameras within {', '.join(agree)} of these" if agree else
+               f" and could not be solved on their own ({why.get(other, 'too few')})")
+            + ". Fix the board to its mount (or the table) before capturing again.")
+    record = {"last_capture_before": int(split.captures_before[-1]), "capture": int(cut),
+              "displacement_mm": float(d_mm), "rotation_deg": float(d_deg), "f_stat": float(split.f_stat),
+              "solved_from": keep, "views_used_side": int(views[keep]), "views_other_side": int(views[other])}
+    return replace(result, cameras=cams, notes=result.notes + (note,),
+                   rejected_views=tuple(rv for c in cams.values() for rv in c.views_rejected),
+                   settings={**result.settings, "board_moved": record})
 
 
 def _split(problem, m: Move):

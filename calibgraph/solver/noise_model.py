@@ -29,6 +29,10 @@ N_MODES = 6
 # applied above z = 1.645 (p < 0.05) and called significant above z = 3.09 (p < 0.001).
 APPLY_Z = 1.645
 NOTE_Z = 3.09
+# the modes' redundancy left with the robot poses free must be at least this (4 views' six modes) for the
+# corners' correlated noise to be told from the robot's error (a far camera's single views leave a few
+# near-degenerate directions, whose ratio is no evidence: 24x from 3 dof at 5 m with independent corners)
+MIN_SEPARABLE_DOF = 24
 
 
 def log_ratio_z(ratio: float, *dofs: float) -> float:
@@ -53,10 +57,42 @@ class ModeRatio:
     dof_rest: int
     significant: bool
     energy_modes_px2: float = 0.0
+    # told apart from the robot's error (:func:`separated`): None where not judged (the robot poses held);
+    # False: the excess is one the robot's own error explains as well, nothing is applied for it
+    separable: bool | None = None
+    with_robot_ratio: float | None = None  # the ratio with the robot poses at their FK prior, where separable is judged
+    taken_as: str | None = None  # not separable: 'robot' or 'corner noise', the explanation the 1-sigma took
 
     def to_dict(self) -> dict:
-        return {"low_order_variance_ratio": self.ratio, "applied": self.applied, "dof_modes": self.dof_modes,
-                "dof_rest": self.dof_rest, "significant": self.significant}
+        out = {"low_order_variance_ratio": self.ratio, "applied": self.applied, "dof_modes": self.dof_modes,
+               "dof_rest": self.dof_rest, "significant": self.significant}
+        if self.separable is not None:
+            out["separable_from_robot"] = self.separable
+            out["ratio_with_robot_poses_at_fk"] = self.with_robot_ratio
+        if self.taken_as is not None:
+            out["taken_as"] = self.taken_as
+        return out
+
+
+def separated(at_fk: dict, robot_free: dict) -> dict:
+    """camera -> the corner-noise :class:`ModeRatio` the final graph applies: of the excess the modes show
+    with the robot poses at their FK prior (``at_fk``), the part the robot's own error cannot explain
+    (``robot_free``: :func:`mode_variance_ratios` with ``robot_free``). A camera whose excess vanishes once
+    its robot poses are free (its captures each seen once, by it alone) gets nothing applied and
+    ``separable`` False: the data do not tell correlated corner noise from the robot's error there, and
+    the robot's error, which the FK check sizes, carries it."""
+    out = {}
+    for cam, m in at_fk.items():
+        f = robot_free.get(cam)
+        if m.applied <= 1.0:
+            out[cam] = m
+        elif f is not None and f.applied > 1.0 and f.dof_modes >= MIN_SEPARABLE_DOF:
+            # freeing the robot poses can only take misfit away: the corners' part is at most the excess at FK
+            r = min(f.ratio, m.ratio)
+            out[cam] = ModeRatio(r, r, f.dof_modes, f.dof_rest, f.significant, f.energy_modes_px2, True, m.ratio)
+        else:
+            out[cam] = ModeRatio(m.ratio, 1.0, m.dof_modes, m.dof_rest, False, m.energy_modes_px2, False, m.ratio)
+    return out
 
 
 def view_mode_basis(uv_px: np.ndarray) -> np.ndarray:
@@ -80,7 +116,8 @@ def view_mode_bases(uv_px: np.ndarray) -> np.ndarray:
     return np.linalg.qr(A)[0]
 
 
-def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Linearised | None = None) -> dict:
+def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Linearised | None = None,
+                         robot_free: bool = False) -> dict:
     """camera -> :class:`ModeRatio`: how much more the residuals vary in each view's low-order image
     modes than in the rest.
 
@@ -91,11 +128,21 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
     Jacobian on F(k), Sigma_k the covariance of F(k) given the rest of the graph); the camera pose,
     mount, scale and intrinsics are shared by many views and absorb a negligible share of each.
     ~1 with independent corners (F-distributed). ``lin``: :func:`linearise` of the same arguments.
+
+    ``robot_free``: the same with every robot pose refitted to its views alone, no FK prior (one
+    Gauss-Newton step each, the rest held): what is left in the modes then is what no robot error, of
+    any size, explains -- the part of the corners' correlated noise that the data tell apart from the
+    robot's own error. A view whose capture no other view shares (no other camera, no revisit of its
+    configuration) leaves nothing of its modes (its robot pose takes them all), so only captures seen
+    more than once tell the two apart.
     """
     lin = lin or linearise(problem, views, est, sigma_px)
     per_view = [(v, keep, e, H_f) for v, keep, e, H_f in lin.views if keep.sum() >= MODE_MIN_CORNERS]
-    cov = lin.robot_pose_covariances()
-    terms = _mode_terms(per_view, cov)
+    if robot_free:
+        per_view, cov = _robot_refitted(lin, per_view)
+    else:
+        cov = lin.robot_pose_covariances()
+    terms = _mode_terms(per_view, {k: cov[r] for k, r in lin.robot_of.items() if r in cov})
     acc = {}
     for (v, _, e, _), (low, total, t_low, t_all) in zip(per_view, terms.tolist()):
         a = acc.setdefault(v.camera, np.zeros(5))
@@ -110,6 +157,22 @@ def mode_variance_ratios(problem: Problem, views, est, sigma_px: float, lin: Lin
         out[cam] = ModeRatio(float(ratio), float(ratio) if z > APPLY_Z else 1.0, int(round(r_low)),
                              int(round(r_rest)), bool(z > NOTE_Z), float(low_px2))
     return out
+
+
+def _robot_refitted(lin: Linearised, per_view: list) -> tuple[list, dict]:
+    """(``per_view`` with each view's residual after its robot pose's free refit, robot pose -> the
+    covariance of that refit, the pseudo-inverse of its views' information): for
+    :func:`mode_variance_ratios` with ``robot_free``. Uses every view of ``lin`` on a robot pose, also
+    the few left out of ``per_view``."""
+    H, g = {}, {}
+    for v, _, e, H_f in lin.views:
+        r = lin.robot_of[v.capture]
+        H[r] = H.get(r, 0.0) + H_f.T @ H_f
+        g[r] = g.get(r, 0.0) + H_f.T @ e
+    cov = {r: np.linalg.pinv(Hr, rcond=1e-10) for r, Hr in H.items()}
+    step = {r: -cov[r] @ g[r] for r in H}
+    out = [(v, keep, e + H_f @ step[lin.robot_of[v.capture]], H_f) for v, keep, e, H_f in per_view]
+    return out, cov
 
 
 def _mode_terms(per_view: list, cov: dict) -> np.ndarray:
@@ -312,10 +375,23 @@ def corner_noise_notes(mode_ratios: dict) -> list:
     """One line per camera whose views' low-order modes were found to vary more than the rest."""
     out = []
     for name, m in mode_ratios.items():
+        if m.separable is False:
+            if m.taken_as is None:
+                continue
+            how = ("its views are weighted for correlated corner noise" if m.taken_as == "corner noise" else
+                   "it is taken as the robot's error (the robot note says how large)")
+            out.append(f"camera {name}: its views' images move as whole boards more than its corners scatter "
+                       f"({m.with_robot_ratio:.1f}x in each view's shift, rotation, scale and shear), and these captures "
+                       "cannot tell whether the robot's own error or correlated corner noise does it (each is seen once, "
+                       f"by it alone, and a robot pose off moves a board's image just so): {how}, the explanation with "
+                       "the larger 1-sigma; captures that revisit the same joint targets, or that a second camera sees, "
+                       "would tell the two apart")
+            continue
         if m.applied > 1.0:
             test = "" if m.significant else ", p < 0.05 but not < 0.001"
-            out.append(f"camera {name}: its residuals move whole boards (each view's shift, rotation, scale and "
-                       f"shear in the image vary {m.ratio:.2f}x what the other residuals imply{test}: corners of "
-                       f"small squares share pixels, or an unmodelled camera or robot error); its views are "
-                       f"weighted and its 1-sigma widened for it")
+            out.append(f"camera {name}: its corners err together, whole boards at a time, so each of its views counts "
+                       f"for less and its 1-sigma is widened for it. Detail: its residuals move whole boards (each "
+                       f"view's shift, rotation, scale and shear in the image vary {m.ratio:.2f}x what the other "
+                       f"residuals imply{test}: corners of small squares share pixels, or an unmodelled camera or "
+                       f"robot error)")
     return out

@@ -17,10 +17,10 @@ from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.problem import Problem
 from calibgraph.solver import factors_ppp
 from calibgraph.solver import kinematics as kin
-from calibgraph.solver.claims import contradicted
+from calibgraph.solver.claims import contradicted, held_by_force
 from calibgraph.solver.factors import intrinsics_vector
-from calibgraph.solver.fk_check import (FK_COMPONENT_STEPS, fk_variance_ratio, rescaled, robot_pose_marginals,
-                                         settled_components, widened)
+from calibgraph.solver.fk_check import (FK_COMPONENT_STEPS, RERUN_RATIO, RERUN_SIGMA, FkComponent, FkRatio,
+                                         fk_variance_ratio, free_robot_ratio, high_order_level, rescaled, robot_pose_marginals, settled_components, widened)
 from calibgraph.solver.fk_select import cross_validated_split, jackknife_applied, jackknife_factor, jackknife_folds
 from calibgraph.solver.graph import (
     Estimate,
@@ -37,7 +37,7 @@ from calibgraph.solver.initialise import pnp_candidates
 from calibgraph.solver.keys import B, C
 from calibgraph.solver.linearise import linearise
 from calibgraph.solver.moved import check_after_rounds
-from calibgraph.solver.noise_model import a_posteriori_sigma, camera_noise_scales, mode_variance_ratios
+from calibgraph.solver.noise_model import a_posteriori_sigma, camera_noise_scales, mode_variance_ratios, separated
 from calibgraph.solver.robust import Rounds, reweight, robust_rounds
 from calibgraph.solver.timing import timed
 from calibgraph.solver.views import norms_of
@@ -146,8 +146,12 @@ def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str
     given = views
     names, views, rounds, dropped = _rounds_keeping_enough_views(problem, names, views, est, form, timings,
                                                                  warm_sigma_px)
-    check_after_rounds(problem, given, est, rounds)  # a camera that moved during capture is split first (solver.moved)
     slots = {n: i for i, n in enumerate(names)}
+    stated = problem
+    check_after_rounds(problem, given, est, rounds)  # a camera that moved during capture is split first (solver.moved)
+    problem, rounds = rounds_at_the_arms_accuracy(problem, rounds, slots, form, timings)
+    if problem is not stated:  # judged again on the rounds at the arm's accuracy
+        check_after_rounds(problem, given, est, rounds)
     notes = []
     # A claim the data contradict is named and dropped before anything shared is judged on the misfit;
     # one camera at a time, the worst first, since one wrong camera drags the others' fit.
@@ -157,8 +161,66 @@ def _solve(problem: Problem, names: list, views: list, est0: Estimate, form: str
         est = replace(est, free_intrinsics=est.free_intrinsics | {worst.camera})
         form = formulation(problem, names, len(views), est)
         rounds = robust_rounds(problem, views, slots, est, form, timings)
+    # what a forced option holds is judged as the default judges it, before the misfit is explained elsewhere
+    notes += held_by_force(problem, rounds.views, slots, rounds.est, rounds.sigma_px)
     est = final_graph(problem, names, rounds, slots, form, timings)
+    if problem is not stated:  # the FK check's figures against the accuracy the user stated
+        est = replace(est, fk_ratio=against_stated(est.fk_ratio, stated.options, problem.options))
     return Group(names, est, rounds.views, tuple(notes), dropped, rounds.sigma_px)
+
+
+def rounds_at_the_arms_accuracy(problem: Problem, rounds: Rounds, slots: dict, form: str, timings: dict | None):
+    """(problem, rounds): as given, unless the robot poses, refitted to their views alone, depart from the
+    stated FK accuracy by more than :data:`~calibgraph.solver.fk_check.RERUN_RATIO` in variance
+    (:func:`~calibgraph.solver.fk_check.free_robot_ratio`) and the rounds' pixel sigma is more than
+    :data:`~calibgraph.solver.fk_check.RERUN_SIGMA` times the corners' own scatter outside the views'
+    whole-board modes (:func:`~calibgraph.solver.fk_check.high_order_level`; a camera that moved is split
+    before this, by the move test on the rounds at the stated accuracy): then an arm millimetres off was
+    just treated as
+    pixel noise, and every later judgment (the pixel sigma, a moved camera, the FK check, correlated
+    corner noise, the board's scale) would be made on it. The rounds are run once at FK sigmas that size
+    the arm from above (the free refit's), and once more at those one Helmert step from there implies
+    (never below the stated ones); the problem returned carries those sigmas (the final graph's FK check
+    refines them, :func:`against_stated` reports them against the user's)."""
+    o = problem.options
+    if not o.fk_variance or o.kinematics == "joint-offsets" or form != "view":
+        return problem, rounds
+    active = [v for v in rounds.views if v.camera in rounds.est.T_ref_cam]
+    if high_order_level(linearise(problem, active, rounds.est, rounds.sigma_px)) * RERUN_SIGMA ** 2 >= 1.0:
+        return problem, rounds  # the pixel sigma is the corners' own: no whole-board misfit was taken for noise
+    free = free_robot_ratio(problem, active, rounds.est, rounds.sigma_px)
+    if free.max() <= RERUN_RATIO:
+        return problem, rounds
+
+    def at(factors):
+        return problem.with_(options=replace(o, fk_sigma_rotation_rad=o.fk_sigma_rotation_rad * float(np.sqrt(factors[0])),
+                                             fk_sigma_translation_m=o.fk_sigma_translation_m * float(np.sqrt(factors[1]))))
+
+    loose = at(free)
+    r1 = robust_rounds(loose, rounds.views, slots, rounds.est, form, timings, warm_sigma_px=rounds.sigma_px)
+    step = fk_variance_ratio(loose, [v for v in r1.views if v.camera in r1.est.T_ref_cam], r1.est, r1.sigma_px)
+    if step is None:
+        return loose, r1
+    implied = np.maximum(1.0, free * np.array([step.rotation.ratio, step.translation.ratio]))
+    arm = at(implied)
+    return arm, robust_rounds(arm, r1.views, slots, r1.est, form, timings, warm_sigma_px=r1.sigma_px)
+
+
+def against_stated(ratio, stated_opts, used_opts):
+    """An FkRatio judged at FK sigmas ``used_opts`` (the arm's accuracy the rounds were run at) as factors on
+    ``stated_opts``' sigmas: each component's ratio and applied factor times the variance factor between
+    them (a component the FK check kept is applied at the factor the rounds used)."""
+    f = np.array([(used_opts.fk_sigma_rotation_rad / stated_opts.fk_sigma_rotation_rad) ** 2,
+                  (used_opts.fk_sigma_translation_m / stated_opts.fk_sigma_translation_m) ** 2])
+
+    def scaled(c, k):
+        return replace(c, ratio=c.ratio * f[k], applied=c.applied * f[k], significant=True)
+
+    if ratio is None:
+        comp = [FkComponent(float(f[k]), float(f[k]), 0.0, True) for k in (0, 1)]
+        return FkRatio(float(f.mean()), 0.0, True, comp[0], comp[1])
+    return replace(ratio, ratio=ratio.ratio * float(f.mean()), significant=True,
+                   rotation=scaled(ratio.rotation, 0), translation=scaled(ratio.translation, 1))
 
 
 def _n_parameters(problem: Problem, names: list, est: Estimate) -> int:
@@ -174,7 +236,7 @@ def _resolve(problem: Problem, views: list, slots: dict, est: Estimate, sigma: f
     with timed(timings, "lm"):
         graph, values = build_graph(views, slots, problem, est, sigma, form, factors)
         run = levenberg_marquardt(graph, values, problem.options.max_iterations, form)
-    return extract(run.values, slots, views, est, problem.cameras, form), run, graph
+    return extract(run.values, slots, views, est, problem.cameras, form, problem), run, graph
 
 
 def _fk_marginals(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
@@ -182,7 +244,7 @@ def _fk_marginals(problem: Problem, views: list, slots: dict, est: Estimate, sig
     """capture -> marginal covariance of F(k) in the view graph at ``est`` (the FK check's
     redundancy; :func:`calibgraph.solver.fk_check.robot_pose_marginals`); None in the corner form.
     ``solved``: (that graph, its values at ``est``) when the caller has just solved it."""
-    if form != "view" or problem.options.kinematics == "joint-offsets":
+    if form != "view":
         return None
     with timed(timings, "marginals"):
         graph, values = solved or build_graph(views, slots, problem, est, sigma, form, factors)
@@ -207,9 +269,47 @@ def _rejudge_robot(stated: Problem, slots: dict, views: list, est: Estimate, sig
                                           (graph, run.values)))
     if fk2 is not None and fk2.widens:
         return None
-    modes = mode_variance_ratios(stated, views, est2, sigma, lin)
+    modes = separated(mode_variance_ratios(stated, views, est2, sigma, lin),
+                      mode_variance_ratios(stated, views, est2, sigma, lin, robot_free=True))
     return (stated, est2, fk2, modes, {c: m.applied for c, m in modes.items() if m.applied > 1.0},
             run.iterations)
+
+
+def _translation_variance(problem: Problem, views: list, slots: dict, est: Estimate, sigma: float, form: str,
+                          factors: dict | None) -> float | None:
+    """The summed translation variance of every camera in the graph at ``est`` (None when it cannot be formed)."""
+    graph, values = build_graph(views, slots, problem, est, sigma, form, factors or None)
+    try:
+        _, marg = reduced_marginals(graph, values)
+        return float(sum(np.trace(marg.marginalCovariance(C(i))[3:, 3:]) for i in slots.values()))
+    except (ObservabilityError, RuntimeError, np.linalg.LinAlgError):
+        return None
+
+
+def _unseparated(problem, stated_opts, slots, views, est, sigma, form, fk_ratio, mode_ratios, factors, unsplit,
+                 timings):
+    """Cameras whose views move as whole boards more than their corners scatter, where the captures
+    cannot tell why (each seen once, by that camera alone: :func:`~calibgraph.solver.noise_model.separated`).
+    Two explanations fit alike: the robot's own error (the FK prior as the fit widened it, nothing applied to
+    the corners) and correlated corner noise (the modes weighted, the robot judged again at its stated
+    accuracy). Neither is claimed; the one whose cameras' 1-sigma is the larger is used, so that the
+    1-sigma covers either. Returns (problem, est, fk_ratio, mode_ratios, factors, LM iterations spent);
+    each such camera's ModeRatio records which was taken (``taken_as``)."""
+    corner = {**factors, **{c: m.with_robot_ratio for c, m in unsplit.items()}}
+    redo = _rejudge_robot(problem.with_(options=stated_opts), slots, views, est, sigma, form, corner, timings)
+    robot_var = _translation_variance(problem, views, slots, est, sigma, form, factors)
+    take_corner = False
+    if redo is not None:
+        p2, est2, fk2, modes2, _, it = redo
+        corner_var = _translation_variance(p2, views, slots, est2, sigma, form, corner)
+        take_corner = corner_var is not None and (robot_var is None or corner_var > robot_var)
+    if take_corner:
+        ratios = {c: replace(modes2.get(c, m), applied=float(corner[c]), separable=False, with_robot_ratio=m.with_robot_ratio,
+                             taken_as="corner noise") if c in unsplit else modes2.get(c, m)
+                  for c, m in mode_ratios.items()}
+        return p2, est2, fk2, ratios, corner, it
+    ratios = {c: replace(m, taken_as="robot") if c in unsplit else m for c, m in mode_ratios.items()}
+    return problem, est, fk_ratio, ratios, factors, 0
 
 
 def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form: str,
@@ -259,9 +359,21 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
             est, run, graph = _resolve(problem, views, slots, est, sigma, form, None, timings)
             iterations += run.iterations
             converged = converged and run.converged
-    mode_ratios = mode_variance_ratios(problem, views, est, sigma, lin) if check_modes else {}
+    mode_ratios = {}
+    if check_modes:
+        lin = lin or linearise(problem, views, est, sigma)
+        # only the part of a camera's whole-board excess that no robot error explains is its corners' noise
+        mode_ratios = separated(mode_variance_ratios(problem, views, est, sigma, lin),
+                                mode_variance_ratios(problem, views, est, sigma, lin, robot_free=True))
     factors = {c: m.applied for c, m in mode_ratios.items() if m.applied > 1.0}
-    if fk_ratio is not None and fk_ratio.widens and factors:
+    unsplit = {c: m for c, m in mode_ratios.items() if m.separable is False}
+    if unsplit:
+        # whole boards move more than the corners scatter, and nothing in these captures tells the robot's
+        # error from correlated corner noise: the 1-sigma is the larger of the two explanations'
+        problem, est, fk_ratio, mode_ratios, factors, it = _unseparated(
+            problem, opts, slots, views, est, sigma, form, fk_ratio, mode_ratios, factors, unsplit, timings)
+        iterations += it
+    elif fk_ratio is not None and fk_ratio.widens and factors:
         # Whole boards move more than the corners' scatter implies even with the robot poses freed:
         # the corners' correlated noise, not (or not only) the robot, may be why the poses departed.
         # Judge the robot again at its stated accuracy on the graph that weights those modes.
@@ -283,9 +395,11 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
             iterations += run.iterations
             converged = converged and run.converged
         fk_ratio = chosen
-    if departed and fold_est is None and form == "view":
+    whole_boards = any(m.significant or m.separable is False and m.taken_as is not None for m in mode_ratios.values())
+    if (departed or whole_boards) and fold_est is None and form == "view":
         # the robot departed but its split was not cross-validated (one component widened, or the corners'
-        # correlated noise explained the departure): the folds still say whether the 1-sigma holds
+        # correlated noise explained the departure), or whole boards misfit beyond chance: the folds still say
+        # whether the 1-sigma holds
         with timed(timings, "fk_jackknife"):
             fold_est = jackknife_folds(problem, views, est, fold_solve)
     if opts.pixel_sigma_px:
@@ -303,7 +417,7 @@ def final_graph(problem: Problem, names: list, rounds: Rounds, slots: dict, form
         iterations += run.iterations
         converged = converged and run.converged
         values = run.values
-        est = extract(values, slots, views, est, problem.cameras, form)
+        est = extract(values, slots, views, est, problem.cameras, form, problem)
     linear = None
     if form == "view":
         linear, marg = reduced_marginals(graph, values, timings)
@@ -367,6 +481,7 @@ def kinematics_start(problem: Problem, names: list, views: list, starts: list, k
                     fk_sigma_translation_m=o.fk_sigma_translation_m * kin.STAGE1_FK_INFLATION)
     g1 = solve_joint(problem.with_(options=loose), names, views, starts, timings)
     fk_sigmas = np.array([o.fk_sigma_rotation_rad] * 3 + [o.fk_sigma_translation_m] * 3)
-    offsets = kin.offsets_from_poses(ks, g1.est.T_ref_mount, o.joint_offset_prior_rad, fk_sigmas)
+    flange = g1.est.T_ref_mount if problem.mode == "eye_to_hand" else {k: np.linalg.inv(T) for k, T in g1.est.T_ref_mount.items()}
+    offsets = kin.offsets_from_poses(ks, flange, o.joint_offset_prior_rad, fk_sigmas)
     return Estimate(T_ref_cam=g1.est.T_ref_cam, T_mount_board=g1.est.T_mount_board, T_ref_mount={},
                     joint_offsets=offsets)

@@ -285,8 +285,17 @@ def prediction_notes(prediction: dict) -> list:
     """One line per camera: what a held-out test would say."""
     how = {"joint angles": "from its reported joint angles through the arm model with the estimated offsets",
            "flange poses": "from its reported FK"}
-    return [f"camera {name}: a new robot pose's corners, predicted {how[p.get('predicted_from', 'flange poses')]}, are "
-            f"expected to miss by "
-            f"{p['expected_rms_px']:.2f} px RMS ({p['expected_rms_mm']:.2f} mm at the board): robot "
+    return [f"camera {name}: at a new robot pose, this calibration should place the board's corners in its image "
+            f"within {p['expected_rms_px']:.2f} px RMS of where it sees them ({p['expected_rms_mm']:.2f} mm at the "
+            f"board), most of it from the {_largest(p['parts_px'])}. Detail: a new robot pose's corners, predicted "
+            f"{how[p.get('predicted_from', 'flange poses')]}, are expected to miss by "
+            f"{p['expected_rms_px']:.2f} px RMS: robot "
             f"{p['parts_px']['robot']:.2f} px, calibration {p['parts_px']['calibration']:.2f} px, corner noise "
             f"{p['parts_px']['corners']:.2f} px" for name, p in prediction.items()]
+
+
+def _largest(parts_px: dict) -> str:
+    """The part of a prediction's miss that is largest, in words."""
+    words = {"robot": "robot's own error", "calibration": "calibration's 1-sigma", "corners": "corners' noise"}
+    k = max(("robot", "calibration", "corners"), key=lambda s: float(parts_px.get(s, 0.0)))
+    return words[k]

@@ -63,7 +63,7 @@ from calibgraph.core.camera import Intrinsics
 from calibgraph.core.errors import CalibgraphError, InputError
 from calibgraph.core.problem import MODES, mode_frames
 from calibgraph.core.targets import Target
-from calibgraph.core.version import __version__
+from calibgraph.core.version import __version__, format_age
 from calibgraph.io.files import atomic_write_text, read_input_bytes, read_yaml
 from calibgraph.solver.result_values import (
     exactly_equal,
@@ -523,9 +523,17 @@ def check_result_dict(d, where: str = "result") -> None:
     fmt = str(d.get("format", RESULT_FORMAT))
     if fmt != RESULT_FORMAT:
         if fmt.startswith("calibgraph-result/"):
-            raise InputError(f"{where}: result format {fmt!r} is newer than this calibgraph "
-                             f"({d.get('calibgraph_version', '?')} wrote it) reads ({RESULT_FORMAT}); upgrade calibgraph.")
+            wrote = f"{d.get('calibgraph_version', '?')} wrote it"
+            age = format_age(fmt, RESULT_FORMAT)
+            if age == "older":
+                raise InputError(f"{where}: result format {fmt!r} is older than the one this calibgraph reads "
+                                 f"({RESULT_FORMAT}; {wrote}); solve its dataset again with this calibgraph "
+                                 f"(calibgraph solve {d.get('dataset') or 'DATASET'}) for a result it reads.")
+            if age == "newer":
+                raise InputError(f"{where}: result format {fmt!r} is newer than this calibgraph ({wrote}) reads "
+                                 f"({RESULT_FORMAT}); upgrade calibgraph.")
         raise InputError(f"{where}: format {fmt!r} is not a calibgraph result ({RESULT_FORMAT}).")
+
 
 
 def note_camera(note: str, names) -> str | None:

@@ -103,7 +103,7 @@ def weighted_solves(problem: Problem, views: list, slots: dict, est: Estimate, s
         with timed(timings, "lm"):
             run = levenberg_marquardt(graph, values, opts.max_iterations, form)
         iterations += run.iterations
-        est = extract(run.values, slots, views, est, problem.cameras, form)
+        est = extract(run.values, slots, views, est, problem.cameras, form, problem)
         residuals = est.residuals(views, problem.cameras)
         norms = norms_of(residuals)
         scale_change = 0.0

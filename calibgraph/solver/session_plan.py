@@ -40,11 +40,36 @@ SESSION_PIXEL_SIGMA_PX = 0.1
 FIRST_AIMS = ((-1, -1), (1, 1), (1, -1), (-1, 1), (0, -1), (0, 1), (-1, 0), (1, 0))
 
 
-def session_command(camera: str) -> str:
+CELL_PLACEHOLDER = "CELL.yaml"  # the workcell an advice line names when it does not know the user's
+
+
+def session_command(camera: str, workcell=None) -> str:
     """The commands that make and use a close-range session of ``camera``, as advice lines name them:
-    the guided live session at the camera (``calibgraph intrinsics --live``), then the solve with its file."""
-    return (f"calibgraph intrinsics --live --camera {camera} --workcell CELL.yaml --out {camera}.yaml, "
+    the guided live session at the camera (``calibgraph intrinsics --live``), then the solve with its
+    file. ``workcell``: the user's cell file (shown relative to the working folder when inside it),
+    else the placeholder ``CELL.yaml``."""
+    return (f"calibgraph intrinsics --live --camera {camera} --workcell {shown_path(workcell)} --out {camera}.yaml, "
             f"then --intrinsics {camera}={camera}.yaml")
+
+
+def shown_path(path) -> str:
+    """A file as a command line should name it: relative to the working folder when inside it,
+    else absolute; the placeholder ``CELL.yaml`` for None."""
+    if path is None:
+        return CELL_PLACEHOLDER
+    import os
+
+    p = os.path.abspath(str(path))
+    rel = os.path.relpath(p)
+    return rel if not rel.startswith("..") else p
+
+
+def name_workcell(text: str, workcell) -> str:
+    """An advice line with the placeholder ``--workcell CELL.yaml`` naming ``workcell`` instead (the
+    file a dataset records it was captured with; None: unchanged)."""
+    if workcell is None or not text:
+        return text
+    return text.replace(f"--workcell {CELL_PLACEHOLDER}", f"--workcell {shown_path(workcell)}")
 
 
 def _halton(k: int, base: int) -> float:

@@ -132,7 +132,8 @@ def weakest_directions(T_ref_cam: np.ndarray, cov6: np.ndarray, ref_frame: str =
     Returns a dict with, for 'translation' and 'rotation': ``sigma`` (mm or deg, the largest
     1-sigma), ``sigma_min``, ``direction_ref`` (unit vector in the reference frame's axes),
     ``direction_cam`` (same in camera axes), ``cam_axis`` (0, 1, 2: nearest camera axis),
-    ``alignment`` (|cos| with that axis) and ``text``; plus ``summary`` (one sentence).
+    ``alignment`` (|cos| with that axis), ``where`` (that axis in words) and ``text``; plus ``summary``
+    (one sentence).
     """
     T = np.asarray(T_ref_cam, float)
     C = np.asarray(cov6, float)
@@ -158,7 +159,7 @@ def weakest_directions(T_ref_cam: np.ndarray, cov6: np.ndarray, ref_frame: str =
         qual = "" if align > 0.95 else f" (mixed: {angle:.0f} deg off that axis)"
         text = (f"weakest {key}: {sig:.3g} {unit} {where}{qual}, i.e. along {_axis_phrase(v, ref_frame)}; "
                 f"best-determined direction: {sig_min:.3g} {unit}")
-        out[key] = dict(sigma=sig, sigma_min=sig_min, unit=unit, direction_ref=v.tolist(),
+        out[key] = dict(sigma=sig, sigma_min=sig_min, unit=unit, direction_ref=v.tolist(), where=where,
                         direction_cam=v_cam.tolist(), cam_axis=ax, alignment=align, text=text)
     t, r = out["translation"], out["rotation"]
     out["summary"] = (f"Weakest: {t['sigma']:.3g} mm {_CAM_AXES[t['cam_axis']][1]}; "

@@ -172,3 +172,18 @@ def norms_of(residuals: list) -> list:
         r = np.linalg.norm(d, axis=1)
         out.append(np.where(np.isfinite(r), r, 1e6))
     return out
+
+
+def robot_keys(problem, views) -> dict:
+    """capture -> (the capture whose robot pose F the graph gives it, the fixed offset D (4, 4) of its
+    reported pose from that one's, or None) for the captures of the active ``views``. A capture that
+    revisits a configuration (:attr:`Problem.configurations`) shares the robot pose of the first active
+    capture of its configuration: a real arm's absolute error repeats with its joint configuration, so
+    a revisit is not a second, independent draw of it (T_ref_mount = F D, D from the reported poses)."""
+    config = problem.configurations
+    T_fk = {v.capture: v.T_ref_mount for v in views}
+    first, out = {}, {}
+    for k in sorted({v.capture for v in views if v.active}):
+        r = first.setdefault(config.get(k, k), k)
+        out[k] = (r, None if r == k else np.linalg.inv(T_fk[r]) @ T_fk[k])
+    return out
