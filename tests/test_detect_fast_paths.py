@@ -9,6 +9,9 @@
 - The board fit's model computes both axes as one stacked array: its analytic Jacobian matches
   central differences of the model (checkerboard and ChArUco, tilted views: every term, the
   bivariate-normal one included).
+- The renderer's sub-pixel box mean (OpenCV's area resize at 4x4 samples) and its reuse of the last
+  board texture: the same images, bit for bit, as numpy's mean over a texture painted afresh
+  (the hand-held board's frames, distorted and not, 8 and 16 bit).
 """
 
 from pathlib import Path
@@ -156,3 +159,22 @@ def test_board_fit_jacobian_matches_central_differences(kind):
         # differences as up to ~1e-4 of the largest derivative (the same with the model before
         # the two axes were stacked). A wrong term is off by its own size.
         assert np.abs(J[p] - fd).max() < 5e-4 * scale, (kind, p, float(np.abs(J[p] - fd).max()), scale)
+
+
+def test_render_fast_paths_give_the_same_images_bit_for_bit(monkeypatch):
+    import calibgraph.sim.board_image as board_image
+    from calibgraph.core.targets import a4_board_54
+    from calibgraph.solver.session_plan import session_poses
+
+    board = a4_board_54()
+    lens = Intrinsics(K=INTR.K, dist=np.array([0.05, -0.08, 0.0004, -0.0003, 0.02]), width_px=1920, height_px=1080)
+    cases = [(intr, T) for intr in (INTR, lens)
+             for T in session_poses(intr, board, 3, (0.3, 1.0), rng=np.random.default_rng(4))]
+    fast = [[render_view(board, intr, T, bit_depth=b, seed=None).image for b in (8, 16)] for intr, T in cases]
+    again = render_view(board, *cases[-1], bit_depth=16, seed=None).image  # the texture reused
+    monkeypatch.setattr(board_image, "_box_mean", lambda samp, nv, nu, S: samp.reshape(nv, S, nu, S).mean(axis=(1, 3)))
+    monkeypatch.setattr(board_image, "_texture_for", board_image.board_texture)
+    for (intr, T), imgs in zip(cases, fast):
+        for b, img in zip((8, 16), imgs):
+            np.testing.assert_array_equal(img, render_view(board, intr, T, bit_depth=b, seed=None).image)
+    np.testing.assert_array_equal(again, fast[-1][1])

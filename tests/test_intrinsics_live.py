@@ -70,7 +70,10 @@ def test_session_reaches_its_goal_with_fx_within_3_sigma():
     assert max(image_travel(k) for k in range(1, len(poses))) > 10 * STILL_PX  # the board did move
     # the console line says what it should, and the last one that the goal is met
     assert statuses[-1].hint == "the goal is met" and "goal" in statuses[-1].line(true.K[0, 0])
-    assert any(s.board == "moving" for s in statuses) and any(s.hint.startswith("bring it to") for s in statuses)
+    assert any(s.board == "moving" for s in statuses)
+    # the hint is a pose and what no taken view has of it (this user ignores it)
+    assert any(s.hint.startswith("the board at the top-left corner of the image") and s.hint.endswith("yet)")
+               for s in statuses)
 
 
 class _Interrupted:
@@ -87,6 +90,9 @@ class _Interrupted:
         if self.k > self.n:
             raise KeyboardInterrupt
         return self.cam.grab()
+
+    def guide(self, T_cam_board, taken=False):
+        self.cam.guide(T_cam_board, taken)
 
     def close(self):
         self.cam.close()
@@ -293,6 +299,81 @@ def test_next_pose_hint_says_where_how_far_and_which_edge_is_nearer():
     assert describe_pose(T, intr, BOARD) == ("the board at the bottom-left corner of the image, about 0.6 m away, "
                                              "tilted about 35 deg about its horizontal axis (bottom edge nearer)")
     assert "facing the camera" in describe_pose(pose([0.0, 0.0, 0.3], [0.0, 0.0, 0.4]), intr, BOARD)
+
+
+def _guided(seed):
+    true, reported = _camera()
+    return true, HandheldBoardCamera("cam", true, BOARD, reported=reported, fps=5.0, seed=seed, follows_hints=True)
+
+
+def test_a_user_who_follows_the_hints_meets_the_goal_stated_once_with_a_hint_that_moves_on(monkeypatch):
+    import calibgraph.acquire.live_session as live
+    from calibgraph.solver.intrinsics_session import MIN_VIEWS, calibrate_views
+
+    true, cam = _guided(seed=1)
+    statuses, notes = [], []
+    o = run_live_session(cam, BOARD, on_status=statuses.append, on_note=notes.append, max_frames=400)
+    assert o.goal_met and len(o.views) <= live.ADVICE_SESSION_VIEWS, (o.reason, len(o.views))
+    _within_3_sigma(o.result, true)
+
+    # the goal: only bounded (the advice's at 0.1 px corners) until the first calibration, then set once, with
+    # one note, at the noise that calibration measured; never moved without a note
+    bound = default_goal_px(cam.intrinsics(), BOARD)[0]
+    before, after = [s for s in statuses if not s.goal_set], [s for s in statuses if s.goal_set]
+    assert before and all(s.goal_px == bound and s.views < MIN_VIEWS for s in before)
+    assert after[0].views == MIN_VIEWS and {s.goal_px for s in after} == {o.goal_px}
+    first = calibrate_views(o.views[:MIN_VIEWS], BOARD, 640, 400)
+    assert o.goal_px == default_goal_px(first.intrinsics, BOARD, pixel_sigma_px=first.pixel_sigma_px)[0]
+    assert len(notes) == 1 and notes[0].startswith(f"goal set: fx 1-sigma {o.goal_px:.3f} px")
+    assert f"{first.pixel_sigma_px:.4f} px corner noise" in notes[0]
+
+    # the fx 1-sigma shown after each taken view is a calibration of every view taken so far (from MIN_VIEWS on)
+    taken = [s for s in statuses if s.board == "taken"]
+    assert [s.fitted for s in taken] == [s.views >= MIN_VIEWS for s in taken]
+    k = MIN_VIEWS + 2
+    assert taken[k - 1].sigma_fx_px == calibrate_views(o.views[:k], BOARD, 640, 400).sigma["fx"]
+    assert len({s.sigma_fx_px for s in taken}) == len(taken)  # it moves with every view
+
+    # the hint: a pose and what no taken view has of it yet; it changes only when a view is taken, and it
+    # changes when the view taken did what it said (judged on the true poses, at half the tolerances)
+    monkeypatch.setattr(live, "MATCH_IMAGE_FRACTION", live.MATCH_IMAGE_FRACTION / 2)
+    monkeypatch.setattr(live, "MATCH_DISTANCE", tuple(v / 2 for v in live.MATCH_DISTANCE))
+    monkeypatch.setattr(live, "MATCH_TILT_DEG", live.MATCH_TILT_DEG / 2)
+    true_pose = {k + 1: T for k, (_, T) in enumerate(cam.true_poses)}
+    done_poses, followed = [], 0
+    for a, b in zip(statuses, statuses[1:]):
+        if a.views == 0 or b.hint == "the goal is met":
+            continue
+        assert a.hint.startswith("the board at ") and a.hint.endswith("yet)"), a.hint
+        assert not any(all(live._matches(T, a.next_pose, true, BOARD)) for T in done_poses), a.hint
+        T = true_pose[b.frames]
+        if b.board != "taken":  # the same hint, unless this still hold did it (its view not taken)
+            assert b.hint == a.hint or (b.board == "still" and all(live._matches(T, a.next_pose, true, BOARD)))
+            continue
+        done_poses.append(T)
+        if all(live._matches(T, a.next_pose, true, BOARD)):
+            followed += 1
+            assert b.hint != a.hint, a.hint
+    assert followed >= 5
+
+
+def test_the_live_command_states_the_goal_once_and_says_when_it_is_set(tmp_path, monkeypatch, capsys):
+    import calibgraph.cli.intrinsics_live as live
+
+    (tmp_path / "cell.yaml").write_text("board: a4_54\ncameras:\n  cam: {driver: realsense, serial: '1'}\n")
+    _, cam = _guided(seed=2)
+    monkeypatch.setattr(live, "_device", lambda args, spec, board: _Interrupted(cam, 80))
+    rc = live.run_live(_args(tmp_path, save_views=None, quiet=False))
+    err = capsys.readouterr().err.splitlines()
+    assert rc == live.EXIT_INTERRUPTED
+    assert "set once the first calibration (6 views) measures the noise" in err[0] and "so at most 0.34 px" in err[0]
+    set_lines = [k for k, line in enumerate(err) if line.startswith("goal set: fx 1-sigma")]
+    assert len(set_lines) == 1 and not any("goal changed" in line for line in err)
+    goal = err[set_lines[0]].split()[4]
+    after = [line for line in err[set_lines[0] + 1:] if line.startswith("frame ")]
+    assert after and all(f"/ goal {goal} px;" in line and " calibrated " in line for line in after)
+    assert all("(set by the first calibration)" in line and " predicted " in line
+               for line in err[1:set_lines[0]] if line.startswith("frame "))
 
 
 def test_each_camera_of_a_simulated_cell_has_its_own_hand_held_board():

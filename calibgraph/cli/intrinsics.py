@@ -39,8 +39,9 @@ def add_parser(sub):
                       help="the workcell naming the camera's device (realsense, kinect, ros2, or a simulated camera: "
                            "a simulated hand-held board); its board unless --target")
     live.add_argument("--goal-fx-percent", type=float, default=None, metavar="PCT",
-                      help="fx 1-sigma to reach, in %% of fx (default: what the error budget's advice assumed for a "
-                           "25-image session, else 0.05)")
+                      help="fx 1-sigma to reach, in %% of fx (default: what the error budget's advice assumed, a "
+                           "25-image session at this camera's corner noise, at most 0.1 px, set by the first "
+                           "calibration; else 0.05)")
     live.add_argument("--view", action="store_true",
                       help="stream a live rerun view (the image with the corners, the coverage heat map, fx 1-sigma "
                            "over time): a viewer where there is a display, else a .rrd beside --out (or --rrd)")

@@ -4,7 +4,8 @@ a guided intrinsics session at the camera (:mod:`calibgraph.acquire.live_session
 The camera's device is the one the workcell names (the device registry,
 :mod:`calibgraph.acquire.devices`: RealSense, Kinect V2, a ROS 2 topic); a simulated camera of a
 simulated workcell is watched by a simulated hand-held board (:class:`calibgraph.sim.handheld.HandheldBoardCamera`)
-rendering the workcell's board with the camera's true intrinsics. CAM.yaml is the file
+rendering the workcell's board with the camera's true intrinsics, held by a user who does what the
+hints say (``follows_hints``). CAM.yaml is the file
 ``calibgraph intrinsics IMAGES_DIR`` writes, from the views the session took.
 """
 
@@ -38,7 +39,7 @@ def _device(args, spec, board):
     if name not in cell.camera_names:
         raise InputError(f"{spec.where}: no camera {name!r}; its cameras are {', '.join(cell.camera_names)}.")
     return HandheldBoardCamera(name, cell.camera(name).intrinsics, cell.target, reported=cell.reported_intrinsics(name),
-                               realism=cell.realism, seed=camera_seed(cell.seed, name))
+                               realism=cell.realism, seed=camera_seed(cell.seed, name), follows_hints=True)
 
 
 class _Console:
@@ -65,6 +66,15 @@ class _Console:
             print(line, file=self.stream, flush=True)
             self.last = key
 
+    def note(self, line: str) -> None:
+        """A line said once (the goal set or changed), on its own line."""
+        if self.quiet:
+            return
+        if self.tty and self.width:
+            self.stream.write("\r" + " " * self.width + "\r")
+            self.width = 0
+        print(line, file=self.stream, flush=True)
+
     def end(self) -> None:
         if self.tty and not self.quiet and self.width:
             self.stream.write("\n")
@@ -72,7 +82,9 @@ class _Console:
 
 
 def run_live(args) -> int:
-    from calibgraph.acquire.live_session import default_goal_px, run_live_session
+    from calibgraph.acquire.live_session import ADVICE_SESSION_VIEWS, default_goal_px, run_live_session
+    from calibgraph.solver.intrinsics_session import MIN_VIEWS
+    from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX
     from calibgraph.acquire.workcell import read_workcell
     from calibgraph.core.errors import InputError
     from calibgraph.io.camera_file import write_camera_file
@@ -102,18 +114,22 @@ def run_live(args) -> int:
     view = None
     try:
         intr = cam.intrinsics()
+        fx = float(intr.K[0, 0])
         if args.goal_fx_percent is not None:
             if not args.goal_fx_percent > 0:
                 raise InputError(f"--goal-fx-percent must be > 0, got {args.goal_fx_percent}.")
-            goal, why = args.goal_fx_percent / 100.0 * float(intr.K[0, 0]), "--goal-fx-percent"
+            goal = args.goal_fx_percent / 100.0 * fx
+            stated = f"goal fx 1-sigma {goal:.3f} px ({args.goal_fx_percent:g} %, --goal-fx-percent)"
         else:
-            goal, why = None, "what the error budget's advice assumes: a 25-view session with the camera's own corners"
+            goal, bound = None, default_goal_px(intr, target, args.model)[0]
+            stated = (f"goal: the fx 1-sigma the error budget's advice assumes, a {ADVICE_SESSION_VIEWS}-view session "
+                      f"at this camera's own corner noise (at most {SESSION_PIXEL_SIGMA_PX:g} px, so at most "
+                      f"{bound:.2f} px, {100 * bound / fx:.3f} %), set once the first calibration ({MIN_VIEWS} views) "
+                      "measures the noise")
         say = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
-        shown = default_goal_px(intr, target, args.model)[0] if goal is None else goal
-        say(f"live intrinsics of {args.camera} ({intr.width_px}x{intr.height_px}, fx {intr.K[0, 0]:.1f} px as the "
-            f"device reports): goal fx 1-sigma {shown:.2f} px ({100 * shown / intr.K[0, 0]:.3f} %; {why}"
-            f"{', at 0.1 px until it measures them' if goal is None else ''}); hold the "
-            f"{target.kind} ({target.rows}x{target.cols}) still in each pose; Ctrl-C stops and writes what it has")
+        say(f"live intrinsics of {args.camera} ({intr.width_px}x{intr.height_px}, fx {fx:.1f} px as the device "
+            f"reports): {stated}; hold the {target.kind} ({target.rows}x{target.cols}) still in each pose the hint "
+            "names; Ctrl-C stops and writes what it has")
         console = _Console(float(intr.K[0, 0]), args.quiet)
 
         def keep(name, image):
@@ -125,7 +141,7 @@ def run_live(args) -> int:
 
             view = LiveView(args.camera, intr.width_px, intr.height_px, float(intr.K[0, 0]), rrd)
         o = run_live_session(cam, target, goal_px=goal, model=args.model, on_status=console, on_take=keep,
-                             on_frame=view)
+                             on_frame=view, on_note=console.note)
         console.end()
     finally:
         cam.close()
@@ -144,7 +160,7 @@ def run_live(args) -> int:
     s = r.sigma
     print(f"wrote {out}: {o.reason} after {o.frames} frames; {len(r.views_used)} of {len(o.views)} views used, "
           f"RMS {r.rms_px:.3f} px, fx {r.intrinsics.K[0, 0]:.2f} ± {s['fx']:.2f} px "
-          f"({100 * s['fx'] / r.intrinsics.K[0, 0]:.3f} %, goal {o.goal_px:.2f} px)"
+          f"({100 * s['fx'] / r.intrinsics.K[0, 0]:.3f} %, goal {o.goal_px:.3f} px)"
           + (f"; views saved in {views_dir}" if views_dir is not None else ""))
     for w in r.warnings:
         print(f"  warning: {w}")

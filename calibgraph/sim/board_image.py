@@ -138,6 +138,34 @@ class RenderedView:
     T_cam_board: np.ndarray
 
 
+# the last texture render_view painted, by what makes it (target, texels a square, margin): a hand-held
+# session's frames of one hold need the same one (painting a 1080p board's costs ~25 ms)
+_LAST_TEXTURE: dict = {}
+
+
+def _texture_for(target: Target, ppm: float) -> Texture:
+    """``board_texture(target, ppm)``, the last one again when it would be the same raster."""
+    n_pitch = max(64 if target.kind == "charuco" else 2, int(round(target.pitch_m * float(ppm))))
+    key = (target.spec_hash(), n_pitch)
+    if target.kind != "charuco" and key in _LAST_TEXTURE:
+        return _LAST_TEXTURE[key]
+    tex = board_texture(target, ppm)
+    tex.image.setflags(write=False)
+    _LAST_TEXTURE.clear()
+    _LAST_TEXTURE[key] = tex
+    return tex
+
+
+def _box_mean(samp: np.ndarray, nv: int, nu: int, S: int) -> np.ndarray:
+    """The mean of every S x S block of sub-pixel samples: OpenCV's area resize at S = 4 (bitwise the same
+    as numpy's mean there, 3-4x faster; tests/test_sim.py checks it on renders), numpy's mean otherwise."""
+    if S == 4:
+        import cv2
+
+        return cv2.resize(samp, (nu, nv), interpolation=cv2.INTER_AREA)
+    return samp.reshape(nv, S, nu, S).mean(axis=(1, 3))
+
+
 def _normalised_rays(intr: Intrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return undistort_normalised(intr, np.column_stack([u, v]))
 
@@ -194,7 +222,7 @@ def render_view(target: Target, intr: Intrinsics, T_cam_board: np.ndarray, *, bl
                 z_min = max(corners_c[:, 2].min(), 1e-3)
                 dens = S * max(intr.K[0, 0], intr.K[1, 1]) / z_min
                 dens = min(dens, 8000.0 / max(x1 - x0 + 2 * m, y1 - y0 + 2 * m))
-                texture = board_texture(target, dens)
+                texture = _texture_for(target, dens)
             nu, nv = u_hi - u_lo + 1, v_hi - v_lo + 1
             # Sub-pixel sample (X, Y) of the region sits at image (u_lo + (X + 0.5) / S - 0.5, ...).
             M_img_ss = np.array([[1.0 / S, 0, u_lo + 0.5 / S - 0.5], [0, 1.0 / S, v_lo + 0.5 / S - 0.5], [0, 0, 1]])
@@ -225,7 +253,7 @@ def render_view(target: Target, intr: Intrinsics, T_cam_board: np.ndarray, *, bl
                 samp = cv2.remap(texture.image, mapx, mapy, cv2.INTER_LINEAR,
                                  borderMode=cv2.BORDER_CONSTANT, borderValue=float(background))
             # Samples that miss the sheet see the background; the sheet edge is a real edge too.
-            block = samp.reshape(nv, S, nu, S).mean(axis=(1, 3))
+            block = _box_mean(samp, nv, nu, S)
             img[v_lo : v_hi + 1, u_lo : u_hi + 1] = block
     grey = black_level + (white_level - black_level) * img
     grey = grey * float(exposure)

@@ -12,6 +12,14 @@ path (position and rotation, 0.8-1.8 s), holds it there for 0.4-1.0 s with a sli
 picks the next. While it moves, the frame is motion-blurred by the distance the board's image
 travels during the exposure (``exposure_fraction`` of the frame period). The true intrinsics
 render; :meth:`intrinsics` reports the ones the camera would report (a device's factory values).
+
+With ``follows_hints`` the hand is a user who does what the live session says
+(:func:`calibgraph.acquire.live_session.run_live_session` calls :meth:`guide` after every frame
+with the hint's pose): each move goes to the hinted pose as a person would reach it (the board's
+centre off by ``AIM_LATERAL`` of its distance across and ``AIM_DEPTH`` along the line of sight, its
+orientation by ``AIM_DEG`` about each axis, 1-sigma; drawn again while the board would leave the
+image), it is held for up to ``GUIDED_HOLD_S`` and left ``REACTION_S`` after the frame is taken.
+Without it, the walk ignores the hints (a user who moves the board about at random).
 """
 
 from __future__ import annotations
@@ -33,6 +41,11 @@ MOVE_S = (0.8, 1.8)  # how long one move from pose to pose takes
 HOLD_S = (0.4, 1.0)  # how long the hand holds the board still in a pose
 TREMOR_M = 3e-5  # 1-sigma of a steady hand's tremor while holding (30 um)
 GOALS_PER_DRAW = 16
+AIM_LATERAL = 0.03  # a guided user's aim: 1-sigma of the board centre across the line of sight, share of the distance
+AIM_DEPTH = 0.04  # ... along it, share of the distance
+AIM_DEG = 4.0  # ... of the orientation about each axis, degrees
+GUIDED_HOLD_S = (1.5, 2.5)  # a guided user holds the board still until the frame is taken, or this long
+REACTION_S = 0.3  # ... and moves on this long after it is
 
 
 def camera_seed(seed: int, name: str) -> int:
@@ -65,11 +78,13 @@ class HandheldBoardCamera:
         seed: seeds the walk, the exposures and the noise.
         max_frames: after this many frames ``grab`` raises :class:`DeviceError` (a finite stream);
             None: endless.
+        follows_hints: the hand goes where :meth:`guide` says (module docstring); else a random walk.
     """
 
     def __init__(self, name: str, true_intrinsics: Intrinsics, target: Target, reported: Intrinsics | None = None,
                  realism: Realism | None = None, fps: float = 10.0, exposure_fraction: float = 0.3,
-                 distance_range_m=DISTANCE_RANGE_M, seed: int = 0, max_frames: int | None = None):
+                 distance_range_m=DISTANCE_RANGE_M, seed: int = 0, max_frames: int | None = None,
+                 follows_hints: bool = False):
         if true_intrinsics.width_px <= 0 or true_intrinsics.height_px <= 0:
             raise DeviceError(f"simulated hand-held board {name}: the camera needs its image size.")
         self.name = name
@@ -87,6 +102,8 @@ class HandheldBoardCamera:
         self._frames = 0
         self._closed = False
         self.true_poses = []  # (stamp_s, T_cam_board) of every frame: the ground truth
+        self.follows_hints = bool(follows_hints)
+        self._wanted = None  # the pose the session's hint asks for
         self._seg = self._hold_segment(self._next_goal(), 0.0)
         self._T_prev = self.pose_at(0.0)
 
@@ -98,11 +115,37 @@ class HandheldBoardCamera:
             self._goals = [poses[i] for i in self._rng.permutation(len(poses))]
         return self._goals.pop()
 
+    def _aim(self, T: np.ndarray) -> np.ndarray:
+        """Pose ``T`` as a person reaches it (``AIM_*``), drawn again while the board would leave the image."""
+        centre = np.append(np.mean(np.reshape(self.target.extent_m, (2, 2)), axis=0), 0.0)
+        x0, y0, x1, y1 = self.target.extent_m
+        outline = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]])
+        c = T[:3, :3] @ centre + T[:3, 3]
+        for _ in range(20):
+            R = exp_so3(np.radians(AIM_DEG) * self._rng.normal(size=3)) @ T[:3, :3]
+            c2 = c + c[2] * np.array([AIM_LATERAL, AIM_LATERAL, AIM_DEPTH]) * self._rng.normal(size=3)
+            t = c2 - R @ centre
+            p = outline @ R.T + t
+            if np.all(p[:, 2] > 0.05) and np.all(self.true_intrinsics.in_image(self.true_intrinsics.project(p),
+                                                                               margin_px=4.0)):
+                return make_T(R, t)
+        return T.copy()
+
+    def guide(self, T_cam_board, taken: bool = False) -> None:
+        """The live session's hint (the pose it asks for, None when it asks for nothing) and whether the
+        frame was taken; acted on only when the hand ``follows_hints``."""
+        if not self.follows_hints:
+            return
+        self._wanted = None if T_cam_board is None else np.array(T_cam_board, float)
+        if taken and self._seg["kind"] == "hold":
+            self._seg["t1"] = min(self._seg["t1"], self._t_s + REACTION_S)
+
     def _hold_segment(self, T: np.ndarray, t0: float) -> dict:
-        return {"kind": "hold", "T": T, "t0": t0, "t1": t0 + float(self._rng.uniform(*HOLD_S))}
+        hold = GUIDED_HOLD_S if self.follows_hints else HOLD_S
+        return {"kind": "hold", "T": T, "t0": t0, "t1": t0 + float(self._rng.uniform(*hold))}
 
     def _move_segment(self, T0: np.ndarray, t0: float) -> dict:
-        T1 = self._next_goal()
+        T1 = self._aim(self._wanted) if self.follows_hints and self._wanted is not None else self._next_goal()
         return {"kind": "move", "T0": T0, "T1": T1, "w": log_so3(T1[:3, :3] @ T0[:3, :3].T), "t0": t0,
                 "t1": t0 + float(self._rng.uniform(*MOVE_S))}
 
