@@ -137,8 +137,12 @@ def _pose_mount_covariances(problem: Problem, groups: list) -> dict:
             s = est.slots[n]
             n_k = len(est.values.atVector(K(s))) if est.values.exists(K(s)) else 0
             scale = est.marginals.has(S(0))
+            held = est.held_scale is not None and hasattr(est.marginals, "joint_with_scale")
             keys = [C(s), B(0)] + ([K(s)] if n_k else []) + ([S(0)] if scale else []) + ([O(0)] if n_o else [])
             try:
+                if held:  # the board solved at its declared pitch: the scale's prior and how the poses move with it
+                    out[n] = (est.marginals.joint_with_scale(keys, at=2 + int(bool(n_k))), n_k, True, n_o)
+                    continue
                 out[n] = (est.marginals.joint(keys), n_k, scale, n_o)
             except (RuntimeError, KeyError, IndexError):
                 continue

@@ -19,7 +19,7 @@ from calibgraph.core.problem import Problem, intrinsics_source, uses_file_covari
 from calibgraph.solver.factors import intrinsics_vector
 from calibgraph.core.camera import intrinsics_names
 from calibgraph.solver.graph import Estimate, estimates_intrinsics, intrinsics_prior
-from calibgraph.solver.keys import B, C, K, S
+from calibgraph.solver.keys import B, C, K, O, S
 from calibgraph.solver.optimise import Group, solve_from_start
 from calibgraph.solver.views import reprojections
 
@@ -141,6 +141,23 @@ class HeldScaleMarginals:
         b = np.concatenate([self._b_of(k, d) for k, d in zip(keys, dims)])
         return c + self._s2 * np.outer(b, b)
 
+    def joint_with_scale(self, keys, at: int) -> np.ndarray:
+        """:meth:`joint` of ``keys`` with the held scale's own row and column put in at position ``at``
+        (a scalar variable, its variance the prior's, its covariance with each variable ``sigma^2 b_k``):
+        what a prediction needs, since the board's points move with the scale as the poses move with it
+        (along that direction the views barely change, so adding the poses' spread alone overstates it)."""
+        c = self.joint(keys)
+        dims = [self._m.marginalCovariance(k).shape[0] for k in keys]
+        b = np.concatenate([self._b_of(k, d) for k, d in zip(keys, dims)])
+        i = int(sum(dims[:at]))
+        n = len(b)
+        out = np.zeros((n + 1, n + 1))
+        idx = np.r_[0:i, i + 1:n + 1]
+        out[np.ix_(idx, idx)] = c
+        out[idx, i] = out[i, idx] = self._s2 * b
+        out[i, i] = self._s2
+        return out
+
 
 def hold_unseparable_scale(problem: Problem, group: Group, timings: dict | None = None) -> Group:
     """``group``, or the group solved again with the board's scale held at its declared value when the
@@ -161,10 +178,12 @@ def hold_unseparable_scale(problem: Problem, group: Group, timings: dict | None 
     if not departs or abs(est.board_scale - 1.0) <= 3.0 * np.sqrt(max(var_s, 0.0)):
         return group
     keys = [C(est.slots[n]) for n in group.names if n in est.slots] + [B(0)]
+    keys += [K(est.slots[n]) for n in group.names if n in est.slots and est.marginals.has(K(est.slots[n]))]
+    keys += [O(0)] if est.marginals.has(O(0)) else []
     sens = {}
     for k in keys:
         J = est.marginals.joint([k, S(0)])
-        sens[k] = J[:6, 6] / var_s
+        sens[k] = J[:-1, -1] / var_s
     held = problem.with_(options=replace(problem.options, board_scale=False))
     start = Estimate(T_ref_cam=est.T_ref_cam, T_mount_board=est.T_mount_board, T_ref_mount=dict(est.T_ref_mount),
                      intrinsics=dict(est.intrinsics), board_scale=1.0, wide_intrinsics=est.wide_intrinsics,
