@@ -73,6 +73,16 @@ def held_out(result, test, mode: str) -> tuple[list, list]:
     """(per camera: measured held-out RMS px over the test captures, expected_rms_px)."""
     meas, exp = [], []
     caps = test.capture_by_index
+    flange = {k: cap.T_base_flange for k, cap in caps.items()}
+    offsets = (result.robot or {}).get("joint_offsets_rad")
+    if offsets is not None:
+        # joint offsets estimated: a user applies the calibration through the corrected arm and the reported
+        # joint angles, as the result's prediction (predicted_from 'joint angles') assumes
+        from dataclasses import replace
+
+        from calibgraph.solver import kinematics as kin
+        ks = kin.setup(test.with_(options=replace(test.options, kinematics="joint-offsets")))
+        flange = {k: T for k, (T, _) in kin.corrected_flange_poses(ks, offsets).items()}
     for name, c in result.cameras.items():
         if not c.calibrated or not c.prediction:
             continue
@@ -82,7 +92,7 @@ def held_out(result, test, mode: str) -> tuple[list, list]:
         for d in test.detections:
             if d.camera != name:
                 continue
-            uv, _ = predicted_uv(c.T_ref_cam, caps[d.capture].T_base_flange, result.T_mount_board, mode, intr,
+            uv, _ = predicted_uv(c.T_ref_cam, flange[d.capture], result.T_mount_board, mode, intr,
                                  test.points_board_m[d.ids] * result.board_scale)
             sse += float(np.sum((uv - d.uv_px) ** 2))
             n += len(d.ids)

@@ -34,7 +34,7 @@ from calibgraph.solver.assemble import (
     robot_result,
 )
 from calibgraph.solver.reduced import linearise_graph
-from calibgraph.solver.camera_model import (board_scale, hold_unseparable_scale, intrinsics_notes,
+from calibgraph.solver.camera_model import (board_scale, hold_unseparable_scale, offsets_depart, intrinsics_notes,
                                            widen_inadequate_intrinsics)
 from calibgraph.solver.covariance import crlb  # noqa: F401 - public here: the benchmarks' bound
 from calibgraph.solver.fk_check import fk_note, fk_record
@@ -264,7 +264,8 @@ def _assemble(problem: Problem, groups: list, rejected: list, notes: list, solve
     angles = problem.records_joint_angles
     fk_notes = next((n for n in (fk_note(problem.options, g.est.fk_ratio, g.est.jackknife, angles) for g in groups)
                      if n), [])
-    robot_suspect = any(g.est.fk_ratio is not None and g.est.fk_ratio.significant for g in groups)
+    robot_suspect = any((g.est.fk_ratio is not None and g.est.fk_ratio.significant) or offsets_depart(g.est)
+                        for g in groups)
     scale, scale_sigma, scale_notes = board_scale(problem, groups, robot_suspect)
     notes = [*notes, *scale_notes, *intrinsics_notes(cameras)]
     notes += [f"camera {n} is NOT calibrated: {c.why}" for n, c in cameras.items() if not c.calibrated]
