@@ -99,3 +99,33 @@ def test_the_check_catches_an_upward_import(tmp_path):
 @pytest.mark.parametrize("stage", STAGES)
 def test_every_stage_is_a_package(stage):
     assert (PKG / stage / "__init__.py").is_file()
+
+
+def private_imports(root: Path = PKG) -> list:
+    """``module: imports _name from calibgraph.x`` for every private name (one leading underscore, not a
+    dunder) a module of ``root`` or of drivers/ imports from another calibgraph module (issue 48)."""
+    out = []
+    for f in sorted(list(root.rglob("*.py")) + list((root.parent / "drivers").rglob("*.py"))):
+        for node in ast.walk(ast.parse(f.read_text(), str(f))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("calibgraph"):
+                for a in node.names:
+                    if a.name.startswith("_") and not a.name.startswith("__"):
+                        out.append(f"{f.relative_to(root.parent)}:{node.lineno}: imports {a.name} from {node.module}")
+    return out
+
+
+def test_no_private_name_is_imported_across_modules():
+    bad = private_imports()
+    assert not bad, "private names imported across modules (make them public where they are shared):\n" + "\n".join(bad)
+
+
+def test_the_private_import_check_catches_one(tmp_path):
+    import shutil
+
+    copy = tmp_path / "calibgraph"
+    shutil.copytree(PKG, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    (tmp_path / "drivers").mkdir()
+    target = copy / "report" / "live_view.py"
+    target.write_text(target.read_text() + "\nfrom calibgraph.solver.factors import _injected  # noqa\n")
+    bad = private_imports(copy)
+    assert any("live_view.py" in b and "_injected" in b for b in bad), bad

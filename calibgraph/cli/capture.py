@@ -316,9 +316,9 @@ def _check_view(args):
                          f"{'a dry run grabs nothing' if args.dry_run else '--verify has no live view'} (drop them).")
     from calibgraph.io.output_guard import check_output_file
     from calibgraph.report.live_view import has_display
-    from calibgraph.report.rerun_view import _import_rerun
+    from calibgraph.report.rerun_view import import_rerun
 
-    _import_rerun()  # not installed: said now, before anything moves
+    import_rerun()  # not installed: said now, before anything moves
     if args.rrd is None and has_display():
         return None
     inputs = [p for p in (args.workcell, args.trajectory, args.sim_world) if p is not None]

@@ -304,6 +304,22 @@ def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") 
     an extension to pick its format (``tmp_suffix``, e.g. ``.yaml`` for OpenCV's FileStorage). Errors of the file system become one ``InputError`` naming the
     path; the temporary file never stays behind. Returns the path written.
     """
+    tmp = begin_atomic_write(path, tmp_suffix)
+    try:
+        write(tmp)
+    except OSError as e:
+        _discard(tmp)
+        raise InputError(f"{shown_path(path)}: cannot write ({e.strerror or e}); nothing was changed there.") from None
+    except BaseException:
+        _discard(tmp)
+        raise
+    return finish_atomic_write(tmp, path)
+
+
+def begin_atomic_write(path, tmp_suffix: str = "") -> Path:
+    """The temporary file (:func:`temporary_name`) a writer that streams into ``path`` over time (a
+    recording) writes, its folder made and a killed writer's leftovers removed; :func:`finish_atomic_write`
+    moves it into place (:func:`atomic_write_via` is both, for a writer done in one call)."""
     target = writable_target(path)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -312,20 +328,28 @@ def atomic_write_via(path, write: Callable[[Path], None], tmp_suffix: str = "") 
     except OSError as e:
         raise InputError(f"{path}: cannot create its folder ({e.strerror}); choose another output path.") from None
     _remove_stale_temporaries(target)
-    tmp = target.with_name(temporary_name(target, suffix=tmp_suffix))
+    return target.with_name(temporary_name(target, suffix=tmp_suffix))
+
+
+def finish_atomic_write(tmp: Path, path) -> Path:
+    """``tmp`` (from :func:`begin_atomic_write`) fsynced and renamed over ``path``; an error of the file
+    system is one ``InputError`` naming the path, and the temporary file never stays behind."""
     try:
-        write(tmp)
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
-        os.replace(tmp, target)
+        os.replace(tmp, writable_target(path))
     except OSError as e:
         raise InputError(f"{shown_path(path)}: cannot write ({e.strerror or e}); nothing was changed there.") from None
     finally:
-        try:
-            tmp.unlink()
-        except OSError:  # replaced already (or never made)
-            pass
+        _discard(tmp)
     return Path(path)
+
+
+def _discard(tmp: Path) -> None:
+    try:
+        tmp.unlink()
+    except OSError:  # replaced already (or never made)
+        pass
 
 
 def atomic_write_bytes(path, data: bytes) -> Path:

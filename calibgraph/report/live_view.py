@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calibgraph.report.rerun_view import _axes, _import_rerun, _pose, _viridis
+from calibgraph.io.files import begin_atomic_write, finish_atomic_write
+from calibgraph.report.rerun_view import axes, import_rerun, pose, viridis
 from calibgraph.solver.intrinsics_session import GRID_COLS
 
 MAX_WIDTH_PX = 960
@@ -41,8 +42,9 @@ class Stream:
     written under a temporary name beside it and moved into place by :meth:`close`."""
 
     def __init__(self, app_id: str, rrd: Path | None = None):
-        self.rr = _import_rerun()
-        self.rrd, self._tmp = (Path(rrd), Path(rrd).with_name(f".{Path(rrd).name}.{os.getpid()}.tmp")) if rrd else (None, None)
+        self.rr = import_rerun()
+        self.rrd = Path(rrd) if rrd else None
+        self._tmp = begin_atomic_write(self.rrd, ".rrd") if rrd else None
         self.rec = self.rr.RecordingStream(app_id)
         if self.rrd is None:
             self.rec.spawn()
@@ -77,8 +79,7 @@ class Stream:
         self.rec.disconnect()
         if self.rrd is None:
             return None
-        os.replace(self._tmp, self.rrd)
-        return self.rrd
+        return finish_atomic_write(self._tmp, self.rrd)
 
 
 class LiveView:
@@ -108,7 +109,7 @@ class LiveView:
             ri = np.clip((uv[:, 1] + 0.5) * self.rows / self.H, 0, self.rows - 1e-9).astype(int)
             np.add.at(self.counts, (ri, ci), 1)
             heat = self.counts / self.counts.max()
-            img = _viridis(heat.ravel()).reshape(self.rows, GRID_COLS, 3)
+            img = viridis(heat.ravel()).reshape(self.rows, GRID_COLS, 3)
             img[self.counts == 0] = 0
             rec.log("coverage", rr.Image(np.repeat(np.repeat(img, CELL_PX, axis=0), CELL_PX, axis=1)))
             rec.log("log", rr.TextLog(status.line(self.fx_px)))
@@ -162,10 +163,10 @@ class CaptureView:
         self.k = 0
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for e, length in (("world/flange", 0.08), ("world/board", 0.05), ("world/next_pose", 0.12)):
-            rec.log(f"{e}/axes", _axes(rr, length), static=True)
+            rec.log(f"{e}/axes", axes(rr, length), static=True)
 
     def _pose(self, entity: str, T) -> None:
-        self.rec.log(entity, _pose(self.rr, np.asarray(T, float)))
+        self.rec.log(entity, pose(self.rr, np.asarray(T, float)))
 
     def frames(self, k: int, T_base_flange, images: dict, found: dict, why: dict) -> None:
         """One grab: ``images`` camera -> frame, ``found`` camera -> uv_px (N,2) or None, ``why`` camera -> reason."""
@@ -202,7 +203,7 @@ class CaptureView:
         for c, (T, mm, deg) in estimates.items():
             if T is not None:
                 self._pose(f"{self.cam_root}/{c}", T)
-                rec.log(f"{self.cam_root}/{c}/axes", _axes(rr, 0.1))
+                rec.log(f"{self.cam_root}/{c}/axes", axes(rr, 0.1))
             if mm is not None and np.isfinite(mm):
                 rec.log(f"sigma/{c}/mm", rr.Scalars(float(mm)))
             if deg is not None and np.isfinite(deg):

@@ -57,7 +57,7 @@ PLAN_LOG_NAME = "plan_log.json"  # as written by calibgraph.acquire.auto
 RESIDUAL_GAIN = 20.0  # residual vectors are sub-pixel: magnify to see their pattern
 
 
-def _import_rerun():
+def import_rerun():
     try:
         import rerun as rr
     except ImportError:
@@ -65,11 +65,11 @@ def _import_rerun():
     return rr
 
 
-def _axes(rr, length_m: float):
+def axes(rr, length_m: float):
     return rr.Arrows3D(vectors=np.eye(3) * length_m, colors=[(230, 0, 0), (0, 200, 0), (0, 80, 255)])
 
 
-def _pose(rr, T):
+def pose(rr, T):
     T = np.asarray(T, float)
     return rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3])
 
@@ -77,7 +77,7 @@ def _pose(rr, T):
 def log_result(rec, result, source=None) -> None:
     """Log a :class:`~calibgraph.solver.result.Result` and optionally its Problem/Dataset into a
     rerun RecordingStream ``rec``."""
-    rr = _import_rerun()
+    rr = import_rerun()
     result = as_result(result, "view")
     obs = observations(source) if source is not None else None
     ref = result.ref_frame
@@ -85,7 +85,7 @@ def log_result(rec, result, source=None) -> None:
     names = list(result.calibrated)
 
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    rec.log("world/robot_base", _axes(rr, 0.2), static=True)
+    rec.log("world/robot_base", axes(rr, 0.2), static=True)
 
     # flange poses: refined ones from the result, else the recorded ones
     flange = dict(result.T_base_flange_est)
@@ -94,7 +94,7 @@ def log_result(rec, result, source=None) -> None:
     if flange:
         P = np.array([T[:3, 3] for _, T in sorted(flange.items())])
         rec.log("world/flange_path", rr.Points3D(P, radii=0.004, colors=(150, 150, 150)), static=True)
-        rec.log("world/flange", _axes(rr, 0.08), static=True)
+        rec.log("world/flange", axes(rr, 0.08), static=True)
 
     pts = obs["points_board_m"] if obs is not None else None
     T_mount = result.T_mount_board
@@ -102,8 +102,8 @@ def log_result(rec, result, source=None) -> None:
         T_mount = next((c.T_mount_board for c in result.cameras.values() if c.T_mount_board is not None), None)
     board_path = "world/board" if eih else "world/flange/board"
     if T_mount is not None:
-        rec.log(board_path, _pose(rr, T_mount), static=True)
-        rec.log(board_path + "/axes", _axes(rr, 0.05), static=True)
+        rec.log(board_path, pose(rr, T_mount), static=True)
+        rec.log(board_path + "/axes", axes(rr, 0.05), static=True)
         if pts is not None:
             rec.log(board_path + "/points", rr.Points3D(pts, radii=0.003, colors=(20, 20, 20)), static=True)
 
@@ -111,8 +111,8 @@ def log_result(rec, result, source=None) -> None:
     intr = {}
     for n, c in result.calibrated.items():
         T = c.T_ref_cam
-        rec.log(f"{cam_root}/{n}", _pose(rr, T), static=True)
-        rec.log(f"{cam_root}/{n}/axes", _axes(rr, 0.1), static=True)
+        rec.log(f"{cam_root}/{n}", pose(rr, T), static=True)
+        rec.log(f"{cam_root}/{n}/axes", axes(rr, 0.1), static=True)
         K = c.solved_intrinsics or (obs["cameras"].get(n) if obs is not None else None)
         intr[n] = K
         if K is not None:
@@ -140,7 +140,7 @@ def log_result(rec, result, source=None) -> None:
     for k in caps:
         rec.set_time("capture", sequence=k)
         if k in flange:
-            rec.log("world/flange", _pose(rr, flange[k]))
+            rec.log("world/flange", pose(rr, flange[k]))
         for n in names:
             _log_view(rec, rr, f"{cam_root}/{n}/image", n, k, (residuals.get(n) or {}).get(k), images.get((n, k)),
                       intr.get(n))
@@ -215,7 +215,7 @@ def _load_plan_log(plan_log) -> dict | None:
         raise InputError(f"{plan_log}: cannot read the plan log ({type(e).__name__}: {e}).") from None
 
 
-def _viridis(x) -> np.ndarray:
+def viridis(x) -> np.ndarray:
     """(N, 3) uint8 viridis colours of scores scaled to [0, 1]."""
     return np.array([[int(c[i:i + 2], 16) for i in (1, 3, 5)] for c in map(colormap, x)], np.uint8).reshape(-1, 3)
 
@@ -228,7 +228,7 @@ def plan_points(step: dict):
     score = np.array([c.get("score", 0.0) for c in cands], float)
     if len(score):
         lo, hi = float(score.min()), float(score.max())
-        colours = _viridis((score - lo) / (hi - lo) if hi > lo else np.ones_like(score))
+        colours = viridis((score - lo) / (hi - lo) if hi > lo else np.ones_like(score))
     else:
         colours = np.zeros((0, 3), np.uint8)
     chosen = step.get("chosen_board_centre_m") or step.get("board_centre_m")
@@ -241,7 +241,7 @@ def log_plan(rec, plan_log) -> int:
     """Log an autonomous run's plan (``plan_log.json`` dict or path) into the rerun RecordingStream
     ``rec``: per step the candidates coloured by score and the chosen pose (see the module
     docstring). Returns the number of steps logged."""
-    rr = _import_rerun()
+    rr = import_rerun()
     log = _load_plan_log(plan_log) or {}
     names = list(log.get("cameras") or [])
     for i, n in enumerate(names):
@@ -314,7 +314,7 @@ def write_rrd(result, problem_or_dataset=None, path="calibgraph.rrd", plan_log=N
     adds the autonomous run's candidates and choices (:func:`log_plan`).
     The file is written without a viewer; open it with ``rerun path``.
     """
-    rr = _import_rerun()
+    rr = import_rerun()
     R = as_result(result, "view")
     plan = _load_plan_log(plan_log if plan_log is not None else plan_log_path(problem_or_dataset))
 

@@ -46,7 +46,7 @@ def fk_noise(opts, mode: str = "eye_to_hand", T_ref_mount: np.ndarray | None = N
     return gtsam.noiseModel.Gaussian.SqrtInformation(np.diag(1.0 / s) @ gtsam.Pose3(T_ref_mount).AdjointMap(), False)
 
 
-def _cross_rows(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+def cross_rows(a: np.ndarray, p: np.ndarray) -> np.ndarray:
     """cross(a[n, r], p[n]) for a (N, 2, 3) and p (N, 3), without np.cross's axis shuffling."""
     px, py, pz = p[:, None, 0], p[:, None, 1], p[:, None, 2]
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
@@ -88,14 +88,14 @@ def view_residual(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px, intr:
     n = p_board_m.shape[0]
     # Row vector a^T [p]x equals cross(a, p), so every "J @ skew(p)" below is a batched cross product.
     # camera (right perturbation of T_ref_cam): d p_c = [p_c]x omega - v
-    H_c = np.concatenate([_cross_rows(Jp, p_c), -Jp], axis=2)
+    H_c = np.concatenate([cross_rows(Jp, p_c), -Jp], axis=2)
     # robot pose: d p_r = R_rm(-[p_m]x omega + v), d p_c = R_rc^T d p_r
     R_cm = R_rc.T @ R_rm
     JF = Jp @ R_cm
-    H_f = np.concatenate([-_cross_rows(JF, p_m), JF], axis=2)
+    H_f = np.concatenate([-cross_rows(JF, p_m), JF], axis=2)
     # mount: d p_m = R_mb(-[p_b]x omega + v)
     JB = JF @ R_mb
-    H_b = np.concatenate([-_cross_rows(JB, p_board_m), JB], axis=2)
+    H_b = np.concatenate([-cross_rows(JB, p_board_m), JB], axis=2)
     H_c, H_f, H_b = (H.reshape(2 * n, 6) for H in (H_c, H_f, H_b))
     return e, (H_c, H_f, H_b)
 
@@ -188,7 +188,7 @@ def intrinsics_vector(intr: Intrinsics, n: int = 6) -> np.ndarray:
     return np.concatenate([[intr.K[0, 0], intr.K[1, 1], intr.K[0, 2], intr.K[1, 2]], intr.dist8[:n - 4]])
 
 
-def _distortion_columns(x, y, dist8, fx, fy, s, n: int) -> np.ndarray:
+def distortion_columns(x, y, dist8, fx, fy, s, n: int) -> np.ndarray:
     """(N, 2, n - 4) d(u, v) / d(k1, k2[, p1, p2[, k3]]) at undistorted normalised points (x, y)
     (u = fx x_d + s y_d + cx, v = fy y_d + cy; ``dist8`` (8,) or (8, N), skew ``s``)."""
     dx, dy = distortion_partials(x, y, dist8, n - 4)
@@ -217,7 +217,7 @@ def _intrinsics_jacobian(T_ref_cam, T_ref_mount, T_mount_board, p_board_m, uv_px
     Jk[:, 0, 2] = 1.0
     Jk[:, 1, 1] = yd
     Jk[:, 1, 3] = 1.0
-    Jk[:, :, 4:] = _distortion_columns(x, y, cur.dist8, fx, fy, s, m)
+    Jk[:, :, 4:] = distortion_columns(x, y, cur.dist8, fx, fy, s, m)
     return (Jk * sqrt_w[:, None, None]).reshape(2 * n, m)
 
 
@@ -435,7 +435,7 @@ def make_view_factors(key_mount, key_scale, captures: list) -> list:
                 x, y, xd, yd = aux[:4]
                 J = Jk[ch]
                 J[:, 0, 0], J[:, 0, 2], J[:, 1, 1], J[:, 1, 3] = xd, 1.0, yd, 1.0
-                J[:, :, 4:] = _distortion_columns(x, y, dist_c, fx, fy, skew, m_intr)
+                J[:, :, 4:] = distortion_columns(x, y, dist_c, fx, fy, skew, m_intr)
                 J *= sw[:, None, None]
         if shifted.any():  # on the shared key F: F Exp(xi) D = F D Exp(Ad(D^-1) xi)
             at = shifted[cap[vi]]

@@ -38,7 +38,7 @@ import numpy as np
 
 from calibgraph.core.camera import project_points
 from calibgraph.core.transforms import exp_so3, inv
-from calibgraph.solver.factors import _cross_rows, _distortion_columns
+from calibgraph.solver.factors import cross_rows, distortion_columns
 from calibgraph.solver.noise_model import N_MODES
 
 EPS = 1e-6
@@ -233,17 +233,17 @@ def _analytic_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, 
         return np.concatenate(blocks, axis=2).reshape(2 * N, -1)
 
     if mode == "eye_in_hand":  # T_ref_mount = (T_bf D(e))^-1: d q = [q]x w - v
-        J_robot = rows(_cross_rows(JR, q), -JR)
+        J_robot = rows(cross_rows(JR, q), -JR)
     else:  # T_ref_mount = T_bf D(e): d q = R_rm (-[p_m]x w + v)
-        J_robot = rows(-_cross_rows(JF, p_m), JF)
+        J_robot = rows(-cross_rows(JF, p_m), JF)
     J_cal = J_X = J_M = None
     if joint:
-        blocks = [_cross_rows(Jp, p_c), -Jp, -_cross_rows(JB, P), JB]
+        blocks = [cross_rows(Jp, p_c), -Jp, -cross_rows(JB, P), JB]
         if n_k:
             x, y, xd, yd = aux[:4]
             Jk = np.zeros((N, 2, n_k))
             Jk[:, 0, 0], Jk[:, 0, 2], Jk[:, 1, 1], Jk[:, 1, 3] = xd, 1.0, yd, 1.0
-            Jk[:, :, 4:] = _distortion_columns(x, y, intr.dist8, K[0, 0], K[1, 1], K[0, 1], n_k)
+            Jk[:, :, 4:] = distortion_columns(x, y, intr.dist8, K[0, 0], K[1, 1], K[0, 1], n_k)
             blocks.append(Jk)
         if has_scale:
             blocks.append(np.einsum("nij,nj->ni", JB, P)[:, :, None] / board_scale)
@@ -251,8 +251,8 @@ def _analytic_jacobians(mode, intr, X, M, n_k, has_scale, board_scale, T_bf, P, 
             blocks.append(J_robot.reshape(N, 2, 6) @ J_o[which])
         J_cal = rows(*blocks)
     else:
-        J_X = rows(_cross_rows(JR, q - t_c), -JR)  # X = (exp(w) R_c, t_c + v)
-        J_M = rows(-_cross_rows(JF, p_m - t_b), JF)  # M = (exp(w) R_b, t_b + v)
+        J_X = rows(cross_rows(JR, q - t_c), -JR)  # X = (exp(w) R_c, t_c + v)
+        J_M = rows(-cross_rows(JF, p_m - t_b), JF)  # M = (exp(w) R_b, t_b + v)
     return J_robot, J_cal, J_X, J_M, p_c[:, 2]
 
 
