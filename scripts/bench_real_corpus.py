@@ -549,7 +549,7 @@ def main(argv=None) -> int:
     py, why = bh.ensure_cv4_python(args.work, args.cv4_python)
     if py is None:
         print(f"OpenCV peers skipped: {why}", file=sys.stderr)
-    commit, code = _commit(), code_hash()
+    commit, code = args.commit or _commit(), code_hash()  # --commit: a run from a copy of a tree (no git there)
     todo = sorted((e for e in cat if e["name"] in names), key=cost)
     t0 = time.time()
     (args.work / "logs").mkdir(parents=True, exist_ok=True)
