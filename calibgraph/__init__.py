@@ -46,10 +46,10 @@ from calibgraph.io.specs import load_target
 from calibgraph.plan.planner import plan_trajectory
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose, load_trajectory
 from calibgraph.plan.visibility import board_visibility
-from calibgraph.solver.batch import solve
-from calibgraph.solver.build import build_problem
-from calibgraph.solver.incremental import IncrementalSolver
-from calibgraph.solver.result import CameraResult, PairResult, Result, load_result, load_result_dict
+from calibgraph.solver.solve.batch import solve
+from calibgraph.solver.solve.build import build_problem
+from calibgraph.solver.solve.incremental import IncrementalSolver
+from calibgraph.solver.output.result import CameraResult, PairResult, Result, load_result, load_result_dict
 
 __all__ = [
     "CalibgraphError", "CameraResult", "Capture", "Dataset", "Detection", "DetectionError", "ImageDetection",

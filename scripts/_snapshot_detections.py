@@ -22,7 +22,8 @@ from calibgraph.core.targets import Target  # noqa: E402
 from calibgraph.detect.dataset import dataset_detector  # noqa: E402
 from calibgraph.detect.search import detect_image  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
-from calibgraph.solver.build import GuidedDatasetDetector  # noqa: E402
+from calibgraph.detect.guided_dataset import GuidedDatasetDetector  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
 
 res = {}
 
@@ -56,7 +57,7 @@ if os.path.isdir(f"{shared}/rct_static_camera_charuco"):
 if os.path.isdir(f"{shared}/mchec_medium_workcell"):
     ds = load_dataset(copy("mchec_medium_workcell"))
     timed("mchec_guided (solve's detection)", lambda: {f"{k[0]}/{k[1]}": rec(v) for k, v in
-                                                      GuidedDatasetDetector(ds, progress=False, cache=False).run().items()})
+                                                      GuidedDatasetDetector(ds, progress=False, cache=False, coarse_solve=solve).run().items()})
     ds = load_dataset(copy("mchec_medium_workcell"))
     views = {(v.camera, v.capture) for v in ds.views if v.capture % 25 == 0}
     timed("mchec_blind every 25th capture", lambda: {f"{k[0]}/{k[1]}": rec(v) for k, v in dataset_detector(

@@ -45,7 +45,7 @@ from bench_planning import mixed_cell  # noqa: E402
 from calibgraph.core.transforms import log_so3, pose_error  # noqa: E402
 from calibgraph.io.ground_truth import load_ground_truth  # noqa: E402
 from calibgraph.plan.active import sigma_norms  # noqa: E402
-from calibgraph.solver.result import load_result  # noqa: E402
+from calibgraph.solver.output.result import load_result  # noqa: E402
 
 
 def _judge(result_path: Path, gt_dir: Path) -> dict:

@@ -37,9 +37,9 @@ import numpy as np
 
 from calibgraph.core.transforms import pose_error
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver.batch import solve
-from calibgraph.solver.intrinsics_model import parameter_vector, with_parameters
-from calibgraph.solver.session_plan import predict_session_covariance
+from calibgraph.solver.solve.batch import solve
+from calibgraph.solver.camera.intrinsics_model import parameter_vector, with_parameters
+from calibgraph.solver.camera.session_plan import predict_session_covariance
 
 CELLS = {
     "demo: 3 x L515 at 3 m, 30 poses": dict(cameras=ring_cameras([3.0] * 3, presets=("l515",)), n_poses=30),

@@ -49,7 +49,7 @@ from calibgraph.io.files import read_yaml  # noqa: E402
 from calibgraph.plan import active  # noqa: E402
 from calibgraph.plan.active import sigma_norms  # noqa: E402
 from calibgraph.plan.cell import cell_from_world_dict  # noqa: E402
-from calibgraph.solver.incremental import IncrementalSolver  # noqa: E402
+from calibgraph.solver.solve.incremental import IncrementalSolver  # noqa: E402
 from calibgraph.sim.planning_world import planning_world  # noqa: E402
 from calibgraph.sim.render import SimWorld  # noqa: E402
 from calibgraph.sim.corner_devices import corner_devices  # noqa: E402

@@ -43,8 +43,8 @@ sys.path.insert(0, str(REPO))
 
 from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.sim.arm_error import arm_error_scene  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
-from calibgraph.solver.prediction import predicted_uv  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
+from calibgraph.solver.uncertainty.prediction import predicted_uv  # noqa: E402
 
 CELLS = ("eye_in_hand:8", "eye_in_hand:12", "eye_in_hand:36", "eye_in_hand:36d",
          "eye_to_hand:8", "eye_to_hand:12", "eye_to_hand:36", "eye_to_hand:36d")
@@ -80,7 +80,7 @@ def held_out(result, test, mode: str) -> tuple[list, list]:
         # joint angles, as the result's prediction (predicted_from 'joint angles') assumes
         from dataclasses import replace
 
-        from calibgraph.solver import kinematics as kin
+        from calibgraph.solver.robot import kinematics as kin
         ks = kin.setup(test.with_(options=replace(test.options, kinematics="joint-offsets")))
         flange = {k: T for k, (T, _) in kin.corrected_flange_poses(ks, offsets).items()}
     for name, c in result.cameras.items():

@@ -39,7 +39,7 @@ sys.path.insert(0, str(REPO))
 
 from calibgraph.core.transforms import log_so3  # noqa: E402
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
 
 CASES = ("cameras", "cameras_mild", "views", "uniform")
 MODELS = {"one sigma": "one", "per camera": "per-camera", "per view": "per-view"}  # SolverOptions.corner_noise

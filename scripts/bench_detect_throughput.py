@@ -233,7 +233,7 @@ def accuracy(root: Path, out_dir: Path) -> dict:
 _DETECT_SNIPPET = """
 import json, sys
 from calibgraph.io.layouts import load_dataset
-from calibgraph.solver.build import build_problem
+from calibgraph.solver.solve.build import build_problem
 _, det = build_problem(load_dataset(sys.argv[1]), progress=False)
 json.dump({f"{c}|{k}": [d.ids.tolist(), d.uv_px.tolist()] for (c, k), d in det.results.items() if d.ok},
           open(sys.argv[2], "w"))

@@ -46,8 +46,8 @@ def run_path(refine, solve: bool = False):
     import calibgraph.cli.solve as cli_solve
     import calibgraph.detect.search as search
     import calibgraph.io.layouts as layouts
-    import calibgraph.solver.batch as batch
-    import calibgraph.solver.build as build
+    import calibgraph.solver.solve.batch as batch
+    import calibgraph.detect.guided_dataset as build
     from calibgraph.cli.main import build_parser
 
     real = search.refine_checkerboard
@@ -58,7 +58,7 @@ def run_path(refine, solve: bool = False):
         shutil.copytree(DATA, ds_dir)
         ds = layouts.load_dataset(ds_dir)
         opts = cli_solve.solver_options(build_parser().parse_args(["solve", str(ds_dir), "--quiet"]), ds)
-        det = build.GuidedDatasetDetector(ds, progress=False, method="joint", options=opts)
+        det = build.GuidedDatasetDetector(ds, progress=False, method="joint", options=opts, coarse_solve=batch.solve)
         results = det.run()
         return results, batch.solve(ds.to_problem(method="joint", options=opts, detector=det)) if solve else None
     finally:

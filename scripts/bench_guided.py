@@ -36,8 +36,8 @@ from calibgraph.core.transforms import log_so3  # noqa: E402
 from calibgraph.io.dataset import image_relpath, write_capture, write_header  # noqa: E402
 from calibgraph.io.ground_truth import load_ground_truth  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
-from calibgraph.solver.build import build_problem  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
+from calibgraph.solver.solve.build import build_problem  # noqa: E402
 
 
 def make_recording(root: Path, n_poses: int, seed: int) -> Path:

@@ -119,11 +119,11 @@ from calibgraph.detect.search import detect_image  # noqa: E402
 from calibgraph.core.transforms import inv, log_so3, make_T, project_to_so3  # noqa: E402
 from calibgraph.io.dataset import write_problem  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
-from calibgraph.solver.build import build_problem  # noqa: E402
-from calibgraph.solver.kinematics import corrected_flange_poses  # noqa: E402
-from calibgraph.solver.kinematics import setup as kin_setup  # noqa: E402
-from calibgraph.solver.prediction import predicted_uv  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
+from calibgraph.solver.solve.build import build_problem  # noqa: E402
+from calibgraph.solver.robot.kinematics import corrected_flange_poses  # noqa: E402
+from calibgraph.solver.robot.kinematics import setup as kin_setup  # noqa: E402
+from calibgraph.solver.uncertainty.prediction import predicted_uv  # noqa: E402
 from calibgraph.sim.kinematic_scene import make_kinematic_scene  # noqa: E402
 from calibgraph.sim.synthetic_corners import make_scene  # noqa: E402
 

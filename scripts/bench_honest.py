@@ -31,8 +31,8 @@ sys.path.insert(0, str(REPO))
 from calibgraph.core.transforms import log_so3  # noqa: E402
 from calibgraph.io.ground_truth import load_ground_truth  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
-from calibgraph.solver.build import build_problem  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
+from calibgraph.solver.solve.build import build_problem  # noqa: E402
 
 # name -> (workcell builder kwargs, poses)
 CELLS = {

@@ -6,7 +6,7 @@ and what the joint hand-eye solve gets from each kind of intrinsics input, per c
     model's typical distortion) and board (the thesis's 5x4 squares of 46 mm, the A4 7x10 squares of
     25 mm): 25 images at 0.3-0.8 m rendered through the full camera model
     (calibgraph.sim.session: render_view + the simulator's blur, noise and exposure), detected with
-    calibgraph's detector and calibrated (calibgraph.solver.intrinsics_session). Errors against the
+    calibgraph's detector and calibrated (calibgraph.solver.camera.intrinsics_session). Errors against the
     true intrinsics, error / reported 1-sigma.
 (b) Joint hand-eye solve, 3 x D455 on a ring at 1.5 / 3 / 5 m, thesis board, 90 poses spread over
     +-0.4 m (and +-0.15 m at 5 m), synthetic corners (0.1 px, calibgraph.sim.synth.make_scene), FK
@@ -47,10 +47,10 @@ from calibgraph.io.camera_file import read_camera_file  # noqa: E402
 from calibgraph.sim.session import render_session_image, simulate_intrinsics_session  # noqa: E402
 from calibgraph.sim.synth import make_scene, ring_cameras  # noqa: E402
 from calibgraph.sim.workcell import Realism  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
-from calibgraph.solver.intrinsics_model import parameter_vector  # noqa: E402
-from calibgraph.solver.intrinsics_session import SessionView, calibrate_views  # noqa: E402
-from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance, session_poses  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
+from calibgraph.solver.camera.intrinsics_model import parameter_vector  # noqa: E402
+from calibgraph.solver.camera.intrinsics_session import SessionView, calibrate_views  # noqa: E402
+from calibgraph.solver.camera.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance, session_poses  # noqa: E402
 
 CAMERAS = ("d455", "l515", "kinect_v2")
 # typical colour-stream distortion (k1, k2, p1, p2, k3) of each model
@@ -342,7 +342,7 @@ def markdown(doc: dict) -> str:
 
 
 def timing() -> dict:
-    from calibgraph.solver import session_plan
+    from calibgraph.solver.camera import session_plan
 
     intr = true_camera("d455", 0)
     first, again = [], []

@@ -46,8 +46,8 @@ sys.path.insert(0, str(REPO))
 from calibgraph.core.kinematics import franka_chain  # noqa: E402
 from calibgraph.core.transforms import pose_error  # noqa: E402
 from calibgraph.sim.kinematic_scene import make_kinematic_scene  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
-from calibgraph.solver.kinematics import STAGE1_FK_INFLATION as STAGE1  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
+from calibgraph.solver.robot.kinematics import STAGE1_FK_INFLATION as STAGE1  # noqa: E402
 
 OUT = REPO / "scripts" / "results"
 
@@ -289,7 +289,7 @@ def stress_staging(cell: str, seeds, n: int = 60, lo: float = 5e-3, hi: float = 
 
 
 def auto_selection(seeds, n: int = 30) -> tuple[str, list]:
-    """The default robot error model (``kinematics='auto'``, calibgraph.solver.kinematics_select) on the
+    """The default robot error model (``kinematics='auto'``, calibgraph.solver.robot.kinematics_select) on the
     synthetic cell (1.5 / 3 / 5 m, factory-class intrinsics reported), three arms: joint offsets of
     0.5-2 mrad on joints 2-6; no offsets but FK errors 3x the stated 0.1 mm / 0.01 deg, independent per
     pose; as stated. Per seed: the model chosen, the cross-validated held-out RMS of each, the paired t,
@@ -367,9 +367,9 @@ def auto_small_sets(seeds) -> tuple[str, list]:
     Sets the threshold ``T_MIN``: the null's lowest t against the offsets' caught at each threshold."""
     from bench_heldout import make_splits
     from calibgraph.core.problem import SolverOptions
-    from calibgraph.solver import kinematics_select as ks
-    from calibgraph.solver.batch import solve_once
-    from calibgraph.solver.moved import solve_minding_moves
+    from calibgraph.solver.robot import kinematics_select as ks
+    from calibgraph.solver.solve.batch import solve_once
+    from calibgraph.solver.changes.moved import solve_minding_moves
 
     stated = SolverOptions(fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=float(np.radians(0.01)), kinematics="none")
     arms = {"joint offsets 0.5-2 mrad": lambda s: make_kinematic_scene(offsets_for(s), n_poses=30, seed=s, pixel_sigma_px=0.1,

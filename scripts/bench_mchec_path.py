@@ -56,11 +56,11 @@ def timed(stage, fn):
             row[0] += w1 - w0; row[1] += c1 - c0; row[2] += 1
     return wrapper
 
-import calibgraph.solver.batch as batch
-import calibgraph.solver.build as build
+import calibgraph.solver.solve.batch as batch
+import calibgraph.detect.guided_dataset as build
 import calibgraph.io.layouts as layouts
 import calibgraph.cli.solve as cli_solve
-from calibgraph.solver import timing
+from calibgraph.solver.fit import timing
 
 # solve = moved-camera test around solve_once; solve_once = start + optimise + widen + assemble
 batch.solve_once = timed("solve_once (start, LM, marginals)", batch.solve_once)
@@ -106,9 +106,9 @@ try:
     from calibgraph.cli.main import build_parser
     opts = cli_solve.solver_options(build_parser().parse_args(["solve", str(ds_dir), "--quiet"]), ds)
     det = stage("detect (decode, probe, blind + guided search, board fit, coarse solves)",
-                lambda: build.GuidedDatasetDetector(ds, progress=False, method="joint", options=opts).run())
+                lambda: build.GuidedDatasetDetector(ds, progress=False, method="joint", options=opts, coarse_solve=batch.solve).run())
     # build_problem's own detector is the one just run: the problem from the same detections
-    gdet = build.GuidedDatasetDetector(ds, progress=False, method="joint", options=opts)
+    gdet = build.GuidedDatasetDetector(ds, progress=False, method="joint", options=opts, coarse_solve=batch.solve)
     gdet.results, gdet._done = det, True
     problem = stage("problem from the detections", lambda: ds.to_problem(method="joint", options=opts, detector=gdet))
     sol_t = {}

@@ -51,7 +51,7 @@ sys.path.insert(0, str(REPO))
 from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.core.transforms import exp_so3, pose_error  # noqa: E402
 from calibgraph.sim.synthetic_corners import bump_camera, correlate_corner_noise, make_scene, ring_cameras  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
 
 FK = dict(fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01))
 KNOCKS = [("1 mm", 0.001, 0.0), ("2 mm", 0.002, 0.0), ("5 mm", 0.005, 0.0), ("20 mm", 0.020, 0.0),

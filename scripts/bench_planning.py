@@ -62,7 +62,7 @@ from calibgraph.sim.planning_world import planning_world  # noqa: E402
 from calibgraph.sim.render import SimWorld  # noqa: E402
 from calibgraph.sim.corner_devices import corner_devices  # noqa: E402
 from calibgraph.sim.workcell import workcell_from_dict  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
 
 PIXEL_SIGMA_PX = 0.02
 FACTORY = {"focal_rel_sigma": 0.006, "principal_point_sigma_px": 3.0, "k1_sigma": 0.01, "k2_sigma": 0.01, "seed": 11}

@@ -136,7 +136,7 @@ def claims_of(result) -> dict:
     """The claims a result makes (bench_claims.claims, the board moved, the robot departs), each with the
     note or record that makes it (the first ~240 characters), False when not made."""
     from bench_claims import claims
-    from calibgraph.solver.kinematics_select import robot_departs
+    from calibgraph.solver.robot.kinematics_select import robot_departs
 
     c = claims(result)
     notes = list(result.notes)
@@ -178,7 +178,7 @@ def default_solve(problem, ds) -> dict:
     """The default solve of all captures (``calibgraph solve``'s): per camera views used / given, RMS, the
     1-sigma and ``prediction``; the claims and notes. Returns (record, Result or None)."""
     from calibgraph.core.errors import CalibgraphError
-    from calibgraph.solver.batch import solve
+    from calibgraph.solver.solve.batch import solve
 
     given = {}
     for v in ds.views:
@@ -212,7 +212,7 @@ def run_one(e: dict, work: Path, py: str | None, random_splits: int | None, big:
     from calibgraph.core.errors import CalibgraphError
     from calibgraph.core.problem import SolverOptions
     from calibgraph.io.layouts import load_dataset
-    from calibgraph.solver.build import build_problem
+    from calibgraph.solver.solve.build import build_problem
 
     t0 = time.time()
     rec = {"set": e["name"], "source": e["source"], "how": e["how"]}

@@ -175,7 +175,7 @@ def corner_stats(problem, tc: dict) -> dict:
     ``rms_px``: RMS per axis; ``mean_px``: mean error (u, v); ``pitch_px``: median distance between
     neighbouring corners; ``mode_px2``: the error's energy in the view's six low-order image modes,
     in the rest, and the rest's dof."""
-    from calibgraph.solver.noise_model import view_mode_basis
+    from calibgraph.solver.terms.noise_model import view_mode_basis
 
     out = {}
     for d in problem.detections:
@@ -257,9 +257,9 @@ def solve_case(root: Path, case: str, seed: int) -> dict:
     from calibgraph.core.transforms import log_so3
     from calibgraph.io.ground_truth import load_ground_truth
     from calibgraph.io.layouts import load_dataset
-    from calibgraph.solver.batch import solve
-    from calibgraph.solver.build import build_problem
-    from calibgraph.solver.factors import intrinsics_vector
+    from calibgraph.solver.solve.batch import solve
+    from calibgraph.solver.solve.build import build_problem
+    from calibgraph.solver.terms.factors import intrinsics_vector
 
     gt = load_ground_truth(root)
     ds = load_dataset(root)

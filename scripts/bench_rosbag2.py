@@ -40,8 +40,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from calibgraph.core.transforms import exp_so3, inv, log_so3, make_T  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
-from calibgraph.solver.build import build_problem  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
+from calibgraph.solver.solve.build import build_problem  # noqa: E402
 
 T_7_8 = make_T(np.eye(3), [0.0, 0.0, 0.107])
 

@@ -40,8 +40,8 @@ from dataclasses import replace
 from calibgraph.core.transforms import pose_error  # calibgraph before numpy, as the CLI loads them (BLAS threads)
 import numpy as np
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-import calibgraph.solver.batch as batch
-import calibgraph.solver.moved as moved
+import calibgraph.solver.solve.batch as batch
+import calibgraph.solver.changes.moved as moved
 n_cam, n_poses, seed, case, preset, px, ws = (int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4],
                                               sys.argv[5], float(sys.argv[6]), float(sys.argv[7]))
 sc = make_scene(cameras=ring_cameras([3.0] * n_cam, presets=(preset,)), n_poses=n_poses, pixel_sigma_px=px,

@@ -8,7 +8,7 @@ robot poses, corner noise 0.1 / 0.3 / 1 px, forward-kinematics noise 0 or Panda-
 (0.1 mm / 0.01 deg per flange pose). For every configuration it reports, over all cameras and trials:
 
 * translation / rotation error of ``T_base_cam`` vs truth (median, 95th percentile);
-* the Cramer-Rao bound (:func:`calibgraph.solver.covariance.crlb`, inverse Fisher information at the truth with
+* the Cramer-Rao bound (:func:`calibgraph.solver.uncertainty.covariance.crlb`, inverse Fisher information at the truth with
   the true pixel sigma): ``sqrt(trace)`` of the translation and rotation blocks;
 * error / CRLB = pooled RMS error / RMS CRLB sigma (1.0 = efficient estimator), and the solver's
   own reported sigma checked the same way (error / reported sigma, 1.0 = honest covariance);
@@ -61,11 +61,11 @@ from calibgraph.core.problem import SolverOptions  # noqa: E402
 from calibgraph.core.targets import a4_board_54, thesis_board  # noqa: E402
 from calibgraph.core.transforms import inv, make_T, pose_error  # noqa: E402
 from calibgraph.sim.synthetic_corners import Scene, make_scene, ring_cameras  # noqa: E402
-from calibgraph.solver.batch import STAGES, solve  # noqa: E402
-from calibgraph.solver.covariance import crlb  # noqa: E402
-from calibgraph.solver.graph import Estimate, build_graph, levenberg_marquardt  # noqa: E402
-from calibgraph.solver.views import prepare_views  # noqa: E402
-from calibgraph.solver.keys import C  # noqa: E402
+from calibgraph.solver.solve.batch import STAGES, solve  # noqa: E402
+from calibgraph.solver.uncertainty.covariance import crlb  # noqa: E402
+from calibgraph.solver.fit.graph import Estimate, build_graph, levenberg_marquardt  # noqa: E402
+from calibgraph.solver.terms.views import prepare_views  # noqa: E402
+from calibgraph.solver.terms.keys import C  # noqa: E402
 
 DISTANCES_M = (1.5, 3.0, 5.0)
 PRESETS = ("d455", "l515")
@@ -195,7 +195,7 @@ def mle_from_truth(problem, truth, pixel_sigma_px) -> dict | None:
     """Reference estimator: plain least squares (known pixel sigma, no robust loss, no view screening)
     started at the truth. Its error vs the CRLB says how far the *problem* is from the bound in small
     samples (nonlinearity); solve() vs this says how much the solver's own machinery costs. Built
-    from the solver's internal API (calibgraph.solver.graph); None when the LM run fails."""
+    from the solver's internal API (calibgraph.solver.fit.graph); None when the LM run fails."""
     views, _ = prepare_views(problem)
     names = list(problem.cameras)
     slots = {n: i for i, n in enumerate(names)}
@@ -404,7 +404,7 @@ def time_batch(cfg: Config, repeats: int, seed: int, n_cams: int = 3, formulatio
     for _ in range(repeats):
         c0 = time.process_time()
         timings = {}
-        res = solve(prob, timings=timings)  # the solver times its own stages (solver.batch.STAGES)
+        res = solve(prob, timings=timings)  # the solver times its own stages (solver.solve.batch.STAGES)
         cpu = time.process_time() - c0
         stages = {k: timings.get(k, 0.0) for k in STAGES}
         stages["other"] = res.solve_time_s - sum(stages.values())
@@ -430,9 +430,9 @@ def _safe(f, *a, **k) -> dict:
 
 def time_incremental(cfg: Config, seed: int) -> dict:
     try:
-        from calibgraph.solver.incremental import IncrementalSolver
+        from calibgraph.solver.solve.incremental import IncrementalSolver
     except ImportError as e:
-        return {"status": f"pending: calibgraph.solver.incremental not importable ({e})"}
+        return {"status": f"pending: calibgraph.solver.solve.incremental not importable ({e})"}
     scene = _scene(cfg, seed)
     prob, truth = scene.problem, scene.truth
     by_cap = {}

@@ -124,7 +124,7 @@ def solve_and_score(problem, gt):
     """Solve; return per-camera/pair errors or the reason it failed."""
     from calibgraph.core.errors import CalibgraphError
     from calibgraph.core.transforms import inv, pose_error
-    from calibgraph.solver.batch import solve
+    from calibgraph.solver.solve.batch import solve
 
     try:
         res = solve(problem)

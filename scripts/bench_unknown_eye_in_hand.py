@@ -47,7 +47,7 @@ from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.core.targets import Target  # noqa: E402
 from calibgraph.core.transforms import exp_so3, log_so3, make_T  # noqa: E402
 from calibgraph.sim.synthetic_corners import make_scene  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
 
 WIDTH, HEIGHT = 1928, 1208
 BOARDS = {"17x28 at 20 mm": Target(kind="checkerboard", rows=17, cols=28, pitch_m=0.020),

@@ -49,7 +49,7 @@ from calibgraph.core.camera import Intrinsics  # noqa: E402
 from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.core.transforms import exp_so3, log_so3, make_T  # noqa: E402
 from calibgraph.sim.synthetic_corners import make_scene  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
 
 FK = dict(fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=float(np.radians(0.01)))
 CHI2_6_95, CHI2_6_99 = 12.592, 16.812
@@ -162,7 +162,7 @@ def main(argv=None) -> int:
     ap.add_argument("--oracle", action="store_true", help="the camera judged given its true intrinsics (held exact)")
     a = ap.parse_args(argv)
     if a.min_views is not None:
-        import calibgraph.solver.start as start
+        import calibgraph.solver.fit.start as start
         start.MIN_VIEWS_FOR_INTRINSICS = a.min_views
     t0 = time.time()
     raw, sums = {}, []

@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from calibgraph.core.transforms import exp_so3, make_T  # noqa: E402
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras  # noqa: E402
-from calibgraph.solver.batch import solve  # noqa: E402
-from calibgraph.solver.result import Result  # noqa: E402
-from calibgraph.solver.verify import chi2_isf_6, stored_model, verify  # noqa: E402
+from calibgraph.solver.solve.batch import solve  # noqa: E402
+from calibgraph.solver.output.result import Result  # noqa: E402
+from calibgraph.solver.changes.verify import chi2_isf_6, stored_model, verify  # noqa: E402
 from calibgraph.plan.verify import choose_verify_poses  # noqa: E402
 
 FK_T, FK_R = 1e-4, float(np.radians(0.01))

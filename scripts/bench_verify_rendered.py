@@ -35,8 +35,8 @@ from calibgraph.sim.planning_world import planning_world  # noqa: E402
 from calibgraph.sim.render import SimWorld  # noqa: E402
 from calibgraph.sim.rendered_dataset import VisibilityGatedDetector  # noqa: E402
 from calibgraph.sim.workcell import workcell_from_dict  # noqa: E402
-from calibgraph.solver.result import load_result  # noqa: E402
-from calibgraph.solver.verify import chi2_isf_6  # noqa: E402
+from calibgraph.solver.output.result import load_result  # noqa: E402
+from calibgraph.solver.changes.verify import chi2_isf_6  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 WORLD = REPO / "datasets" / "workcells" / "default.yaml"

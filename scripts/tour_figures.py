@@ -69,7 +69,7 @@ def camera_figures(result_path: Path, dataset: Path) -> dict:
     """camera -> figures of one solved run against its ground truth: what ``calibgraph check`` prints."""
     from calibgraph.io.ground_truth import load_ground_truth
     from calibgraph.report.truth import check_against_truth
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.output.result import load_result
 
     r = load_result(result_path)
     out = {}
@@ -91,7 +91,7 @@ def camera_figures(result_path: Path, dataset: Path) -> dict:
 
 def run_figures(result_path: Path) -> dict:
     """The run-level figures the README prints beside the table: rejected corners, the pixel sigma."""
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.output.result import load_result
 
     r = load_result(result_path)
     return {"rejected_corners": len(r.rejected_corners), "pixel_sigma_px": round(float(r.pixel_sigma_px), 4)}

@@ -22,7 +22,7 @@ from calibgraph.core.targets import a4_board_54
 from calibgraph.core.transforms import exp_so3, make_T
 from calibgraph.io.dataset import write_problem
 from calibgraph.sim.synthetic_corners import make_scene
-from calibgraph.solver.result import Result
+from calibgraph.solver.output.result import Result
 
 REPO = Path(__file__).resolve().parents[1]
 

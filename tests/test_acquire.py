@@ -303,7 +303,7 @@ def test_sha256_of_a_plain_trajectory_is_unchanged():
 
 
 def test_incremental_solver_plugs_in_as_on_capture(tmp_path):
-    inc_mod = pytest.importorskip("calibgraph.solver.incremental")
+    inc_mod = pytest.importorskip("calibgraph.solver.solve.incremental")
     cell = make_fake_cell(n_cameras=3, n_poses=15, seed=0)
     inc = inc_mod.IncrementalSolver(cell.target.points_board_m, {c.name: c.intrinsics() for c in cell.cameras})
     lines = []

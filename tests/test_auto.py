@@ -205,7 +205,7 @@ def test_joint_model_is_the_solver_linearised_covariance(source):
     """The planner's model of the graph (cameras sharing each capture's flange under the FK prior,
     the mount, the board scale, and each camera's model [fx, fy, cx, cy, k1, k2] under the prior of
     its source when the solver estimates it) gives each camera the covariance the batch solver's own
-    graph gives at the same values (:func:`calibgraph.solver.covariance.crlb`), with a candidate
+    graph gives at the same values (:func:`calibgraph.solver.uncertainty.covariance.crlb`), with a candidate
     capture or without: its predictions are the solver's, not an approximation of it."""
     from dataclasses import replace
 
@@ -214,7 +214,7 @@ def test_joint_model_is_the_solver_linearised_covariance(source):
     from calibgraph.plan.information import intrinsics_prior
     from calibgraph.plan.visibility import board_visible
     from calibgraph.sim.workcell import workcell_from_dict
-    from calibgraph.solver.covariance import crlb
+    from calibgraph.solver.uncertainty.covariance import crlb
 
     d = read_yaml(DEFAULT, "world")
     cell, wc = cell_from_world_dict(d, "world"), workcell_from_dict(d, "world")
@@ -277,7 +277,7 @@ def test_camera_position_hypothesis_resolves_the_mirror_of_an_oblique_view():
     from that view alone the hypothesis is flagged ambiguous; a second view from another angle
     agrees with the true one only, and a refuted candidate is never returned."""
     from calibgraph.plan.survey import camera_position_hypothesis
-    from calibgraph.solver.initialise import pnp_candidates
+    from calibgraph.solver.terms.initialise import pnp_candidates
 
     intr, tg = preset("l515"), a4_board_54()
     eye = np.array([3.0, 0.0, 0.8])

@@ -534,7 +534,7 @@ def test_export_of_cameras_whose_names_collide_when_sanitised(base, tmp_path):
                  ["export", res, "--format", "urdf", "--format", "opencv-yaml", "--format", "ros2-launch",
                   "--out", out], 0, ["exported as", "kämera", "kåmera"], watch=[res])
     from calibgraph.report.exports import parse_urdf_joints, read_opencv_yaml
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.output.result import load_result
 
     r = load_result(res)
     urdf = (out / "calibgraph_cameras.urdf.xacro").read_text(encoding="utf-8")
@@ -1294,7 +1294,7 @@ def test_i46_forced_joint_offsets_check_the_angles_as_auto_does(tmp_path):
 def test_i46_the_arm_as_stated_is_recorded_in_kinematics_selection(base, tmp_path):
     """Smaller 2: auto keeping the per-pose model said nothing where the selection did not run."""
     from calibgraph.sim.kinematic_scene import make_kinematic_scene
-    from calibgraph.solver.kinematics_select import AS_STATED, NO_ANGLES
+    from calibgraph.solver.robot.kinematics_select import AS_STATED, NO_ANGLES
 
     ds = write_sim_dataset(tmp_path / "ds", make_kinematic_scene(None, n_poses=20, seed=1, pixel_sigma_px=0.1)[0].problem)
     out = tmp_path / "r.json"

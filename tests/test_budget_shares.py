@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver import batch
-from calibgraph.solver.batch import solve
-from calibgraph.solver.budget import budgets, conditioned_variance, doubled_information, share_lines
-from calibgraph.solver.reduced import sigma_with
-from calibgraph.solver.intrinsics_model import parameter_vector, with_parameters
-from calibgraph.solver.keys import C, K
-from calibgraph.solver.session_plan import predict_session_covariance
+from calibgraph.solver.solve import batch
+from calibgraph.solver.solve.batch import solve
+from calibgraph.solver.uncertainty.budget import budgets, conditioned_variance, doubled_information, share_lines
+from calibgraph.solver.terms.reduced import sigma_with
+from calibgraph.solver.camera.intrinsics_model import parameter_vector, with_parameters
+from calibgraph.solver.terms.keys import C, K
+from calibgraph.solver.camera.session_plan import predict_session_covariance
 
 CELLS = {
     "demo 3 x L515 at 3 m": dict(cameras=ring_cameras([3.0] * 3, presets=("l515",)), n_poses=30, pixel_sigma_px=0.05),
@@ -79,8 +79,8 @@ def test_covariance_by_noise_source_sums_to_the_pose_covariance(solved):
 def test_corners_part_is_the_sum_over_the_view_factors(monkeypatch):
     """The corners' part of each camera's covariance is taken as the rest (the covariance less the few
     prior factors' parts), not summed over the many view factors: the same to rounding as the sum."""
-    from calibgraph.solver.covariance import from_ref_axes
-    from calibgraph.solver.reduced import columns
+    from calibgraph.solver.uncertainty.covariance import from_ref_axes
+    from calibgraph.solver.terms.reduced import columns
 
     direct, real = {}, batch.error_budgets
 

@@ -173,7 +173,7 @@ class _Recorder:
 def test_observer_sees_every_grab_and_a_failing_one_costs_nothing(tmp_path):
     from calibgraph.acquire.run import run_acquisition
     from calibgraph.sim.fakes import make_fake_cell
-    from calibgraph.solver.incremental import IncrementalSolver
+    from calibgraph.solver.solve.incremental import IncrementalSolver
 
     cell = make_fake_cell(n_cameras=2, n_poses=6, seed=3)
     inc = IncrementalSolver(cell.target.points_board_m, {c.name: c.intrinsics() for c in cell.cameras})

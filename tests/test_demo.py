@@ -34,7 +34,7 @@ def _ends_with_its_verdict(out, text):
     the worst error / 1σ, recomputed here from the files."""
     from calibgraph.io.ground_truth import load_ground_truth
     from calibgraph.report.html import report_verdicts
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.output.result import load_result
 
     last = text.rstrip().splitlines()[-1]
     R, gt = load_result(out / "result.json"), load_ground_truth(out / "dataset")
@@ -53,7 +53,7 @@ def _ends_with_its_verdict(out, text):
 def test_demo_recovers_ground_truth(tmp_path, capsys):
     require_sim()
     from calibgraph.io.ground_truth import load_ground_truth
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.output.result import load_result
 
     out = tmp_path / "demo"
     rc, _ = _demo(out, capsys, ["--poses", "12"], "trajectory.yaml")
@@ -81,7 +81,7 @@ def test_demo_auto_finishes_like_demo(tmp_path, capsys):
     converged solve."""
     require_sim()
     from calibgraph.report.html import report_verdicts
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.output.result import load_result
 
     out = tmp_path / "demo"
     rc, text = _demo(out, capsys, ["--auto", "--max-poses", "40"], "dataset/plan_log.json")

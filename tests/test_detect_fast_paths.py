@@ -164,7 +164,7 @@ def test_board_fit_jacobian_matches_central_differences(kind):
 def test_render_fast_paths_give_the_same_images_bit_for_bit(monkeypatch):
     import calibgraph.sim.board_image as board_image
     from calibgraph.core.targets import a4_board_54
-    from calibgraph.solver.session_plan import session_poses
+    from calibgraph.solver.camera.session_plan import session_poses
 
     board = a4_board_54()
     lens = Intrinsics(K=INTR.K, dist=np.array([0.05, -0.08, 0.0004, -0.0003, 0.02]), width_px=1920, height_px=1080)

@@ -1,4 +1,4 @@
-"""The robot's error split chosen by held-out captures, and the folds' jackknife (solver/fk_select.py)."""
+"""The robot's error split chosen by held-out captures, and the folds' jackknife (solver/robot/fk_select.py)."""
 
 from dataclasses import replace
 
@@ -6,17 +6,17 @@ import gtsam
 import numpy as np
 import pytest
 
-import calibgraph.solver.fk_select as fk_select
+import calibgraph.solver.robot.fk_select as fk_select
 from calibgraph.core.camera import preset
 from calibgraph.core.problem import Capture, Problem, SolverOptions
 from calibgraph.core.transforms import make_T
 from calibgraph.sim.kinematic_scene import make_kinematic_scene
 from calibgraph.sim.synthetic_corners import make_scene
-from calibgraph.solver.batch import solve
-from calibgraph.solver import optimise
-from calibgraph.solver.fk_check import FkComponent, FkRatio, fk_note, fk_record
-from calibgraph.solver.graph import Estimate
-from calibgraph.solver.views import View
+from calibgraph.solver.solve.batch import solve
+from calibgraph.solver.solve import optimise
+from calibgraph.solver.robot.fk_check import FkComponent, FkRatio, fk_note, fk_record
+from calibgraph.solver.fit.graph import Estimate
+from calibgraph.solver.terms.views import View
 
 
 def _view(cam, k):

@@ -14,12 +14,12 @@ from calibgraph.io.dataset import image_relpath, write_capture, write_header
 from calibgraph.io.layouts import load_dataset
 from calibgraph.sim.board_image import board_texture, render_view
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver.batch import solve
-from calibgraph.solver.build import (
+from calibgraph.solver.solve.batch import solve
+from calibgraph.detect.guided_dataset import (
     GUIDED_MIN_VIEWS,
     GuidedDatasetDetector,
-    build_problem,
 )
+from calibgraph.solver.solve.build import build_problem
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +58,7 @@ def recording(tmp_path_factory):
 
 
 def test_guided_finds_what_blind_finds_and_solves_the_same(recording, monkeypatch):
-    import calibgraph.solver.build as build
+    import calibgraph.detect.guided_dataset as build
 
     monkeypatch.setattr(build, "SURVEY_CAPTURES", 16)  # a small recording: survey 16 of its 28 captures
     root, seen, truth = recording
@@ -118,7 +118,7 @@ def test_wrong_board_spec_stops_on_the_first_frames_naming_rows_and_cols(recordi
     """The recording's board has 6x9 inner corners; declared 4x5 (same pitch), `calibgraph solve`
     exits non-zero with one line naming the grid the images show, after the survey's first frames
     (not after searching every frame, as it did)."""
-    import calibgraph.solver.build as build
+    import calibgraph.detect.guided_dataset as build
     from calibgraph.cli.main import main
     from calibgraph.core.targets import Target
 
@@ -140,7 +140,7 @@ def test_a_camera_that_never_sees_the_board_is_not_a_wrong_spec(recording, tmp_p
     detector runs to the end (the camera without views is the solver's business)."""
     root, seen, _ = recording
     blank = _variant(root, tmp_path / "blank", blank_camera="cam2")
-    det = GuidedDatasetDetector(load_dataset(blank), progress=False)
+    det = GuidedDatasetDetector(load_dataset(blank), progress=False, coarse_solve=solve)
     det.run()
     found = {k for k, d in det.results.items() if d.ok}
     assert not any(c == "cam2" for c, _ in found)

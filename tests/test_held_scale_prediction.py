@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from calibgraph.sim.arm_error import arm_error_scene
-from calibgraph.solver.batch import solve
-from calibgraph.solver.camera_model import HeldScaleMarginals
+from calibgraph.solver.solve.batch import solve
+from calibgraph.solver.solve.camera_model import HeldScaleMarginals
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 from bench_claims import held_out  # noqa: E402

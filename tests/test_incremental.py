@@ -3,8 +3,8 @@ import numpy as np
 from calibgraph.core.problem import Detection
 from calibgraph.core.transforms import log_so3, pose_error
 from calibgraph.sim.synthetic_corners import make_scene
-from calibgraph.solver import batch as solver
-from calibgraph.solver.incremental import IncrementalSolver
+from calibgraph.solver.solve import batch as solver
+from calibgraph.solver.solve.incremental import IncrementalSolver
 
 # iSAM2 holds every camera's intrinsics fixed: these tests compare it with the batch solver on the
 # oracle's scenes (true intrinsics, held), where holding them is right.

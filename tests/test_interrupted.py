@@ -16,7 +16,7 @@ from calibgraph.acquire.run import run_acquisition
 from calibgraph.io.layouts import load_dataset
 from calibgraph.sim.fakes import make_fake_cell
 from calibgraph.sim.synthetic_corners import make_scene
-from calibgraph.solver.result import load_result
+from calibgraph.solver.output.result import load_result
 
 REPO = Path(__file__).resolve().parents[1]
 N_POSES = 30

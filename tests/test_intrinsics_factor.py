@@ -11,8 +11,8 @@ import pytest
 
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.transforms import exp_so3, make_T
-from calibgraph.solver.factors import ViewTerm, intrinsics_vector, make_calibration_factor, make_capture_factors
-from calibgraph.solver.keys import B, C, F, K, S
+from calibgraph.solver.terms.factors import ViewTerm, intrinsics_vector, make_calibration_factor, make_capture_factors
+from calibgraph.solver.terms.keys import B, C, F, K, S
 
 
 def _cell(n_intr: int):
@@ -83,9 +83,9 @@ def test_all_captures_in_one_pass_equal_the_per_view_factor(monkeypatch):
     factor (:func:`make_calibration_factor`), whitened modes applied by hand: 3 cameras (one with its
     intrinsics held, one estimating 6, one 8 coefficients), 7 captures, views of different corner
     counts, two of them with whitened low-order modes, chunks of 50 corners (views straddle none)."""
-    import calibgraph.solver.factors as factors
-    from calibgraph.solver.factors import make_view_factors
-    from calibgraph.solver.noise_model import view_mode_basis
+    import calibgraph.solver.terms.factors as factors
+    from calibgraph.solver.terms.factors import make_view_factors
+    from calibgraph.solver.terms.noise_model import view_mode_basis
 
     monkeypatch.setattr(factors, "CHUNK_CORNERS", 50)
     rng = np.random.default_rng(3)

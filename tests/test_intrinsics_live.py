@@ -308,7 +308,7 @@ def _guided(seed):
 
 def test_a_user_who_follows_the_hints_meets_the_goal_stated_once_with_a_hint_that_moves_on(monkeypatch):
     import calibgraph.acquire.live_session as live
-    from calibgraph.solver.intrinsics_session import MIN_VIEWS, calibrate_views
+    from calibgraph.solver.camera.intrinsics_session import MIN_VIEWS, calibrate_views
 
     true, cam = _guided(seed=1)
     statuses, notes = [], []

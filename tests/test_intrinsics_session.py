@@ -25,9 +25,9 @@ from calibgraph.core.transforms import exp_so3, make_T
 from calibgraph.core.targets import a4_board_54, thesis_board
 from calibgraph.io.camera_file import read_camera_file, write_camera_file
 from calibgraph.sim.session import load_session_truth, simulate_intrinsics_session
-from calibgraph.solver.intrinsics_model import intrinsics_block, parameter_vector
-from calibgraph.solver.intrinsics_session import SessionView, calibrate_views
-from calibgraph.solver.session_plan import predict_session_covariance, session_poses
+from calibgraph.solver.camera.intrinsics_model import intrinsics_block, parameter_vector
+from calibgraph.solver.camera.intrinsics_session import SessionView, calibrate_views
+from calibgraph.solver.camera.session_plan import predict_session_covariance, session_poses
 
 CHI2_6_9999 = 27.86
 D455 = Intrinsics(K=np.array([[646.4, 0.0, 642.5], [0.0, 645.1, 397.5], [0.0, 0.0, 1.0]]),
@@ -88,7 +88,7 @@ def test_correlated_corner_noise_is_found_and_carried():
     """Each view's corners also move together (a shift, rotation, scale and shears of 0.15 px per mode
     on top of 0.05 px per corner: low-order variance 10x the rest): the factor is found and the
     1-sigma widened to cover it (without it the focal error/sigma RMS over seeds is ~1.3)."""
-    from calibgraph.solver.noise_model import view_mode_basis
+    from calibgraph.solver.terms.noise_model import view_mode_basis
 
     target = a4_board_54()
     rng = np.random.default_rng(11)
@@ -317,7 +317,7 @@ def test_real_charuco_images(shared_dir, tmp_path):
     if not images.is_dir():
         pytest.skip(f"{images} is missing")
     from calibgraph.core.targets import rct_charuco_board
-    from calibgraph.solver.intrinsics_session import calibrate_images
+    from calibgraph.solver.camera.intrinsics_session import calibrate_images
 
     r = calibrate_images(sorted(images.glob("*.png")), rct_charuco_board(), model="k1k2")
     why = dict(r.rejected)

@@ -1,6 +1,6 @@
 """The default robot error model (``kinematics='auto'``): joint zero offsets estimated where the arm
 departs from its FK as offsets do and they predict held-out captures clearly better; the per-pose
-FK model, to the digit, everywhere else (calibgraph.solver.kinematics_select)."""
+FK model, to the digit, everywhere else (calibgraph.solver.robot.kinematics_select)."""
 
 from dataclasses import replace
 from functools import lru_cache
@@ -12,8 +12,8 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.problem import SolverOptions
 from calibgraph.core.transforms import make_T
 from calibgraph.sim.kinematic_scene import make_kinematic_scene
-from calibgraph.solver import kinematics_select
-from calibgraph.solver.batch import solve
+from calibgraph.solver.robot import kinematics_select
+from calibgraph.solver.solve.batch import solve
 
 
 def _offsets(seed: int) -> np.ndarray:
@@ -154,7 +154,7 @@ def test_verify_applies_the_stored_joint_offsets_to_the_fresh_joint_angles():
     the fresh captures' joint angles through the arm with those offsets. Same arm, cameras untouched:
     unchanged. The reported poses alone carry the offsets' error, which the test reads as moves
     (chi-square 34 and 42 on two cameras here, against 22.5 at alpha 1e-3): a note says so."""
-    from calibgraph.solver.verify import verify
+    from calibgraph.solver.changes.verify import verify
 
     sc = make_kinematic_scene(_offsets(1), n_poses=45, seed=1, pixel_sigma_px=0.1)[0]
     p = sc.problem

@@ -17,8 +17,8 @@ from calibgraph.core.errors import ObservabilityError
 from calibgraph.core.kinematics import chain_from_urdf, franka_chain
 from calibgraph.core.transforms import pose_error
 from calibgraph.sim.kinematic_scene import make_kinematic_scene
-from calibgraph.solver import kinematics as kin
-from calibgraph.solver.batch import solve
+from calibgraph.solver.robot import kinematics as kin
+from calibgraph.solver.solve.batch import solve
 
 OFFSETS = np.array([0.0, 1.5e-3, -1.0e-3, 2.0e-3, -0.5e-3, 1.2e-3, 0.0])
 

@@ -16,7 +16,7 @@ import pytest
 from calibgraph.core.camera import Intrinsics
 from calibgraph.core.transforms import log_so3
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver.batch import solve
+from calibgraph.solver.solve.batch import solve
 
 ORACLE = "exact"
 CHI2_6_9999 = 27.86  # chi-square 6 dof, 0.9999 quantile: a 1-sigma that covers the error passes
@@ -79,8 +79,8 @@ def test_unknown_intrinsics_prior_is_centred_on_no_lens_not_on_the_start():
     method found from them (here a wild k2), it is centred on the principal point at the image centre
     and no distortion; only the focal lengths, the one scale there is, are taken from the start.
     Given intrinsics keep their values as the prior's centre."""
-    from calibgraph.solver.factors import intrinsics_vector
-    from calibgraph.solver.graph import intrinsics_prior_mean
+    from calibgraph.solver.terms.factors import intrinsics_vector
+    from calibgraph.solver.fit.graph import intrinsics_prior_mean
     K = np.array([[1297.9, 0, 994.1], [0, 1299.3, 568.8], [0, 0, 1]])
     start = Intrinsics(K=K, dist=np.array([-1.33, 97.06, 0.0, 0.0, 0.0]), width_px=1920, height_px=1080,
                        source="unknown")
@@ -97,7 +97,7 @@ def test_unknown_intrinsics_from_four_views_survive_a_wild_start():
     of the truth (0) and the pose inside its own 1-sigma's chi-square bound."""
     import cv2
 
-    from calibgraph.solver.start import _plane_coordinates
+    from calibgraph.solver.fit.start import _plane_coordinates
     seed, n_views = 66, 4
     sc = make_scene(n_poses=36, seed=seed, fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=float(np.radians(0.01)))
     p = sc.problem
@@ -223,7 +223,7 @@ def test_session_advice_for_a_camera_that_has_a_session_file():
     replaced the file's information with one predicted session's, as if it had none, and could name
     a camera's own session as the remedy at a 1-sigma no better than it had)."""
     from calibgraph.core.targets import thesis_board
-    from calibgraph.solver.session_plan import predict_session_covariance
+    from calibgraph.solver.camera.session_plan import predict_session_covariance
 
     sc = make_scene(cameras=ring_cameras([5.0, 5.0], presets=("d455",)), target=thesis_board(), n_poses=40,
                     pixel_sigma_px=0.02, seed=3, workspace_half_extent_m=(0.4, 0.4, 0.4),

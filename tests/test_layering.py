@@ -6,6 +6,10 @@ import statement stands (module level or inside a function). Outside ``cli`` no 
 hides inside a function: such an import could only be there to dodge a cycle (lazy imports of heavy
 third-party packages such as MuJoCo, rerun or cv2 are fine and not checked here). Nothing imports
 the package root, which re-exports the public API and so sits above every stage.
+
+The solver's stage is itself rooms on floors (issue 48): it holds no flat modules, only subpackages,
+each with an opening docstring saying what it owns, and a room imports only its own modules and
+those of rooms on lower floors (``SOLVER_FLOORS``).
 """
 
 from __future__ import annotations
@@ -18,6 +22,9 @@ import pytest
 PKG = Path(__file__).resolve().parents[1] / "calibgraph"
 STAGES = ("core", "io", "detect", "solver", "plan", "acquire", "report", "sim", "cli")
 LAZY_OK = {"cli"}  # commands import their stage lazily so that `calibgraph --help` stays fast
+# the solver's rooms, ground floor first (a floor may hold several rooms, which then do not import each other)
+SOLVER_FLOORS = (("output",), ("terms",), ("robot",), ("fit",), ("camera",), ("uncertainty",), ("changes",), ("solve",))
+SOLVER_ROOMS = tuple(r for floor in SOLVER_FLOORS for r in floor)
 
 
 def _module_name(path: Path) -> str:
@@ -91,7 +98,7 @@ def test_the_check_catches_an_upward_import(tmp_path):
     copy = tmp_path / "calibgraph"
     shutil.copytree(PKG, copy, ignore=shutil.ignore_patterns("__pycache__"))
     target = copy / "core" / "transforms.py"
-    target.write_text(target.read_text() + "\nfrom calibgraph.solver.result import Result  # injected\n")
+    target.write_text(target.read_text() + "\nfrom calibgraph.solver.output.result import Result  # injected\n")
     bad = layering_violations(copy)
     assert any("core/transforms.py" in b and "later stage solver" in b for b in bad), bad
 
@@ -126,6 +133,73 @@ def test_the_private_import_check_catches_one(tmp_path):
     shutil.copytree(PKG, copy, ignore=shutil.ignore_patterns("__pycache__"))
     (tmp_path / "drivers").mkdir()
     target = copy / "report" / "live_view.py"
-    target.write_text(target.read_text() + "\nfrom calibgraph.solver.factors import _injected  # noqa\n")
+    target.write_text(target.read_text() + "\nfrom calibgraph.solver.terms.factors import _injected  # noqa\n")
     bad = private_imports(copy)
     assert any("live_view.py" in b and "_injected" in b for b in bad), bad
+
+
+def _room(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[2] if len(parts) > 2 and parts[1] == "solver" and parts[2] in SOLVER_ROOMS else None
+
+
+def room_violations(pkg: Path = PKG) -> list[str]:
+    """Imports between the solver's rooms that point at the same or a higher floor (or at the solver
+    package itself rather than a room)."""
+    floor = {r: i for i, rooms in enumerate(SOLVER_FLOORS) for r in rooms}
+    out = []
+    for path in sorted((pkg / "solver").rglob("*.py")):
+        me = _room(_module_name(path))
+        if me is None:  # solver/__init__.py: the stage's docstring, no imports
+            continue
+        for mod, line, _ in _imports(path):
+            if _stage(mod) != "solver":
+                continue
+            where = f"{path.relative_to(pkg.parent).as_posix()}:{line}"
+            target = _room(mod)
+            if target is None:
+                out.append(f"{where}: imports {mod}, not a module of one of the solver's rooms")
+            elif target != me and floor[target] >= floor[me]:
+                out.append(f"{where}: the room {me} imports {mod} from the room {target}, not on a lower floor")
+    return out
+
+
+def test_the_solver_holds_rooms_only():
+    solver = PKG / "solver"
+    flat = sorted(p.name for p in solver.glob("*.py") if p.name != "__init__.py")
+    assert not flat, f"flat modules in calibgraph/solver/ (put each in a room): {flat}"
+    rooms = sorted(p.name for p in solver.iterdir() if p.is_dir() and p.name != "__pycache__")
+    assert rooms == sorted(SOLVER_ROOMS), f"the solver's rooms {rooms} are not SOLVER_FLOORS' {sorted(SOLVER_ROOMS)}"
+
+
+@pytest.mark.parametrize("room", SOLVER_ROOMS)
+def test_every_solver_room_is_a_package_that_says_what_it_owns(room):
+    path = PKG / "solver" / room / "__init__.py"
+    assert path.is_file(), f"solver/{room} is not a package"
+    tree = ast.parse(path.read_text(), str(path))
+    doc = ast.get_docstring(tree)
+    assert doc and 2 <= len(doc.strip().splitlines()) <= 5, f"solver/{room}/__init__.py: an opening docstring of 2-5 lines"
+    assert not [n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))], \
+        f"solver/{room}/__init__.py imports something: a room's package imports nothing"
+    nested = [p.name for p in (PKG / "solver" / room).iterdir() if p.is_dir() and p.name != "__pycache__"]
+    assert not nested, f"solver/{room} holds folders {nested}: a room is one level of modules"
+
+
+def test_solver_rooms_import_down_only():
+    bad = room_violations()
+    assert not bad, "solver room violations:\n" + "\n".join(bad)
+
+
+def test_the_room_check_catches_an_upward_import(tmp_path):
+    """The room check is not vacuous: terms importing the solve room, and a room importing the
+    solver package, are both reported."""
+    import shutil
+
+    copy = tmp_path / "calibgraph"
+    shutil.copytree(PKG, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    target = copy / "solver" / "terms" / "keys.py"
+    target.write_text(target.read_text() + "\nfrom calibgraph.solver.solve.batch import solve  # injected\n"
+                      "import calibgraph.solver  # injected\n")
+    bad = room_violations(copy)
+    assert any("terms/keys.py" in b and "room terms imports calibgraph.solver.solve.batch" in b for b in bad), bad
+    assert any("terms/keys.py" in b and "imports calibgraph.solver, not a module" in b for b in bad), bad

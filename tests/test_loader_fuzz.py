@@ -19,7 +19,7 @@ from hypothesis import strategies as st  # noqa: E402
 from calibgraph.core.errors import CalibgraphError  # noqa: E402
 from calibgraph.io.layouts import load_dataset  # noqa: E402
 from calibgraph.plan.trajectory import load_trajectory  # noqa: E402
-from calibgraph.solver.result import load_result  # noqa: E402
+from calibgraph.solver.output.result import load_result  # noqa: E402
 
 SETTINGS = settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

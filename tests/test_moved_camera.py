@@ -19,9 +19,9 @@ import pytest
 from calibgraph.core.errors import CalibgraphError
 from calibgraph.core.transforms import pose_error
 from calibgraph.sim.synthetic_corners import bump_camera, correlate_corner_noise, make_scene, ring_cameras
-from calibgraph.solver.batch import solve
-from calibgraph.solver.batch import solve_once
-from calibgraph.solver.moved import find_moves_live
+from calibgraph.solver.solve.batch import solve
+from calibgraph.solver.solve.batch import solve_once
+from calibgraph.solver.changes.moved import find_moves_live
 
 FK = dict(fk_sigma_translation_m=1e-4, fk_sigma_rotation_rad=np.radians(0.01))  # 0.1 mm, 0.01 deg
 
@@ -61,7 +61,7 @@ def _check_knock(scene, prob, res, victim, T_after, at, clean=None):
         assert _at(cam, T_after), pose_error(cam.T_ref_cam, T_after)
         assert cam.views_used == n_after
     if cam.moved["T_before"] is not None:  # the pose before the move, with its own 1-sigma
-        from calibgraph.solver.result import CameraResult
+        from calibgraph.solver.output.result import CameraResult
 
         before_cam = CameraResult(victim, cam.ref_frame, cam.moved["T_before"], cam.moved["covariance_before"], 0, 0, 0)
         assert _at(before_cam, scene.truth.T_ref_cam[victim])

@@ -22,8 +22,8 @@ import pytest
 
 from calibgraph.core.transforms import log_so3
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver import batch as solver
-from calibgraph.solver.noise_model import view_mode_basis
+from calibgraph.solver.solve import batch as solver
+from calibgraph.solver.terms.noise_model import view_mode_basis
 
 SIGMA_PX = 0.2
 

@@ -21,7 +21,7 @@ def _record_workcell(ds, cell):
 def test_solve_strict_exits_3_on_the_reports_fail_and_names_the_recorded_workcell(tmp_path, capsys):
     """`solve --strict`: the report's verdict on the console and exit 3 on FAIL (the result written);
     without it exit 0. The result's advice names the workcell file dataset.yaml records (made_by)."""
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.output.result import load_result
 
     ds = write_sim_dataset(tmp_path / "ds", make_scene(n_poses=12, seed=1).problem)
     cell = tmp_path / "my_cell.yaml"

@@ -11,8 +11,8 @@ import pytest
 
 from calibgraph.core.transforms import exp_so3, make_T
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver import batch as solver
-from calibgraph.solver.prediction import predicted_uv
+from calibgraph.solver.solve import batch as solver
+from calibgraph.solver.uncertainty.prediction import predicted_uv
 
 
 def _held_out(mode: str, seed: int, fk_t_m: float, fk_r_deg: float):
@@ -76,7 +76,7 @@ def test_with_joint_offsets_estimated_the_prediction_is_from_joint_angles():
     reported joint angles: the expected error says so and matches a held-out test predicted that way
     (3 cells x 3 cameras, 15 test poses each; measured 1.07 held-out / expected RMS). Before, such a
     result had no expected error at all."""
-    from calibgraph.solver import kinematics as kin
+    from calibgraph.solver.robot import kinematics as kin
 
     rows = []
     for seed in (1, 2, 3):
@@ -113,7 +113,7 @@ def test_prediction_is_in_the_result_file_and_a_note(tmp_path):
     r = solver.solve(sc.problem)
     path = tmp_path / "result.json"
     r.save(path)
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.output.result import load_result
 
     back = load_result(path)
     for name, c in r.calibrated.items():
@@ -146,7 +146,7 @@ def test_all_views_at_once_equals_view_by_view(monkeypatch):
     depend on its own robot pose only, so the figures equal the view-by-view central differences'
     (and the all-at-once ones') to rounding, both formulations' calibration parts (the joint
     covariance, eye-to-hand; pose and mount apart, eye-in-hand) and both modes' robot parts."""
-    from calibgraph.solver import prediction
+    from calibgraph.solver.uncertainty import prediction
 
     got = []
     real = prediction.expected_prediction
@@ -183,7 +183,7 @@ def test_analytic_jacobians_equal_central_differences(mode, n_k, scale):
     chain rule, equals the central differences of the projection itself: both modes, a skewed and
     strongly distorted camera, 6 captures of a tilted board."""
     from calibgraph.core.camera import Intrinsics
-    from calibgraph.solver.prediction import _analytic_jacobians, _numeric_jacobians
+    from calibgraph.solver.uncertainty.prediction import _analytic_jacobians, _numeric_jacobians
 
     rng = np.random.default_rng(7)
     intr = Intrinsics(np.array([[900.0, 0.4, 655.0], [0, 905.0, 362.0], [0, 0, 1]]),

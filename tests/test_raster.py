@@ -170,7 +170,7 @@ print(json.dumps({"rc": rc, "opengl_loaded": "OpenGL" in sys.modules, "mujoco_gl
 def test_demo_without_gl_falls_back_and_calibrates(tmp_path):
     _require_mujoco()
     from calibgraph.io.ground_truth import load_ground_truth
-    from calibgraph.solver.result import load_result_dict
+    from calibgraph.solver.output.result import load_result_dict
 
     out = tmp_path / "demo"
     env = dict(os.environ, MUJOCO_GL="osmesa", PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))

@@ -55,7 +55,7 @@ def test_peer_layout_reads_and_charuco_is_detected(rct_dir):
 
 
 def test_calibrate_end_to_end_through_the_cli(rct_dir, tmp_path):
-    pytest.importorskip("calibgraph.solver.batch")
+    pytest.importorskip("calibgraph.solver.solve.batch")
     from calibgraph.core.camera import Intrinsics
     from calibgraph.detect.corners import dataset_detector
     from calibgraph.io.layouts import load_dataset
@@ -111,7 +111,7 @@ def test_peer_layout_eye_in_hand_modified_circle_grid_synthetic(tmp_path):
     """A synthetic folder in the peer's layout (static_camera: false, ModifiedCircleGridTargetFinder,
     pose files with shuffled keys): read as it is, detected and solved through the CLI; the
     camera-on-flange pose must come back (rendered images, exact robot poses)."""
-    pytest.importorskip("calibgraph.solver.batch")
+    pytest.importorskip("calibgraph.solver.solve.batch")
     import yaml
 
     from calibgraph.core.camera import preset

@@ -139,7 +139,7 @@ def test_marker_checkerboard_solves_and_the_markers_are_named(tmp_path):
     from calibgraph.detect.dataset import dataset_detector
     from calibgraph.io.dataset import write_capture, write_header
     from calibgraph.io.layouts import load_dataset
-    from calibgraph.solver.batch import solve
+    from calibgraph.solver.solve.batch import solve
 
     intr = preset("d455")
     T_flange_cam = make_T(exp_so3([0.0, 0.1, np.pi / 2]), [0.05, -0.02, 0.08])

@@ -18,7 +18,7 @@ from calibgraph.report.html import (
     report_verdicts,
     write_report,
 )
-from calibgraph.solver.result import load_result
+from calibgraph.solver.output.result import load_result
 
 
 class _Spans(html.parser.HTMLParser):

@@ -17,7 +17,7 @@ from helpers import knocked_result, require_chromium, run_chromium
 from calibgraph.report import findings
 from calibgraph.report.html import write_report
 from calibgraph.report.sections import BUDGET_COLOURS
-from calibgraph.solver.result import load_result
+from calibgraph.solver.output.result import load_result
 
 GRAB_TEXT = """<script>(function(){const t=document.body.innerText;document.body.innerHTML='';
 const p=document.createElement('pre');p.id='rendered-text';p.textContent=t;document.body.appendChild(p);})();</script>"""

@@ -119,7 +119,7 @@ def test_eye_in_hand_rrd(tmp_path):
 
 
 def test_engine_does_not_import_rerun():
-    code = ("import sys; import calibgraph, calibgraph.report.html, calibgraph.report.exports, calibgraph.solver.uncertainty, "
+    code = ("import sys; import calibgraph, calibgraph.report.html, calibgraph.report.exports, calibgraph.solver.uncertainty.workspace, "
             "calibgraph.report.rerun_view, calibgraph.cli.view, calibgraph.cli.report, calibgraph.cli.export; "
             "assert 'rerun' not in sys.modules, 'rerun imported'; assert 'matplotlib' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
@@ -132,7 +132,7 @@ def test_report_and_rrd_from_the_real_rct_dataset(rct_dir, tmp_path):
     from calibgraph.cli.main import main
     from calibgraph.report.html import write_report
     from calibgraph.report.rerun_view import write_rrd
-    from calibgraph.solver.result import load_result
+    from calibgraph.solver.output.result import load_result
 
     ds = rct_dir
     res = tmp_path / "result.json"

@@ -19,7 +19,7 @@ from calibgraph.core.errors import InputError
 from calibgraph.core.problem import Detection, SolverOptions
 from calibgraph.sim.synthetic_corners import make_scene
 from calibgraph.sim.kinematic_scene import make_kinematic_scene
-from calibgraph.solver.result import Result, exactly_equal, load_result_dict
+from calibgraph.solver.output.result import Result, exactly_equal, load_result_dict
 
 
 @lru_cache(maxsize=1)
@@ -112,7 +112,7 @@ def test_equality_sees_one_changed_number():
 def _as_written_by_the_first_version(d: dict) -> dict:
     """A result dict as calibgraph wrote it before residuals, intrinsics, board scale, notes,
     kinematics, corner noise, FK noise and the top-level rejected views existed (git history of
-    calibgraph/solver/result.py)."""
+    calibgraph/solver/output/result.py)."""
     d = json.loads(json.dumps(d))
     for k in ("residuals", "board_scale", "notes", "robot", "fk_noise", "rejected_views"):
         d.pop(k, None)
@@ -238,7 +238,7 @@ def test_a_camera_that_was_not_calibrated_round_trips_and_is_reported(tmp_path):
         text = p.read_text()
         assert "cam1_optical_frame" not in text and "'cam1' is not in this file" in text, p
     assert sorted(q.name for q in export(r, "opencv-yaml", tmp_path / "e")) == ["cam0.yaml", "cam2.yaml"]
-    from calibgraph.solver.verify import verify
+    from calibgraph.solver.changes.verify import verify
 
     vr = verify(make_scene(n_poses=6, pixel_sigma_px=0.3, seed=14, shared_fraction=0.6, reported_intrinsics="exact").problem, r)
     assert "cam1" not in vr.cameras and any("cam1 was not calibrated" in n for n in vr.notes), vr.notes
@@ -260,7 +260,7 @@ def test_intrinsics_provenance_per_camera(tmp_path):
     """result.json says per camera where the given intrinsics came from (stated, or the default)
     and how the solver used them, with the prior's width; the settings no longer claim one source
     for every camera; a result written before (no such keys) still says what it can."""
-    from calibgraph.solver.result import intrinsics_provenance
+    from calibgraph.solver.output.result import intrinsics_provenance
 
     prob = _provenance_scene()
     res = cg.solve(prob)
@@ -297,7 +297,7 @@ def test_intrinsics_provenance_per_camera(tmp_path):
 
 
 def test_notes_name_the_camera_they_concern(tmp_path):
-    from calibgraph.solver.result import note_camera
+    from calibgraph.solver.output.result import note_camera
 
     names = ["cam1", "cam10", "left", "left cam"]
     assert note_camera("camera cam1: principal point cx estimated", names) == "cam1"

@@ -1,11 +1,11 @@
-"""The robust rounds' view level (solver/robust.py): a view on the 50 % cut that is set aside and
+"""The robust rounds' view level (solver/fit/robust.py): a view on the 50 % cut that is set aside and
 re-admitted in turn ends the rounds, set aside, instead of leaving them unsettled."""
 
 from dataclasses import replace
 
-import calibgraph.solver.robust as robust
+import calibgraph.solver.fit.robust as robust
 from calibgraph.sim.synthetic_corners import make_scene
-from calibgraph.solver.batch import solve
+from calibgraph.solver.solve.batch import solve
 
 
 def test_a_view_flipping_on_the_cut_is_set_aside_and_the_rounds_settle(monkeypatch):

@@ -27,8 +27,8 @@ from calibgraph.core.targets import a4_board_54
 from calibgraph.core.transforms import exp_so3, inv, log_so3, look_at, make_T
 from calibgraph.io.dataset import image_relpath, write_capture, write_header
 from calibgraph.io.layouts import load_dataset
-from calibgraph.solver.batch import solve
-from calibgraph.solver.build import build_problem
+from calibgraph.solver.solve.batch import solve
+from calibgraph.solver.solve.build import build_problem
 
 rosbags = pytest.importorskip("rosbags", reason="pip install 'calibgraph[rosbag]'")
 from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402

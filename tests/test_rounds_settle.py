@@ -12,9 +12,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import calibgraph.solver.robust as robust
+import calibgraph.solver.fit.robust as robust
 from calibgraph.sim.synthetic_corners import make_scene
-from calibgraph.solver.batch import solve
+from calibgraph.solver.solve.batch import solve
 
 
 def _flipping(monkeypatch, fraction: float):

@@ -22,11 +22,11 @@ from calibgraph.core.transforms import (
     pose_error,
 )
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver import batch as solver
-from calibgraph.solver.graph import Estimate
-from calibgraph.solver.optimise import solve_from_start
-from calibgraph.solver.start import best_initial_guess
-from calibgraph.solver.views import prepare_views, view_candidates
+from calibgraph.solver.solve import batch as solver
+from calibgraph.solver.fit.graph import Estimate
+from calibgraph.solver.solve.optimise import solve_from_start
+from calibgraph.solver.fit.start import best_initial_guess
+from calibgraph.solver.terms.views import prepare_views, view_candidates
 
 CHI2_6_999 = 22.46
 

@@ -25,7 +25,7 @@ from calibgraph.detect.detection import ImageDetection, failed_detection
 from calibgraph.detect.spec_check import PATTERN_SAMPLE, BoardSpecCheck
 from calibgraph.io.layouts import load_dataset
 from calibgraph.sim.board_views import far_or_hidden_first, marker_checkerboard, whole_boards
-from calibgraph.solver.result import load_result
+from calibgraph.solver.output.result import load_result
 
 
 def _solved_within_sigma(root, truth, capsys):
@@ -54,11 +54,12 @@ def test_first_frames_small_or_hidden_then_whole_solves(tmp_path, capsys):
 def test_first_frames_small_or_hidden_do_not_stop_guided_detection(tmp_path, monkeypatch):
     """The same frames through the survey of guided detection (a recording of many frames, where
     the L515-class cell of issue 33 was refused): not refused, every whole and far board found."""
-    import calibgraph.solver.build as build
+    import calibgraph.detect.guided_dataset as build
+    from calibgraph.solver.solve.build import build_problem
 
     far_or_hidden_first(tmp_path, preset("d455"), a4_board_54(), seed=0)  # refused before: "a 3x3 grid"
     monkeypatch.setattr(build, "GUIDED_MIN_VIEWS", 16)  # 18 frames: guided, all of them in the survey
-    _, det = build.build_problem(load_dataset(tmp_path), progress=False)
+    _, det = build_problem(load_dataset(tmp_path), progress=False)
     assert isinstance(det, build.GuidedDatasetDetector)
     found = {cap for (_, cap), d in det.results.items() if d.ok}
     assert set(range(10, 18)) | {0, 2, 4, 6, 8} <= found, found

@@ -14,10 +14,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import calibgraph.solver.camera_model as camera_model
+import calibgraph.solver.solve.camera_model as camera_model
 from calibgraph.core.transforms import pose_error
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver.batch import solve
+from calibgraph.solver.solve.batch import solve
 
 
 def _scene(n_cam: int, n_poses: int, seed: int, preset: str, pixel_sigma_px: float, corrupt: int = 0):
@@ -70,7 +70,7 @@ def test_mode_energy_without_qr_equals_the_basis_projection():
     """The corner-noise level's projection on a view's 6 low-order modes, formed without the QR,
     equals the projection on :func:`view_mode_basis` (grids seen at any scale, scattered corners,
     corners on a line, which take the QR)."""
-    from calibgraph.solver.noise_model import _mode_energy, view_mode_basis
+    from calibgraph.solver.terms.noise_model import _mode_energy, view_mode_basis
 
     rng = np.random.default_rng(0)
     grid = np.stack(np.meshgrid(np.arange(9.0), np.arange(6.0)), -1).reshape(-1, 2)
@@ -134,7 +134,7 @@ def test_openblas_one_thread_unless_the_user_says(tmp_path):
 
 def _solved_graph(monkeypatch, problem):
     """(graph, values) of the final graph of ``problem``'s solve (the one its marginals come from)."""
-    import calibgraph.solver.graph as graph_mod
+    import calibgraph.solver.fit.graph as graph_mod
 
     seen = []
     real = graph_mod.linearise_graph
@@ -156,7 +156,7 @@ def test_reduced_linearisation_equals_the_dense_elimination(monkeypatch):
     are estimated (the factory-class case, every source present)."""
     import gtsam
 
-    from calibgraph.solver.reduced import SOURCES, _source, columns, linearise_graph
+    from calibgraph.solver.terms.reduced import SOURCES, _source, columns, linearise_graph
 
     graph, values = _solved_graph(monkeypatch, _scene(3, 24, 4, "l515", 0.2))
     L = linearise_graph(graph, values)
@@ -210,8 +210,8 @@ def test_high_order_of_all_views_at_once_equals_view_by_view():
     segment sums (:func:`_high_order_all`), equals :func:`_high_order` view by view: views of a
     tilted grid, scattered corners, corners on a line (the QR), too few corners, an inactive view,
     a view with a non-finite and one with an absurd residual, some corners rejected."""
-    from calibgraph.solver.noise_model import _high_order, _high_order_all
-    from calibgraph.solver.views import View
+    from calibgraph.solver.terms.noise_model import _high_order, _high_order_all
+    from calibgraph.solver.terms.views import View
 
     rng = np.random.default_rng(5)
     grid = np.stack(np.meshgrid(np.arange(8.0), np.arange(5.0)), -1).reshape(-1, 2)
@@ -246,7 +246,7 @@ def test_pairwise_rotation_cosines_by_one_product_equal_the_batched_angles():
     identical, 5 deg apart give or take a little, opposite and random rotations), and so does the
     inlier set its angle limit gives."""
     from calibgraph.core.transforms import exp_so3
-    from calibgraph.solver.initialise import ROT_INLIER_DEG, _angle_deg, _pairwise_cos
+    from calibgraph.solver.terms.initialise import ROT_INLIER_DEG, _angle_deg, _pairwise_cos
 
     rng = np.random.default_rng(2)
     base = [exp_so3(rng.normal(0, 1.0, 3)) for _ in range(30)]
@@ -266,8 +266,8 @@ def test_mode_terms_of_views_together_equal_view_by_view():
     """The corner-noise model's per-view terms (squared residual in the 6 image modes, the total,
     the traces of the robot pose's share in the modes and overall) formed for views of equal corner
     counts together equal the view-by-view formulas (:func:`view_mode_basis` per view)."""
-    from calibgraph.solver.noise_model import _mode_terms, view_mode_basis
-    from calibgraph.solver.views import View
+    from calibgraph.solver.terms.noise_model import _mode_terms, view_mode_basis
+    from calibgraph.solver.terms.views import View
 
     rng = np.random.default_rng(9)
     per_view, cov = [], {}
@@ -294,7 +294,7 @@ def _refine_translations_view_by_view(views_by_cam, intr_by_cam, T_ref_cam, T_mo
     the corners of a camera's views were taken together): (views' AtA, Atb, camera slots)."""
     import cv2
 
-    from calibgraph.solver.initialise import ROT_INLIER_DEG, _angle_deg
+    from calibgraph.solver.terms.initialise import ROT_INLIER_DEG, _angle_deg
 
     RY = T_mount_board[:3, :3]
     out = []
@@ -321,9 +321,9 @@ def test_refine_translations_all_corners_of_a_camera_at_once(monkeypatch):
     forms the per-view normal equations of the view-by-view formulation (3 cameras, 20 poses, one
     camera's rotation off so that some of its views disagree) and its solve equals the one from
     those equations."""
-    import calibgraph.solver.initialise as ini
+    import calibgraph.solver.terms.initialise as ini
     from calibgraph.core.transforms import exp_so3
-    from calibgraph.solver.initialise import pnp_candidates, refine_translations
+    from calibgraph.solver.terms.initialise import pnp_candidates, refine_translations
 
     sc = make_scene(cameras=ring_cameras([2.0, 3.0, 4.0], presets=("l515",)), n_poses=20, pixel_sigma_px=0.3, seed=3)
     prob = sc.problem
@@ -367,8 +367,8 @@ def test_views_carry_the_side_their_pnp_candidates_show():
     which the mirrored-camera check reads instead of solving PnP again), equal to PnP solved anew:
     a cell with one camera's images mirrored, so both sides occur."""
     from calibgraph.core.problem import Detection
-    from calibgraph.solver.initialise import pnp_candidates
-    from calibgraph.solver.views import usable_views
+    from calibgraph.solver.terms.initialise import pnp_candidates
+    from calibgraph.solver.terms.views import usable_views
 
     sc = make_scene(n_poses=20, pixel_sigma_px=0.3, seed=13)
     p = sc.problem
@@ -390,8 +390,8 @@ def test_reweight_all_views_at_once_equals_view_by_view(loss):
     (each view's residuals in its own sigmas, weight 0 beyond outlier_sigmas), inactive views left
     as they were, and the largest change is the per-view one's."""
     from calibgraph.core.problem import SolverOptions
-    from calibgraph.solver.robust import loss_weights, reweight
-    from calibgraph.solver.views import View
+    from calibgraph.solver.fit.robust import loss_weights, reweight
+    from calibgraph.solver.terms.views import View
 
     rng = np.random.default_rng(4)
     opts = replace(SolverOptions(), loss=loss)
@@ -419,7 +419,7 @@ def test_reweight_all_views_at_once_equals_view_by_view(loss):
 def test_view_evolve_equals_replace():
     """``View.evolve`` (no ``__init__``) makes the view ``dataclasses.replace`` makes, and a new ``w``
     gets its own kept-corner mask (the mask is cached per view)."""
-    from calibgraph.solver.views import View
+    from calibgraph.solver.terms.views import View
 
     v = View(camera="c", capture=3, ids=np.arange(4), uv_px=np.zeros((4, 2)), p_board_m=np.zeros((4, 3)),
              T_ref_mount=np.eye(4), w=np.array([1.0, 0.0, 0.5, 1.0]))

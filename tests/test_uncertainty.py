@@ -4,7 +4,7 @@ import numpy as np
 
 from calibgraph.core.camera import preset
 from calibgraph.core.transforms import exp_so3, look_at, make_T
-from calibgraph.solver.uncertainty import (
+from calibgraph.solver.uncertainty.workspace import (
     point_covariance,
     point_sigma_mm,
     visible_mask,

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver.batch import UNSETTLED_MAHALANOBIS2, solve, unsettled
+from calibgraph.solver.solve.batch import UNSETTLED_MAHALANOBIS2, solve, unsettled
 
 
 def _moved(result, name, d_m):

@@ -18,9 +18,9 @@ import pytest
 from calibgraph.cli.main import main
 from calibgraph.core.transforms import exp_so3, make_T
 from calibgraph.sim.synthetic_corners import make_scene, ring_cameras
-from calibgraph.solver.batch import solve
-from calibgraph.solver.result import Result
-from calibgraph.solver.verify import chi2_isf_6, chi2_sf_6, verify
+from calibgraph.solver.solve.batch import solve
+from calibgraph.solver.output.result import Result
+from calibgraph.solver.changes.verify import chi2_isf_6, chi2_sf_6, verify
 from helpers import write_sim_dataset
 
 

@@ -20,7 +20,7 @@ import yaml
 
 from calibgraph.cli.main import main
 from calibgraph.io.files import read_yaml
-from calibgraph.solver.result import Result
+from calibgraph.solver.output.result import Result
 from tests.helpers import REPO, require_sim
 
 DEFAULT = REPO / "datasets" / "workcells" / "default.yaml"
@@ -35,8 +35,8 @@ def _stored(tmp_root: str):
     from calibgraph.sim.render import SimWorld
     from calibgraph.sim.corner_devices import corner_devices
     from calibgraph.sim.workcell import workcell_from_dict
-    from calibgraph.solver.batch import solve
-    from calibgraph.solver.build import build_problem
+    from calibgraph.solver.solve.batch import solve
+    from calibgraph.solver.solve.build import build_problem
 
     wc = workcell_from_dict(read_yaml(DEFAULT, "world"), "world").with_reported_intrinsics("exact")
     sim = SimWorld(wc)

@@ -4,7 +4,7 @@
 
 1. **Survey** (:mod:`calibgraph.plan.survey`): the board is swept round the base in widening
    rounds; every live camera grabs at every stop. A camera that sees the board gets tilted
-   refinement stops until the iSAM2 solver (:class:`~calibgraph.solver.incremental.IncrementalSolver`,
+   refinement stops until the iSAM2 solver (:class:`~calibgraph.solver.solve.incremental.IncrementalSolver`,
    whose consensus initialiser resolves the planar mirror ambiguity across views) gives it a pose
    with a covariance. The survey ends when every camera has one, or after the last round, with a
    line per camera that was never seen (or seen but not initialised) and what it saw.
@@ -26,7 +26,7 @@
    choices in a row (a far camera with factory intrinsics: its focal length is tied to its depth) —
    is given up early and said so with the bound and what would help: the 1-sigma the same poses
    would give after a close-range intrinsics session (``calibgraph intrinsics``, then the camera
-   file with ``--intrinsics NAME=CAM.yaml``; predicted by :mod:`calibgraph.solver.session_plan`), else
+   file with ``--intrinsics NAME=CAM.yaml``; predicted by :mod:`calibgraph.solver.camera.session_plan`), else
    the batch solve's error-budget advice; the loop goes on for the others and stops when they
    are within tolerance ("stopped short": ``converged`` false, ``capture --auto`` exits 3),
    otherwise at ``max_poses`` captures. A camera short of tolerance at the end gets a line saying
@@ -77,8 +77,8 @@ from calibgraph.plan.survey import (
     refinement_stops,
     survey_round,
 )
-from calibgraph.solver.incremental import IncrementalSolver
-from calibgraph.solver.session_plan import session_command
+from calibgraph.solver.solve.incremental import IncrementalSolver
+from calibgraph.solver.camera.session_plan import session_command
 
 __all__ = ["AutoOptions", "AutoReport", "run_auto", "dry_run_survey", "refuted_from_steps", "PLAN_LOG_NAME"]
 
@@ -128,7 +128,7 @@ class AutoReport:
     Attributes:
         out_dir: dataset folder.
         steps: the plan log's steps (dicts, see the module docstring).
-        result: the batch :class:`~calibgraph.solver.result.Result` at the stop, or None.
+        result: the batch :class:`~calibgraph.solver.output.result.Result` at the stop, or None.
         cameras: camera -> status line (converged, short and why, never seen...).
         converged: every camera within tolerance (batch 1-sigma).
         stop_reason: why the loop ended.

@@ -40,10 +40,10 @@ from calibgraph.io.layouts import load_dataset
 from calibgraph.plan.active import CameraBelief, keepout_violation, motion_time_s, shortfall, sigma_norms
 from calibgraph.plan.information import intrinsics_prior
 from calibgraph.plan.planner import free_motion
-from calibgraph.solver.batch import solve
-from calibgraph.solver.build import build_problem
-from calibgraph.solver.incremental import IncrementalSolver
-from calibgraph.solver.initialise import pnp_candidates
+from calibgraph.solver.solve.batch import solve
+from calibgraph.solver.solve.build import build_problem
+from calibgraph.solver.solve.incremental import IncrementalSolver
+from calibgraph.solver.terms.initialise import pnp_candidates
 
 __all__ = ["AutoState", "PLAN_LOG_FORMAT", "PLAN_LOG_NAME", "refuted_from_steps", "sigma_pair"]
 

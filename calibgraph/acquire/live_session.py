@@ -7,18 +7,18 @@
   and adds information: the predicted fx 1-sigma falls by at least ``MIN_FALL`` of what an average
   view taken so far brought, or a coverage cell of the image or a tilt bin is new;
 - the predicted fx 1-sigma is the information of the taken views' corners at the camera's current
-  intrinsics, every view's pose eliminated (as :func:`calibgraph.solver.session_plan.predict_session_covariance`
+  intrinsics, every view's pose eliminated (as :func:`calibgraph.solver.camera.session_plan.predict_session_covariance`
   and the calibration compute it), at the corner noise the last calibration measured (before one:
   ``SESSION_PIXEL_SIGMA_PX``);
 - from ``min_views`` taken views on, every taken view is calibrated with all the others
-  (:func:`calibgraph.solver.intrinsics_session.calibrate_views`, the same stage as ``calibgraph
+  (:func:`calibgraph.solver.camera.intrinsics_session.calibrate_views`, the same stage as ``calibgraph
   intrinsics``), so the fx 1-sigma shown is the calibration's after every taken view; the session
   stops when that calibration's fx and fy 1-sigma meet the goal, from at least ``MIN_STOP_VIEWS``
   views. The stop is the calibration's, never the prediction's.
 
 **The goal** defaults to the fx 1-sigma the error budget's advice assumes for this camera
 (:func:`default_goal_px`): a session of ``ADVICE_SESSION_VIEWS`` planned views
-(:func:`~calibgraph.solver.session_plan.session_poses`) with corners as good as the camera's own,
+(:func:`~calibgraph.solver.camera.session_plan.session_poses`) with corners as good as the camera's own,
 at most ``SESSION_PIXEL_SIGMA_PX`` (the advice takes the camera's corner noise from the hand-eye
 views; the session measures its own). Before the first calibration the noise is not known, so the
 goal is only bounded (the value at ``SESSION_PIXEL_SIGMA_PX``); the first calibration sets it, with
@@ -27,7 +27,7 @@ its noise moves the goal by more than ``GOAL_CHANGE``, again with one note. A go
 (``goal_px``) never changes.
 
 **The hint** is always a pose: the session plans ``PLAN_POSES`` poses
-(:func:`~calibgraph.solver.session_plan.session_poses`, whose first ``ADVICE_SESSION_VIEWS`` are the
+(:func:`~calibgraph.solver.camera.session_plan.session_poses`, whose first ``ADVICE_SESSION_VIEWS`` are the
 advice's session): the four image corners first, then, of the planned poses no hold has
 matched yet (board centre within ``MATCH_IMAGE_FRACTION`` of the image, distance within
 ``MATCH_DISTANCE``, normal within ``MATCH_TILT_DEG``), the one that would lower the predicted fx
@@ -52,9 +52,9 @@ from calibgraph.core.errors import InputError, ObservabilityError
 from calibgraph.core.targets import Target
 from calibgraph.detect.corners import detect_image
 from calibgraph.detect.image import to_grey8
-from calibgraph.solver.intrinsics_model import DEFAULT_MODEL, model_parameters, reduced_information, view_jacobians
-from calibgraph.solver.intrinsics_session import GRID_COLS, MIN_VIEWS, SessionView, calibrate_views, coverage
-from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance, session_poses
+from calibgraph.solver.camera.intrinsics_model import DEFAULT_MODEL, model_parameters, reduced_information, view_jacobians
+from calibgraph.solver.camera.intrinsics_session import GRID_COLS, MIN_VIEWS, SessionView, calibrate_views, coverage
+from calibgraph.solver.camera.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance, session_poses
 
 STILL_PX = 0.5  # every corner moved less than this since the previous frame: the board is still
 NEW_HOLD_PX = 10.0  # the corners' median travel since the last taken frame that makes a new pose
@@ -76,7 +76,7 @@ CORNER_CELLS = ("top-left", "top-right", "bottom-left", "bottom-right")
 def default_goal_px(intr: Intrinsics, target: Target, model: str = DEFAULT_MODEL,
                     pixel_sigma_px: float = SESSION_PIXEL_SIGMA_PX) -> tuple:
     """(fx 1-sigma in px, how it was chosen): what the error budget's advice assumes a session gives,
-    :func:`~calibgraph.solver.session_plan.predict_session_covariance` of ``ADVICE_SESSION_VIEWS`` views
+    :func:`~calibgraph.solver.camera.session_plan.predict_session_covariance` of ``ADVICE_SESSION_VIEWS`` views
     with corners of ``pixel_sigma_px`` capped at ``SESSION_PIXEL_SIGMA_PX`` (as the advice caps the
     camera's own corner noise); else 0.05 % of fx."""
     sigma = min(float(pixel_sigma_px), SESSION_PIXEL_SIGMA_PX)

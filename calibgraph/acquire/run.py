@@ -196,7 +196,7 @@ class AcquisitionReport:
 # -- helpers -----------------------------------------------------------------------------------------
 def _format_estimate(est) -> str:
     """Per-camera 1-sigma text from what an incremental solver returned: a
-    :class:`calibgraph.solver.incremental.IncrementalEstimate` (cameras -> sigma_translation_mm /
+    :class:`calibgraph.solver.solve.incremental.IncrementalEstimate` (cameras -> sigma_translation_mm /
     sigma_rotation_deg), a mapping camera -> sigma in metres, or an object with
     ``sigma_translation_m`` / ``per_camera_sigma_m`` mappings."""
     if est is None:

@@ -15,7 +15,7 @@
 4. **Capture**: :func:`calibgraph.acquire.run.run_acquisition` with the given safety limits
    (joint limits, workspace box along every motion, speed cap) writes an ordinary dataset, with
    the trajectory as ``trajectory.yaml`` (so ``--resume`` works as for any capture).
-5. **Verify**: :func:`calibgraph.solver.verify.verify` on the dataset; the verdict is written to
+5. **Verify**: :func:`calibgraph.solver.changes.verify.verify` on the dataset; the verdict is written to
    ``verify.json`` in the dataset.
 """
 
@@ -38,8 +38,8 @@ from calibgraph.plan.planner import free_motion
 from calibgraph.plan.trajectory import Trajectory, TrajectoryPose
 from calibgraph.plan.verify import choose_verify_poses
 from calibgraph.plan.visibility import board_visible
-from calibgraph.solver.build import build_problem
-from calibgraph.solver.verify import DEFAULT_ALPHA, stored_model, verify
+from calibgraph.solver.solve.build import build_problem
+from calibgraph.solver.changes.verify import DEFAULT_ALPHA, stored_model, verify
 
 __all__ = ["plan_verify_trajectory", "run_verify_capture", "VerifyCaptureReport", "VERIFY_NAME"]
 

@@ -154,7 +154,7 @@ def _trajectory(args, log) -> int:
         with _run_on(dev, args):
             on_capture = None
             if (args.incremental or _viewing(args)) and not args.dry_run:
-                from calibgraph.solver.incremental import IncrementalSolver
+                from calibgraph.solver.solve.incremental import IncrementalSolver
 
                 inc = IncrementalSolver(wc.target.points_board_m, {n: c.intrinsics() for n, c in dev.cameras.items()},
                                         mode=wc.mode)
@@ -247,8 +247,8 @@ def _verify(args, log) -> int:
     from calibgraph.core.errors import InputError
     from calibgraph.io.files import read_input_bytes
     from calibgraph.sim.planning_world import planning_world
-    from calibgraph.solver.result import load_result, result_path
-    from calibgraph.solver.verify import DEFAULT_ALPHA, stored_model
+    from calibgraph.solver.output.result import load_result, result_path
+    from calibgraph.solver.changes.verify import DEFAULT_ALPHA, stored_model
 
     if args.result is None:
         raise InputError("capture --verify needs --result RESULT.json (the stored calibration to test against).")

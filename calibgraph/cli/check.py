@@ -46,7 +46,7 @@ def _truth_file(args, result) -> Path:
 def run(args) -> int:
     from calibgraph.io.ground_truth import load_ground_truth
     from calibgraph.report.truth import check_against_truth, format_truth_table
-    from calibgraph.solver.result import load_result, result_path
+    from calibgraph.solver.output.result import load_result, result_path
 
     args.result = result_path(args.result)
     result = load_result(args.result)

@@ -130,8 +130,8 @@ def run(args) -> int:
     from dataclasses import replace
 
     from calibgraph.io.layouts import load_dataset
-    from calibgraph.solver.batch import solve
-    from calibgraph.solver.build import build_problem
+    from calibgraph.solver.solve.batch import solve
+    from calibgraph.solver.solve.build import build_problem
 
     ds = load_dataset(ds_dir)
     problem, _ = build_problem(ds, "joint", None, progress=True)

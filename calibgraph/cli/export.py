@@ -50,7 +50,7 @@ def _planned(result, args) -> list:
 def run(args) -> int:
     from calibgraph.io.output_guard import check_output_file, check_output_folder, keep_previous
     from calibgraph.report.exports import export, renamed
-    from calibgraph.solver.result import load_result, result_path
+    from calibgraph.solver.output.result import load_result, result_path
 
     if "mchec" in args.fmt:
         from calibgraph.core.errors import InputError

@@ -10,7 +10,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".pp
 
 
 def add_parser(sub):
-    from calibgraph.solver.intrinsics_model import DEFAULT_MODEL, DISTORTION_MODELS
+    from calibgraph.solver.camera.intrinsics_model import DEFAULT_MODEL, DISTORTION_MODELS
 
     p = sub.add_parser("intrinsics", help="calibrate one camera's intrinsics from close-range images of a board",
                        description="Close-range intrinsics calibration: detect the board in every image of "
@@ -106,7 +106,7 @@ def run(args) -> int:
     from calibgraph.io.camera_file import write_camera_file
     from calibgraph.io.output_guard import check_output_file, write_keeping_previous
     from calibgraph.io.specs import load_target
-    from calibgraph.solver.intrinsics_session import calibrate_images
+    from calibgraph.solver.camera.intrinsics_session import calibrate_images
 
     paths = _images(args.images)
     target_file = _target_path(args)

@@ -83,8 +83,8 @@ class _Console:
 
 def run_live(args) -> int:
     from calibgraph.acquire.live_session import ADVICE_SESSION_VIEWS, default_goal_px, run_live_session
-    from calibgraph.solver.intrinsics_session import MIN_VIEWS
-    from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX
+    from calibgraph.solver.camera.intrinsics_session import MIN_VIEWS
+    from calibgraph.solver.camera.session_plan import SESSION_PIXEL_SIGMA_PX
     from calibgraph.acquire.workcell import read_workcell
     from calibgraph.core.errors import InputError
     from calibgraph.io.camera_file import write_camera_file

@@ -48,7 +48,7 @@ def run(args) -> int:
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file, write_keeping_previous
     from calibgraph.report.html import dataset_mismatch, report_verdicts, write_report
-    from calibgraph.solver.result import load_result, result_path, solved_target
+    from calibgraph.solver.output.result import load_result, result_path, solved_target
 
     args.result = result_path(args.result)  # a dataset folder: the result.json solve wrote into it
     result = load_result(args.result)

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from calibgraph.core.problem import mode_frames, option_flags
-from calibgraph.solver.build import build_problem
-from calibgraph.solver.budget import share_lines
-from calibgraph.solver.result import given_intrinsics_source
+from calibgraph.solver.solve.build import build_problem
+from calibgraph.solver.uncertainty.budget import share_lines
+from calibgraph.solver.output.result import given_intrinsics_source
 
 
 EXIT_NOT_CALIBRATED = 3  # the result is written, but a camera could not be calibrated from its views
@@ -214,7 +214,7 @@ def name_inputs(result, workcell=None, camera_files: dict | None = None):
     """``result`` naming the user's own files: each advice's ``--workcell CELL.yaml`` the workcell the
     dataset was captured with (when it records one), and each camera's intrinsics the camera file it
     was given with ``--intrinsics NAME=FILE`` (``intrinsics.file``)."""
-    from calibgraph.solver.session_plan import name_workcell
+    from calibgraph.solver.camera.session_plan import name_workcell
 
     camera_files = camera_files or {}
     cams = {}
@@ -251,7 +251,7 @@ def _run(args) -> int:
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file, write_keeping_previous
     from calibgraph.io.specs import target_option
-    from calibgraph.solver.batch import solve
+    from calibgraph.solver.solve.batch import solve
 
     out = args.out or (args.dataset / "result.json")
     files = read_camera_file_args(args.intrinsics)
@@ -277,7 +277,7 @@ def _run(args) -> int:
         print(f"warning: {f}: {msg}", file=sys.stderr)
     opts = solver_options(args, ds)
     if opts.kinematics == "joint-offsets":  # said now, before detection: the angles must give the recorded poses
-        from calibgraph.solver.kinematics import check_recorded_angles
+        from calibgraph.solver.robot.kinematics import check_recorded_angles
 
         check_recorded_angles(opts.kinematics_model, ds.captures, f"--estimate-kinematics {opts.kinematics}")
     problem, detector = build_problem(ds, args.method, opts, progress=not args.quiet)

@@ -2,7 +2,7 @@
 
 Each camera seen in the (short) dataset is re-estimated with the board mount, its intrinsics and
 the board scale held at the stored estimates, and the change is tested against the stored
-covariance plus the new one (chi-square, 6 dof; :mod:`calibgraph.solver.verify`). Exit 0: nothing
+covariance plus the new one (chi-square, 6 dof; :mod:`calibgraph.solver.changes.verify`). Exit 0: nothing
 moved; 3: a camera (or the board mount / robot) moved; 2: bad input. The verdict is written to
 ``DATASET/verify.json`` (``--verdict`` elsewhere).
 """
@@ -30,7 +30,7 @@ def add_parser(sub):
 
 def format_verdict(vr) -> str:
     """The per-camera table and the verdict in words."""
-    from calibgraph.solver.verify import chi2_isf_6
+    from calibgraph.solver.changes.verify import chi2_isf_6
 
     lines = [f"test: chi-square 6 dof against stored + new covariance, alpha {vr.alpha:g} per camera "
              f"(threshold {chi2_isf_6(vr.alpha):.1f}), pixel sigma {vr.pixel_sigma_px:.3f} px",
@@ -60,9 +60,9 @@ def run(args) -> int:
     from calibgraph.io.files import atomic_write_text
     from calibgraph.io.layouts import load_dataset
     from calibgraph.io.output_guard import check_output_file, write_keeping_previous
-    from calibgraph.solver.build import build_problem
-    from calibgraph.solver.result import load_result, result_path, solved_target
-    from calibgraph.solver.verify import DEFAULT_ALPHA, check_fresh_data, verify
+    from calibgraph.solver.solve.build import build_problem
+    from calibgraph.solver.output.result import load_result, result_path, solved_target
+    from calibgraph.solver.changes.verify import DEFAULT_ALPHA, check_fresh_data, verify
 
     args.result = result_path(args.result)  # the stored calibration's dataset folder: its result.json
     stored = load_result(args.result)

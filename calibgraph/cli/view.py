@@ -24,7 +24,7 @@ def add_parser(sub):
 def run(args) -> int:
     from calibgraph.io.output_guard import check_output_file
     from calibgraph.report.rerun_view import rerun_cli, write_rrd
-    from calibgraph.solver.result import load_result, result_path
+    from calibgraph.solver.output.result import load_result, result_path
 
     args.result = result_path(args.result)  # a dataset folder: the result.json solve wrote into it
     result = load_result(args.result)
@@ -37,7 +37,7 @@ def run(args) -> int:
     if dataset is not None:  # a layout that names no board (ViSP's) is read with the board it was solved with
         from calibgraph.io.layouts import load_dataset
         from calibgraph.report.rerun_view import plan_log_path
-        from calibgraph.solver.result import solved_target
+        from calibgraph.solver.output.result import solved_target
 
         plan_log = plan_log_path(dataset)
         dataset = load_dataset(dataset, fallback_target=solved_target(result))

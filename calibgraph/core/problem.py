@@ -271,26 +271,26 @@ class SolverOptions:
             view). ``refine_intrinsics`` always uses view. Both give the same estimate.
         kinematics: 'auto' (default), 'none' or 'joint-offsets'. 'none': the FK prior on each flange
             pose. 'joint-offsets': the flange poses follow from the reported joint angles plus
-            estimated joint zero offsets (:mod:`calibgraph.solver.kinematics`; needs ``q_rad`` in every
+            estimated joint zero offsets (:mod:`calibgraph.solver.robot.kinematics`; needs ``q_rad`` in every
             capture). 'auto': 'none', and where the arm departs from its stated FK accuracy and every
             capture records joint angles that the kinematic model maps to the recorded flange poses
             (eye-to-hand, method joint), both are cross-validated and the one predicting held-out
-            captures clearly better is used (:mod:`calibgraph.solver.kinematics_select`).
+            captures clearly better is used (:mod:`calibgraph.solver.robot.kinematics_select`).
         kinematics_model: the arm's kinematic model: 'franka' (Panda / FR3, built in) or a URDF path.
         joint_offset_prior_rad: 1-sigma prior of each estimated joint offset.
         kinematics_staging: 'staged' (cameras with an inflated FK prior, then offsets, then all
             jointly) or 'joint' (all at once).
         view_noise_modes: model corner errors that are correlated within a view (see
-            :func:`calibgraph.solver.noise_model.mode_variance_ratios`): per camera, the variance of each
+            :func:`calibgraph.solver.terms.noise_model.mode_variance_ratios`): per camera, the variance of each
             view's low-order image modes (shift, rotation, scale, shear of the board) is estimated
             against the rest of the residuals and, where larger, weighted and propagated as such
             (view formulation). False treats every corner as independent.
         corner_noise: whose pixel sigma a corner has (see
-            :func:`calibgraph.solver.noise_model.camera_noise_scales`): 'per-view' (default: each
+            :func:`calibgraph.solver.terms.noise_model.camera_noise_scales`): 'per-view' (default: each
             camera its own, each view its own level shrunk towards its camera's), 'per-camera', or
             'one' (a single sigma for every corner). Ignored when ``pixel_sigma_px`` is stated.
         fk_variance: compare the fitted robot poses with the FK prior (see
-            :func:`calibgraph.solver.fk_check.fk_variance_ratio`) and, when they depart from it more
+            :func:`calibgraph.solver.robot.fk_check.fk_variance_ratio`) and, when they depart from it more
             than the stated FK sigmas allow (p < 0.05), solve with the sigmas the fit implies and say so.
 
     Every field can be set in dataset.yaml's ``solver`` section (by its name, SI units); those with a

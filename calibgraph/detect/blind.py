@@ -22,7 +22,7 @@ never decides alone that the declared board is absent.
 With ``gate`` the probe also stands in front of the search when the spec is settled: a frame in
 which it sees no chessboard, or one of fewer than half the declared corners well inside the
 frame, is a miss at the cost of the probe (~0.1-0.7 s on 1080p instead of seconds). That is for first looks whose misses are looked at again (the survey of guided
-detection, :mod:`calibgraph.solver.build`): the probe misses boards of very small squares, which
+detection, :mod:`calibgraph.detect.guided_dataset`): the probe misses boards of very small squares, which
 the up-scaled search finds.
 """
 

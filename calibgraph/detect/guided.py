@@ -13,7 +13,7 @@ large its squares are. Then:
 - a view whose board is predicted far out of view (its centre behind the camera, its face turned
   away, or its image farther outside the frame than its own size) is not even decoded: decoding
   is then most of what a frame costs, and the frame is worth nothing. The dataset driver checks a
-  sample of such frames anyway, so a wrong estimate shows (:mod:`calibgraph.solver.build`).
+  sample of such frames anyway, so a wrong estimate shows (:mod:`calibgraph.detect.guided_dataset`).
 
 On a frame without the board the blind detector spends most of its time in the up-scaled searches
 of regions that merely look like a board; the confirmation costs little more than the image decode.

@@ -13,7 +13,7 @@ capture's flange is marginalised under the FK prior, so the cameras that see one
     Sigma = (priors + sum over the captures so far of I_k)^-1,  Sigma' = (Sigma^-1 + I_candidate)^-1
 
 This is the solver's graph at the current estimate (``tests/test_auto.py`` checks it against
-:func:`calibgraph.solver.covariance.crlb` with exact, factory and calibrated intrinsics); what it
+:func:`calibgraph.solver.uncertainty.covariance.crlb` with exact, factory and calibrated intrinsics); what it
 leaves out (robust weights, the corner-noise modes) is carried by applying its *ratio* to the batch
 1-sigma: predicted sigma_c = batch sigma_c x model sigma'_c / model sigma_c. With the camera models
 among the parameters, a camera whose model is weak gains most from the views that pin it: the board
@@ -68,7 +68,7 @@ from calibgraph.plan.information import (
 from calibgraph.plan.planner import free_motion
 from calibgraph.plan.survey import board_pose_facing, reach_pose, seeds_at
 from calibgraph.plan.visibility import board_visible, boards_visible, occlusion_probes, square_px
-from calibgraph.solver.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance
+from calibgraph.solver.camera.session_plan import SESSION_PIXEL_SIGMA_PX, predict_session_covariance
 
 __all__ = ["CameraBelief", "Candidate", "Choice", "ActivePlanner", "view_information", "joint_information",
            "sigma_norms", "shortfall", "motion_time_s", "keepout_violation", "explain_shortfall"]

@@ -15,7 +15,7 @@ head-on, metres apart for one seen obliquely, so stops aimed at their mean can m
 altogether. :func:`camera_position_hypothesis` keeps the candidate that most views
 agree on; while two remain in a tie, the next stop faces one of them squarely, and a stop the
 camera does not see refutes it. Those views give the rotation diversity the solver's consensus
-initialiser needs (:class:`calibgraph.solver.incremental.IncrementalSolver`): it resolves the
+initialiser needs (:class:`calibgraph.solver.solve.incremental.IncrementalSolver`): it resolves the
 mirror ambiguity across views and hands back a coarse pose with a covariance.
 
 Every stop is reachable by IK within the joint limits and collision-free in the planning world

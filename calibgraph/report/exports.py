@@ -1,6 +1,6 @@
 """Write a calibration result in the formats a robot stack reads.
 
-Every exporter takes a :class:`~calibgraph.solver.result.Result` (``calibgraph.load_result`` reads
+Every exporter takes a :class:`~calibgraph.solver.output.result.Result` (``calibgraph.load_result`` reads
 one from result.json; a result dict is converted), so they work from the file alone:
 
 - :func:`write_result` -- result.json / result.yaml (same content; ``--format yaml``);
@@ -48,8 +48,8 @@ from calibgraph.core.transforms import R_to_quat_xyzw
 from calibgraph.core.version import __version__
 from calibgraph.io.files import atomic_write_text, atomic_write_via, output_folder, read_opencv_storage
 from calibgraph.io.layouts import as_dataset
-from calibgraph.solver.kinematics import stored_arm
-from calibgraph.solver.result import as_result
+from calibgraph.solver.robot.kinematics import stored_arm
+from calibgraph.solver.output.result import as_result
 
 FORMATS = ("urdf", "ros2-launch", "opencv-yaml", "camera-info", "yaml", "json", "robot")
 
@@ -304,7 +304,7 @@ def write_opencv_yaml(result, out_dir, dataset=None, parent: str | None = None) 
 def _calibrated_cameras(result, out_dir, dataset=None):
     """(export folder, camera name, its export identifier, its intrinsics or None, '' or the
     :func:`given_intrinsics_note` when they are the dataset's) of each calibrated camera of
-    ``result`` (a :class:`~calibgraph.solver.result.Result`), the folder made first."""
+    ``result`` (a :class:`~calibgraph.solver.output.result.Result`), the folder made first."""
     out = output_folder(out_dir, "export folder")
     ids = export_names(result)
     for name in result.calibrated:
@@ -391,7 +391,7 @@ def read_opencv_yaml(path) -> dict:
 
 
 def export(result, fmt: str, out_dir, dataset=None, parent: str | None = None) -> list:
-    """Write ``result`` (a :class:`~calibgraph.solver.result.Result`) in format ``fmt`` (one of
+    """Write ``result`` (a :class:`~calibgraph.solver.output.result.Result`) in format ``fmt`` (one of
     FORMATS) into ``out_dir``; returns written paths."""
     result = as_result(result, "export")
     out = output_folder(out_dir, "export folder")

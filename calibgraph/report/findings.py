@@ -15,9 +15,9 @@ from numbers import Real
 import numpy as np
 
 from calibgraph.core.camera import INTRINSICS_FULL, Intrinsics
-from calibgraph.solver.camera_model import INTRINSICS_USES
-from calibgraph.solver.factors import intrinsics_vector
-from calibgraph.solver.result import intrinsics_provenance, sigmas_from_cov
+from calibgraph.solver.solve.camera_model import INTRINSICS_USES
+from calibgraph.solver.terms.factors import intrinsics_vector
+from calibgraph.solver.output.result import intrinsics_provenance, sigmas_from_cov
 
 # the budget's sources, in words
 SOURCE_LABELS = {"corners": "corner noise", "intrinsics": "intrinsics", "robot_fk": "robot forward kinematics",
@@ -25,7 +25,7 @@ SOURCE_LABELS = {"corners": "corner noise", "intrinsics": "intrinsics", "robot_f
 # the budget's single numbers, in words (others show their key)
 SCALAR_LABELS = {"sigma_translation_norm_mm": ("1σ translation, norm of x, y, z", "mm"),
                  "own_intrinsics_share": ("of it from this camera's own intrinsics prior", "share")}
-# a share set's label when the budget gives none ("shares": the sources of noise of solver.budget)
+# a share set's label when the budget gives none ("shares": the sources of noise of solver.uncertainty.budget)
 SET_LABELS = {"shares": "by noise source"}
 SOURCE_GIVEN = {"factory": "factory values (device or datasheet)", "calibration": "a calibration file",
                 "exact": "values declared exact", "unknown": "none (only the image size)"}

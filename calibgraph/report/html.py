@@ -1,6 +1,6 @@
 """Commissioning report: one self-contained HTML file an integrator can hand to a customer.
 
-:func:`write_report` takes a :class:`~calibgraph.solver.result.Result` (``calibgraph.load_result``
+:func:`write_report` takes a :class:`~calibgraph.solver.output.result.Result` (``calibgraph.load_result``
 reads one from result.json) and is richer when the dataset it was solved from is given: the
 intrinsics, the image coverage and the residuals of a result that has none. A dataset that is not
 the result's (other cameras, captures, target or corners) is refused, since the page would mix two
@@ -48,7 +48,7 @@ from calibgraph.report.sections import (
 )
 from calibgraph.report.tolerances import camera_verdict, load_tolerances
 from calibgraph.report.workspace import workspace_maps
-from calibgraph.solver.result import as_result
+from calibgraph.solver.output.result import as_result
 
 __all__ = ["write_report", "report_verdicts", "load_tolerances", "compute_residuals", "observations",
            "dataset_mismatch", "residuals_section"]
@@ -65,7 +65,7 @@ def write_report(result, out_html, config=None, dataset=None, result_path=None) 
     """Write the commissioning report of ``result`` to ``out_html``; returns the path.
 
     Args:
-        result: a :class:`~calibgraph.solver.result.Result` (a result dict is converted).
+        result: a :class:`~calibgraph.solver.output.result.Result` (a result dict is converted).
         out_html: output file (written atomically).
         config: tolerance YAML path or dict (see :func:`load_tolerances`); default tolerances otherwise.
         dataset: the dataset folder or :class:`calibgraph.io.dataset.Dataset` the result was solved
@@ -109,7 +109,7 @@ def write_report(result, out_html, config=None, dataset=None, result_path=None) 
 
 def residuals_section(result) -> dict:
     """The ``residuals`` section of result.json (camera -> capture -> JSON-ready record) of a
-    :class:`~calibgraph.solver.result.Result`, for scripts that work on the file's form."""
+    :class:`~calibgraph.solver.output.result.Result`, for scripts that work on the file's form."""
     return as_result(result, "report").to_dict()["residuals"]
 
 

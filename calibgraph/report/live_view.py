@@ -25,7 +25,7 @@ import numpy as np
 
 from calibgraph.io.files import begin_atomic_write, finish_atomic_write
 from calibgraph.report.rerun_view import axes, import_rerun, pose, viridis
-from calibgraph.solver.intrinsics_session import GRID_COLS
+from calibgraph.solver.camera.intrinsics_session import GRID_COLS
 
 MAX_WIDTH_PX = 960
 JPEG_QUALITY = 80

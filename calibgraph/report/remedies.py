@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from calibgraph.solver.session_plan import shown_path
+from calibgraph.solver.camera.session_plan import shown_path
 
 # the image in thirds, named as a user says where the board should go
 _THIRDS_V = ("top", "middle", "bottom")

@@ -46,7 +46,7 @@ from calibgraph.io.files import atomic_write_via, read_input_bytes
 from calibgraph.report.findings import summary_markdown
 from calibgraph.report.residuals import observations, report_residuals
 from calibgraph.report.svgplot import colormap
-from calibgraph.solver.result import as_result
+from calibgraph.solver.output.result import as_result
 
 GREEN = (40, 200, 60)
 MAGENTA = (230, 40, 230)
@@ -75,7 +75,7 @@ def pose(rr, T):
 
 
 def log_result(rec, result, source=None) -> None:
-    """Log a :class:`~calibgraph.solver.result.Result` and optionally its Problem/Dataset into a
+    """Log a :class:`~calibgraph.solver.output.result.Result` and optionally its Problem/Dataset into a
     rerun RecordingStream ``rec``."""
     rr = import_rerun()
     result = as_result(result, "view")
@@ -306,7 +306,7 @@ def default_blueprint(result, plan: bool = False):
 
 
 def write_rrd(result, problem_or_dataset=None, path="calibgraph.rrd", plan_log=None) -> Path:
-    """Save a rerun recording of ``result`` (a :class:`~calibgraph.solver.result.Result`) to ``path``.
+    """Save a rerun recording of ``result`` (a :class:`~calibgraph.solver.output.result.Result`) to ``path``.
 
     ``problem_or_dataset`` (a Problem, a Dataset or a dataset folder) adds the images, the
     detections (when the result has no ``residuals`` section) and the recorded flange poses.

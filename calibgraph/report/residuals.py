@@ -16,7 +16,7 @@ import numpy as np
 
 from calibgraph.core.transforms import inv, pose_error
 from calibgraph.io.layouts import as_dataset
-from calibgraph.solver.result import as_result, solved_target, target_differences
+from calibgraph.solver.output.result import as_result, solved_target, target_differences
 
 # a refined robot pose this far from the recorded one belongs to another capture
 FLANGE_MISMATCH_M, FLANGE_MISMATCH_DEG = 0.02, 2.0
@@ -44,7 +44,7 @@ def observations(source) -> dict:
 
 def compute_residuals(result, source) -> dict:
     """camera -> capture -> residual record, recomputed from the poses in ``result`` (a
-    :class:`~calibgraph.solver.result.Result`) and the detections of a dataset (folder or
+    :class:`~calibgraph.solver.output.result.Result`) and the detections of a dataset (folder or
     :class:`~calibgraph.io.dataset.Dataset`) or :class:`~calibgraph.core.problem.Problem`.
 
     Uses the refined flange poses of the result when present, else the recorded ones, and the

@@ -1,4 +1,4 @@
-"""The report's sections, each from a :class:`~calibgraph.solver.result.Result`: the verdict banner,
+"""The report's sections, each from a :class:`~calibgraph.solver.output.result.Result`: the verdict banner,
 the summary table, one section per camera, the camera-to-camera poses, the robot's joint offsets
 and the provenance (where every number comes from)."""
 
@@ -18,9 +18,9 @@ from calibgraph.report.exports import R_to_rpy
 from calibgraph.report.markup import badge, esc, matrix, num, vec
 from calibgraph.report.tolerances import CHECKS, DEFAULT_TOLERANCES, covariance_problem, sigma_norm
 from calibgraph.report.workspace import coverage_plot
-from calibgraph.solver.result import FRAME_CONVENTION, RESULT_FORMAT, intrinsics_provenance, sigmas_from_cov
-from calibgraph.solver.session_plan import name_workcell
-from calibgraph.solver.uncertainty import weakest_directions
+from calibgraph.solver.output.result import FRAME_CONVENTION, RESULT_FORMAT, intrinsics_provenance, sigmas_from_cov
+from calibgraph.solver.camera.session_plan import name_workcell
+from calibgraph.solver.uncertainty.workspace import weakest_directions
 
 
 def banner_html(result, title: str, verdicts: dict) -> str:

@@ -1,4 +1,4 @@
-"""The commissioning checks: each camera of a :class:`~calibgraph.solver.result.Result` against the
+"""The commissioning checks: each camera of a :class:`~calibgraph.solver.output.result.Result` against the
 tolerances of a YAML file (``datasets/tolerances/default.yaml`` by default), and the checks that do
 not depend on a tolerance: a camera whose covariance is not a covariance (zero, not finite, not
 positive definite) cannot pass, whatever its 1σ says.
@@ -120,7 +120,7 @@ def covariance_problem(cov) -> str | None:
 
 
 def camera_verdict(name: str, cam, tol: dict, worst_ws_mm) -> dict:
-    """One :class:`~calibgraph.solver.result.CameraResult` against its tolerances:
+    """One :class:`~calibgraph.solver.output.result.CameraResult` against its tolerances:
     ``{'pass', 'rows': [(label, value, op, limit, ok)], 'reasons': [why it fails], 'failed': [(key,
     value, limit)] of the failing checks}`` (key: the tolerance's, 'covariance' or 'calibrated'). A
     row with ``ok`` None could not be evaluated (a value that is not a number)."""

@@ -21,7 +21,7 @@ import numpy as np
 
 from calibgraph.core.errors import InputError
 from calibgraph.core.transforms import log_so3
-from calibgraph.solver.verify import chi2_isf_6, chi2_sf_6
+from calibgraph.solver.changes.verify import chi2_isf_6, chi2_sf_6
 
 __all__ = ["TruthRow", "check_against_truth", "format_truth_table", "ALPHA"]
 

@@ -1,6 +1,6 @@
 """The report's maps: where in each image a camera saw corners (coverage), and how far a point
 measured by the camera can be off in the robot frame because of the camera's pose uncertainty
-alone (the workspace 1σ map, :func:`calibgraph.solver.uncertainty.workspace_sigma_map`)."""
+alone (the workspace 1σ map, :func:`calibgraph.solver.uncertainty.workspace.workspace_sigma_map`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 
 from calibgraph.report import svgplot
 from calibgraph.report.markup import esc, num
-from calibgraph.solver.uncertainty import visible_mask, workspace_grid, workspace_sigma_map
+from calibgraph.solver.uncertainty.workspace import visible_mask, workspace_grid, workspace_sigma_map
 
 
 def coverage_plot(name: str, residuals: dict, intr) -> str:

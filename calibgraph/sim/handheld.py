@@ -6,7 +6,7 @@ holds it, the way :mod:`calibgraph.sim.session` renders a session image (the pla
 the camera's true model, then the sensor model with a per-frame auto-exposure gain).
 
 The hand's motion is a smooth, human-like random walk: it picks a pose of the board at random
-(:func:`calibgraph.solver.session_plan.session_poses` drawn with the device's generator: 0.3-1 m
+(:func:`calibgraph.solver.camera.session_plan.session_poses` drawn with the device's generator: 0.3-1 m
 away, tilted by 20-45 degrees, anywhere in the image), carries the board there on a minimum-jerk
 path (position and rotation, 0.8-1.8 s), holds it there for 0.4-1.0 s with a slight tremor, then
 picks the next. While it moves, the frame is motion-blurred by the distance the board's image
@@ -34,7 +34,7 @@ from calibgraph.core.targets import Target
 from calibgraph.core.transforms import exp_so3, log_so3, make_T
 from calibgraph.sim.session import render_session_image
 from calibgraph.sim.workcell import Realism
-from calibgraph.solver.session_plan import session_poses
+from calibgraph.solver.camera.session_plan import session_poses
 
 DISTANCE_RANGE_M = (0.3, 1.0)
 MOVE_S = (0.8, 1.8)  # how long one move from pose to pose takes

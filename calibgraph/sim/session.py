@@ -6,7 +6,7 @@
     SESSION/<camera>/view_000.png ...   N images of the board at 0.3-0.8 m, tilted, spread over the image
     SESSION/ground_truth.json           per camera: the true intrinsics and every image's T_cam_board
 
-Poses come from :func:`calibgraph.solver.session_plan.session_poses` drawn at random (the
+Poses come from :func:`calibgraph.solver.camera.session_plan.session_poses` drawn at random (the
 corner and edge views first). Images are rendered by :func:`calibgraph.sim.board_image.render_view`
 (the planar board through the full camera model, distortion included, 4x4 sub-pixel samples; no
 OpenGL needed), then degraded by the simulator's sensor model (:func:`calibgraph.sim.render.degrade`:
@@ -30,7 +30,7 @@ from calibgraph.io.files import atomic_write_png, atomic_write_text, output_fold
 from calibgraph.sim.board_image import render_view
 from calibgraph.sim.render import degrade
 from calibgraph.sim.workcell import Realism
-from calibgraph.solver.session_plan import session_poses
+from calibgraph.solver.camera.session_plan import session_poses
 
 TRUTH_FORMAT = "calibgraph-intrinsics-session-truth/1"
 EXPOSURE_RANGE = (0.8, 1.15)  # per-image gain of a hand-held session's auto-exposure

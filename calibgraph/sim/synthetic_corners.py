@@ -20,7 +20,7 @@ from calibgraph.core.camera import preset
 from calibgraph.core.problem import Capture, Detection, Problem, SolverOptions
 from calibgraph.core.targets import Target, a4_board_54
 from calibgraph.core.transforms import board_facing, exp_so3, inv, look_at, make_T
-from calibgraph.solver.noise_model import view_mode_basis
+from calibgraph.solver.terms.noise_model import view_mode_basis
 from calibgraph.sim.reported_intrinsics import FACTORY, parse_reported, reported_intrinsics
 
 

@@ -4,7 +4,7 @@ the camera localises, over a grid at table height, and the weakest directions in
     python scripts/examples/03_workspace_uncertainty.py [--seed 0]
 
 A pose covariance (6x6, rotation first) is hard to read; a point 1 m in front of a camera with a
-0.02° rotation 1σ is already 0.35 mm off. :mod:`calibgraph.solver.uncertainty` propagates it.
+0.02° rotation 1σ is already 0.35 mm off. :mod:`calibgraph.solver.uncertainty.workspace` propagates it.
 """
 
 import argparse
@@ -13,7 +13,7 @@ import numpy as np
 
 import calibgraph as cg
 from calibgraph.sim.synthetic_corners import make_scene
-from calibgraph.solver.uncertainty import (
+from calibgraph.solver.uncertainty.workspace import (
     visible_mask,
     weakest_directions,
     workspace_grid,
