@@ -36,13 +36,15 @@ class Linearised:
         return dict(zip(self.captures, inv))
 
 
-def revisit_whitening(problem: Problem, views, est, sigma_px: float) -> dict:
+def revisit_whitening(problem: Problem, views, est, sigma_px: float, jacobians: dict | None = None) -> dict:
     """id(view) -> (U, c), the whitening (:func:`~calibgraph.solver.terms.factors.whitened`) of each active view
     whose capture shares its robot pose with another active capture (a revisit of a configuration,
     :func:`~calibgraph.solver.terms.views.robot_keys`): the shared pose carries the configuration's error, and
     each visit's own, the arm's repeatability (``fk_repeat_*``, the stated FK sigmas by default), moves
     the view's board image as a robot pose does: its residual's covariance is ``I + H_F S H_F^T`` (``H_F``
-    the view's whitened Jacobian on its robot pose at ``est``, ``S`` the repeatability's covariance)."""
+    the view's whitened Jacobian on its robot pose at ``est``, ``S`` the repeatability's covariance).
+    ``jacobians``: id(view) -> that Jacobian, where the caller has it already (:func:`linearise`); else
+    it is computed here, every view of one camera in one vectorised pass."""
     keys = robot_keys(problem, views)
     shared = {}
     for k, (r, _) in keys.items():
@@ -54,31 +56,24 @@ def revisit_whitening(problem: Problem, views, est, sigma_px: float) -> dict:
     o = problem.options
     rep = replace(o, fk_sigma_translation_m=o.fk_repeat_translation_m or o.fk_sigma_translation_m,
                   fk_sigma_rotation_rad=o.fk_repeat_rotation_rad or o.fk_sigma_rotation_rad)
+    H = jacobians if jacobians is not None else {k: J for k, (_, J) in _view_rows(problem, mine, est, sigma_px).items()}
     out = {}
-    for name in dict.fromkeys(v.camera for v in mine):
-        vs = [v for v in mine if v.camera == name]
-        P, UV, valid, W = pad_views(vs, est.board_scale, kept_only=True)
-        T_F = np.array([est.T_ref_mount.get(v.capture, v.T_ref_mount) for v in vs])
-        _, _, J_f = padded_view_residuals(est.T_ref_cam[name], T_F, est.T_mount_board, P, UV,
-                                          est.camera_model(name, problem.cameras), np.sqrt(W) / sigma_px)
-        for i, v in enumerate(vs):
-            n2 = 2 * int(valid[i].sum())
-            L = np.linalg.inv(np.asarray(fk_noise(rep, problem.mode, T_F[i]).R()))
-            A = J_f[i, :n2] @ L
-            if not np.all(np.isfinite(A)):
-                continue
-            U, sv, _ = np.linalg.svd(A, full_matrices=False)
-            out[id(v)] = (U, 1.0 - 1.0 / np.sqrt(1.0 + sv * sv))
+    for v in mine:
+        L = np.linalg.inv(np.asarray(fk_noise(rep, problem.mode, est.T_ref_mount.get(v.capture, v.T_ref_mount)).R()))
+        A = H[id(v)] @ L
+        if not np.all(np.isfinite(A)):
+            continue
+        U, sv, _ = np.linalg.svd(A, full_matrices=False)
+        out[id(v)] = (U, 1.0 - 1.0 / np.sqrt(1.0 + sv * sv))
     return out
 
 
-def linearise(problem: Problem, views, est, sigma_px: float) -> Linearised:
-    """Whitened residuals and robot-pose Jacobians of the active views at ``est`` (an Estimate),
-    every view of one camera in one vectorised pass."""
-    active = [v for v in views if v.active and v.kept.any()]
+def _view_rows(problem: Problem, views: list, est, sigma_px: float) -> dict:
+    """id(view) -> (whitened residual, whitened Jacobian on its robot pose) of ``views`` at ``est``, every
+    view of one camera in one vectorised pass."""
     rows = {}
-    for name in dict.fromkeys(v.camera for v in active):
-        mine = [v for v in active if v.camera == name]
+    for name in dict.fromkeys(v.camera for v in views):
+        mine = [v for v in views if v.camera == name]
         P, UV, valid, W = pad_views(mine, est.board_scale, kept_only=True)
         T_F = np.array([est.T_ref_mount.get(v.capture, v.T_ref_mount) for v in mine])
         e, _, J_f = padded_view_residuals(est.T_ref_cam[name], T_F, est.T_mount_board, P, UV,
@@ -86,8 +81,16 @@ def linearise(problem: Problem, views, est, sigma_px: float) -> Linearised:
         for i, v in enumerate(mine):
             n2 = 2 * int(valid[i].sum())
             rows[id(v)] = (e[i, :n2], J_f[i, :n2])
+    return rows
+
+
+def linearise(problem: Problem, views, est, sigma_px: float) -> Linearised:
+    """Whitened residuals and robot-pose Jacobians of the active views at ``est`` (an Estimate),
+    every view of one camera in one vectorised pass."""
+    active = [v for v in views if v.active and v.kept.any()]
+    rows = _view_rows(problem, active, est, sigma_px)
     out, info = [], {}
-    repeat = revisit_whitening(problem, views, est, sigma_px)
+    repeat = revisit_whitening(problem, views, est, sigma_px, jacobians={k: J for k, (_, J) in rows.items()})
     keys = robot_keys(problem, views)  # a revisit's views bear on its configuration's shared robot pose
     T_fk = {v.capture: v.T_ref_mount for v in views}
     for v in active:  # in the order given
